@@ -1,0 +1,46 @@
+"""lftomo: plenoptic (light-field) camera simulation and flame temperature tomography.
+
+Public API (re-exported names only; see the README for a walk-through).
+"""
+
+__version__ = "0.1.0"
+
+from .forward.camera import Camera, MainLens, MicrolensArray, Sensor, thick_lens_focal_length, spherical_aberration
+from .forward.scene import PlanarEmitter, Scene, checkerboard, uniform
+from .forward.render import render
+from .lightfield import LightField, calibrate_centers, geometric_centers, alpha_of_depth, depth_of_alpha
+from .radiation import planck, planck_inverse, dplanck_dT, gray_intensity, gray_inverse, blackbody_intensity
+from .forward.grid import Grid
+from .forward.medium import Medium, SootRule, load_field
+from .forward import phantoms
+
+__all__ = [
+    "__version__",
+    "Camera",
+    "MainLens",
+    "MicrolensArray",
+    "Sensor",
+    "thick_lens_focal_length",
+    "spherical_aberration",
+    "PlanarEmitter",
+    "Scene",
+    "checkerboard",
+    "uniform",
+    "render",
+    "LightField",
+    "calibrate_centers",
+    "geometric_centers",
+    "alpha_of_depth",
+    "depth_of_alpha",
+    "planck",
+    "planck_inverse",
+    "dplanck_dT",
+    "gray_intensity",
+    "gray_inverse",
+    "blackbody_intensity",
+    "Grid",
+    "Medium",
+    "SootRule",
+    "load_field",
+    "phantoms",
+]

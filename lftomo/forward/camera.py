@@ -1,0 +1,832 @@
+"""The plenoptic camera: thick main lens, aperture stop, microlens array, sensor.
+
+Frame (DESIGN §1): aperture stop at z = 0, object space z > 0, MLA and sensor
+at z < 0; the camera looks along +z.  Lengths in metres.
+
+The main lens sits behind the stop: its front (object-side) vertex is at
+``z = -main_lens.stop_to_vertex``.  The MLA plane is its front vertex plane at
+``z = -mla_distance``; the sensor is ``sensor_gap`` behind the MLA back vertex.
+
+Raw sensor orientation: ``raw[row, col]`` with the column index increasing
+along +x and the row index increasing along -y of the frame (row 0 at +y), i.e.
+the sensor as seen from behind the camera looking along +z.  Lenslet ``(i, j)``
+covers rows ``i*ppl .. i*ppl+ppl-1`` and columns ``j*ppl .. j*ppl+ppl-1``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import warnings
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Mapping
+
+import numpy as np
+from numba import njit, prange
+
+from .._validate import require_int, require_positive, require_finite_scalar
+from . import optics as _o
+from .rng import rng_init, rng_uniform
+
+
+def thick_lens_focal_length(r1: float, r2: float, thickness: float, index: float) -> float:
+    """Effective focal length of a thick lens in air (lensmaker's equation).
+
+    ``1/f = (n-1) [1/R1 - 1/R2 + (n-1) t / (n R1 R2)]`` (reference text eq. (1)).
+    Radii in m (``inf`` for a plane), thickness in m.
+    """
+    c1 = 0.0 if math.isinf(r1) else 1.0 / r1
+    c2 = 0.0 if math.isinf(r2) else 1.0 / r2
+    power = (index - 1.0) * (c1 - c2 + (index - 1.0) * thickness * c1 * c2 / index)
+    return math.inf if power == 0.0 else 1.0 / power
+
+
+def _sag(curv: float, r: float) -> float:
+    """Sag (m) of a sphere of curvature ``curv`` at radial distance ``r``."""
+    if curv == 0.0:
+        return 0.0
+    return curv * r * r / (1.0 + math.sqrt(max(0.0, 1.0 - (curv * r) ** 2)))
+
+
+def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: float, index: float) -> None:
+    for name, r in ((f"{prefix}.r1", r1), (f"{prefix}.r2", r2)):
+        if not (math.isinf(r) or (np.isfinite(r) and r != 0.0)):
+            raise ValueError(f"{name} must be a non-zero radius in m (inf for a plane), got {r!r}")
+    require_positive(f"{prefix}.thickness", thickness)
+    require_positive(f"{prefix}.diameter", diameter)
+    require_finite_scalar(f"{prefix}.index", index)
+    if index <= 1.0:
+        raise ValueError(f"{prefix}.index must be > 1 (glass in air), got {index!r}")
+    half = 0.5 * diameter
+    for name, r in ((f"{prefix}.r1", r1), (f"{prefix}.r2", r2)):
+        if not math.isinf(r) and abs(r) < half:
+            raise ValueError(
+                f"{name} = {r!r} m is smaller than the clear radius {half!r} m "
+                f"({prefix}.diameter = {diameter!r}); |R| must be >= diameter/2"
+            )
+    c1 = 0.0 if math.isinf(r1) else 1.0 / r1
+    c2 = 0.0 if math.isinf(r2) else 1.0 / r2
+    edge = thickness - _sag(c1, half) + _sag(c2, half)
+    if edge <= 0.0:
+        raise ValueError(
+            f"{prefix}: radii {r1!r}, {r2!r} and thickness {thickness!r} m give an edge thickness of "
+            f"{edge:.3g} m at the clear diameter {diameter!r} m; it must be > 0 (increase thickness or radii)"
+        )
+    if thick_lens_focal_length(r1, r2, thickness, index) <= 0.0:
+        raise ValueError(
+            f"{prefix}: radii {r1!r}, {r2!r}, thickness {thickness!r} m and index {index!r} give a "
+            "non-positive focal length; a converging lens is required"
+        )
+
+
+@dataclass(frozen=True)
+class MainLens:
+    """Thick spherical main lens with an aperture stop in front of it.
+
+    Parameters
+    ----------
+    r1, r2 : float
+        Radii of curvature (m) of the object-side and image-side surfaces,
+        optics sign convention (R > 0: centre on the image side); ``inf`` for
+        a plane.  Seed: +0.2, -0.2.
+    thickness : float
+        Centre thickness (m).  Seed: 0.02.
+    diameter : float
+        Clear diameter (m).  Seed: 0.120.
+    index : float
+        Refractive index.  Seed: 1.333 (reproduces f = 304.0987 mm).
+    stop_diameter : float
+        Aperture-stop diameter (m); the stop is at z = 0.  Seed: 0.100.
+    stop_to_vertex : float
+        Distance (m) from the stop to the front vertex of the lens.
+    ideal : bool
+        Replace the thick lens by an ideal thin lens of the same paraxial
+        focal length at the stop plane (for comparisons with other renderers).
+    """
+
+    r1: float = 0.2
+    r2: float = -0.2
+    thickness: float = 0.02
+    diameter: float = 0.120
+    index: float = 1.333
+    stop_diameter: float = 0.100
+    stop_to_vertex: float = 0.0
+    ideal: bool = False
+
+    def __post_init__(self) -> None:
+        _check_lens("main_lens", self.r1, self.r2, self.thickness, self.diameter, self.index)
+        require_positive("main_lens.stop_diameter", self.stop_diameter)
+        if self.stop_diameter > self.diameter:
+            raise ValueError(
+                f"main_lens.stop_diameter ({self.stop_diameter!r} m) is larger than the lens clear "
+                f"diameter main_lens.diameter ({self.diameter!r} m); it must be <= the clear diameter"
+            )
+        v = require_finite_scalar("main_lens.stop_to_vertex", self.stop_to_vertex)
+        if v < 0.0:
+            raise ValueError(f"main_lens.stop_to_vertex must be >= 0 (stop in front of the lens), got {v!r}")
+
+    @property
+    def focal_length(self) -> float:
+        """Paraxial effective focal length (m), thick-lens formula."""
+        return thick_lens_focal_length(self.r1, self.r2, self.thickness, self.index)
+
+
+@dataclass(frozen=True)
+class MicrolensArray:
+    """Square grid of identical biconvex microlenses.
+
+    Parameters
+    ----------
+    count : (int, int)
+        Lenslets along x and y.  Seed: (60, 60).
+    pitch : float
+        Centre-to-centre spacing (m).  Seed: 0.5 mm.
+    diameter : float
+        Clear diameter of each lenslet (m); outside it the array is opaque.
+        Seed: 0.48 mm.
+    r1, r2, thickness, index :
+        Lenslet surfaces as for :class:`MainLens`.  Seed: ±1.15 mm, 0.1 mm, 1.5.
+    """
+
+    count: tuple[int, int] = (60, 60)
+    pitch: float = 0.5e-3
+    diameter: float = 0.48e-3
+    r1: float = 1.15e-3
+    r2: float = -1.15e-3
+    thickness: float = 0.1e-3
+    index: float = 1.5
+
+    def __post_init__(self) -> None:
+        try:
+            cx, cy = self.count
+        except (TypeError, ValueError):
+            raise ValueError(f"mla.count must be two integers (nx, ny), got {self.count!r}") from None
+        object.__setattr__(self, "count", (require_int("mla.count[0]", cx, minimum=1), require_int("mla.count[1]", cy, minimum=1)))
+        require_positive("mla.pitch", self.pitch)
+        _check_lens("mla", self.r1, self.r2, self.thickness, self.diameter, self.index)
+        if self.diameter > self.pitch * (1 + 1e-12):
+            raise ValueError(
+                f"mla.diameter ({self.diameter!r} m) is larger than mla.pitch ({self.pitch!r} m); "
+                "lenslets of a square grid must not overlap"
+            )
+
+    @property
+    def focal_length(self) -> float:
+        """Paraxial effective focal length (m) of one lenslet."""
+        return thick_lens_focal_length(self.r1, self.r2, self.thickness, self.index)
+
+    @property
+    def back_focal_distance(self) -> float:
+        """Distance (m) from the lenslet back vertex to its back focal point."""
+        f = self.focal_length
+        c1 = 0.0 if math.isinf(self.r1) else 1.0 / self.r1
+        return f * (1.0 - (self.index - 1.0) * self.thickness * c1 / self.index)
+
+    @property
+    def front_principal_plane(self) -> float:
+        """Distance (m) of the object-side principal plane behind the front vertex."""
+        f = self.focal_length
+        c2 = 0.0 if math.isinf(self.r2) else 1.0 / self.r2
+        return -f * (self.index - 1.0) * self.thickness * c2 / self.index
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Pixel grid behind the MLA.
+
+    Parameters
+    ----------
+    pixel_pitch : float
+        Pixel size (m), square pixels.  Seed: 0.05 mm.  ``mla.pitch /
+        pixel_pitch`` must be an integer: the pixels per lenslet.
+    """
+
+    pixel_pitch: float = 0.05e-3
+
+    def __post_init__(self) -> None:
+        require_positive("sensor.pixel_pitch", self.pixel_pitch)
+
+
+def _pixels_per_lenslet(mla: MicrolensArray, sensor: Sensor) -> int:
+    ratio = mla.pitch / sensor.pixel_pitch
+    n = int(round(ratio))
+    if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
+        raise ValueError(
+            f"mla.pitch / sensor.pixel_pitch = {mla.pitch!r} / {sensor.pixel_pitch!r} = {ratio:.6g} "
+            "pixels per microlens; it must be a positive integer"
+        )
+    return n
+
+
+@njit(cache=True)
+def _trace_points_to_image(points, stop_xy, optics):
+    """Trace rays from object points (N,3) through stop points (M,2).
+
+    Returns (N, M, 6): image-space point and direction; NaN when vignetted.
+    """
+    n = points.shape[0]
+    m = stop_xy.shape[0]
+    out = np.full((n, m, 6), np.nan)
+    for a in range(n):
+        for b in range(m):
+            ex = stop_xy[b, 0] - points[a, 0]
+            ey = stop_xy[b, 1] - points[a, 1]
+            ez = 0.0 - points[a, 2]
+            inv = 1.0 / math.sqrt(ex * ex + ey * ey + ez * ez)
+            ok, px, py, pz, dx, dy, dz = _o.main_lens_forward(
+                points[a, 0], points[a, 1], points[a, 2], ex * inv, ey * inv, ez * inv, optics
+            )
+            if ok:
+                out[a, b, 0] = px
+                out[a, b, 1] = py
+                out[a, b, 2] = pz
+                out[a, b, 3] = dx
+                out[a, b, 4] = dy
+                out[a, b, 5] = dz
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _pixel_throughput(rows, cols, n_rays, seed, optics):
+    """Monte Carlo étendue (m² sr) of each pixel and its mean stop position.
+
+    Returns (N, 4): étendue, mean stop x, mean stop y, étendue standard error.
+    """
+    n = rows.shape[0]
+    out = np.zeros((n, 4))
+    for k in prange(n):
+        state = rng_init(seed, rows[k] * 1000003 + cols[k])
+        s = 0.0
+        s2 = 0.0
+        sx = 0.0
+        sy = 0.0
+        for _ in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(rows[k], cols[k], state, optics)
+            if ok:
+                s += w
+                s2 += w * w
+                sx += w * ox
+                sy += w * oy
+        mean = s / n_rays
+        out[k, 0] = mean
+        if s > 0.0:
+            out[k, 1] = sx / s
+            out[k, 2] = sy / s
+        var = max(s2 / n_rays - mean * mean, 0.0)
+        out[k, 3] = math.sqrt(var / n_rays)
+    return out
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A plenoptic camera: main lens + aperture stop, MLA and sensor.
+
+    Build the reference camera with :meth:`Camera.seed`, or any focused
+    plenoptic 1.0 camera with :meth:`Camera.focused`; the constructor takes
+    explicit distances (e.g. for a focused plenoptic 2.0 layout).
+
+    Parameters
+    ----------
+    main_lens, mla, sensor :
+        The components.
+    mla_distance : float
+        Distance (m) from the aperture stop (z = 0) to the MLA front vertex
+        plane, which is at ``z = -mla_distance``.
+    sensor_gap : float
+        Distance (m) from the MLA back vertex plane to the sensor.
+    focus_distance : float or None
+        Object distance (m, from the stop) that is imaged onto the MLA;
+        informational (set by :meth:`focused`).
+    """
+
+    main_lens: MainLens = field(default_factory=MainLens)
+    mla: MicrolensArray = field(default_factory=MicrolensArray)
+    sensor: Sensor = field(default_factory=Sensor)
+    mla_distance: float = 0.437
+    sensor_gap: float = 1.133e-3
+    focus_distance: float | None = None
+
+    def __post_init__(self) -> None:
+        ppl = _pixels_per_lenslet(self.mla, self.sensor)
+        d = require_positive("mla_distance", self.mla_distance)
+        g = require_finite_scalar("sensor_gap", self.sensor_gap)
+        if g <= 0.0:
+            raise ValueError(
+                f"sensor_gap must be > 0 (the sensor lies behind the MLA), got {g!r} m: the MLA would be "
+                "at or behind the sensor"
+            )
+        ml = self.main_lens
+        back_vertex = ml.stop_to_vertex + ml.thickness
+        c2 = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
+        rear_extent = back_vertex - min(0.0, _sag(c2, 0.5 * ml.diameter))  # furthest glass point
+        if not ml.ideal and d <= rear_extent:
+            raise ValueError(
+                f"mla_distance ({d!r} m) places the MLA inside the main lens, whose glass extends to "
+                f"{rear_extent!r} m behind the stop; it must be larger"
+            )
+        if self.focus_distance is not None:
+            require_positive("focus_distance", self.focus_distance)
+        object.__setattr__(self, "_ppl", ppl)
+
+    # ---- construction -----------------------------------------------------
+    @classmethod
+    def focused(
+        cls,
+        focus_distance: float,
+        *,
+        main_lens: MainLens | None = None,
+        mla: MicrolensArray | None = None,
+        sensor: Sensor | None = None,
+    ) -> "Camera":
+        """Plenoptic 1.0 camera focused at ``focus_distance`` (m from the stop).
+
+        The MLA (its object-side principal plane) is placed at the plane of
+        best focus of an on-axis point at ``focus_distance``, found by tracing
+        a pupil-filling fan of real rays and minimising the RMS spot radius;
+        the sensor is at the lenslet back focal plane.
+        """
+        main_lens = main_lens or MainLens()
+        mla = mla or MicrolensArray()
+        sensor = sensor or Sensor()
+        fd = require_positive("focus_distance", focus_distance)
+        f = main_lens.focal_length
+        if fd <= f + main_lens.stop_to_vertex:
+            raise ValueError(
+                f"focus_distance ({fd!r} m) is inside the main-lens focal length ({f:.6g} m): no real "
+                "image; it must be larger"
+            )
+        z_best = _best_focus_z(main_lens, fd)
+        mla_front = z_best + mla.front_principal_plane
+        return cls(
+            main_lens=main_lens,
+            mla=mla,
+            sensor=sensor,
+            mla_distance=-mla_front,
+            sensor_gap=mla.back_focal_distance,
+            focus_distance=fd,
+        )
+
+    @classmethod
+    def seed(
+        cls,
+        focus_distance: float = 1.0,
+        *,
+        main_lens: Mapping[str, Any] | MainLens | None = None,
+        mla: Mapping[str, Any] | MicrolensArray | None = None,
+        sensor: Mapping[str, Any] | Sensor | None = None,
+    ) -> "Camera":
+        """The reference camera (DESIGN §1), focused at ``focus_distance`` (m).
+
+        Any component parameter can be overridden with a mapping, e.g.
+        ``Camera.seed(0.8, main_lens={"stop_diameter": 0.05}, mla={"count": (40, 40)})``,
+        or a component object.  ``main_lens={"ideal": True}`` gives the ideal
+        thin-lens variant.
+        """
+
+        def build(kind, value):
+            if value is None:
+                return kind()
+            if isinstance(value, kind):
+                return value
+            if not isinstance(value, Mapping):
+                raise ValueError(f"{kind.__name__} override must be a mapping or a {kind.__name__}, got {value!r}")
+            names = {f.name for f in dataclasses.fields(kind)}
+            unknown = sorted(set(value) - names)
+            if unknown:
+                raise ValueError(f"unknown {kind.__name__} parameter(s) {unknown}; allowed: {sorted(names)}")
+            return kind(**value)
+
+        return cls.focused(
+            focus_distance,
+            main_lens=build(MainLens, main_lens),
+            mla=build(MicrolensArray, mla),
+            sensor=build(Sensor, sensor),
+        )
+
+    # ---- derived geometry -------------------------------------------------
+    @property
+    def pixels_per_lenslet(self) -> int:
+        return self._ppl  # type: ignore[attr-defined]
+
+    @property
+    def sensor_shape(self) -> tuple[int, int]:
+        """(n_rows, n_cols) of the raw image."""
+        nx, ny = self.mla.count
+        return (ny * self.pixels_per_lenslet, nx * self.pixels_per_lenslet)
+
+    @property
+    def views_shape(self) -> tuple[int, int, int, int]:
+        """(n_v, n_u, n_y, n_x) of the decoded light field."""
+        nx, ny = self.mla.count
+        p = self.pixels_per_lenslet
+        return (p, p, ny, nx)
+
+    @property
+    def z_mla(self) -> float:
+        return -self.mla_distance
+
+    @property
+    def z_sensor(self) -> float:
+        return -self.mla_distance - self.mla.thickness - self.sensor_gap
+
+    @cached_property
+    def packed(self) -> np.ndarray:
+        """Camera constants for the numba kernels (see ``optics.O_*``)."""
+        ml, mla = self.main_lens, self.mla
+        o = np.zeros(_o.O_SIZE)
+        o[_o.O_IDEAL] = 1.0 if ml.ideal else 0.0
+        o[_o.O_F_IDEAL] = ml.focal_length
+        o[_o.O_STOP_R] = 0.5 * ml.stop_diameter
+        o[_o.O_L1_ZV] = -ml.stop_to_vertex
+        o[_o.O_L1_C] = 0.0 if math.isinf(ml.r1) else 1.0 / ml.r1
+        o[_o.O_L2_ZV] = -ml.stop_to_vertex - ml.thickness
+        o[_o.O_L2_C] = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
+        o[_o.O_L_N] = ml.index
+        o[_o.O_L_R] = 0.5 * ml.diameter
+        o[_o.O_M_NX], o[_o.O_M_NY] = mla.count
+        o[_o.O_M_PITCH] = mla.pitch
+        o[_o.O_M_R] = 0.5 * mla.diameter
+        o[_o.O_M1_ZV] = self.z_mla
+        o[_o.O_M1_C] = 0.0 if math.isinf(mla.r1) else 1.0 / mla.r1
+        o[_o.O_M2_ZV] = self.z_mla - mla.thickness
+        o[_o.O_M2_C] = 0.0 if math.isinf(mla.r2) else 1.0 / mla.r2
+        o[_o.O_M_N] = mla.index
+        o[_o.O_S_Z] = self.z_sensor
+        o[_o.O_S_PITCH] = self.sensor.pixel_pitch
+        o[_o.O_S_PPL] = self.pixels_per_lenslet
+        o[_o.O_NROWS], o[_o.O_NCOLS] = self.sensor_shape
+        # The disc sampled on the lenslet back-vertex plane must contain every
+        # crossing point of a ray that reaches the clear aperture of the back
+        # surface: clear radius + sag * max tan(angle from the sensor).
+        rclear = 0.5 * mla.diameter
+        sag_back = abs(_sag(o[_o.O_M2_C], rclear))
+        reach = (1.5 * self.pixels_per_lenslet * self.sensor.pixel_pitch + rclear) * 1.5
+        tan_max = reach / self.sensor_gap
+        o[_o.O_SAMPLE_R] = rclear + sag_back * tan_max * 1.05
+        o[_o.O_RINGS] = 0.0
+        o[_o.O_P_OWN] = 1.0
+        o.setflags(write=False)
+        if self._crosstalk_possible(o):
+            o = o.copy()
+            o[_o.O_RINGS] = 1.0
+            o[_o.O_P_OWN] = 0.5
+            o.setflags(write=False)
+        return o
+
+    def _crosstalk_possible(self, o: np.ndarray) -> bool:
+        """Can light reach a pixel through a neighbouring lenslet?  Checked by
+        tracing rays from the edge pixels of central and corner lenslets into
+        their neighbours; if none passes the optics, sampling the own lenslet
+        only is exact."""
+        probe = o.copy()
+        probe[_o.O_RINGS] = 1.0
+        probe[_o.O_P_OWN] = 0.0
+        nrow, ncol = self.sensor_shape
+        p = self.pixels_per_lenslet
+        rows, cols = [], []
+        for bi in {0, nrow // p // 2, nrow // p - 1}:
+            for bj in {0, ncol // p // 2, ncol // p - 1}:
+                for r in range(p):
+                    for c in range(p):
+                        rows.append(bi * p + r)
+                        cols.append(bj * p + c)
+        res = _pixel_throughput(np.array(rows, np.int64), np.array(cols, np.int64), 400, 12345, probe)
+        return bool(np.any(res[:, 0] > 0.0))
+
+    # ---- paraxial optics --------------------------------------------------
+    def paraxial_matrix(self) -> np.ndarray:
+        """ABCD matrix (reduced angles) of the main lens from its front to its
+        back vertex (identity-thick for the ideal lens)."""
+        return _main_lens_abcd(self.main_lens)
+
+    def image_distance_of(self, depth: float) -> float:
+        """Paraxial z (negative) of the image of an on-axis point at ``depth`` (m)."""
+        return _paraxial_image_z(self.main_lens, depth)
+
+    @cached_property
+    def _cardinal(self) -> dict[str, float]:
+        return _cardinal_points(self.main_lens)
+
+    @property
+    def magnification(self) -> float:
+        """Lateral magnification from the focus plane to the MLA (paraxial, < 0)."""
+        return _lateral_magnification(self.main_lens, self.object_distance)
+
+    @property
+    def object_distance(self) -> float:
+        """Focus distance (m from the stop), or the distance conjugate to the MLA."""
+        if self.focus_distance is not None:
+            return self.focus_distance
+        return _paraxial_object_depth(self.main_lens, self.z_mla - self.mla.front_principal_plane)
+
+    @cached_property
+    def exit_pupil(self) -> tuple[float, float]:
+        """(z, diameter) of the paraxial exit pupil (image of the stop)."""
+        return _exit_pupil(self.main_lens)
+
+    # ---- Monte Carlo helpers ---------------------------------------------
+    def pixel_etendue(self, rows=None, cols=None, *, n_rays: int = 4096, seed: int = 0) -> np.ndarray:
+        """Monte Carlo étendue (m² sr) of pixels through the whole optics.
+
+        Parameters
+        ----------
+        rows, cols : array_like of int, optional
+            Pixels (default: all, returning an array of ``sensor_shape``).
+        n_rays : int
+            Rays per pixel.
+
+        Returns
+        -------
+        ndarray
+            Étendue per pixel (same shape as ``rows`` or ``sensor_shape``).
+        """
+        full = rows is None
+        if full:
+            rr, cc = np.indices(self.sensor_shape)
+            rows, cols = rr.ravel(), cc.ravel()
+        rows = np.asarray(rows, np.int64)
+        cols = np.asarray(cols, np.int64)
+        res = _pixel_throughput(rows.ravel(), cols.ravel(), int(n_rays), int(seed), self.packed)
+        out = res[:, 0]
+        return out.reshape(self.sensor_shape) if full else out.reshape(rows.shape)
+
+    @cached_property
+    def view_stop_positions(self) -> np.ndarray:
+        """Mean stop-plane position (x, y) in m of each sub-aperture view.
+
+        Shape (n_v, n_u, 2), from the throughput-weighted mean stop position
+        of the rays of the pixels under the central lenslet(s) (traced).
+        Unlit views are NaN.
+        """
+        p = self.pixels_per_lenslet
+        nrow, ncol = self.sensor_shape
+        i0, j0 = nrow // p // 2, ncol // p // 2
+        rr, cc = np.indices((p, p))
+        rows = (i0 * p + rr).ravel()
+        cols = (j0 * p + cc).ravel()
+        res = _pixel_throughput(rows.astype(np.int64), cols.astype(np.int64), 20000, 7, self.packed)
+        xy = res[:, 1:3].reshape(p, p, 2)
+        et = res[:, 0].reshape(p, p)
+        xy[et <= 0] = np.nan
+        # raw offsets (dr, dc) -> views (v, u) = (p-1-dr, p-1-dc)
+        return xy[::-1, ::-1].copy()
+
+    @cached_property
+    def lit_views(self) -> int:
+        """Number of sub-aperture views that receive light under the central lenslet."""
+        return int(np.count_nonzero(np.isfinite(self.view_stop_positions[..., 0])))
+
+    # ---- report -----------------------------------------------------------
+    def describe(self, *, warn: bool = True) -> dict[str, Any]:
+        """Design report of the camera (a JSON-able mapping; lengths in m).
+
+        Keys include ``main_lens_focal_length``, ``microlens_focal_length``,
+        ``mla_distance``, ``image_distance``, ``magnification``,
+        ``field_of_view``, ``main_lens_f_number``, ``microlens_f_number``,
+        ``microlens_image_diameter_px``, ``lit_views``, ``depth_of_field``,
+        ``disparity_per_metre`` and ``warnings``.  With ``warn=True`` each
+        design warning is also issued as a :class:`UserWarning`.
+        """
+        ml, mla = self.main_lens, self.mla
+        f = ml.focal_length
+        card = self._cardinal
+        d = self.object_distance
+        m = self.magnification
+        ppl = self.pixels_per_lenslet
+        nx, ny = mla.count
+        z_image = self.z_mla - mla.front_principal_plane
+        z_xp, d_xp = self.exit_pupil
+        lens_to_mla = z_xp - z_image
+        img_diam_m = d_xp * (self.sensor_gap + mla.thickness - mla.front_principal_plane) / lens_to_mla
+        img_diam_px = img_diam_m / self.sensor.pixel_pitch
+        working_f = lens_to_mla / d_xp
+        fov = (nx * mla.pitch / abs(m), ny * mla.pitch / abs(m))
+        # depth of field: blur of the full-aperture cone on the focus plane <= one lenslet footprint
+        c = mla.pitch / (abs(m) * ml.stop_diameter)
+        near = d / (1.0 + c)
+        far = d / (1.0 - c) if c < 1.0 else math.inf
+        sp = self.view_stop_positions
+        ux = sp[..., 0]
+        steps = np.nanmean(np.diff(ux, axis=1)) if self.lit_views > 1 else float("nan")
+        disparity = abs(steps) * abs(m) / (d * mla.pitch)
+        warns: list[str] = []
+        if img_diam_px > ppl * 1.0:
+            warns.append(
+                f"microlens images ({img_diam_px:.2f} px) are wider than their {ppl}-px block and overlap: "
+                "stop the main lens down (smaller stop_diameter) or use lenslets of a larger F-number"
+            )
+        elif img_diam_px < 0.7 * ppl:
+            warns.append(
+                f"microlens images ({img_diam_px:.2f} px) fill only {100 * img_diam_px / ppl:.0f}% of their "
+                f"{ppl}-px block (main-lens working F-number {working_f:.2f} vs microlens F-number "
+                f"{mla.focal_length / mla.diameter:.2f}): open the stop, focus farther, or use lenslets "
+                "of a smaller F-number to use more views"
+            )
+        if warn:
+            for w in warns:
+                warnings.warn(w, UserWarning, stacklevel=2)
+        return {
+            "main_lens_focal_length": f,
+            "main_lens_back_focal_distance": card["bfd"],
+            "microlens_focal_length": mla.focal_length,
+            "microlens_back_focal_distance": mla.back_focal_distance,
+            "focus_distance": d,
+            "mla_distance": self.mla_distance,
+            "sensor_distance": -self.z_sensor,
+            "image_distance": card["z_H2"] - z_image,
+            "object_distance_from_principal_plane": d - (-card["z_H1"]),
+            "magnification": m,
+            "field_of_view": list(fov),
+            "main_lens_f_number": f / ml.stop_diameter,
+            "main_lens_working_f_number": working_f,
+            "microlens_f_number": mla.focal_length / mla.diameter,
+            "microlens_image_diameter_px": img_diam_px,
+            "pixels_per_microlens": ppl,
+            "sensor_shape": list(self.sensor_shape),
+            "views_shape": list(self.views_shape),
+            "lit_views": self.lit_views,
+            "view_baseline": abs(steps),
+            "depth_of_field": far - near,
+            "depth_of_field_limits": [near, far],
+            "disparity_per_metre": disparity,
+            "exit_pupil_z": z_xp,
+            "exit_pupil_diameter": d_xp,
+            "ideal_main_lens": ml.ideal,
+            "warnings": warns,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description that :meth:`from_dict` rebuilds exactly."""
+        return {
+            "main_lens": dataclasses.asdict(self.main_lens),
+            "mla": {**dataclasses.asdict(self.mla), "count": list(self.mla.count)},
+            "sensor": dataclasses.asdict(self.sensor),
+            "mla_distance": self.mla_distance,
+            "sensor_gap": self.sensor_gap,
+            "focus_distance": self.focus_distance,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "Camera":
+        try:
+            return cls(
+                main_lens=MainLens(**d["main_lens"]),
+                mla=MicrolensArray(**{**d["mla"], "count": tuple(d["mla"]["count"])}),
+                sensor=Sensor(**d["sensor"]),
+                mla_distance=float(d["mla_distance"]),
+                sensor_gap=float(d["sensor_gap"]),
+                focus_distance=None if d.get("focus_distance") is None else float(d["focus_distance"]),
+            )
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"camera description is malformed: {exc}") from None
+
+    def __hash__(self) -> int:  # cached_property-friendly identity hash of the parameters
+        return hash(json.dumps(self.to_dict(), sort_keys=True))
+
+
+# ---- paraxial helpers -------------------------------------------------------
+
+def _surface_matrix(curv: float, n1: float, n2: float) -> np.ndarray:
+    return np.array([[1.0, 0.0], [-(n2 - n1) * curv, 1.0]])
+
+
+def _translate(d: float, n: float) -> np.ndarray:
+    return np.array([[1.0, d / n], [0.0, 1.0]])
+
+
+def _main_lens_abcd(ml: MainLens) -> np.ndarray:
+    """System matrix on (y, n·u) from the front vertex to the back vertex."""
+    if ml.ideal:
+        return np.array([[1.0, 0.0], [-1.0 / ml.focal_length, 1.0]])
+    c1 = 0.0 if math.isinf(ml.r1) else 1.0 / ml.r1
+    c2 = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
+    return _surface_matrix(c2, ml.index, 1.0) @ _translate(ml.thickness, ml.index) @ _surface_matrix(c1, 1.0, ml.index)
+
+
+def _vertices(ml: MainLens) -> tuple[float, float]:
+    """z of the front and back vertex (both 0 for the ideal lens)."""
+    if ml.ideal:
+        return 0.0, 0.0
+    return -ml.stop_to_vertex, -ml.stop_to_vertex - ml.thickness
+
+
+def _cardinal_points(ml: MainLens) -> dict[str, float]:
+    (A, B), (C, D) = _main_lens_abcd(ml)
+    f = -1.0 / C
+    zv1, zv2 = _vertices(ml)
+    bfd = -A / C  # back focal distance from the back vertex
+    ffd = -D / C  # front focal distance from the front vertex
+    return {
+        "f": f,
+        "bfd": bfd,
+        "ffd": ffd,
+        "z_F2": zv2 - bfd,
+        "z_H2": zv2 - bfd + f,
+        "z_F1": zv1 + ffd,
+        "z_H1": zv1 + ffd - f,
+    }
+
+
+def _paraxial_image_z(ml: MainLens, depth: float) -> float:
+    card = _cardinal_points(ml)
+    u = depth - card["z_H1"]  # object distance from H (m, > 0)
+    f = card["f"]
+    if u == f:
+        return -math.inf
+    v = 1.0 / (1.0 / f - 1.0 / u)
+    return card["z_H2"] - v
+
+
+def _paraxial_object_depth(ml: MainLens, z_image: float) -> float:
+    card = _cardinal_points(ml)
+    v = card["z_H2"] - z_image
+    f = card["f"]
+    u = 1.0 / (1.0 / f - 1.0 / v)
+    return card["z_H1"] + u
+
+
+def _lateral_magnification(ml: MainLens, depth: float) -> float:
+    card = _cardinal_points(ml)
+    u = depth - card["z_H1"]
+    v = card["z_H2"] - _paraxial_image_z(ml, depth)
+    return -v / u
+
+
+def _exit_pupil(ml: MainLens) -> tuple[float, float]:
+    """Paraxial image of the stop (at z = 0) through the lens: (z, diameter)."""
+    if ml.ideal:
+        return 0.0, ml.stop_diameter
+    card = _cardinal_points(ml)
+    u = 0.0 - card["z_H1"]  # stop distance from H (m); the stop is in front of the lens
+    f = card["f"]
+    v = 1.0 / (1.0 / f - 1.0 / u)  # negative: virtual exit pupil in front of H'
+    m = -v / u
+    return card["z_H2"] - v, abs(m) * ml.stop_diameter
+
+
+def _pupil_fan(stop_radius: float, n_rings: int = 24, n_per_ring: int = 48) -> np.ndarray:
+    """Points on the stop: equal-area rings (uniform pupil illumination)."""
+    pts = [(0.0, 0.0)]
+    for k in range(1, n_rings + 1):
+        r = stop_radius * math.sqrt((k - 0.5) / n_rings)
+        for a in range(n_per_ring):
+            ph = 2 * math.pi * (a + 0.5 * (k % 2)) / n_per_ring
+            pts.append((r * math.cos(ph), r * math.sin(ph)))
+    return np.array(pts)
+
+
+def _probe_optics(ml: MainLens) -> np.ndarray:
+    cam = Camera.__new__(Camera)  # only the main-lens entries are needed
+    o = np.zeros(_o.O_SIZE)
+    o[_o.O_IDEAL] = 1.0 if ml.ideal else 0.0
+    o[_o.O_F_IDEAL] = ml.focal_length
+    o[_o.O_STOP_R] = 0.5 * ml.stop_diameter
+    o[_o.O_L1_ZV] = -ml.stop_to_vertex
+    o[_o.O_L1_C] = 0.0 if math.isinf(ml.r1) else 1.0 / ml.r1
+    o[_o.O_L2_ZV] = -ml.stop_to_vertex - ml.thickness
+    o[_o.O_L2_C] = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
+    o[_o.O_L_N] = ml.index
+    o[_o.O_L_R] = 0.5 * ml.diameter
+    del cam
+    return o
+
+
+def trace_axial_point(ml: MainLens, depth: float, stop_xy: np.ndarray) -> np.ndarray:
+    """Trace rays from the on-axis point at ``depth`` through stop points (M, 2).
+
+    Returns (M, 6): image-space point and direction per ray (NaN if vignetted).
+    """
+    pts = np.array([[0.0, 0.0, float(depth)]])
+    return _trace_points_to_image(pts, np.asarray(stop_xy, float), _probe_optics(ml))[0]
+
+
+def _axis_crossing(ray: np.ndarray) -> float:
+    """z where a meridional ray in the x-z plane crosses the axis."""
+    px, pz, dx, dz = ray[0], ray[2], ray[3], ray[5]
+    return pz - px * dz / dx
+
+
+def _best_focus_z(ml: MainLens, depth: float) -> float:
+    """z of minimum RMS spot radius for an on-axis point (real rays)."""
+    rays = trace_axial_point(ml, depth, _pupil_fan(0.5 * ml.stop_diameter))
+    rays = rays[np.isfinite(rays[:, 0])]
+    # lateral position at plane z: p + (z - pz) * d_xy / dz  =  a + b z
+    b = rays[:, 3:5] / rays[:, 5:6]
+    a = rays[:, 0:2] - rays[:, 2:3] * b
+    return float(-np.sum(a * b) / np.sum(b * b))
+
+
+def spherical_aberration(ml: MainLens, depth: float) -> dict[str, float]:
+    """Paraxial, marginal and best-focus image z for an on-axis point (m).
+
+    Returns ``{"paraxial": z_p, "marginal": z_m, "best": z_b,
+    "longitudinal": z_p - z_m}`` from real-ray traces at a tiny pupil
+    height, at the stop edge, and the RMS-optimal plane.
+    """
+    r = 0.5 * ml.stop_diameter
+    rays = trace_axial_point(ml, depth, np.array([[1e-6 * r, 0.0], [r * (1 - 1e-9), 0.0]]))
+    zp = _axis_crossing(rays[0])
+    zm = _axis_crossing(rays[1])
+    return {"paraxial": zp, "marginal": zm, "best": _best_focus_z(ml, depth), "longitudinal": zp - zm}

@@ -1,0 +1,343 @@
+"""Numba kernels for sequential real-ray tracing through the plenoptic camera.
+
+Frame (DESIGN §1): optical axis +z, aperture stop at z = 0, object space z > 0,
+microlens array (MLA) and sensor at z < 0.  Light travels from the object
+towards -z; the *backward* trace (pixel -> object) travels towards +z.
+
+Surface sign convention (standard optics, light from object to image):
+a radius R > 0 has its centre of curvature on the image side (smaller z), so a
+surface with vertex ``zv`` and curvature ``c = 1/R`` has its centre at
+``zv - R``.  ``c = 0`` is a plane.
+
+Packed camera (``optics``): 1-D float64 array, indices named ``O_*`` below.
+Kernels take only arrays and scalars.  Surfaces are ideally coated (no Fresnel
+loss, no absorption); total internal reflection and every clear aperture and
+the aperture stop vignette (the ray is dropped).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .rng import rng_uniform
+
+# ---- packed camera layout -------------------------------------------------
+O_IDEAL = 0  # 1.0: ideal thin main lens at z = 0 (the stop)
+O_F_IDEAL = 1  # focal length of the ideal lens (m)
+O_STOP_R = 2  # aperture-stop radius (m), stop at z = 0
+O_L1_ZV = 3  # main lens: front (object-side) vertex z
+O_L1_C = 4  # curvature 1/R1
+O_L2_ZV = 5  # back vertex z
+O_L2_C = 6  # curvature 1/R2
+O_L_N = 7  # refractive index
+O_L_R = 8  # clear radius
+O_M_NX = 9  # MLA lenslets along x
+O_M_NY = 10  # MLA lenslets along y
+O_M_PITCH = 11
+O_M_R = 12  # lenslet clear radius
+O_M1_ZV = 13  # lenslet front vertex z (MLA plane, faces the main lens)
+O_M1_C = 14
+O_M2_ZV = 15  # lenslet back vertex z
+O_M2_C = 16
+O_M_N = 17
+O_S_Z = 18  # sensor plane z
+O_S_PITCH = 19  # pixel pitch
+O_S_PPL = 20  # pixels per lenslet (along each axis)
+O_SAMPLE_R = 21  # radius of the disc sampled on the lenslet back-vertex plane
+O_RINGS = 22  # neighbouring lenslet rings a pixel may see (0: own lenslet only)
+O_P_OWN = 23  # probability of sampling the pixel's own lenslet
+O_NCOLS = 24
+O_NROWS = 25
+O_SIZE = 26
+
+
+@njit(cache=True, inline="always")
+def _refract(dx, dy, dz, nx, ny, nz, n1, n2):
+    """Snell's law in vector form. Returns (ok, dx, dy, dz); ok False on TIR."""
+    cosi = -(dx * nx + dy * ny + dz * nz)
+    if cosi < 0.0:
+        nx = -nx
+        ny = -ny
+        nz = -nz
+        cosi = -cosi
+    eta = n1 / n2
+    k = 1.0 - eta * eta * (1.0 - cosi * cosi)
+    if k < 0.0:
+        return False, dx, dy, dz
+    a = eta * cosi - math.sqrt(k)
+    ox = eta * dx + a * nx
+    oy = eta * dy + a * ny
+    oz = eta * dz + a * nz
+    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+    return True, ox * inv, oy * inv, oz * inv
+
+
+@njit(cache=True, inline="always")
+def surface_refract(px, py, pz, dx, dy, dz, cx, cy, zv, curv, clear_r2, n1, n2):
+    """Intersect a spherical (or plane, ``curv == 0``) cap and refract.
+
+    The cap has its vertex at ``(cx, cy, zv)`` and curvature ``curv`` (1/m);
+    only the part within ``clear_r2`` (squared clear radius about the axis
+    through the vertex) transmits.  Returns ``(ok, px, py, pz, dx, dy, dz)``
+    with the hit point and the refracted unit direction.
+    """
+    if curv == 0.0:
+        if dz == 0.0:
+            return False, px, py, pz, dx, dy, dz
+        t = (zv - pz) / dz
+        if t <= 0.0:
+            return False, px, py, pz, dx, dy, dz
+        hx = px + t * dx
+        hy = py + t * dy
+        hz = zv
+        nx = 0.0
+        ny = 0.0
+        nz = 1.0
+    else:
+        R = 1.0 / curv
+        zc = zv - R
+        ocx = px - cx
+        ocy = py - cy
+        ocz = pz - zc
+        b = dx * ocx + dy * ocy + dz * ocz
+        cc = ocx * ocx + ocy * ocy + ocz * ocz - R * R
+        disc = b * b - cc
+        if disc < 0.0:
+            return False, px, py, pz, dx, dy, dz
+        sq = math.sqrt(disc)
+        t = -b - sq
+        hz = pz + t * dz
+        if t <= 1e-15 or (hz - zc) * R <= 0.0:
+            t = -b + sq
+            hz = pz + t * dz
+            if t <= 1e-15 or (hz - zc) * R <= 0.0:
+                return False, px, py, pz, dx, dy, dz
+        hx = px + t * dx
+        hy = py + t * dy
+        nx = (hx - cx) * curv
+        ny = (hy - cy) * curv
+        nz = (hz - zc) * curv
+    rx = hx - cx
+    ry = hy - cy
+    if rx * rx + ry * ry > clear_r2:
+        return False, hx, hy, hz, dx, dy, dz
+    ok, dx, dy, dz = _refract(dx, dy, dz, nx, ny, nz, n1, n2)
+    return ok, hx, hy, hz, dx, dy, dz
+
+
+@njit(cache=True, inline="always")
+def main_lens_backward(px, py, pz, dx, dy, dz, optics):
+    """Trace a ray (travelling towards +z) from image space through the main
+    lens and the aperture stop.  Returns ``(ok, x, y, dx, dy, dz)`` with the
+    ray at the stop plane z = 0 (object-space origin)."""
+    if dz <= 0.0:
+        return False, 0.0, 0.0, dx, dy, dz
+    if optics[O_IDEAL] != 0.0:
+        t = -pz / dz
+        x = px + t * dx
+        y = py + t * dy
+        if x * x + y * y > optics[O_STOP_R] * optics[O_STOP_R]:
+            return False, x, y, dx, dy, dz
+        f = optics[O_F_IDEAL]
+        sx = dx / dz - x / f
+        sy = dy / dz - y / f
+        inv = 1.0 / math.sqrt(sx * sx + sy * sy + 1.0)
+        return True, x, y, sx * inv, sy * inv, inv
+    n = optics[O_L_N]
+    r2 = optics[O_L_R] * optics[O_L_R]
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, 0.0, 0.0, optics[O_L2_ZV], optics[O_L2_C], r2, 1.0, n
+    )
+    if not ok:
+        return False, 0.0, 0.0, dx, dy, dz
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, 0.0, 0.0, optics[O_L1_ZV], optics[O_L1_C], r2, n, 1.0
+    )
+    if not ok or dz <= 0.0:
+        return False, 0.0, 0.0, dx, dy, dz
+    t = -pz / dz
+    x = px + t * dx
+    y = py + t * dy
+    if x * x + y * y > optics[O_STOP_R] * optics[O_STOP_R]:
+        return False, x, y, dx, dy, dz
+    return True, x, y, dx, dy, dz
+
+
+@njit(cache=True, inline="always")
+def main_lens_forward(ox, oy, oz, dx, dy, dz, optics):
+    """Trace an object-space ray (travelling towards -z, origin at z > 0)
+    through the stop and the main lens.  Returns ``(ok, px, py, pz, dx, dy, dz)``
+    with a point on the ray in image space (after the last surface)."""
+    if dz >= 0.0:
+        return False, ox, oy, oz, dx, dy, dz
+    t = -oz / dz
+    x = ox + t * dx
+    y = oy + t * dy
+    if x * x + y * y > optics[O_STOP_R] * optics[O_STOP_R]:
+        return False, x, y, 0.0, dx, dy, dz
+    if optics[O_IDEAL] != 0.0:
+        f = optics[O_F_IDEAL]
+        # slopes with respect to the propagation coordinate s = -z
+        sx = -dx / dz - x / f
+        sy = -dy / dz - y / f
+        inv = 1.0 / math.sqrt(sx * sx + sy * sy + 1.0)
+        return True, x, y, 0.0, sx * inv, sy * inv, -inv
+    n = optics[O_L_N]
+    r2 = optics[O_L_R] * optics[O_L_R]
+    # intersect from the original origin: the front vertex may lie on the stop plane
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        ox, oy, oz, dx, dy, dz, 0.0, 0.0, optics[O_L1_ZV], optics[O_L1_C], r2, 1.0, n
+    )
+    if not ok:
+        return False, px, py, pz, dx, dy, dz
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, 0.0, 0.0, optics[O_L2_ZV], optics[O_L2_C], r2, n, 1.0
+    )
+    if not ok or dz >= 0.0:
+        return False, px, py, pz, dx, dy, dz
+    return True, px, py, pz, dx, dy, dz
+
+
+@njit(cache=True, inline="always")
+def lenslet_center(i, j, optics):
+    """Centre (x, y) of lenslet row ``i`` (0 at +y) and column ``j`` (0 at -x)."""
+    p = optics[O_M_PITCH]
+    cx = (j + 0.5 - 0.5 * optics[O_M_NX]) * p
+    cy = (0.5 * optics[O_M_NY] - i - 0.5) * p
+    return cx, cy
+
+
+@njit(cache=True, inline="always")
+def mla_backward(px, py, pz, dx, dy, dz, i, j, optics):
+    """Through lenslet (i, j) from the sensor side. Returns (ok, p, d)."""
+    cx, cy = lenslet_center(i, j, optics)
+    r2 = optics[O_M_R] * optics[O_M_R]
+    n = optics[O_M_N]
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, cx, cy, optics[O_M2_ZV], optics[O_M2_C], r2, 1.0, n
+    )
+    if not ok:
+        return False, px, py, pz, dx, dy, dz
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, cx, cy, optics[O_M1_ZV], optics[O_M1_C], r2, n, 1.0
+    )
+    return ok, px, py, pz, dx, dy, dz
+
+
+@njit(cache=True, inline="always")
+def mla_forward(px, py, pz, dx, dy, dz, optics):
+    """From image space (ray travelling towards -z) through the lenslet it
+    meets, to the sensor.  Returns ``(ok, row, col, x, y)`` of the pixel hit
+    (sensor-plane coordinates x, y in m)."""
+    if dz >= 0.0:
+        return False, -1, -1, 0.0, 0.0
+    t = (optics[O_M1_ZV] - pz) / dz
+    x = px + t * dx
+    y = py + t * dy
+    p = optics[O_M_PITCH]
+    nx = int(optics[O_M_NX])
+    ny = int(optics[O_M_NY])
+    fj = x / p + 0.5 * nx
+    fi = 0.5 * ny - y / p
+    if fj < 0.0 or fi < 0.0:
+        return False, -1, -1, 0.0, 0.0
+    j = int(fj)
+    i = int(fi)
+    if j >= nx or i >= ny:
+        return False, -1, -1, 0.0, 0.0
+    cx, cy = lenslet_center(i, j, optics)
+    r2 = optics[O_M_R] * optics[O_M_R]
+    n = optics[O_M_N]
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, cx, cy, optics[O_M1_ZV], optics[O_M1_C], r2, 1.0, n
+    )
+    if not ok:
+        return False, -1, -1, 0.0, 0.0
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        px, py, pz, dx, dy, dz, cx, cy, optics[O_M2_ZV], optics[O_M2_C], r2, n, 1.0
+    )
+    if not ok or dz >= 0.0:
+        return False, -1, -1, 0.0, 0.0
+    t = (optics[O_S_Z] - pz) / dz
+    sx = px + t * dx
+    sy = py + t * dy
+    sp = optics[O_S_PITCH]
+    fc = sx / sp + 0.5 * optics[O_NCOLS]
+    fr = 0.5 * optics[O_NROWS] - sy / sp
+    if fc < 0.0 or fr < 0.0 or fc >= optics[O_NCOLS] or fr >= optics[O_NROWS]:
+        return False, -1, -1, sx, sy
+    return True, int(fr), int(fc), sx, sy
+
+
+@njit(cache=True, inline="always")
+def sample_pixel_ray(row, col, state, optics):
+    """Sample one backward ray from pixel (row, col) into object space.
+
+    The pixel area is sampled uniformly; the direction by a uniform point on a
+    disc on the back-vertex plane of the pixel's lenslet (or, with mixture
+    probability, of a neighbouring lenslet).  The returned weight is the
+    geometric measure ``A_pix A_disc cos θ_p cos θ_q / r²`` divided by the
+    lenslet selection probability, so that ``E[w L] = ∫∫ L cos θ dA dω``
+    (radiance is invariant through the lossless optics, n = 1 at both ends).
+
+    Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)``: object-space origin on
+    the stop plane and unit direction (dz > 0); ``w`` in m² sr.
+    """
+    sp = optics[O_S_PITCH]
+    ppl = int(optics[O_S_PPL])
+    state, u1 = rng_uniform(state)
+    state, u2 = rng_uniform(state)
+    sx = (col + u1 - 0.5 * optics[O_NCOLS]) * sp
+    sy = (0.5 * optics[O_NROWS] - row - u2) * sp
+    sz = optics[O_S_Z]
+    i = row // ppl
+    j = col // ppl
+    psel = 1.0
+    rings = int(optics[O_RINGS])
+    if rings > 0:
+        state, us = rng_uniform(state)
+        p_own = optics[O_P_OWN]
+        if us < p_own:
+            psel = p_own
+        else:
+            n_nb = (2 * rings + 1) * (2 * rings + 1) - 1
+            k = int((us - p_own) / (1.0 - p_own) * n_nb)
+            if k >= n_nb:
+                k = n_nb - 1
+            if k >= n_nb // 2:
+                k += 1  # skip the centre
+            di = k // (2 * rings + 1) - rings
+            dj = k % (2 * rings + 1) - rings
+            i += di
+            j += dj
+            psel = (1.0 - p_own) / n_nb
+            if i < 0 or j < 0 or i >= int(optics[O_M_NY]) or j >= int(optics[O_M_NX]):
+                return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    cx, cy = lenslet_center(i, j, optics)
+    state, u3 = rng_uniform(state)
+    state, u4 = rng_uniform(state)
+    rs = optics[O_SAMPLE_R]
+    rr = rs * math.sqrt(u3)
+    ph = 2.0 * math.pi * u4
+    qx = cx + rr * math.cos(ph)
+    qy = cy + rr * math.sin(ph)
+    qz = optics[O_M2_ZV]
+    ex = qx - sx
+    ey = qy - sy
+    ez = qz - sz
+    r2 = ex * ex + ey * ey + ez * ez
+    inv = 1.0 / math.sqrt(r2)
+    dx = ex * inv
+    dy = ey * inv
+    dz = ez * inv
+    w = (sp * sp) * (math.pi * rs * rs) * dz * dz / r2 / psel
+    ok, px, py, pz, dx, dy, dz = mla_backward(sx, sy, sz, dx, dy, dz, i, j, optics)
+    if not ok:
+        return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    ok, x, y, dx, dy, dz = main_lens_backward(px, py, pz, dx, dy, dz, optics)
+    if not ok:
+        return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    return state, True, x, y, 0.0, dx, dy, dz, w

@@ -1,0 +1,176 @@
+"""Backward Monte Carlo rendering of the raw plenoptic image.
+
+Each pixel's signal is the radiant power reaching its area through the optics,
+``∫∫ L cos θ dA dω`` (W, or W/m in spectral mode).  For every pixel,
+``rays_per_pixel`` rays are sampled (uniform point on the pixel, uniform
+point on a disc over its lenslet: :func:`optics.sample_pixel_ray`), traced
+through the real lenses to the stop plane (the *optics stage*), and the
+radiance arriving along the object-space ray is evaluated (the *object-space
+stage*: surfaces, media).  The estimate ``mean(w L)`` is unbiased.
+
+Random numbers come from per-pixel streams (``rng_init(seed, pixel)``), so an
+image does not depend on the number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Sequence
+
+import numpy as np
+from numba import njit, prange
+
+from .._validate import require_int
+from . import optics as _o
+from .rng import rng_init
+from .surfaces import surfaces_hit
+
+MODE_SURFACES = 0
+MODE_ABSORBING = 1
+MODE_SCATTERING = 2
+
+
+@njit(cache=True, parallel=True)
+def _render_rows(row0, row1, optics, surf, tex, n_ch, rays_per_pixel, seed, mean, sq, etendue):
+    """Render sensor rows [row0, row1) for a surfaces-only scene."""
+    ncols = int(optics[_o.O_NCOLS])
+    n_pix = (row1 - row0) * ncols
+    inv_n = 1.0 / rays_per_pixel
+    for k in prange(n_pix):
+        r = row0 + k // ncols
+        c = k % ncols
+        state = rng_init(seed, r * ncols + c)
+        L = np.zeros(n_ch)
+        acc = np.zeros(n_ch)
+        acc2 = np.zeros(n_ch)
+        wsum = 0.0
+        for _ in range(rays_per_pixel):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+            if not ok:
+                continue
+            wsum += w
+            surfaces_hit(ox, oy, oz, dx, dy, dz, math.inf, surf, tex, L)
+            for ch in range(n_ch):
+                v = w * L[ch]
+                acc[ch] += v
+                acc2[ch] += v * v
+        for ch in range(n_ch):
+            mean[ch, r, c] = acc[ch] * inv_n
+            sq[ch, r, c] = acc2[ch] * inv_n
+        etendue[r, c] = wsum * inv_n
+
+
+def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
+    """None or "gray" -> gray band; a number or sequence -> spectral channels (m)."""
+    if wavelengths is None or (isinstance(wavelengths, str) and wavelengths.lower() == "gray"):
+        return None
+    if isinstance(wavelengths, str):
+        raise ValueError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
+    arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
+    if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise ValueError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
+    if np.any(arr > 1e-3):
+        raise ValueError(
+            f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
+        )
+    return tuple(float(a) for a in arr)
+
+
+def render(
+    scene,
+    camera,
+    *,
+    rays_per_pixel: int = 16,
+    seed: int = 0,
+    wavelengths: Any = (650e-9,),
+    progress: bool | None = None,
+):
+    """Render the raw plenoptic image of ``scene`` by backward Monte Carlo.
+
+    Parameters
+    ----------
+    scene : Scene
+        Surfaces (and optionally a medium).
+    camera : Camera
+    rays_per_pixel : int
+        Rays traced per pixel (>= 1).
+    seed : int
+        Seed of the per-pixel random streams (>= 0).
+    wavelengths : float, sequence of float, or "gray"
+        Spectral channels in m (default 650 nm), or ``"gray"`` for the total
+        (σT⁴/π) band.  One raw channel per wavelength.
+    progress : bool, optional
+        Show a progress bar (default: when the render is large).
+
+    Returns
+    -------
+    LightField
+        ``raw`` (rows, cols) — or (n_λ, rows, cols) with several wavelengths —
+        the noise-free pixel signal (W, or W/m spectral), with its Monte Carlo
+        standard error and the pixel étendue.
+    """
+    from ..lightfield import LightField
+    from .scene import Scene, pack_surfaces
+
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be an lftomo.Scene, got {type(scene).__name__}")
+    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
+    seed = require_int("seed", seed, minimum=0)
+    wl = _resolve_wavelengths(wavelengths)
+    scene.check_visible_from(camera)
+    n_ch = 1 if wl is None else len(wl)
+    surf, tex = pack_surfaces(scene.surfaces, wl)
+    optics = camera.packed
+    nrows, ncols = camera.sensor_shape
+    mean = np.zeros((n_ch, nrows, ncols))
+    sq = np.zeros((n_ch, nrows, ncols))
+    etendue = np.zeros((nrows, ncols))
+    t0 = time.perf_counter()
+    medium_kernel = None
+    if scene.medium is not None:
+        from .media_render import render_medium_rows  # noqa: F401  (participating media)
+
+        medium_kernel = render_medium_rows
+    ppl = camera.pixels_per_lenslet
+    step = max(ppl, (nrows // 20) // ppl * ppl) if nrows >= 20 * ppl else nrows
+    chunks = [(r, min(r + step, nrows)) for r in range(0, nrows, step)]
+    show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
+    bar = _progress(len(chunks) * step * ncols, show, "render")
+    for r0, r1 in chunks:
+        if medium_kernel is None:
+            _render_rows(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq, etendue)
+        else:
+            medium_kernel(r0, r1, optics, surf, tex, scene.medium, wl, n_rays, seed, mean, sq, etendue)
+        bar.update((r1 - r0) * ncols)
+    bar.close()
+    elapsed = time.perf_counter() - t0
+    var = np.maximum(sq - mean * mean, 0.0)
+    std_error = np.sqrt(var / n_rays)
+    raw = mean[0] if n_ch == 1 else mean
+    se = std_error[0] if n_ch == 1 else std_error
+    meta = {
+        "renderer": "backward",
+        "rays_per_pixel": n_rays,
+        "seed": seed,
+        "wavelengths": None if wl is None else list(wl),
+        "scene": scene.summary(),
+        "elapsed_s": elapsed,
+    }
+    return LightField(raw=raw, camera=camera, wavelengths=wl, etendue=etendue, std_error=se, metadata=meta)
+
+
+class _NoBar:
+    def update(self, n):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress(total: int, show: bool, desc: str):
+    if not show:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="px", unit_scale=True, leave=False)

@@ -1,0 +1,494 @@
+"""The decoded light field: raw image, sub-aperture views, refocusing.
+
+Conventions (DESIGN §2)
+-----------------------
+``raw``: ``(rows, cols)`` (or ``(n_λ, rows, cols)``), the sensor as seen from
+behind the camera looking along +z: column index along +x, row 0 at +y.  The
+main lens inverts the scene, so the raw image shows it rotated by 180°.
+
+``views``: ``(n_v, n_u, n_y, n_x)`` (or with a leading channel axis).
+``views[v, u]`` is the sub-aperture image seen through one zone of the main
+lens aperture; ``u`` increases with the stop-plane x of the zone and ``v``
+with its -y (``v = 0`` is the top zone), so a mosaic ``views[v, u]`` is laid out
+as the aperture appears.  Within a view, the column index ``x`` increases with
+object +x and row ``y = 0`` is the top (+y): views are shown upright with +x to
+the right and +y up, the same orientation as x–y slices of a field on a grid
+(``field[:, ::-1, iz].T``), so views and reconstructions overlay directly.  In
+the right-handed frame whose z axis points away from the camera this is the
+scene mirrored left–right with respect to a photograph taken by the camera.
+
+Every view pixel is one raw pixel (a pure re-indexing of ``raw``, so weight
+matrix rows can be raw pixels).  The pixel block of each lenslet is centred on
+its microlens-image centre — geometric (chief ray through the exit-pupil centre
+and the lenslet centre) or calibrated from a white image.  Pixels that receive
+no light (zero étendue) or fall outside the sensor are masked.
+
+Refocusing (Ng 2005, shift-and-add) averages the views after shifting each by
+the displacement, traced through the real main lens, of a point at the chosen
+depth seen through that view's zone of the aperture; bilinear sub-pixel
+interpolation; each output pixel is normalised by the interpolation weight of
+the views that contribute to it.  It is linear in ``raw``:
+``refocus_operator(alpha) @ raw.ravel()``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.optimize
+import scipy.sparse as sp
+
+from . import __version__
+from ._validate import require_array
+from .forward.camera import Camera, _best_focus_z, trace_axial_point
+
+FORMAT = "lftomo-lightfield-1"
+
+
+# ---- geometry of the decode -------------------------------------------------
+
+def geometric_centers(camera: Camera) -> np.ndarray:
+    """Microlens-image centres (row, col) in pixel coordinates, shape (n_y, n_x, 2).
+
+    Lenslet ``(i, j)`` (row i from +y, column j from -x, as on the sensor).
+    The centre is where the chief ray from the exit-pupil centre through the
+    lenslet's principal points meets the sensor.  Pixel ``(r, c)`` has its
+    centre at coordinates ``(r, c)``.
+    """
+    mla = camera.mla
+    nx, ny = mla.count
+    z_xp, _ = camera.exit_pupil
+    z_h1 = camera.z_mla - mla.front_principal_plane
+    f = mla.focal_length
+    z_h2 = camera.z_mla - mla.thickness + (f - mla.back_focal_distance)
+    dist = z_h2 - camera.z_sensor
+    scale = 1.0 + dist / (z_xp - z_h1)
+    j = np.arange(nx)
+    i = np.arange(ny)
+    cx = (j + 0.5 - 0.5 * nx) * mla.pitch * scale
+    cy = (0.5 * ny - i - 0.5) * mla.pitch * scale
+    nrows, ncols = camera.sensor_shape
+    p = camera.sensor.pixel_pitch
+    col = cx / p + 0.5 * ncols - 0.5
+    row = 0.5 * nrows - 0.5 - cy / p
+    out = np.empty((ny, nx, 2))
+    out[..., 0] = row[:, None]
+    out[..., 1] = col[None, :]
+    return out
+
+
+def decode_index(camera: Camera, centers: np.ndarray) -> np.ndarray:
+    """Flat raw-pixel index of every view pixel, shape (n_v, n_u, n_y, n_x); -1 outside the sensor."""
+    p = camera.pixels_per_lenslet
+    nrows, ncols = camera.sensor_shape
+    ny, nx = centers.shape[:2]
+    r0 = np.round(centers[..., 0] - 0.5 * (p - 1)).astype(np.int64)
+    c0 = np.round(centers[..., 1] - 0.5 * (p - 1)).astype(np.int64)
+    dr = np.arange(p)
+    rows = r0[None, None, :, :] + dr[:, None, None, None]  # (dr, 1, i, j)
+    cols = c0[None, None, :, :] + dr[None, :, None, None]  # (1, dc, i, j)
+    rows, cols = np.broadcast_arrays(rows, cols)
+    idx = np.where((rows >= 0) & (rows < nrows) & (cols >= 0) & (cols < ncols), rows * ncols + cols, -1)
+    # (dr, dc, i, j) -> (v, u, iy, ix) = (p-1-dr, p-1-dc, ny-1-i, nx-1-j)
+    return np.ascontiguousarray(idx[::-1, ::-1, ::-1, ::-1])
+
+
+def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float = 0.5) -> np.ndarray:
+    """Microlens-image centres from a white image, as real decoders do.
+
+    The intensity centroid of each lenslet's pixel block is measured, then an
+    affine lattice ``centre(i, j) = c0 + i a + j b`` is fitted by least squares
+    to the lenslets whose total signal is at least ``min_fraction`` of the
+    median (vignetted lenslets at the edge are left out of the fit).
+
+    Parameters
+    ----------
+    white : ndarray, shape (rows, cols)
+        Raw image of a uniform Lambertian plane filling the field.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray, shape (n_y, n_x, 2)
+        Fitted (row, col) centres in pixel coordinates.
+    """
+    white = require_array("white", white, ndim=2, shape=camera.sensor_shape, minimum=0.0)
+    p = camera.pixels_per_lenslet
+    nrows, ncols = camera.sensor_shape
+    ny, nx = nrows // p, ncols // p
+    blocks = white.reshape(ny, p, nx, p).transpose(0, 2, 1, 3)  # (i, j, dr, dc)
+    tot = blocks.sum(axis=(2, 3))
+    if not np.any(tot > 0):
+        raise ValueError("white image has no signal; cannot calibrate microlens centres")
+    dr = np.arange(p)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cr = (blocks.sum(axis=3) * dr).sum(axis=2) / tot + np.arange(ny)[:, None] * p
+        cc = (blocks.sum(axis=2) * dr).sum(axis=2) / tot + np.arange(nx)[None, :] * p
+    good = tot >= min_fraction * np.median(tot[tot > 0])
+    ii, jj = np.indices((ny, nx))
+    A = np.column_stack([np.ones(good.sum()), ii[good], jj[good]])
+    coef_r, *_ = np.linalg.lstsq(A, cr[good], rcond=None)
+    coef_c, *_ = np.linalg.lstsq(A, cc[good], rcond=None)
+    Afull = np.stack([np.ones(ii.size), ii.ravel(), jj.ravel()], axis=1)
+    out = np.empty((ny, nx, 2))
+    out[..., 0] = (Afull @ coef_r).reshape(ny, nx)
+    out[..., 1] = (Afull @ coef_c).reshape(ny, nx)
+    return out
+
+
+# ---- refocusing geometry ----------------------------------------------------
+
+def view_displacements(camera: Camera, depth: float) -> np.ndarray:
+    """Displacement (in view pixels, (dx, dy) = (column, row)) of the image of
+    a point at ``depth`` in each view, relative to the mean over lit views.
+
+    Traced through the real main lens: the ray from the on-axis point at
+    ``depth`` through each view's mean stop position is intersected with the
+    lenslets' object-side principal plane.  Shape (n_v, n_u, 2); NaN for unlit
+    views.
+    """
+    sp_ = camera.view_stop_positions  # (n_v, n_u, 2)
+    lit = np.isfinite(sp_[..., 0])
+    out = np.full(sp_.shape, np.nan)
+    if not lit.any():
+        return out
+    rays = trace_axial_point(camera.main_lens, float(depth), sp_[lit])
+    z_h1 = camera.z_mla - camera.mla.front_principal_plane
+    X = rays[:, 0] + (z_h1 - rays[:, 2]) * rays[:, 3] / rays[:, 5]
+    Y = rays[:, 1] + (z_h1 - rays[:, 2]) * rays[:, 4] / rays[:, 5]
+    ok = np.isfinite(X)
+    Xm, Ym = X[ok].mean(), Y[ok].mean()
+    pitch = camera.mla.pitch
+    d = np.full((lit.sum(), 2), np.nan)
+    d[ok, 0] = -(X[ok] - Xm) / pitch  # view column index runs along -x of the MLA
+    d[ok, 1] = (Y[ok] - Ym) / pitch  # view row index runs along +y of the MLA
+    out[lit] = d
+    return out
+
+
+def _image_plane_z(camera: Camera, depth: float) -> float:
+    return _best_focus_z(camera.main_lens, depth)
+
+
+def alpha_of_depth(camera: Camera, depth: float) -> float:
+    """Refocus parameter α (Ng 2005) of an object depth (m from the stop).
+
+    ``α = (z_xp - z_img(depth)) / (z_xp - z_mla)``: the ratio of the distances
+    from the exit pupil to the (traced, best-focus) image plane of ``depth``
+    and to the MLA principal plane.  α = 1 at the focus distance; α > 1 for
+    nearer depths.
+    """
+    z_xp, _ = camera.exit_pupil
+    z_h1 = camera.z_mla - camera.mla.front_principal_plane
+    return (z_xp - _image_plane_z(camera, float(depth))) / (z_xp - z_h1)
+
+
+def depth_of_alpha(camera: Camera, alpha: float) -> float:
+    """Inverse of :func:`alpha_of_depth` (m)."""
+    f = camera.main_lens.focal_length
+    lo = f * 1.02 + camera.main_lens.stop_to_vertex
+    hi = 1e4 * f
+    a = float(alpha)
+    g = lambda z: alpha_of_depth(camera, z) - a  # noqa: E731
+    glo, ghi = g(lo), g(hi)
+    if glo * ghi > 0:
+        raise ValueError(
+            f"alpha = {a!r} is outside the refocus range [{alpha_of_depth(camera, hi):.4g}, "
+            f"{alpha_of_depth(camera, lo):.4g}] of this camera (depths {lo:.3g} m to {hi:.3g} m)"
+        )
+    return float(scipy.optimize.brentq(g, lo, hi, xtol=1e-12, rtol=1e-12))
+
+
+# ---- the light field --------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class LightField:
+    """Raw plenoptic image with its camera, decoded on demand.
+
+    Parameters
+    ----------
+    raw : ndarray, shape (rows, cols) or (n_λ, rows, cols)
+        Noise-free pixel signal (W, or W/m spectral).
+    camera : Camera
+    wavelengths : tuple of float or None
+        Channel wavelengths (m); None for the gray band.
+    etendue : ndarray, shape (rows, cols), optional
+        Pixel étendue (m² sr) through the optics; zero marks unlit pixels.
+        Computed by Monte Carlo when not given.
+    std_error : ndarray, optional
+        Monte Carlo standard error of ``raw`` (same shape).
+    centers : ndarray, shape (n_y, n_x, 2), optional
+        Microlens-image centres (row, col) in pixels; geometric by default.
+    noise_std : ndarray, optional
+        Per-pixel noise standard deviation of a noisy measurement.
+    signal : ndarray, optional
+        Noise-free signal kept beside a noisy ``raw``.
+    metadata : dict
+        Renderer, scene summary, seed, version, ...
+    """
+
+    raw: np.ndarray
+    camera: Camera
+    wavelengths: tuple | None = (650e-9,)
+    etendue: np.ndarray | None = None
+    std_error: np.ndarray | None = None
+    centers: np.ndarray | None = None
+    noise_std: np.ndarray | None = None
+    signal: np.ndarray | None = None
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        cam = self.camera
+        if not isinstance(cam, Camera):
+            raise ValueError(f"camera must be an lftomo.Camera, got {type(cam).__name__}")
+        wl = self.wavelengths
+        if wl is not None:
+            wl = tuple(float(w) for w in np.atleast_1d(wl))
+            object.__setattr__(self, "wavelengths", wl)
+        n_ch = 1 if wl is None else len(wl)
+        shape = cam.sensor_shape if n_ch == 1 else (n_ch,) + cam.sensor_shape
+        raw = require_array("raw", self.raw, shape=shape)
+        object.__setattr__(self, "raw", raw)
+        for name in ("std_error", "noise_std", "signal"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, require_array(name, v, shape=shape))
+        if self.etendue is None:
+            object.__setattr__(self, "etendue", cam.pixel_etendue(n_rays=256, seed=0))
+        else:
+            object.__setattr__(self, "etendue", require_array("etendue", self.etendue, shape=cam.sensor_shape, minimum=0.0))
+        if self.centers is None:
+            object.__setattr__(self, "centers", geometric_centers(cam))
+        else:
+            ny, nx = cam.views_shape[2:]
+            object.__setattr__(self, "centers", require_array("centers", self.centers, shape=(ny, nx, 2)))
+
+    # ---- basic properties --------------------------------------------------
+    @property
+    def n_channels(self) -> int:
+        return 1 if self.wavelengths is None else len(self.wavelengths)
+
+    @property
+    def _raw3(self) -> np.ndarray:
+        return self.raw.reshape((self.n_channels,) + self.camera.sensor_shape)
+
+    @cached_property
+    def view_index(self) -> np.ndarray:
+        """Flat raw index of each view pixel, (n_v, n_u, n_y, n_x); -1 off-sensor."""
+        return decode_index(self.camera, self.centers)
+
+    @cached_property
+    def view_mask(self) -> np.ndarray:
+        """True where a view pixel is lit (on the sensor and étendue > 0)."""
+        idx = self.view_index
+        et = self.etendue.ravel()
+        return (idx >= 0) & (et[np.maximum(idx, 0)] > 0.0)
+
+    def _gather(self, flat: np.ndarray) -> np.ma.MaskedArray:
+        idx = self.view_index
+        vals = flat[..., np.maximum(idx, 0)] if flat.ndim > 1 else flat[np.maximum(idx, 0)]
+        mask = np.broadcast_to(~self.view_mask, vals.shape)
+        return np.ma.MaskedArray(np.where(mask, 0.0, vals), mask=mask)
+
+    @property
+    def views(self) -> np.ma.MaskedArray:
+        """Sub-aperture views, (n_v, n_u, n_y, n_x) or (n_λ, n_v, n_u, n_y, n_x), masked where unlit."""
+        flat = self._raw3.reshape(self.n_channels, -1)
+        v = self._gather(flat)
+        return v[0] if self.n_channels == 1 else v
+
+    def subaperture(self, u: int, v: int, *, channel: int | None = None) -> np.ma.MaskedArray:
+        """Sub-aperture image ``views[v, u]`` (n_y, n_x), masked where unlit."""
+        nv, nu = self.camera.views_shape[:2]
+        if not (0 <= int(u) < nu) or not (0 <= int(v) < nv):
+            raise ValueError(f"(u, v) = ({u}, {v}) is outside the views grid 0..{nu - 1} x 0..{nv - 1}")
+        views = self.views
+        if self.n_channels > 1:
+            return views[0 if channel is None else channel, v, u]
+        return views[v, u]
+
+    @property
+    def lit_views(self) -> list[tuple[int, int]]:
+        """(v, u) of the views lit under the central lenslet."""
+        disp = self.camera.view_stop_positions[..., 0]
+        return [tuple(x) for x in np.argwhere(np.isfinite(disp))]
+
+    # ---- refocusing ----------------------------------------------------------
+    def alpha_of_depth(self, depth: float) -> float:
+        """Refocus parameter α of an object depth (m); see :func:`alpha_of_depth`."""
+        return alpha_of_depth(self.camera, depth)
+
+    def depth_of_alpha(self, alpha: float) -> float:
+        """Object depth (m) refocused by ``alpha``."""
+        return depth_of_alpha(self.camera, alpha)
+
+    def refocus_operator_at(self, depth: float) -> sp.csr_matrix:
+        """Sparse matrix R (n_y*n_x, rows*cols) with ``refocus_at(depth) = (R @ raw.ravel()).reshape(n_y, n_x)``."""
+        from ._validate import require_positive
+
+        depth = require_positive("depth", depth)
+        shifts = view_displacements(self.camera, depth)
+        return _shift_and_add_matrix(self.view_index, self.view_mask, shifts, self.camera.sensor_shape)
+
+    def refocus_operator(self, alpha: float) -> sp.csr_matrix:
+        """Refocus as a sparse matrix on ``raw.ravel()`` (one channel); see :meth:`refocus`."""
+        return self.refocus_operator_at(self.depth_of_alpha(alpha))
+
+    def _apply(self, R: sp.csr_matrix) -> np.ndarray:
+        ny, nx = self.camera.views_shape[2:]
+        out = np.stack([R @ ch.ravel() for ch in self._raw3]).reshape(self.n_channels, ny, nx)
+        return out[0] if self.n_channels == 1 else out
+
+    def refocus_at(self, depth: float) -> np.ndarray:
+        """Image refocused on the object plane at ``depth`` (m), (n_y, n_x) [per channel].
+
+        Shift-and-add of the lit views with shifts traced through the real
+        main lens (so spherical aberration of on-axis points is compensated),
+        bilinear interpolation, normalised per pixel by the weight of the
+        contributing views.  Values are mean pixel signals (W or W/m).
+        """
+        return self._apply(self.refocus_operator_at(depth))
+
+    def refocus(self, alpha: float) -> np.ndarray:
+        """Image refocused with Ng's parameter ``alpha`` (1 = focus plane)."""
+        return self.refocus_at(self.depth_of_alpha(alpha))
+
+    def focal_stack(self, depths: Sequence[float]) -> np.ndarray:
+        """Refocused images at several depths (m), shape (n_depths, n_y, n_x) [channel axis after depth]."""
+        return np.stack([self.refocus_at(d) for d in depths])
+
+    # ---- persistence -------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write an ``.npz`` (no pickle) with the arrays and JSON metadata."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(".npz")
+        meta = {
+            "format": FORMAT,
+            "lftomo_version": __version__,
+            "camera": self.camera.to_dict(),
+            "wavelengths": None if self.wavelengths is None else list(self.wavelengths),
+            "metadata": self.metadata,
+        }
+        arrays = {"raw": self.raw, "etendue": self.etendue, "centers": self.centers}
+        for name in ("std_error", "noise_std", "signal"):
+            if getattr(self, name) is not None:
+                arrays[name] = getattr(self, name)
+        np.savez_compressed(path, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "LightField":
+        """Read a light field written by :meth:`save`; validates every array."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"light-field file {str(path)!r} does not exist")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"{str(path)!r} is not a readable lftomo light-field .npz: {exc}") from None
+        if "meta" not in data or data["meta"].dtype.kind != "U":
+            raise ValueError(f"{str(path)!r} has no lftomo metadata")
+        meta = json.loads(str(data["meta"]))
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"{str(path)!r} has format {meta.get('format')!r}, expected {FORMAT!r}")
+        for k, v in data.items():
+            if k != "meta" and v.dtype.kind not in "fiu":
+                raise ValueError(f"array {k!r} in {str(path)!r} has dtype {v.dtype}, expected a numeric dtype")
+        camera = Camera.from_dict(meta["camera"])
+        wl = meta["wavelengths"]
+        return cls(
+            raw=data["raw"],
+            camera=camera,
+            wavelengths=None if wl is None else tuple(wl),
+            etendue=data["etendue"],
+            std_error=data.get("std_error"),
+            centers=data["centers"],
+            noise_std=data.get("noise_std"),
+            signal=data.get("signal"),
+            metadata=meta.get("metadata", {}),
+        )
+
+    def mosaic(self, *, channel: int = 0, fill: float = 0.0) -> np.ndarray:
+        """All views tiled as ``views[v, u]`` blocks: (n_v*n_y, n_u*n_x), unlit = ``fill``."""
+        v = self.views
+        if self.n_channels > 1:
+            v = v[channel]
+        nv, nu, ny, nx = v.shape
+        return v.filled(fill).transpose(0, 2, 1, 3).reshape(nv * ny, nu * nx)
+
+    def export_images(self, directory: str | Path, *, fmt: str = "png") -> list[Path]:
+        """Write the raw image and the view mosaic as 16-bit PNG (scale in a text
+        chunk) or TIFF; with ``fmt="tiff"`` 32-bit float TIFFs of the exact signal too."""
+        from .io_images import write_image16, write_float_tiff
+
+        if fmt not in ("png", "tiff"):
+            raise ValueError(f"fmt must be 'png' or 'tiff', got {fmt!r}")
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        out = []
+        for c in range(self.n_channels):
+            suffix = "" if self.n_channels == 1 else f"_ch{c}"
+            raw = self._raw3[c]
+            mos = self.mosaic(channel=c)
+            out.append(write_image16(d / f"raw{suffix}.{fmt}", raw))
+            out.append(write_image16(d / f"views_mosaic{suffix}.{fmt}", mos))
+            if fmt == "tiff":
+                out.append(write_float_tiff(d / f"raw{suffix}_float.tiff", raw))
+        return out
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr_matrix:
+    """Sparse shift-and-add operator (see LightField.refocus_at)."""
+    nv, nu, ny, nx = view_index.shape
+    iy, ix = np.indices((ny, nx))
+    out_rows = (iy * nx + ix).ravel()
+    rows_l, cols_l, vals_l = [], [], []
+    for v in range(nv):
+        for u in range(nu):
+            sx, sy = shifts[v, u]
+            if not np.isfinite(sx):
+                continue
+            X = ix.ravel() + sx
+            Y = iy.ravel() + sy
+            x0 = np.floor(X).astype(np.int64)
+            y0 = np.floor(Y).astype(np.int64)
+            fx = X - x0
+            fy = Y - y0
+            for ddx, ddy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+                xx = x0 + ddx
+                yy = y0 + ddy
+                ok = (xx >= 0) & (xx < nx) & (yy >= 0) & (yy < ny) & (w > 0)
+                xs, ys = np.where(ok, xx, 0), np.where(ok, yy, 0)
+                ok &= view_mask[v, u, ys, xs]
+                rows_l.append(out_rows[ok])
+                cols_l.append(view_index[v, u, ys[ok], xs[ok]])
+                vals_l.append(w[ok])
+    n_raw = sensor_shape[0] * sensor_shape[1]
+    if rows_l:
+        rows = np.concatenate(rows_l)
+        cols = np.concatenate(cols_l)
+        vals = np.concatenate(vals_l)
+    else:
+        rows = cols = np.zeros(0, np.int64)
+        vals = np.zeros(0)
+    M = sp.csr_matrix((vals, (rows, cols)), shape=(ny * nx, n_raw))
+    norm = np.asarray(M.sum(axis=1)).ravel()
+    inv = np.divide(1.0, norm, out=np.zeros_like(norm), where=norm > 0)
+    return sp.diags(inv) @ M
