@@ -1,0 +1,360 @@
+"""Synthetic media (phantoms): uniform boxes, blobs, flames and the reference cases.
+
+Frame (``DESIGN.md``): the camera looks along +z, +y is up, so a flame's axis is
+vertical, parallel to +y.  Distances in m, temperatures in K, coefficients in m⁻¹.
+Every function returns a :class:`~lftomo.forward.medium.Medium` on the grid given.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .._validate import require_finite_scalar, require_nonnegative, require_positive, require_vector
+from .grid import Grid
+from .medium import Medium, SootRule
+
+__all__ = [
+    "default_flame_grid",
+    "uniform_box",
+    "gaussian_blob",
+    "axisymmetric_flame",
+    "two_lobed_flame",
+    "reference_absorbing",
+    "reference_scattering",
+    "reference_emitting",
+]
+
+
+def default_flame_grid(shape: tuple[int, int, int] = (32, 32, 32), focus_distance: float = 1.0) -> Grid:
+    """Box for a laboratory flame in front of the ``seed`` camera.
+
+    50 mm wide in x and z, 60 mm tall in y, centred on the optical axis at
+    ``z = focus_distance``: ``lower = (-0.025, -0.030, f - 0.025)``,
+    ``upper = (0.025, 0.030, f + 0.025)`` (m).  The seed camera focused at 1 m
+    sees a field about 68 mm wide, so the box fills most of it.
+
+    Parameters
+    ----------
+    shape : tuple of 3 int
+        Voxels ``(nx, ny, nz)``.
+    focus_distance : float
+        Distance of the box centre from the aperture stop (m), > 0.025.
+    """
+    f = require_positive("focus_distance", focus_distance)
+    if f <= 0.025:
+        raise ValueError(f"focus_distance must be > 0.025 m so the box lies in object space z > 0, got {f!r}")
+    return Grid(tuple(shape), (-0.025, -0.030, f - 0.025), (0.025, 0.030, f + 0.025))
+
+
+def uniform_box(grid: Grid, *, T: float, sigma_a: float, sigma_s: float = 0.0, g: float = 0.0) -> Medium:
+    """Homogeneous isothermal medium filling the whole grid.
+
+    ``T`` (K), ``sigma_a``, ``sigma_s`` (m⁻¹) and ``g`` are constants.  Seen
+    along an axis through a thickness ``L`` without scattering it gives
+    ``I = I_b(T) (1 - exp(-sigma_a L))``.
+    """
+    return Medium(grid, sigma_a=sigma_a, sigma_s=sigma_s, g=g, T=T)
+
+
+def _width3(width: Any) -> np.ndarray:
+    w = np.asarray(width, dtype=np.float64)
+    if w.ndim == 0:
+        return np.full(3, require_positive("width", float(w)))
+    return np.asarray([require_positive(f"width[{i}]", x) for i, x in enumerate(require_vector("width", w, 3))])
+
+
+def gaussian_blob(
+    grid: Grid,
+    *,
+    center: Any = None,
+    width: Any,
+    T_peak: float,
+    T_ambient: float = 300.0,
+    sigma_a_peak: float,
+    sigma_a_ambient: float = 0.0,
+    sigma_s: float = 0.0,
+    g: float = 0.0,
+    sigma_a_rule: SootRule | None = None,
+) -> Medium:
+    """Gaussian hot spot with absorption following the same profile.
+
+    With ``G(x) = exp(-Σ_a (x_a - c_a)² / (2 w_a²))``::
+
+        T       = T_ambient + (T_peak - T_ambient) · G
+        sigma_a = sigma_a_ambient + (sigma_a_peak - sigma_a_ambient) · G
+
+    Parameters
+    ----------
+    center : 3 floats, optional
+        Blob centre ``c`` (m); default the box centre.
+    width : float or 3 floats
+        Standard deviation(s) ``w`` (m), > 0.
+    T_peak, T_ambient : float
+        Temperatures (K), > 0.
+    sigma_a_peak, sigma_a_ambient : float
+        Absorption coefficients (m⁻¹), >= 0.
+    sigma_s, g : float
+        Uniform scattering coefficient (m⁻¹) and HG asymmetry.
+    sigma_a_rule : SootRule, optional
+        Spectral law attached to ``sigma_a``.
+    """
+    c = grid.center if center is None else np.asarray(require_vector("center", center, 3))
+    w = _width3(width)
+    T_peak = require_positive("T_peak", T_peak)
+    T_ambient = require_positive("T_ambient", T_ambient)
+    sa_pk = require_nonnegative("sigma_a_peak", sigma_a_peak)
+    sa_amb = require_nonnegative("sigma_a_ambient", sigma_a_ambient)
+    X, Y, Z = grid.centers_mesh()
+    G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
+    return Medium(
+        grid,
+        sigma_a=sa_amb + (sa_pk - sa_amb) * G,
+        sigma_s=sigma_s,
+        g=g,
+        T=T_ambient + (T_peak - T_ambient) * G,
+        sigma_a_rule=sigma_a_rule,
+    )
+
+
+def _flame_shape(
+    X: np.ndarray,
+    Y: np.ndarray,
+    Z: np.ndarray,
+    *,
+    xc: float,
+    zc: float,
+    y_base: float,
+    height_peak: float,
+    width_base: float,
+    width_growth: float,
+    axial_order: float,
+) -> np.ndarray:
+    """Normalised flame profile θ in [0, 1]: ``exp(-r²/(2 w(h)²)) · A(h)``."""
+    h = Y - y_base
+    r2 = (X - xc) ** 2 + (Z - zc) ** 2
+    s = np.maximum(h, 0.0) / height_peak
+    with np.errstate(divide="ignore"):
+        A = np.where(h > 0.0, s**axial_order * np.exp(axial_order * (1.0 - s)), 0.0)
+    w = width_base + width_growth * np.maximum(h, 0.0)
+    return A * np.exp(-0.5 * r2 / w**2)
+
+
+def axisymmetric_flame(
+    grid: Grid,
+    *,
+    axis: Any = None,
+    y_base: float | None = None,
+    T_peak: float = 1900.0,
+    T_ambient: float = 300.0,
+    height_peak: float | None = None,
+    width_base: float | None = None,
+    width_growth: float = 0.06,
+    axial_order: float = 2.0,
+    sigma_a_peak: float = 10.0,
+    soot_exponent: float = 2.0,
+    sigma_s: float = 0.0,
+    g: float = 0.0,
+    reference_wavelength: float = 650e-9,
+    alpha: float = 1.38,
+) -> Medium:
+    """Laminar, axisymmetric (candle- or burner-like) sooting flame.
+
+    The flame axis is vertical (+y), through ``(x, z) = axis``.  With
+    ``r = sqrt((x - xc)² + (z - zc)²)`` and height ``h = y - y_base``::
+
+        s     = h / height_peak
+        A(h)  = s^m · exp(m (1 - s))                 for h > 0, else 0   (m = axial_order)
+        w(h)  = width_base + width_growth · h
+        θ     = A(h) · exp(-r² / (2 w(h)²))            ∈ [0, 1]
+        T     = T_ambient + (T_peak - T_ambient) · θ
+        sigma_a(650 nm) = sigma_a_peak · θ^p             (p = soot_exponent)
+
+    ``A`` rises from 0 at the base to 1 at ``h = height_peak`` and decays
+    above it (the hot plume); the flame widens linearly with height.  Soot
+    absorption is concentrated where the flame is hottest and follows
+    ``SootRule(reference_wavelength, alpha)``: ``sigma_a ∝ λ^-alpha``.
+
+    Parameters
+    ----------
+    grid : Grid
+        Voxel grid; :func:`default_flame_grid` is sized for this flame.
+    axis : 2 floats, optional
+        ``(xc, zc)`` of the flame axis (m); default the box centre.  With odd
+        ``nx`` and ``nz`` and the default axis, a voxel column sits on the axis
+        and the voxel maximum of ``T`` is close to ``T_peak``.
+    y_base : float, optional
+        Height of the flame base (m); default ``grid.lower[1]``.
+    T_peak, T_ambient : float
+        Peak and surrounding temperature (K); defaults 1900 and 300.
+    height_peak : float, optional
+        Height of the hottest point above the base (m); default 0.35 × box height.
+    width_base : float, optional
+        Gaussian radial width at the base (m); default 0.06 × box width in x.
+    width_growth : float
+        Increase of the width per metre of height (dimensionless), >= 0.
+    axial_order : float
+        Exponent ``m`` of the axial profile, > 0 (larger: sharper peak, faster decay).
+    sigma_a_peak : float
+        Absorption coefficient at the hottest point at ``reference_wavelength`` (m⁻¹).
+    soot_exponent : float
+        ``p`` >= 0: how tightly soot follows the hot core.
+    sigma_s, g : float
+        Uniform scattering coefficient (m⁻¹) and HG asymmetry; default non-scattering.
+    reference_wavelength, alpha : float
+        Soot spectral law (m, dimensionless).
+
+    Notes
+    -----
+    With :func:`default_flame_grid` and the defaults (``height_peak`` = 21 mm,
+    ``width_base`` = 3 mm, widening to ≈ 6.6 mm at the top) the side faces of the
+    box are within 1 K of ``T_ambient``; the plume leaves through the top face.
+    """
+    size = grid.size
+    if axis is None:
+        xc, zc = float(grid.center[0]), float(grid.center[2])
+    else:
+        xc, zc = require_vector("axis", axis, 2)
+    y0 = grid.lower[1] if y_base is None else require_finite_scalar("y_base", y_base)
+    hp = 0.35 * size[1] if height_peak is None else require_positive("height_peak", height_peak)
+    wb = 0.06 * size[0] if width_base is None else require_positive("width_base", width_base)
+    X, Y, Z = grid.centers_mesh()
+    theta = _flame_shape(
+        X, Y, Z,
+        xc=xc, zc=zc, y_base=y0, height_peak=hp, width_base=wb,
+        width_growth=require_nonnegative("width_growth", width_growth),
+        axial_order=require_positive("axial_order", axial_order),
+    )
+    return _flame_medium(
+        grid, theta, T_peak=T_peak, T_ambient=T_ambient, sigma_a_peak=sigma_a_peak,
+        soot_exponent=soot_exponent, sigma_s=sigma_s, g=g,
+        reference_wavelength=reference_wavelength, alpha=alpha,
+    )
+
+
+def _flame_medium(
+    grid: Grid,
+    theta: np.ndarray,
+    *,
+    T_peak: float,
+    T_ambient: float,
+    sigma_a_peak: float,
+    soot_exponent: float,
+    sigma_s: float,
+    g: float,
+    reference_wavelength: float,
+    alpha: float,
+) -> Medium:
+    T_peak = require_positive("T_peak", T_peak)
+    T_ambient = require_positive("T_ambient", T_ambient)
+    if T_peak <= T_ambient:
+        raise ValueError(f"T_peak must exceed T_ambient={T_ambient!r}, got {T_peak!r}")
+    sa = require_nonnegative("sigma_a_peak", sigma_a_peak)
+    p = require_nonnegative("soot_exponent", soot_exponent)
+    theta = np.clip(theta, 0.0, 1.0)
+    return Medium(
+        grid,
+        sigma_a=sa * theta**p,
+        sigma_s=sigma_s,
+        g=g,
+        T=T_ambient + (T_peak - T_ambient) * theta,
+        sigma_a_rule=SootRule(reference_wavelength, alpha),
+    )
+
+
+def two_lobed_flame(
+    grid: Grid,
+    *,
+    T_peak: float = 1900.0,
+    T_ambient: float = 300.0,
+    secondary_amplitude: float = 0.65,
+    sigma_a_peak: float = 10.0,
+    soot_exponent: float = 2.0,
+    sigma_s: float = 0.0,
+    g: float = 0.0,
+    reference_wavelength: float = 650e-9,
+    alpha: float = 1.38,
+) -> Medium:
+    """Asymmetric flame: a large main lobe and a smaller, cooler, lower side lobe.
+
+    Box size ``(Lx, Ly, Lz)``, centre ``(cx, cy, cz)``, base ``y0 = grid.lower[1]``.
+    Each lobe ``i`` is an axisymmetric profile ``θ_i`` as in
+    :func:`axisymmetric_flame` with its own axis, peak height and widths:
+
+    =========  ========================  ========================  ===========  ==========  =======
+    lobe       axis x                    axis z                    height_peak  width_base  growth
+    =========  ========================  ========================  ===========  ==========  =======
+    main (1)   cx − 0.10 Lx              cz − 0.06 Lz              0.40 Ly      0.06 Lx     0.04
+    side (2)   cx + 0.16 Lx              cz + 0.10 Lz              0.25 Ly      0.04 Lx     0.04
+    =========  ========================  ========================  ===========  ==========  =======
+
+    The lobes combine as a probabilistic union, smooth and bounded by 1::
+
+        θ = 1 − (1 − θ_1)(1 − a θ_2)          (a = secondary_amplitude)
+        T = T_ambient + (T_peak − T_ambient) θ,   sigma_a = sigma_a_peak θ^p
+
+    so the side lobe alone peaks near ``T_ambient + a (T_peak − T_ambient)``
+    (1340 K by default).  No mirror plane x = cx or z = cz exists.  With
+    :func:`default_flame_grid` the side faces of the box stay within 1 K of
+    ``T_ambient``.
+    """
+    a = require_nonnegative("secondary_amplitude", secondary_amplitude)
+    if a > 1.0:
+        raise ValueError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+    L = grid.size
+    c = grid.center
+    y0 = grid.lower[1]
+    X, Y, Z = grid.centers_mesh()
+    t1 = _flame_shape(
+        X, Y, Z, xc=c[0] - 0.10 * L[0], zc=c[2] - 0.06 * L[2], y_base=y0,
+        height_peak=0.40 * L[1], width_base=0.06 * L[0], width_growth=0.04, axial_order=2.0,
+    )
+    t2 = _flame_shape(
+        X, Y, Z, xc=c[0] + 0.16 * L[0], zc=c[2] + 0.10 * L[2], y_base=y0,
+        height_peak=0.25 * L[1], width_base=0.04 * L[0], width_growth=0.04, axial_order=2.0,
+    )
+    theta = 1.0 - (1.0 - t1) * (1.0 - a * t2)
+    return _flame_medium(
+        grid, theta, T_peak=T_peak, T_ambient=T_ambient, sigma_a_peak=sigma_a_peak,
+        soot_exponent=soot_exponent, sigma_s=sigma_s, g=g,
+        reference_wavelength=reference_wavelength, alpha=alpha,
+    )
+
+
+# ---------------------------------------------------------------------- reference cases
+# The reference text compares a pure absorber, a scattering medium and an emitting
+# medium; it gives no coefficients, so these are chosen to be uniform (analytic
+# checks apply, DESIGN.md §7) with an optical thickness of order one across a 50 mm box.
+
+
+def reference_absorbing(grid: Grid, *, sigma_a: float = 20.0, T: float = 300.0) -> Medium:
+    """Pure absorber: uniform ``sigma_a = 20 m⁻¹`` (τ = 1 across 50 mm), no scattering, cold.
+
+    ``T = 300 K``: at visible wavelengths ``I_b(300 K, 650 nm) / I_b(1900 K, 650 nm)
+    ≈ 1e-27``, so the medium is only visible as attenuation of a back-light,
+    ``I = L0 exp(-sigma_a L)``.  (In gray mode 300 K still emits σT⁴/π ≈ 146
+    W·m⁻²·sr⁻¹; pass a smaller ``T`` if a non-emitting gray absorber is wanted.)
+    """
+    return uniform_box(grid, T=T, sigma_a=sigma_a, sigma_s=0.0, g=0.0)
+
+
+def reference_scattering(
+    grid: Grid, *, sigma_a: float = 2.0, sigma_s: float = 18.0, g: float = 0.75, T: float = 300.0
+) -> Medium:
+    """Cold scattering medium: uniform ``sigma_a = 2``, ``sigma_s = 18 m⁻¹``.
+
+    Albedo ``sigma_s / (sigma_a + sigma_s) = 0.9``, HG ``g = 0.75``, extinction
+    20 m⁻¹ (τ = 1 across 50 mm), as in the van de Hulst slab case of DESIGN.md
+    §7.  ``T = 300 K`` (non-emitting at visible wavelengths, see
+    :func:`reference_absorbing`).
+    """
+    return uniform_box(grid, T=T, sigma_a=sigma_a, sigma_s=sigma_s, g=g)
+
+
+def reference_emitting(grid: Grid, *, sigma_a: float = 20.0, T: float = 1800.0) -> Medium:
+    """Hot absorbing–emitting medium: uniform ``sigma_a = 20 m⁻¹``, ``T = 1800 K``, no scattering.
+
+    Seen along an axis through thickness ``L``: ``I = I_b(1800 K)(1 − exp(−sigma_a L))``.
+    """
+    return uniform_box(grid, T=T, sigma_a=sigma_a, sigma_s=0.0, g=0.0)

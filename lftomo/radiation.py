@@ -1,0 +1,218 @@
+"""Blackbody radiation: Planck's law, its inverse and derivative, and the gray band.
+
+All quantities are SI: temperature ``T`` in K, wavelength in m (in vacuum, n = 1),
+spectral radiance in W·m⁻²·sr⁻¹·m⁻¹ and band-integrated (gray) radiance in
+W·m⁻²·sr⁻¹.  Every function broadcasts its arguments with the usual numpy rules
+and returns a float for scalar input, else a float64 array.
+
+Spectral radiance (Planck)::
+
+    I_b(T, λ) = 2 h c² / λ⁵ · 1 / (exp(h c / (λ k T)) − 1)
+
+Gray (total) radiance::
+
+    I_b(T) = σ T⁴ / π
+
+The medium emits ``sigma_a · I_b(T)`` (local thermodynamic equilibrium), see
+``DESIGN.md`` §1.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy import constants as _c
+
+from ._validate import require_array
+
+__all__ = [
+    "C1",
+    "C2",
+    "planck",
+    "planck_inverse",
+    "dplanck_dT",
+    "gray_intensity",
+    "gray_inverse",
+    "blackbody_intensity",
+]
+
+#: First radiation constant for radiance, 2 h c² (W·m²·sr⁻¹).
+C1 = 2.0 * _c.h * _c.c**2
+#: Second radiation constant, h c / k (m·K).
+C2 = _c.h * _c.c / _c.k
+_SIGMA = _c.Stefan_Boltzmann
+
+
+def _out(x: np.ndarray) -> Any:
+    """Return a Python float for 0-d results, else the array."""
+    x = np.asarray(x, dtype=np.float64)
+    return float(x) if x.ndim == 0 else x
+
+
+def _temperature(T: Any) -> np.ndarray:
+    return require_array("T", T, strictly_positive=True)
+
+
+def _wavelength(wavelength: Any) -> np.ndarray:
+    return require_array("wavelength", wavelength, strictly_positive=True)
+
+
+def planck(T: Any, wavelength: Any) -> Any:
+    """Spectral blackbody radiance ``I_b(T, λ)`` (Planck's law).
+
+    Parameters
+    ----------
+    T : float or array_like
+        Temperature (K), finite and > 0.
+    wavelength : float or array_like
+        Wavelength in vacuum (m), finite and > 0.  Broadcast against ``T``.
+
+    Returns
+    -------
+    float or ndarray
+        Spectral radiance (W·m⁻²·sr⁻¹·m⁻¹), shape ``np.broadcast(T, wavelength).shape``.
+
+    Notes
+    -----
+    Evaluated as ``C1 λ⁻⁵ e^{-x} / (1 − e^{-x})`` with ``x = C2 / (λ T)`` and
+    ``1 − e^{-x} = -expm1(-x)``: no overflow for large ``x`` (the radiance then
+    underflows to 0 quietly) and full precision in the Rayleigh–Jeans limit
+    ``x → 0``.
+
+    Raises
+    ------
+    ValueError
+        If ``T`` or ``wavelength`` is not finite and > 0.
+    """
+    T = _temperature(T)
+    lam = _wavelength(wavelength)
+    x = C2 / (lam * T)
+    return _out(C1 / lam**5 * np.exp(-x) / (-np.expm1(-x)))
+
+
+def planck_inverse(I: Any, wavelength: Any) -> Any:
+    """Temperature whose blackbody spectral radiance at ``wavelength`` is ``I``.
+
+    Exact closed form (brightness temperature)::
+
+        T = C2 / (λ · ln(1 + C1 / (λ⁵ I)))
+
+    Parameters
+    ----------
+    I : float or array_like
+        Spectral radiance (W·m⁻²·sr⁻¹·m⁻¹), finite and >= 0.
+    wavelength : float or array_like
+        Wavelength (m), finite and > 0.  Broadcast against ``I``.
+
+    Returns
+    -------
+    float or ndarray
+        Temperature (K).  ``I == 0`` gives ``T = 0`` (the limit of the formula);
+        ``I > 0`` gives ``T > 0``.
+
+    Raises
+    ------
+    ValueError
+        If ``I`` is negative or not finite, or ``wavelength`` is not finite and > 0.
+        Radiances from a noisy reconstruction must be clipped by the caller
+        first; a negative radiance has no temperature.
+    """
+    I = require_array("I", I, minimum=0.0)
+    lam = _wavelength(wavelength)
+    with np.errstate(divide="ignore"):
+        arg = C1 / (lam**5 * I)  # inf where I == 0
+        T = C2 / (lam * np.log1p(arg))  # log1p(inf) = inf -> T = 0
+    return _out(T)
+
+
+def dplanck_dT(T: Any, wavelength: Any) -> Any:
+    """Analytic derivative ``∂I_b/∂T`` of Planck's law.
+
+    ``∂I_b/∂T = I_b · x / (T (1 − e^{-x}))`` with ``x = C2 / (λ T)``.
+
+    Parameters
+    ----------
+    T : float or array_like
+        Temperature (K), finite and > 0.
+    wavelength : float or array_like
+        Wavelength (m), finite and > 0.
+
+    Returns
+    -------
+    float or ndarray
+        Derivative (W·m⁻²·sr⁻¹·m⁻¹·K⁻¹), broadcast shape of the inputs.
+    """
+    T = _temperature(T)
+    lam = _wavelength(wavelength)
+    x = C2 / (lam * T)
+    one_minus = -np.expm1(-x)
+    Ib = C1 / lam**5 * np.exp(-x) / one_minus
+    return _out(Ib * x / (T * one_minus))
+
+
+def gray_intensity(T: Any) -> Any:
+    """Band-integrated blackbody radiance ``σ T⁴ / π``.
+
+    Parameters
+    ----------
+    T : float or array_like
+        Temperature (K), finite and > 0.
+
+    Returns
+    -------
+    float or ndarray
+        Radiance (W·m⁻²·sr⁻¹), same shape as ``T``.
+    """
+    T = _temperature(T)
+    return _out(_SIGMA * T**4 / np.pi)
+
+
+def gray_inverse(I: Any) -> Any:
+    """Temperature from gray radiance: ``T = (π I / σ)^{1/4}``.
+
+    Parameters
+    ----------
+    I : float or array_like
+        Radiance (W·m⁻²·sr⁻¹), finite and >= 0 (``I == 0`` gives ``T = 0``).
+
+    Returns
+    -------
+    float or ndarray
+        Temperature (K), same shape as ``I``.
+
+    Raises
+    ------
+    ValueError
+        If ``I`` is negative or not finite.
+    """
+    I = require_array("I", I, minimum=0.0)
+    return _out((np.pi * I / _SIGMA) ** 0.25)
+
+
+def blackbody_intensity(T: Any, wavelengths: Any = None) -> np.ndarray:
+    """Blackbody radiance of a temperature field, gray or per wavelength channel.
+
+    Parameters
+    ----------
+    T : array_like
+        Temperature field (K) of any shape, finite and > 0.
+    wavelengths : None, float or array_like of shape (n_λ,)
+        ``None`` selects the gray band.  Otherwise the wavelengths (m).
+
+    Returns
+    -------
+    ndarray
+        ``None``: gray radiance (W·m⁻²·sr⁻¹) of shape ``T.shape``.
+        Otherwise spectral radiance (W·m⁻²·sr⁻¹·m⁻¹) of shape
+        ``(n_λ,) + T.shape`` (a scalar wavelength counts as ``n_λ = 1``).
+    """
+    T = _temperature(T)
+    if wavelengths is None:
+        return np.asarray(gray_intensity(T), dtype=np.float64)
+    lam = require_array("wavelengths", wavelengths, strictly_positive=True)
+    lam = np.atleast_1d(lam)
+    if lam.ndim != 1:
+        raise ValueError(f"wavelengths must be a scalar or 1-D, got shape {lam.shape}")
+    lam_b = lam.reshape((lam.size,) + (1,) * T.ndim)
+    return np.asarray(planck(T[None, ...], lam_b), dtype=np.float64)
