@@ -509,9 +509,27 @@ class Camera:
     def _cardinal(self) -> dict[str, float]:
         return _cardinal_points(self.main_lens)
 
-    @property
+    @cached_property
     def magnification(self) -> float:
-        """Lateral magnification from the focus plane to the MLA (paraxial, < 0)."""
+        """Lateral magnification from the focus plane onto the MLA (< 0).
+
+        Traced: the chief ray (through the stop centre) of an object point at
+        a small field height, intersected with the lenslets' object-side
+        principal plane.  With the MLA at the best-focus plane of an aberrated
+        lens this differs from the paraxial (Gaussian) magnification
+        (:meth:`paraxial_magnification`).
+        """
+        d = self.object_distance
+        h = 1e-4 * d
+        pts = np.array([[h, 0.0, d]])
+        ray = _trace_points_to_image(pts, np.zeros((1, 2)), _probe_optics(self.main_lens))[0, 0]
+        z_h1 = self.z_mla - self.mla.front_principal_plane
+        x = ray[0] + (z_h1 - ray[2]) * ray[3] / ray[5]
+        return float(x / h)
+
+    @property
+    def paraxial_magnification(self) -> float:
+        """Gaussian magnification between the focus distance and its paraxial image (< 0)."""
         return _lateral_magnification(self.main_lens, self.object_distance)
 
     @property
@@ -574,9 +592,26 @@ class Camera:
         return xy[::-1, ::-1].copy()
 
     @cached_property
+    def _central_etendue(self) -> np.ndarray:
+        """Étendue (m² sr) of the pixels under the central lenslet, (n_v, n_u) in view order."""
+        p = self.pixels_per_lenslet
+        nrow, ncol = self.sensor_shape
+        i0, j0 = nrow // p // 2, ncol // p // 2
+        rr, cc = np.indices((p, p))
+        et = self.pixel_etendue(i0 * p + rr, j0 * p + cc, n_rays=20000, seed=7)
+        return et[::-1, ::-1].copy()
+
+    @cached_property
     def lit_views(self) -> int:
-        """Number of sub-aperture views that receive light under the central lenslet."""
-        return int(np.count_nonzero(np.isfinite(self.view_stop_positions[..., 0])))
+        """Number of sub-aperture views that receive any light under the central lenslet."""
+        return int(np.count_nonzero(self._central_etendue > 0))
+
+    @cached_property
+    def fully_lit_views(self) -> int:
+        """Views under the central lenslet whose pixel lies wholly inside the pupil image
+        (étendue >= 99 % of the largest)."""
+        et = self._central_etendue
+        return int(np.count_nonzero(et >= 0.99 * et.max()))
 
     # ---- report -----------------------------------------------------------
     def describe(self, *, warn: bool = True) -> dict[str, Any]:
@@ -638,6 +673,7 @@ class Camera:
             "image_distance": card["z_H2"] - z_image,
             "object_distance_from_principal_plane": d - (-card["z_H1"]),
             "magnification": m,
+            "paraxial_magnification": self.paraxial_magnification,
             "field_of_view": list(fov),
             "main_lens_f_number": f / ml.stop_diameter,
             "main_lens_working_f_number": working_f,
@@ -647,6 +683,7 @@ class Camera:
             "sensor_shape": list(self.sensor_shape),
             "views_shape": list(self.views_shape),
             "lit_views": self.lit_views,
+            "fully_lit_views": self.fully_lit_views,
             "view_baseline": abs(steps),
             "depth_of_field": far - near,
             "depth_of_field_limits": [near, far],

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .rng import rng_uniform
 
@@ -341,3 +341,32 @@ def sample_pixel_ray(row, col, state, optics):
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     return state, True, x, y, 0.0, dx, dy, dz, w
+
+
+@njit(cache=True, inline="always")
+def trace_to_sensor(ox, oy, oz, dx, dy, dz, optics):
+    """Forward trace of one object-space ray to the sensor.
+
+    Returns the flat pixel index ``row * n_cols + col`` it lands on, or -1 if
+    it is vignetted or misses the sensor.
+    """
+    ok, px, py, pz, ddx, ddy, ddz = main_lens_forward(ox, oy, oz, dx, dy, dz, optics)
+    if not ok:
+        return -1
+    ok, r, c, sx, sy = mla_forward(px, py, pz, ddx, ddy, ddz, optics)
+    if not ok:
+        return -1
+    return r * int(optics[O_NCOLS]) + c
+
+
+@njit(cache=True, parallel=True)
+def trace_to_sensor_batch(origins, directions, optics):
+    """Forward trace of many rays: (N, 3) origins and unit directions (dz < 0)
+    -> (N,) flat pixel index or -1."""
+    n = origins.shape[0]
+    out = np.empty(n, dtype=np.int64)
+    for k in prange(n):
+        out[k] = trace_to_sensor(
+            origins[k, 0], origins[k, 1], origins[k, 2], directions[k, 0], directions[k, 1], directions[k, 2], optics
+        )
+    return out
