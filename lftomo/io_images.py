@@ -21,7 +21,7 @@ def write_image16(path: str | Path, image: np.ndarray) -> Path:
     vmax = float(img.max())
     scale = vmax / 65535.0 if vmax > 0 else 1.0
     counts = np.round(img / scale).astype(np.uint16)
-    pil = Image.fromarray(counts, mode="I;16") if hasattr(Image, "fromarray") else None
+    pil = Image.fromarray(counts)  # uint16 -> mode "I;16"
     desc = f"lftomo signal = counts * {scale!r}"
     if path.suffix.lower() == ".png":
         info = PngImagePlugin.PngInfo()
@@ -36,5 +36,5 @@ def write_image16(path: str | Path, image: np.ndarray) -> Path:
 def write_float_tiff(path: str | Path, image: np.ndarray) -> Path:
     """Write ``image`` as a 32-bit float TIFF (exact signal, NaN for unlit)."""
     path = Path(path)
-    Image.fromarray(np.asarray(image, dtype=np.float32), mode="F").save(path)
+    Image.fromarray(np.asarray(image, dtype=np.float32)).save(path)  # float32 -> mode "F"
     return path

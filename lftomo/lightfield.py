@@ -145,32 +145,92 @@ def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float 
 
 # ---- refocusing geometry ----------------------------------------------------
 
-def view_displacements(camera: Camera, depth: float) -> np.ndarray:
-    """Displacement (in view pixels, (dx, dy) = (column, row)) of the image of
-    a point at ``depth`` in each view, relative to the mean over lit views.
+def _zone_mean_positions(camera: Camera, depth: float, offset: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Throughput-weighted mean MLA-plane position (X, Y) (m) of the image of
+    the on-axis point at ``depth`` in each view, and the views' total weight."""
+    samples = camera.view_stop_samples(offset)  # (n_v, n_u, K, 3)
+    nv, nu, K, _ = samples.shape
+    w = samples[..., 2].reshape(-1, K)
+    pts = samples[..., :2].reshape(-1, K, 2)
+    use = w > 0
+    XY = np.zeros((nv * nu, K, 2))
+    if use.any():
+        rays = trace_axial_point(camera.main_lens, float(depth), pts[use])
+        z_h1 = camera.z_mla - camera.mla.front_principal_plane
+        t = (z_h1 - rays[:, 2]) / rays[:, 5]
+        XY[use, 0] = rays[:, 0] + t * rays[:, 3]
+        XY[use, 1] = rays[:, 1] + t * rays[:, 4]
+        bad = np.zeros_like(use)
+        bad[use] = ~np.isfinite(XY[use, 0])
+        w = np.where(bad, 0.0, w)
+        XY[bad] = 0.0
+    tot = w.sum(axis=1)
+    mean = np.full((nv * nu, 2), np.nan)
+    ok = tot > 0
+    mean[ok] = (w[ok, :, None] * XY[ok]).sum(axis=1) / tot[ok, None]
+    return mean.reshape(nv, nu, 2), tot.reshape(nv, nu)
 
-    Traced through the real main lens: the ray from the on-axis point at
-    ``depth`` through each view's mean stop position is intersected with the
-    lenslets' object-side principal plane.  Shape (n_v, n_u, 2); NaN for unlit
-    views.
+
+def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False):
+    """Displacement (in view pixels, (dx, dy) = (column, row)) of the image of
+    a point at ``depth`` in each view, relative to the weighted mean over views.
+
+    Traced through the real main lens as an exact first moment: rays from the
+    on-axis point at ``depth`` through the sampled stop positions of each
+    view's zone (:meth:`Camera.view_stop_samples`) are intersected with the
+    lenslets' object-side principal plane and averaged with the zone's
+    throughput weights.  (Through an aberrated lens the mean over a zone
+    differs from the displacement of the zone's mean ray.)
+
+    Returns
+    -------
+    D : ndarray, shape (n_v, n_u, 2)
+        Displacements for the pixels of the central lenslet; NaN for unlit views.
+    J : ndarray, shape (n_v, n_u, 2, 2), only with ``jacobian=True``
+        Derivative of D with respect to a displacement (rows, cols) of the
+        pixel relative to its microlens image, in view pixels per raw pixel
+        (central differences over ±0.25 px), for lenslets whose image centre
+        sits at another sub-pixel position than the central one.
     """
-    sp_ = camera.view_stop_positions  # (n_v, n_u, 2)
-    lit = np.isfinite(sp_[..., 0])
-    out = np.full(sp_.shape, np.nan)
-    if not lit.any():
-        return out
-    rays = trace_axial_point(camera.main_lens, float(depth), sp_[lit])
-    z_h1 = camera.z_mla - camera.mla.front_principal_plane
-    X = rays[:, 0] + (z_h1 - rays[:, 2]) * rays[:, 3] / rays[:, 5]
-    Y = rays[:, 1] + (z_h1 - rays[:, 2]) * rays[:, 4] / rays[:, 5]
-    ok = np.isfinite(X)
-    Xm, Ym = X[ok].mean(), Y[ok].mean()
     pitch = camera.mla.pitch
-    d = np.full((lit.sum(), 2), np.nan)
-    d[ok, 0] = -(X[ok] - Xm) / pitch  # view column index runs along -x of the MLA
-    d[ok, 1] = (Y[ok] - Ym) / pitch  # view row index runs along +y of the MLA
-    out[lit] = d
-    return out
+    XY, tot = _zone_mean_positions(camera, depth, (0.0, 0.0))
+    lit = tot > 0
+    c = (tot[lit, None] * XY[lit]).sum(axis=0) / tot[lit].sum()
+
+    def to_view(xy):
+        d = np.empty_like(xy)
+        d[..., 0] = -(xy[..., 0] - c[0]) / pitch  # view column index runs along -x of the MLA
+        d[..., 1] = (xy[..., 1] - c[1]) / pitch  # view row index runs along +y of the MLA
+        return d
+
+    D = to_view(XY)
+    if not jacobian:
+        return D
+    h = 0.25
+    J = np.full(D.shape + (2,), np.nan)
+    for k, off in enumerate(((h, 0.0), (0.0, h))):
+        plus, _ = _zone_mean_positions(camera, depth, off)
+        minus, _ = _zone_mean_positions(camera, depth, (-off[0], -off[1]))
+        J[..., k] = (to_view(plus) - to_view(minus)) / (2 * h)
+    return D, J
+
+
+def lenslet_offsets(camera: Camera, centers: np.ndarray) -> np.ndarray:
+    """Sub-pixel displacement (rows, cols), in raw pixels, of each lenslet's
+    decoded pixels relative to its microlens image, minus that of the central
+    lenslet; shape (n_y, n_x, 2) in lenslet order (i, j)."""
+    p = camera.pixels_per_lenslet
+    o = centers - np.round(centers - 0.5 * (p - 1)) - 0.5 * (p - 1)
+    i0, j0 = camera.central_lenslet
+    return -(o - o[i0, j0])
+
+
+def view_shift_field(camera: Camera, centers: np.ndarray, depth: float) -> np.ndarray:
+    """Per-view, per-lenslet refocus shifts in view pixels, (n_v, n_u, n_y, n_x, 2):
+    D + J @ offset, with the lenslet axes flipped into view order."""
+    D, J = view_displacements(camera, depth, jacobian=True)
+    off = lenslet_offsets(camera, centers)[::-1, ::-1]  # (iy, ix, 2) in view order
+    return D[:, :, None, None, :] + np.einsum("vuab,yxb->vuyxa", np.nan_to_num(J), off)
 
 
 def _image_plane_z(camera: Camera, depth: float) -> float:
@@ -220,8 +280,12 @@ class LightField:
     wavelengths : tuple of float or None
         Channel wavelengths (m); None for the gray band.
     etendue : ndarray, shape (rows, cols), optional
-        Pixel étendue (m² sr) through the optics; zero marks unlit pixels.
-        Computed by Monte Carlo when not given.
+        Pixel étendue (m² sr) through the optics (default: the camera's
+        :attr:`Camera.etendue_map`).
+    min_etendue_fraction : float
+        View pixels whose étendue is below this fraction of the largest pixel
+        étendue are masked (default 0.05): the rim of each microlens image
+        collects almost no light and would only add noise.
     std_error : ndarray, optional
         Monte Carlo standard error of ``raw`` (same shape).
     centers : ndarray, shape (n_y, n_x, 2), optional
@@ -243,6 +307,7 @@ class LightField:
     noise_std: np.ndarray | None = None
     signal: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
+    min_etendue_fraction: float = 0.05
 
     def __post_init__(self) -> None:
         cam = self.camera
@@ -261,7 +326,7 @@ class LightField:
             if v is not None:
                 object.__setattr__(self, name, require_array(name, v, shape=shape))
         if self.etendue is None:
-            object.__setattr__(self, "etendue", cam.pixel_etendue(n_rays=256, seed=0))
+            object.__setattr__(self, "etendue", cam.etendue_map)
         else:
             object.__setattr__(self, "etendue", require_array("etendue", self.etendue, shape=cam.sensor_shape, minimum=0.0))
         if self.centers is None:
@@ -286,10 +351,12 @@ class LightField:
 
     @cached_property
     def view_mask(self) -> np.ndarray:
-        """True where a view pixel is lit (on the sensor and étendue > 0)."""
+        """True where a view pixel is lit: on the sensor, with étendue above
+        ``min_etendue_fraction`` of the largest pixel étendue."""
         idx = self.view_index
         et = self.etendue.ravel()
-        return (idx >= 0) & (et[np.maximum(idx, 0)] > 0.0)
+        thr = self.min_etendue_fraction * et.max()
+        return (idx >= 0) & (et[np.maximum(idx, 0)] > max(thr, 0.0)) & (et[np.maximum(idx, 0)] > 0.0)
 
     def _gather(self, flat: np.ndarray) -> np.ma.MaskedArray:
         idx = self.view_index
@@ -316,9 +383,8 @@ class LightField:
 
     @property
     def lit_views(self) -> list[tuple[int, int]]:
-        """(v, u) of the views lit under the central lenslet."""
-        disp = self.camera.view_stop_positions[..., 0]
-        return [tuple(x) for x in np.argwhere(np.isfinite(disp))]
+        """(v, u) of the views with at least one lit pixel."""
+        return [tuple(int(a) for a in x) for x in np.argwhere(self.view_mask.any(axis=(2, 3)))]
 
     # ---- refocusing ----------------------------------------------------------
     def alpha_of_depth(self, depth: float) -> float:
@@ -334,7 +400,7 @@ class LightField:
         from ._validate import require_positive
 
         depth = require_positive("depth", depth)
-        shifts = view_displacements(self.camera, depth)
+        shifts = view_shift_field(self.camera, self.centers, depth)
         return _shift_and_add_matrix(self.view_index, self.view_mask, shifts, self.camera.sensor_shape)
 
     def refocus_operator(self, alpha: float) -> sp.csr_matrix:
@@ -455,18 +521,26 @@ def _json_default(o):
 
 
 def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr_matrix:
-    """Sparse shift-and-add operator (see LightField.refocus_at)."""
+    """Sparse shift-and-add operator (see LightField.refocus_at).
+
+    ``shifts`` (n_v, n_u, n_y, n_x, 2): where output pixel (y, x) samples
+    view (v, u): at (x + shifts[..., 0], y + shifts[..., 1]); NaN = view unused.
+    """
     nv, nu, ny, nx = view_index.shape
     iy, ix = np.indices((ny, nx))
     out_rows = (iy * nx + ix).ravel()
     rows_l, cols_l, vals_l = [], [], []
     for v in range(nv):
         for u in range(nu):
-            sx, sy = shifts[v, u]
-            if not np.isfinite(sx):
+            if not view_mask[v, u].any():
                 continue
+            sx = shifts[v, u, ..., 0].ravel()
+            sy = shifts[v, u, ..., 1].ravel()
             X = ix.ravel() + sx
             Y = iy.ravel() + sy
+            fin = np.isfinite(X) & np.isfinite(Y)
+            X = np.where(fin, X, -10.0)
+            Y = np.where(fin, Y, -10.0)
             x0 = np.floor(X).astype(np.int64)
             y0 = np.floor(Y).astype(np.int64)
             fx = X - x0
@@ -474,7 +548,7 @@ def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr
             for ddx, ddy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
                 xx = x0 + ddx
                 yy = y0 + ddy
-                ok = (xx >= 0) & (xx < nx) & (yy >= 0) & (yy < ny) & (w > 0)
+                ok = fin & (xx >= 0) & (xx < nx) & (yy >= 0) & (yy < ny) & (w > 0)
                 xs, ys = np.where(ok, xx, 0), np.where(ok, yy, 0)
                 ok &= view_mask[v, u, ys, xs]
                 rows_l.append(out_rows[ok])
@@ -491,4 +565,4 @@ def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr
     M = sp.csr_matrix((vals, (rows, cols)), shape=(ny * nx, n_raw))
     norm = np.asarray(M.sum(axis=1)).ravel()
     inv = np.divide(1.0, norm, out=np.zeros_like(norm), where=norm > 0)
-    return sp.diags(inv) @ M
+    return (sp.diags(inv) @ M).tocsr()

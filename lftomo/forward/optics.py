@@ -286,12 +286,21 @@ def sample_pixel_ray(row, col, state, optics):
     Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)``: object-space origin on
     the stop plane and unit direction (dz > 0); ``w`` in m² sr.
     """
+    return sample_pixel_ray_offset(row, col, 0.0, 0.0, state, optics)
+
+
+@njit(cache=True, inline="always")
+def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
+    """:func:`sample_pixel_ray` for a pixel-sized square displaced by
+    (``off_r``, ``off_c``) pixels from pixel (row, col), seen through the
+    lenslet of (row, col).  Used to tabulate how a view's aperture zone moves
+    with the sub-pixel position of a pixel relative to its microlens image."""
     sp = optics[O_S_PITCH]
     ppl = int(optics[O_S_PPL])
     state, u1 = rng_uniform(state)
     state, u2 = rng_uniform(state)
-    sx = (col + u1 - 0.5 * optics[O_NCOLS]) * sp
-    sy = (0.5 * optics[O_NROWS] - row - u2) * sp
+    sx = (col + off_c + u1 - 0.5 * optics[O_NCOLS]) * sp
+    sy = (0.5 * optics[O_NROWS] - row - off_r - u2) * sp
     sz = optics[O_S_Z]
     i = row // ppl
     j = col // ppl

@@ -157,7 +157,7 @@ def render(
         "scene": scene.summary(),
         "elapsed_s": elapsed,
     }
-    return LightField(raw=raw, camera=camera, wavelengths=wl, etendue=etendue, std_error=se, metadata=meta)
+    return LightField(raw=raw, camera=camera, wavelengths=wl, std_error=se, metadata=meta)
 
 
 class _NoBar:

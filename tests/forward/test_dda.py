@@ -378,6 +378,9 @@ def test_isothermal_uniform_box_along_normal():
         out = _emission(o, d, lower, spacing, shape, sigma, Ibf)
         np.testing.assert_allclose(out, -Ib * np.expm1(-sig * L), rtol=1e-12, atol=0)
         assert out[3] == 0.0  # zero sigma: exactly nothing
+        for c in range(4):  # the single-channel code path
+            one = _emission(o, d, lower, spacing, shape, sigma[c:c + 1], Ibf[c:c + 1])
+            assert one[0] == pytest.approx(-Ib[c] * math.expm1(-sig[c] * L), rel=1e-12, abs=0)
 
 
 def test_ray_starting_inside_the_medium_integrates_t_positive_only():
@@ -453,12 +456,12 @@ def test_surface_inside_medium_truncates_integration(depth):
     assert out[0] == pytest.approx(ib * -math.expm1(-s * depth), rel=1e-12)
 
 
-def test_refined_grid_gives_same_radiance():
+@pytest.mark.parametrize("n_ch", [1, 2])
+def test_refined_grid_gives_same_radiance(n_ch):
     """Splitting every voxel into 2x2x2 equal voxels changes nothing (additivity)."""
     rng = np.random.default_rng(11)
     shape = (5, 4, 6)
     lower, spacing = np.array([-0.1, 0.2, 0.9]), np.array([0.02, 0.03, 0.015])
-    n_ch = 2
     sig = rng.uniform(0.0, 40.0, size=(n_ch, *shape))
     sig[sig < 8.0] = 0.0  # some transparent voxels
     Ib = rng.uniform(0.0, 3.0, size=(n_ch, *shape))
@@ -466,7 +469,7 @@ def test_refined_grid_gives_same_radiance():
     sig_f, Ib_f = fine(sig), fine(Ib)
     sig_c, Ib_c = sig.reshape(n_ch, -1), Ib.reshape(n_ch, -1)
     shape_f = tuple(2 * s for s in shape)
-    L0 = np.array([0.7, 0.2])
+    L0 = np.array([0.7, 0.2])[:n_ch]
     surf, tex = _planar_surface([0.0, 0.2, 1.5], [1, 0, 0], [0, 1, 0], [0, 0, -1], 1, 1, L0)
     centre = lower + spacing * np.array(shape) / 2
     n_tested = 0
