@@ -41,6 +41,15 @@ The update is written as ``L += expm1(-tau) (L - Ib)``, which is exact for
 ``tau = 0`` and keeps full relative precision of ``1 - a`` for optically thin
 voxels.
 
+Performance (``benchmarks/render_media.py``, 1e6 rays through 64^3 voxels,
+one thread of an AMD EPYC (znver4), numba 0.68): the bare traversal with one
+``exp`` per step runs at ~7.3 ns/step, ``integrate_rays`` at ~8.9 ns/step for
+one channel (ratio ~0.82) and ~8.2 ns per channel-step for three channels.
+Measured and rejected: a ``min`` + three equality tests per step (LLVM makes
+selects; ~2.5x slower traversal), branch-free stepping (slower), traverse-then-
+channels with a segment buffer (``integrate_rays_buffered``, ratio ~0.66),
+``exp`` with ``(1 - a)`` instead of ``expm1`` (no faster, less accurate).
+
 All kernels are ``numba.njit(cache=True)`` and take arrays and scalars only;
 the public wrappers that unpack scene dataclasses live elsewhere.
 """
@@ -197,7 +206,7 @@ def _axis_start(o, d, lo, h, n, tb, ts, t0):
     if i < 0:
         i = 0
     if d > 0.0:
-        while i < n - 1 and tb + float(i + 1) * ts < t0:
+        while i < n - 1 and tb + float(i + 1) * ts <= t0:
             i += 1
         while i > 0 and tb + float(i) * ts > t0:
             i -= 1

@@ -164,9 +164,21 @@ def test_ray_box_known_values():
     # parallel to a slab, outside it: miss (no NaN from 0 * inf)
     te, tx = ray_box(-1.0, 1.5, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
     assert te > tx
-    # parallel, exactly on the face plane: closed box, hit
-    te, tx = ray_box(-1.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
-    assert (te, tx) == (1.0, 2.0)
+    # parallel, exactly on a face plane (each of the six): closed box, hit
+    lo, hi = np.array([-0.5, 0.25, 1.0]), np.array([0.5, 0.75, 3.0])
+    for a in range(3):
+        for face in (lo[a], hi[a]):
+            o = (lo + hi) / 2
+            o[a] = face
+            d = np.zeros(3)
+            b = (a + 1) % 3
+            d[b] = 1.0
+            o[b] = lo[b] - 1.0
+            te, tx = ray_box(*o, *d, *lo, *hi)
+            assert (te, tx) == (1.0, 1.0 + hi[b] - lo[b])
+            o[a] = np.nextafter(face, np.inf if face == hi[a] else -np.inf)
+            te, tx = ray_box(*o, *d, *lo, *hi)
+            assert te > tx
 
 
 # ------------------------------------------------------- random invariants ---
@@ -332,6 +344,33 @@ def test_ray_moving_down_from_a_plane_starts_below_it():
     np.testing.assert_array_equal(vox, [2, 3])
 
 
+def test_origins_on_and_next_to_voxel_planes():
+    """Origins at fl(x0 + k h) and one ulp either side, t >= 0, moving +-x.
+
+    Here the voxel of the origin computed by ``floor`` and the voxel implied
+    by the plane parameters can disagree by one; the walk must still give
+    positive lengths, the right voxels and the exact chord.
+    """
+    rng = np.random.default_rng(17)
+    for _ in range(400):
+        lower, spacing, shape = _random_grid(rng)
+        shape = (max(shape[0], 3), shape[1], shape[2])
+        k = int(rng.integers(1, shape[0]))
+        x = lower[0] + k * spacing[0]
+        x = [x, np.nextafter(x, np.inf), np.nextafter(x, -np.inf)][int(rng.integers(3))]
+        o = lower + spacing * np.array(shape) * rng.uniform(0.1, 0.9, size=3)
+        o[0] = x
+        d = np.array([rng.choice([-1.0, 1.0]), *rng.uniform(-1e-3, 1e-3, size=2)])
+        d /= np.linalg.norm(d)
+        vox, seg, t0, t1 = _check_invariants(o, d, lower, spacing, shape, 0.0, np.inf)
+        ref_vox, ref_seg = _brute_force_segments(o, d, lower, spacing, shape, t0, t1)
+        # a segment of rounding size (origin one ulp before a plane) may be
+        # resolved by one computation and not by the other: compare the rest
+        tol = _t_tol(o, d, lower, spacing, shape, len(vox))
+        np.testing.assert_array_equal(vox[seg > tol], ref_vox[ref_seg > tol])
+        np.testing.assert_allclose(seg[seg > tol], ref_seg[ref_seg > tol], rtol=0, atol=tol)
+
+
 def test_missing_rays():
     lower, spacing, shape = np.zeros(3), np.full(3, 0.1), (4, 4, 4)
     cases = [
@@ -399,8 +438,11 @@ def test_piecewise_constant_slabs_against_closed_form(direction, tilt):
     sig_z = rng.uniform(0.0, 30.0, size=(n_ch, nz))
     sig_z[:, 4] = 0.0  # a transparent layer
     Ib_z = rng.uniform(0.5, 2.0, size=(n_ch, nz))
-    sigma = np.ascontiguousarray(np.broadcast_to(sig_z[:, None, None, :], (n_ch, 4, 4, nz)).reshape(n_ch, -1))
-    Ib = np.ascontiguousarray(np.broadcast_to(Ib_z[:, None, None, :], (n_ch, 4, 4, nz)).reshape(n_ch, -1))
+    def layered(f):  # (n_ch, nz) -> (n_ch, n_vox), uniform in x and y
+        return np.ascontiguousarray(np.broadcast_to(f[:, None, None, :], (n_ch, 4, 4, nz))
+                                    .reshape(n_ch, -1))
+
+    sigma, Ib = layered(sig_z), layered(Ib_z)
     d = np.array([tilt, 0.5 * tilt, direction])
     d /= np.linalg.norm(d)
     zs = -1.0 if direction > 0 else 2.0
@@ -409,7 +451,8 @@ def test_piecewise_constant_slabs_against_closed_form(direction, tilt):
     # closed form: layers in the order met, path hz / |cos|
     order = np.arange(nz) if direction > 0 else np.arange(nz)[::-1]
     tau = sig_z[:, order] * spacing[2] / abs(d[2])
-    T_before = np.exp(-np.concatenate([np.zeros((n_ch, 1)), np.cumsum(tau, axis=1)[:, :-1]], axis=1))
+    tau_before = np.concatenate([np.zeros((n_ch, 1)), np.cumsum(tau, axis=1)[:, :-1]], axis=1)
+    T_before = np.exp(-tau_before)
     ref = np.sum(Ib_z[:, order] * -np.expm1(-tau) * T_before, axis=1)
     np.testing.assert_allclose(out, ref, rtol=1e-12, atol=0)
 
@@ -465,7 +508,9 @@ def test_refined_grid_gives_same_radiance(n_ch):
     sig = rng.uniform(0.0, 40.0, size=(n_ch, *shape))
     sig[sig < 8.0] = 0.0  # some transparent voxels
     Ib = rng.uniform(0.0, 3.0, size=(n_ch, *shape))
-    fine = lambda a: np.ascontiguousarray(a.repeat(2, 1).repeat(2, 2).repeat(2, 3).reshape(n_ch, -1))
+    def fine(a):
+        return np.ascontiguousarray(a.repeat(2, 1).repeat(2, 2).repeat(2, 3).reshape(n_ch, -1))
+
     sig_f, Ib_f = fine(sig), fine(Ib)
     sig_c, Ib_c = sig.reshape(n_ch, -1), Ib.reshape(n_ch, -1)
     shape_f = tuple(2 * s for s in shape)
@@ -492,7 +537,8 @@ def test_buffered_and_parallel_variants_agree():
     n_vox = int(np.prod(shape))
     sigma = rng.uniform(0.0, 50.0, size=(3, n_vox))
     Ib = rng.uniform(0.0, 1.0, size=(3, n_vox))
-    surf, tex = _planar_surface([0, 0, 1.0], [1, 0, 0], [0, 1, 0], [0, 0, -1], 0.02, 0.02, [1.0, 2.0, 3.0])
+    surf, tex = _planar_surface([0, 0, 1.0], [1, 0, 0], [0, 1, 0], [0, 0, -1], 0.02, 0.02,
+                                [1.0, 2.0, 3.0])
     N = 2000
     rays_o = np.zeros((N, 3))
     tgt = lower + rng.uniform(-0.2, 1.2, size=(N, 3)) * spacing * np.array(shape)
@@ -534,8 +580,10 @@ def test_transmittance_count_steps_and_bare_kernel():
         transmittance(*rays_o[i], *rays_d[i], *g, sigma, 0.0, np.inf, tr)
         np.testing.assert_allclose(tr, np.exp(-(sigma[:, vox] * seg).sum(axis=1)), rtol=1e-12)
     assert count_steps(rays_o, rays_d, *g) == total
-    assert bare_dda_exp(rays_o, rays_d, *g, np.ascontiguousarray(sigma[0])) == pytest.approx(bare_ref, rel=1e-12)
+    bare = bare_dda_exp(rays_o, rays_d, *g, np.ascontiguousarray(sigma[0]))
+    assert bare == pytest.approx(bare_ref, rel=1e-12)
     # uniform box along the normal: exp(-sigma L)
     tr = np.empty(1)
-    transmittance(0.02, 0.03, 0.0, 0.0, 0.0, 1.0, *g, np.full((1, n_vox), 3.0), -np.inf, np.inf, tr)
+    sig3 = np.full((1, n_vox), 3.0)
+    transmittance(0.02, 0.03, 0.0, 0.0, 0.0, 1.0, *g, sig3, -np.inf, np.inf, tr)
     assert tr[0] == pytest.approx(math.exp(-3.0 * 0.07), rel=1e-12)
