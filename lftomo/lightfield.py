@@ -145,10 +145,11 @@ def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float 
 
 # ---- refocusing geometry ----------------------------------------------------
 
-def _zone_mean_positions(camera: Camera, depth: float, offset: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def _zone_mean_positions(camera: Camera, depth: float, offset: tuple[float, float], n_rays: int = 1024):
     """Throughput-weighted mean MLA-plane position (X, Y) (m) of the image of
-    the on-axis point at ``depth`` in each view, and the views' total weight."""
-    samples = camera.view_stop_samples(offset)  # (n_v, n_u, K, 3)
+    the on-axis point at ``depth`` in each view, the views' total weight, and
+    the Monte Carlo standard error of the mean position (m)."""
+    samples = camera.view_stop_samples(offset, n_rays=n_rays)  # (n_v, n_u, K, 3)
     nv, nu, K, _ = samples.shape
     w = samples[..., 2].reshape(-1, K)
     pts = samples[..., :2].reshape(-1, K, 2)
@@ -166,12 +167,17 @@ def _zone_mean_positions(camera: Camera, depth: float, offset: tuple[float, floa
         XY[bad] = 0.0
     tot = w.sum(axis=1)
     mean = np.full((nv * nu, 2), np.nan)
+    se = np.full((nv * nu, 2), np.nan)
     ok = tot > 0
     mean[ok] = (w[ok, :, None] * XY[ok]).sum(axis=1) / tot[ok, None]
-    return mean.reshape(nv, nu, 2), tot.reshape(nv, nu)
+    # standard error of a ratio (self-normalised) estimator
+    dev = XY[ok] - mean[ok][:, None, :]
+    se[ok] = np.sqrt((w[ok, :, None] ** 2 * dev**2).sum(axis=1)) / tot[ok, None]
+    return mean.reshape(nv, nu, 2), tot.reshape(nv, nu), se.reshape(nv, nu, 2)
 
 
-def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False):
+def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False, n_rays: int = 1024,
+                       return_se: bool = False):
     """Displacement (in view pixels, (dx, dy) = (column, row)) of the image of
     a point at ``depth`` in each view, relative to the weighted mean over views.
 
@@ -193,7 +199,7 @@ def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False):
         sits at another sub-pixel position than the central one.
     """
     pitch = camera.mla.pitch
-    XY, tot = _zone_mean_positions(camera, depth, (0.0, 0.0))
+    XY, tot, se = _zone_mean_positions(camera, depth, (0.0, 0.0), n_rays)
     lit = tot > 0
     c = (tot[lit, None] * XY[lit]).sum(axis=0) / tot[lit].sum()
 
@@ -204,15 +210,16 @@ def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False):
         return d
 
     D = to_view(XY)
+    se_view = se / pitch
     if not jacobian:
-        return D
+        return (D, se_view) if return_se else D
     h = 0.25
     J = np.full(D.shape + (2,), np.nan)
     for k, off in enumerate(((h, 0.0), (0.0, h))):
-        plus, _ = _zone_mean_positions(camera, depth, off)
-        minus, _ = _zone_mean_positions(camera, depth, (-off[0], -off[1]))
+        plus = _zone_mean_positions(camera, depth, off, n_rays)[0]
+        minus = _zone_mean_positions(camera, depth, (-off[0], -off[1]), n_rays)[0]
         J[..., k] = (to_view(plus) - to_view(minus)) / (2 * h)
-    return D, J
+    return (D, J, se_view) if return_se else (D, J)
 
 
 def lenslet_offsets(camera: Camera, centers: np.ndarray) -> np.ndarray:
@@ -225,10 +232,10 @@ def lenslet_offsets(camera: Camera, centers: np.ndarray) -> np.ndarray:
     return -(o - o[i0, j0])
 
 
-def view_shift_field(camera: Camera, centers: np.ndarray, depth: float) -> np.ndarray:
+def view_shift_field(camera: Camera, centers: np.ndarray, depth: float, *, n_rays: int = 1024) -> np.ndarray:
     """Per-view, per-lenslet refocus shifts in view pixels, (n_v, n_u, n_y, n_x, 2):
     D + J @ offset, with the lenslet axes flipped into view order."""
-    D, J = view_displacements(camera, depth, jacobian=True)
+    D, J = view_displacements(camera, depth, jacobian=True, n_rays=n_rays)
     off = lenslet_offsets(camera, centers)[::-1, ::-1]  # (iy, ix, 2) in view order
     return D[:, :, None, None, :] + np.einsum("vuab,yxb->vuyxa", np.nan_to_num(J), off)
 

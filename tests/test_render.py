@@ -192,3 +192,18 @@ def test_spectral_channels_follow_planck(small_camera):
     ratio = lf.raw[2].sum() / lf.raw[1].sum()
     assert ratio == pytest.approx(lt.planck(1500.0, 900e-9) / lt.planck(1500.0, 650e-9), rel=1e-12)
     assert lf.views.shape == (3,) + small_camera.views_shape
+
+
+def test_exit_pupil_cull_changes_no_pixel(small_camera):
+    """The early cull at the exit pupil only drops rays that the stop would drop."""
+    from lftomo.forward import optics as O
+    from lftomo.forward.camera import _pixel_throughput
+
+    rows, cols = np.indices(small_camera.sensor_shape)
+    rows, cols = rows.ravel()[::7], cols.ravel()[::7]
+    culled = _pixel_throughput(rows, cols, 64, 1, small_camera.packed)
+    no_cull = small_camera.packed.copy()
+    no_cull[O.O_XP_R2] = 0.0
+    full = _pixel_throughput(rows, cols, 64, 1, no_cull)
+    assert np.array_equal(culled, full)
+    assert small_camera.packed[O.O_XP_R2] > 0

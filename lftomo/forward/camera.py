@@ -31,6 +31,12 @@ from . import optics as _o
 from .rng import rng_init, rng_uniform
 
 
+EXIT_PUPIL_CULL_MARGIN = 1.25
+"""Backward rays crossing the paraxial exit-pupil plane beyond this multiple of
+the pupil radius are dropped before the main-lens trace (they cannot reach the
+stop); ``tests/test_render.py`` checks that this changes no pixel."""
+
+
 def thick_lens_focal_length(r1: float, r2: float, thickness: float, index: float) -> float:
     """Effective focal length of a thick lens in air (lensmaker's equation).
 
@@ -426,6 +432,8 @@ class Camera:
         )
 
     # ---- derived geometry -------------------------------------------------
+    # numba-free helper state (stop-sample cache) lives in __dict__ of the frozen instance
+
     @property
     def pixels_per_lenslet(self) -> int:
         return self._ppl  # type: ignore[attr-defined]
@@ -487,6 +495,9 @@ class Camera:
         o[_o.O_SAMPLE_R] = rclear + sag_back * tan_max * 1.05
         o[_o.O_RINGS] = 0.0
         o[_o.O_P_OWN] = 1.0
+        z_xp, d_xp = _exit_pupil(ml)
+        o[_o.O_XP_Z] = z_xp
+        o[_o.O_XP_R2] = (EXIT_PUPIL_CULL_MARGIN * 0.5 * d_xp) ** 2
         o.setflags(write=False)
         if self._crosstalk_possible(o):
             o = o.copy()
@@ -702,7 +713,7 @@ class Camera:
         sp = self.view_stop_positions
         ux = sp[..., 0]
         steps = np.nanmean(np.diff(ux, axis=1)) if self.lit_views > 1 else float("nan")
-        disparity = abs(steps) * abs(m) / (d * mla.pitch)
+        disparity = self._disparity_per_metre(d)
         warns: list[str] = []
         if img_diam_px > ppl * 1.0:
             warns.append(
@@ -750,6 +761,25 @@ class Camera:
             "ideal_main_lens": ml.ideal,
             "warnings": warns,
         }
+
+    def _disparity_per_metre(self, depth: float) -> float:
+        """Traced shift (view pixels) between adjacent fully lit views per metre
+        of depth change around ``depth``: slope of the view displacements
+        against the view index, differentiated in depth (±5 mm)."""
+        from ..lightfield import view_displacements
+
+        et = self._central_etendue
+        full = et >= 0.5 * et.max()
+        h = 0.005
+        dp = view_displacements(self, depth + h)[..., 0]
+        dm = view_displacements(self, depth - h)[..., 0]
+        nv, nu = full.shape
+        uu = np.broadcast_to(np.arange(nu), (nv, nu))
+        sel = full & np.isfinite(dp) & np.isfinite(dm)
+        if sel.sum() < 2:
+            return float("nan")
+        slope = lambda D: np.polyfit(uu[sel], D[sel], 1)[0]  # noqa: E731
+        return abs(slope(dp) - slope(dm)) / (2 * h)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description that :meth:`from_dict` rebuilds exactly."""

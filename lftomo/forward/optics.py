@@ -51,7 +51,9 @@ O_RINGS = 22  # neighbouring lenslet rings a pixel may see (0: own lenslet only)
 O_P_OWN = 23  # probability of sampling the pixel's own lenslet
 O_NCOLS = 24
 O_NROWS = 25
-O_SIZE = 26
+O_XP_Z = 26  # z of the paraxial exit pupil
+O_XP_R2 = 27  # squared cull radius at the exit pupil (0: no cull)
+O_SIZE = 28
 
 
 @njit(cache=True, inline="always")
@@ -67,12 +69,9 @@ def _refract(dx, dy, dz, nx, ny, nz, n1, n2):
     k = 1.0 - eta * eta * (1.0 - cosi * cosi)
     if k < 0.0:
         return False, dx, dy, dz
+    # for unit d and n the result is a unit vector: no renormalisation needed
     a = eta * cosi - math.sqrt(k)
-    ox = eta * dx + a * nx
-    oy = eta * dy + a * ny
-    oz = eta * dz + a * nz
-    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
-    return True, ox * inv, oy * inv, oz * inv
+    return True, eta * dx + a * nx, eta * dy + a * ny, eta * dz + a * nz
 
 
 @njit(cache=True, inline="always")
@@ -326,13 +325,18 @@ def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
             if i < 0 or j < 0 or i >= int(optics[O_M_NY]) or j >= int(optics[O_M_NX]):
                 return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     cx, cy = lenslet_center(i, j, optics)
-    state, u3 = rng_uniform(state)
-    state, u4 = rng_uniform(state)
+    # uniform point on the disc by rejection from the enclosing square
+    # (no trigonometry; 4/pi pairs of draws on average)
     rs = optics[O_SAMPLE_R]
-    rr = rs * math.sqrt(u3)
-    ph = 2.0 * math.pi * u4
-    qx = cx + rr * math.cos(ph)
-    qy = cy + rr * math.sin(ph)
+    while True:
+        state, u3 = rng_uniform(state)
+        state, u4 = rng_uniform(state)
+        ax = 2.0 * u3 - 1.0
+        ay = 2.0 * u4 - 1.0
+        if ax * ax + ay * ay <= 1.0:
+            break
+    qx = cx + rs * ax
+    qy = cy + rs * ay
     qz = optics[O_M2_ZV]
     ex = qx - sx
     ey = qy - sy
@@ -346,6 +350,15 @@ def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
     ok, px, py, pz, dx, dy, dz = mla_backward(sx, sy, sz, dx, dy, dz, i, j, optics)
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    # Early cull: a ray that crosses the paraxial exit-pupil plane far outside
+    # the pupil (by a margin that covers pupil aberrations) cannot pass the stop.
+    cull = optics[O_XP_R2]
+    if cull > 0.0 and dz > 0.0:
+        t = (optics[O_XP_Z] - pz) / dz
+        ex = px + t * dx
+        ey = py + t * dy
+        if ex * ex + ey * ey > cull:
+            return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     ok, x, y, dx, dy, dz = main_lens_backward(px, py, pz, dx, dy, dz, optics)
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
