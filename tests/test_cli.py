@@ -1,0 +1,87 @@
+"""The command line and scene files."""
+
+import json
+
+import numpy as np
+import pytest
+
+import lftomo as lt
+from lftomo.cli import main
+from lftomo.config import load_scene_file, scene_from_dict
+
+
+def test_camera_command_json(capsys):
+    assert main(["camera", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["main_lens_focal_length"] == pytest.approx(0.3040987, rel=1e-6)
+
+
+def test_render_command_small_scene(tmp_path, capsys):
+    scene = tmp_path / "s.toml"
+    scene.write_text(
+        """
+[camera]
+focus_distance = 1.0
+[camera.mla]
+count = [12, 12]
+[render]
+rays_per_pixel = 2
+wavelength_nm = [650, 800]
+[output]
+focal_stack_depths = [0.98, 1.0]
+[[surface]]
+center = [0.0, 0.0, 1.0]
+size = [0.02, 0.02]
+texture = "checkerboard"
+squares = 4
+radiance = 5.0
+"""
+    )
+    out = tmp_path / "out"
+    assert main(["render", str(scene), "-o", str(out), "--quiet"]) == 0
+    lf = lt.LightField.load(out / "lightfield.npz")
+    assert lf.raw.shape == (2, 120, 120)
+    assert lf.wavelengths == pytest.approx((650e-9, 800e-9))
+    for name in ("raw_ch0.png", "views_mosaic_ch1.png", "overview.png", "focal_stack.png", "summary.json"):
+        assert (out / name).is_file()
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("[camera\nfocus_distance = 1", "not valid TOML"),
+        ("[camera]\nfocal = 1.0\n[[surface]]\ncenter=[0,0,1]\nsize=[1,1]", "unknown key"),
+        ("[render]\nwavelength_nm = 0.65\n[[surface]]\ncenter=[0,0,1]\nsize=[1,1]", "nanometres"),
+        ("[[surface]]\ncenter=[0,0,1]\nsize=[1,1]\nradiance=-1", ">= 0"),
+        ("[[surface]]\ncenter=[0,0,1]\nsize=[1,1]\ntexture='file'\npath='nope.npy'", "does not exist"),
+        ("[camera]\nfocus_distance = 0.1\n[[surface]]\ncenter=[0,0,1]\nsize=[1,1]", "inside the main-lens focal length"),
+        ("[render]\nseed = 1", "nothing to see"),
+    ],
+)
+def test_malformed_scene_files(tmp_path, text, match):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        load_scene_file(p)
+
+
+def test_cli_reports_errors_without_traceback(tmp_path, capsys):
+    p = tmp_path / "bad.toml"
+    p.write_text("[render]\nseed = 1")
+    assert main(["camera", str(p)]) == 2
+    assert "nothing to see" in capsys.readouterr().err
+
+
+def test_texture_file_is_loaded_without_pickle(tmp_path):
+    np.save(tmp_path / "t.npy", np.eye(3))
+    cfg = scene_from_dict(
+        {"surface": [{"center": [0, 0, 1], "size": [0.01, 0.01], "texture": "file", "path": "t.npy", "radiance": 2.0}]},
+        base=tmp_path,
+    )
+    assert cfg.scene.surfaces[0].radiance.max() == 2.0
+    np.save(tmp_path / "o.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(ValueError, match="pickle"):
+        scene_from_dict(
+            {"surface": [{"center": [0, 0, 1], "size": [0.01, 0.01], "texture": "file", "path": "o.npy"}]},
+            base=tmp_path,
+        )
