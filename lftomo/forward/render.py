@@ -129,9 +129,9 @@ def render(
     t0 = time.perf_counter()
     medium_kernel = None
     if scene.medium is not None:
-        from .media_render import render_medium_rows  # noqa: F401  (participating media)
+        from .media_render import medium_row_kernel
 
-        medium_kernel = render_medium_rows
+        medium_kernel = medium_row_kernel(scene.medium, wl, camera)
     ppl = camera.pixels_per_lenslet
     step = max(ppl, (nrows // 20) // ppl * ppl) if nrows >= 20 * ppl else nrows
     chunks = [(r, min(r + step, nrows)) for r in range(0, nrows, step)]
@@ -141,7 +141,7 @@ def render(
         if medium_kernel is None:
             _render_rows(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq, etendue)
         else:
-            medium_kernel(r0, r1, optics, surf, tex, scene.medium, wl, n_rays, seed, mean, sq, etendue)
+            medium_kernel(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq)
         bar.update((r1 - r0) * ncols)
     bar.close()
     elapsed = time.perf_counter() - t0
@@ -151,6 +151,7 @@ def render(
     se = std_error[0] if n_ch == 1 else std_error
     meta = {
         "renderer": "backward",
+        "transport": "surfaces" if scene.medium is None else ("delta tracking" if scene.medium.is_scattering else "exact DDA"),
         "rays_per_pixel": n_rays,
         "seed": seed,
         "wavelengths": None if wl is None else list(wl),

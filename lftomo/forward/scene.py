@@ -70,6 +70,10 @@ class PlanarEmitter:
         the camera.  The back face is black and opaque.
     up : (x, y, z)
         Direction of the texture's row 0 (projected onto the plane).
+    transparent_back : bool
+        If True the back face lets rays through (a one-way window): used to
+        look into an isothermal enclosure from outside, as in the equilibrium
+        reference case.  Default False: the back face is black and opaque.
     """
 
     center: tuple[float, float, float]
@@ -79,6 +83,7 @@ class PlanarEmitter:
     emissivity: float = 1.0
     normal: tuple[float, float, float] = (0.0, 0.0, -1.0)
     up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    transparent_back: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", require_vector("center", self.center, 3))
@@ -151,7 +156,8 @@ def pack_surfaces(surfaces: Sequence[PlanarEmitter], wavelengths: Sequence[float
         u, v, n = s.frame
         t = s.texture(wavelengths)
         rows.append(
-            np.concatenate([s.center, u, v, n, [0.5 * s.size[0], 0.5 * s.size[1], off, t.shape[1], t.shape[2]]])
+            np.concatenate([s.center, u, v, n, [0.5 * s.size[0], 0.5 * s.size[1], off, t.shape[1], t.shape[2],
+                                                1.0 if s.transparent_back else 0.0]])
         )
         texs.append(t.ravel())
         off += t.size

@@ -13,6 +13,7 @@ Packed layout (what the kernels see)
     14    offset of this surface's texture block in ``tex``
     15    texture rows    (n_r)
     16    texture columns (n_c)
+    17    1.0: the back face is transparent (a one-way window; optional column)
 
 ``tex``: flat float64 array; the block of a surface is ``(n_channels, n_r, n_c)``
 in C order, radiance per channel (W m^-2 sr^-1, or W m^-2 sr^-1 m^-1 in
@@ -27,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-SURF_NCOL = 17
+SURF_NCOL = 18
 
 
 @njit(cache=True)
@@ -80,6 +81,8 @@ def surfaces_hit(ox, oy, oz, dx, dy, dz, t_max, surf, tex, out):
         hh = surf[k, 13]
         if abs(a) > hw or abs(b) > hh:
             continue
+        if denom > 0.0 and surf.shape[1] > 17 and surf[k, 17] != 0.0:
+            continue  # back face of a one-way window: the ray passes
         best_t = t
         if denom < 0.0:  # front face seen
             best = k
