@@ -8,6 +8,8 @@ __version__ = "0.1.0"
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor, thick_lens_focal_length, spherical_aberration
 from .forward.scene import PlanarEmitter, Scene, checkerboard, uniform
 from .forward.render import render
+from .forward.media_render import render_forward
+from .forward.scattering import slab_collimated, hg_phase
 from .lightfield import LightField, calibrate_centers, geometric_centers, alpha_of_depth, depth_of_alpha
 from .radiation import planck, planck_inverse, dplanck_dT, gray_intensity, gray_inverse, blackbody_intensity
 from .forward.grid import Grid
@@ -27,6 +29,9 @@ __all__ = [
     "checkerboard",
     "uniform",
     "render",
+    "render_forward",
+    "slab_collimated",
+    "hg_phase",
     "LightField",
     "calibrate_centers",
     "geometric_centers",
