@@ -164,3 +164,18 @@ def test_medium_that_overlaps_the_lens_or_is_out_of_view_is_refused(cam):
         lt.render(lt.Scene(medium=lt.phantoms.uniform_box(g2, T=1000.0, sigma_a=1.0)), cam, rays_per_pixel=1)
     with pytest.raises(ValueError, match="n_bundles"):
         render_forward(lt.Scene(medium=lt.phantoms.uniform_box(box_grid(), T=1000.0, sigma_a=1.0)), cam, n_bundles=0)
+
+
+def test_backward_and_forward_agree_for_a_backlight_through_an_absorber(cam):
+    grid = box_grid(n=(6, 6, 6), half=0.006, z0=0.994, depth=0.012)
+    absorber = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.004, T_peak=300.0, T_ambient=300.0,
+                                         sigma_a_peak=100.0)
+    back = lt.PlanarEmitter(center=(0.0, 0.0, 1.02), size=(0.012, 0.012), radiance=lt.checkerboard(2, low=0.5e9,
+                                                                                                    high=1e9))
+    sc = lt.Scene(surfaces=[back], medium=absorber)
+    a = lt.render(sc, cam, rays_per_pixel=32, seed=21)
+    b = render_forward(sc, cam, n_bundles=1_000_000, seed=22)
+    z, ta, tb, s = _binned_agreement(a, b, cam)
+    assert abs(ta - tb) < 3 * s, (ta, tb, s)
+    assert stats.chi2.sf((z**2).sum(), len(z)) > 1e-3, z
+    assert np.all(np.abs(z) < stats.t.ppf(1 - 1e-4, 15)), z
