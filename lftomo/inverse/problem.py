@@ -1,0 +1,79 @@
+"""The linear forward problem shared by all inverse solvers.
+
+For known ``sigma_a``, ``sigma_s``, ``g`` the data are linear in the blackbody
+intensity field (DESIGN §3):
+
+    y = A @ I_b(T).ravel() + background + noise,   noise ~ N(0, diag(sigma²))
+
+``A`` (m, n) is a weight matrix (signal per unit I_b, m² sr) already mapped to
+the data space (sub-aperture pixels, or a focal stack ``R @ W``); ``n`` is the
+number of voxels of the reconstruction grid (flat C order).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from .._validate import require_array
+
+
+@dataclass(frozen=True, eq=False)
+class LinearProblem:
+    """Data, noise and forward operator of one wavelength channel.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (m, n)
+        Forward operator (m² sr): data per unit blackbody intensity of each voxel.
+    y : ndarray, shape (m,)
+        Data (W, or W/m spectral).
+    sigma : ndarray, shape (m,)
+        Noise standard deviation of each datum (same units as ``y``), > 0.
+    grid : Grid
+        Reconstruction grid, ``grid.n_voxels == n``.
+    wavelength : float or None
+        Wavelength (m) of the channel; None for the gray band (σT⁴/π).
+    background : ndarray, shape (m,), optional
+        Known additive signal (e.g. a back-light seen through the medium).
+    """
+
+    A: Any
+    y: np.ndarray
+    sigma: np.ndarray
+    grid: Any
+    wavelength: float | None = 650e-9
+    background: np.ndarray | None = None
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not sp.issparse(self.A):
+            raise ValueError(f"A must be a scipy sparse matrix, got {type(self.A).__name__}")
+        A = sp.csr_matrix(self.A, dtype=np.float64)
+        m, n = A.shape
+        if n != self.grid.n_voxels:
+            raise ValueError(
+                f"A has {n} columns but the reconstruction grid has {self.grid.n_voxels} voxels "
+                f"(shape {tuple(self.grid.shape)})"
+            )
+        y = require_array("y", self.y, shape=(m,))
+        s = require_array("sigma", self.sigma, shape=(m,), strictly_positive=True)
+        bg = np.zeros(m) if self.background is None else require_array("background", self.background, shape=(m,))
+        if self.wavelength is not None and not (np.isfinite(self.wavelength) and 0 < self.wavelength < 1e-3):
+            raise ValueError(f"wavelength must be in m (e.g. 650e-9) or None for gray, got {self.wavelength!r}")
+        object.__setattr__(self, "A", A)
+        object.__setattr__(self, "y", y)
+        object.__setattr__(self, "sigma", s)
+        object.__setattr__(self, "background", bg)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.A.shape
+
+    def whitened(self) -> tuple[sp.csr_matrix, np.ndarray]:
+        """(Σ^{-1/2} A, Σ^{-1/2} (y - background))."""
+        w = 1.0 / self.sigma
+        return sp.diags(w) @ self.A, w * (self.y - self.background)
