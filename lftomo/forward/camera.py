@@ -463,16 +463,7 @@ class Camera:
     def packed(self) -> np.ndarray:
         """Camera constants for the numba kernels (see ``optics.O_*``)."""
         ml, mla = self.main_lens, self.mla
-        o = np.zeros(_o.O_SIZE)
-        o[_o.O_IDEAL] = 1.0 if ml.ideal else 0.0
-        o[_o.O_F_IDEAL] = ml.focal_length
-        o[_o.O_STOP_R] = 0.5 * ml.stop_diameter
-        o[_o.O_L1_ZV] = -ml.stop_to_vertex
-        o[_o.O_L1_C] = 0.0 if math.isinf(ml.r1) else 1.0 / ml.r1
-        o[_o.O_L2_ZV] = -ml.stop_to_vertex - ml.thickness
-        o[_o.O_L2_C] = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
-        o[_o.O_L_N] = ml.index
-        o[_o.O_L_R] = 0.5 * ml.diameter
+        o = _probe_optics(ml)
         o[_o.O_M_NX], o[_o.O_M_NY] = mla.count
         o[_o.O_M_PITCH] = mla.pitch
         o[_o.O_M_R] = 0.5 * mla.diameter
@@ -902,7 +893,8 @@ def _pupil_fan(stop_radius: float, n_rings: int = 24, n_per_ring: int = 48) -> n
 
 
 def _probe_optics(ml: MainLens) -> np.ndarray:
-    cam = Camera.__new__(Camera)  # only the main-lens entries are needed
+    """Packed optics array with only the main-lens entries filled (enough for
+    tracing object points to image space)."""
     o = np.zeros(_o.O_SIZE)
     o[_o.O_IDEAL] = 1.0 if ml.ideal else 0.0
     o[_o.O_F_IDEAL] = ml.focal_length
@@ -913,7 +905,6 @@ def _probe_optics(ml: MainLens) -> np.ndarray:
     o[_o.O_L2_C] = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
     o[_o.O_L_N] = ml.index
     o[_o.O_L_R] = 0.5 * ml.diameter
-    del cam
     return o
 
 

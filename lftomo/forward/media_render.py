@@ -160,57 +160,74 @@ def medium_row_kernel(medium, wavelengths, camera):
     return run
 
 
+def empty_row_kernel(n_ch):
+    """Row renderer for a scene without a medium (surfaces only): the exact
+    integrator with an empty 1-voxel grid that no object-space ray meets."""
+    sigma = np.zeros((n_ch, 1))
+
+    def run(r0, r1, optics, surf, tex, n_ch_, n_rays, seed, mean, sq):
+        _rows_absorbing(r0, r1, optics, surf, tex, n_ch_, n_rays, seed,
+                        0.0, 0.0, -10.0, 1e-9, 1e-9, 1e-9, 1, 1, 1, sigma, sigma, mean, sq)
+    return run
+
+
 # ---------------------------------------------------------------------------
 # Forward (emission) Monte Carlo
 # ---------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
-def _connect(px, py, pz, weight, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_t1, surf, tex, Lbuf, tbuf,
-             state, image, ch):
-    """Next-event connection of a point to a uniform point of the aperture stop.
+def _stop_connection(px, py, pz, state, optics, surf, tex, Lbuf):
+    """Connect a point to a uniform point of the aperture stop (next event).
 
-    ``weight`` is the bundle's radiant intensity toward the connection per unit
-    of ``cos θ_s dA_s / r²`` (W/sr); scored: weight · A_stop · cos θ_s / r² · T.
+    Returns ``(state, pix, dx, dy, dz, dist, geom)``: the flat pixel index the
+    connecting ray reaches through the optics (-1 if blocked by a surface,
+    vignetted or off the sensor), its unit direction and length, and
+    ``geom = A_stop cos θ_s / r²`` (sr), so that a source of radiant intensity
+    I toward the connection scores ``I · geom · T``.
     """
     rs = optics[_o.O_STOP_R]
-    while True:
-        state, u1 = rng_uniform(state)
-        state, u2 = rng_uniform(state)
-        ax = 2.0 * u1 - 1.0
-        ay = 2.0 * u2 - 1.0
-        if ax * ax + ay * ay <= 1.0:
-            break
-    sx = rs * ax
-    sy = rs * ay
-    ex = sx - px
-    ey = sy - py
+    state, ax, ay = _o.sample_unit_disc(state)
+    ex = rs * ax - px
+    ey = rs * ay - py
     ez = -pz
     r2 = ex * ex + ey * ey + ez * ez
     dist = math.sqrt(r2)
     dx = ex / dist
     dy = ey / dist
     dz = ez / dist
-    # an opaque surface between the point and the stop blocks the connection
-    t_hit = surfaces_hit(px, py, pz, dx, dy, dz, dist, surf, tex, Lbuf)
-    if t_hit < dist:
-        return state
-    pix = _o.trace_to_sensor(px, py, pz, dx, dy, dz, optics)
-    if pix < 0:
-        return state
-    transmittance(px, py, pz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_t1, 0.0, dist, tbuf)
-    cos_s = -dz
-    val = weight * math.pi * rs * rs * cos_s / r2 * tbuf[0]
+    geom = math.pi * rs * rs * (-dz) / r2
+    if surfaces_hit(px, py, pz, dx, dy, dz, dist, surf, tex, Lbuf) < dist:
+        return state, -1, dx, dy, dz, dist, geom
+    return state, _o.trace_to_sensor(px, py, pz, dx, dy, dz, optics), dx, dy, dz, dist, geom
+
+
+@njit(cache=True, inline="always")
+def _score(img, pix, value, optics):
     ncols = int(optics[_o.O_NCOLS])
-    image[pix // ncols, pix % ncols] += val
-    return state
+    img[pix // ncols, pix % ncols] += value
+
+
+@njit(cache=True, inline="always")
+def _pick(cdf, u):
+    """Index k with cdf[k-1] < u <= cdf[k] (binary search)."""
+    lo = 0
+    hi = cdf.shape[0] - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] < u:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
 
 @njit(cache=True, parallel=True)
 def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, sigma_s, g, majorant, scattering, vox_cdf, surf, tex, surf_cdf, p_volume,
-                    power_volume, ch, images):
+                    power_total, ch, images):
     """Emit ``bundles_per_chunk`` bundles in each of ``n_chunks`` independent
-    chunks (random stream = chunk index); chunk k accumulates into images[k]."""
+    chunks (random stream = chunk index); chunk k accumulates into images[k].
+    Every bundle carries ``power_total / (n_chunks * bundles_per_chunk)``."""
     n_vox = nx * ny * nz
     sig_t1 = np.empty((1, n_vox))
     for v in range(n_vox):
@@ -219,41 +236,29 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
     bxs = -(-nx // mx)
     bys = -(-ny // my)
     bzs = -(-nz // mz)
-    n_surf = surf.shape[0]
+    W = power_total / (n_chunks * bundles_per_chunk)
     for k in prange(n_chunks):
         state = rng_init(seed, k)
         img = images[k]
-        Lsurf = np.zeros(1)  # surfaces_hit needs a radiance buffer; only the distance is used
+        Lbuf = np.zeros(1)  # surfaces_hit needs a radiance buffer; only distances are used here
         tbuf = np.zeros(1)
         for b in range(bundles_per_chunk):
             state, u = rng_uniform(state)
             if u < p_volume:
-                # ---- volume emission: voxel by power, point uniform in the voxel
+                # ---- volume emission: voxel by power, point uniform in it, isotropic
                 state, uv = rng_uniform(state)
-                lo = 0
-                hi = n_vox - 1
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if vox_cdf[mid] < uv:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                v = lo
-                ix = v // (ny * nz)
-                iy = (v // nz) % ny
-                iz = v % nz
+                v = _pick(vox_cdf, uv)
                 state, a1 = rng_uniform(state)
                 state, a2 = rng_uniform(state)
                 state, a3 = rng_uniform(state)
-                px = x0 + (ix + a1) * hx
-                py = y0 + (iy + a2) * hy
-                pz = z0 + (iz + a3) * hz
-                # bundle power (W) = total emitted power / number of bundles,
-                # isotropic: radiant intensity W / (4 pi)
-                W = power_volume / (p_volume * bundles_per_chunk * n_chunks)
-                I = W / (4.0 * math.pi)
-                state = _connect(px, py, pz, I, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1, surf, tex,
-                                 Lsurf, tbuf, state, img, ch)
+                px = x0 + (v // (ny * nz) + a1) * hx
+                py = y0 + ((v // nz) % ny + a2) * hy
+                pz = z0 + (v % nz + a3) * hz
+                state, pix, cdx, cdy, cdz, dist, geom = _stop_connection(px, py, pz, state, optics, surf, tex, Lbuf)
+                if pix >= 0:
+                    transmittance(px, py, pz, cdx, cdy, cdz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1, 0.0,
+                                  dist, tbuf)
+                    _score(img, pix, W / (4.0 * math.pi) * geom * tbuf[0], optics)
                 state, u1 = rng_uniform(state)
                 state, u2 = rng_uniform(state)
                 cz = 1.0 - 2.0 * u1
@@ -263,97 +268,64 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
                 dy = sz * math.sin(ph)
                 dz = cz
             else:
-                # ---- surface emission: surface by power, point uniform, cosine-weighted direction
+                # ---- surface emission: surface by power, texel radiance by rejection-free
+                # importance (uniform point, weight L_local / L_mean), Lambertian
                 state, us = rng_uniform(state)
-                s = 0
-                while s < n_surf - 1 and surf_cdf[s] < us:
-                    s += 1
+                s = _pick(surf_cdf, us)
                 state, a1 = rng_uniform(state)
                 state, a2 = rng_uniform(state)
                 hw = surf[s, 12]
                 hh = surf[s, 13]
                 a = (2.0 * a1 - 1.0) * hw
                 bb = (2.0 * a2 - 1.0) * hh
-                # texel radiance sets the local emitted power: sample texels by power
-                # via rejection against the surface's maximum radiance
                 nr = int(surf[s, 15])
                 ncl = int(surf[s, 16])
                 off = int(surf[s, 14])
                 iu = min(int((a + hw) / (2.0 * hw) * ncl), ncl - 1)
                 iv = min(int((hh - bb) / (2.0 * hh) * nr), nr - 1)
-                Lloc = tex[off + (ch * nr + iv) * ncl + iu]
-                px = surf[s, 0] + a * surf[s, 3] + bb * surf[s, 6]
-                py = surf[s, 1] + a * surf[s, 4] + bb * surf[s, 7]
-                pz = surf[s, 2] + a * surf[s, 5] + bb * surf[s, 8]
-                area = 4.0 * hw * hh
-                # weight per bundle: pi L area / (prob of this surface * bundles); uniform point on it
-                W = math.pi * Lloc * area / ((1.0 - p_volume) * surf_pick_prob(surf_cdf, s) * bundles_per_chunk * n_chunks)
+                L_loc = tex[off + (ch * nr + iv) * ncl + iu]
+                L_mean = 0.0
+                for t in range(nr * ncl):
+                    L_mean += tex[off + ch * nr * ncl + t]
+                L_mean /= nr * ncl
+                Wb = W * L_loc / L_mean  # power of this bundle (uniform point on the chosen surface)
                 nxn = surf[s, 9]
                 nyn = surf[s, 10]
                 nzn = surf[s, 11]
-                # start a hair in front of the face so that the surface does not block itself
-                px += 1e-9 * nxn
-                py += 1e-9 * nyn
-                pz += 1e-9 * nzn
-                # Lambertian: radiant intensity toward the connection W cos(theta_e) / pi
+                # a hair in front of the face so that the surface does not hide itself
+                px = surf[s, 0] + a * surf[s, 3] + bb * surf[s, 6] + 1e-9 * nxn
+                py = surf[s, 1] + a * surf[s, 4] + bb * surf[s, 7] + 1e-9 * nyn
+                pz = surf[s, 2] + a * surf[s, 5] + bb * surf[s, 8] + 1e-9 * nzn
+                state, pix, cdx, cdy, cdz, dist, geom = _stop_connection(px, py, pz, state, optics, surf, tex, Lbuf)
+                cos_e = cdx * nxn + cdy * nyn + cdz * nzn
+                if pix >= 0 and cos_e > 0.0:
+                    transmittance(px, py, pz, cdx, cdy, cdz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1, 0.0,
+                                  dist, tbuf)
+                    _score(img, pix, Wb * cos_e / math.pi * geom * tbuf[0], optics)
+                # cosine-weighted direction about the normal for the walk
                 state, u1 = rng_uniform(state)
                 state, u2 = rng_uniform(state)
-                rs = optics[_o.O_STOP_R]
-                # connection handled inline (needs the emitter's cosine)
-                while True:
-                    state, q1 = rng_uniform(state)
-                    state, q2 = rng_uniform(state)
-                    qx = 2.0 * q1 - 1.0
-                    qy = 2.0 * q2 - 1.0
-                    if qx * qx + qy * qy <= 1.0:
-                        break
-                ex = rs * qx - px
-                ey = rs * qy - py
-                ez = -pz
-                r2 = ex * ex + ey * ey + ez * ez
-                dist = math.sqrt(r2)
-                cdx = ex / dist
-                cdy = ey / dist
-                cdz = ez / dist
-                cos_e = cdx * nxn + cdy * nyn + cdz * nzn
-                if cos_e > 0.0:
-                    t_hit = surfaces_hit(px, py, pz, cdx, cdy, cdz, dist, surf, tex, Lsurf)
-                    if t_hit >= dist:
-                        pix = _o.trace_to_sensor(px, py, pz, cdx, cdy, cdz, optics)
-                        if pix >= 0:
-                            transmittance(px, py, pz, cdx, cdy, cdz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1,
-                                          0.0, dist, tbuf)
-                            ncols = int(optics[_o.O_NCOLS])
-                            img[pix // ncols, pix % ncols] += (W * cos_e / math.pi) * math.pi * rs * rs * (-cdz) / r2 * tbuf[0]
-                # cosine-weighted direction about the normal for the walk
                 rr = math.sqrt(u1)
                 ph = 2.0 * math.pi * u2
                 lx = rr * math.cos(ph)
                 ly = rr * math.sin(ph)
                 lz = math.sqrt(max(0.0, 1.0 - u1))
-                ux = surf[s, 3]
-                uy = surf[s, 4]
-                uz = surf[s, 5]
-                vx = surf[s, 6]
-                vy = surf[s, 7]
-                vz = surf[s, 8]
-                dx = lx * ux + ly * vx + lz * nxn
-                dy = lx * uy + ly * vy + lz * nyn
-                dz = lx * uz + ly * vz + lz * nzn
-            # ---- analog random walk through the medium: only scattering vertices
-            # produce further (next-event) scores
+                dx = lx * surf[s, 3] + ly * surf[s, 6] + lz * nxn
+                dy = lx * surf[s, 4] + ly * surf[s, 7] + lz * nyn
+                dz = lx * surf[s, 5] + ly * surf[s, 8] + lz * nzn
+                W_walk = Wb
             if not scattering:
                 continue
-            w = W
-            for bounce in range(100000):
-                # free flight by delta tracking against the global / macro-cell majorant
-                # (vacuum outside the box: leave when outside)
+            # ---- analog random walk (delta tracking against the macro-cell
+            # majorant); only scattering vertices score further (next events)
+            w = W if u < p_volume else W_walk
+            while True:
                 tin, tout = _box(px, py, pz, dx, dy, dz, x0, y0, z0, x0 + nx * hx, y0 + ny * hy, z0 + nz * hz)
                 if tout <= max(tin, 0.0):
                     break
                 t = max(tin, 0.0)
-                scattered = False
-                t_surf = surfaces_hit(px, py, pz, dx, dy, dz, math.inf, surf, tex, Lsurf)
+                t_surf = surfaces_hit(px, py, pz, dx, dy, dz, math.inf, surf, tex, Lbuf)
+                event = 0  # 0: left the box or hit a surface, 1: absorbed, 2: scattered
                 while True:
                     qx = px + (t + 1e-12) * dx
                     qy = py + (t + 1e-12) * dy
@@ -362,56 +334,48 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
                     cy = min(max(int((qy - y0) / hy) // bys, 0), my - 1)
                     cz_ = min(max(int((qz - z0) / hz) // bzs, 0), mz - 1)
                     mu = majorant[cx, cy, cz_]
-                    # distance to the macro-cell exit
                     t_cell = _cell_exit(qx, qy, qz, dx, dy, dz, x0 + cx * bxs * hx, y0 + cy * bys * hy,
                                         z0 + cz_ * bzs * hz, bxs * hx, bys * hy, bzs * hz) + t + 1e-12
                     t_lim = min(t_cell, tout, t_surf)
-                    if mu <= 0.0:
-                        t = t_lim
-                    else:
+                    t_next = t_lim
+                    if mu > 0.0:
                         state, tau = sample_free_path(state)
-                        tn = t + tau / mu
-                        if tn >= t_lim:
-                            t = t_lim
-                        else:
-                            t = tn
-                            qx = px + t * dx
-                            qy = py + t * dy
-                            qz = pz + t * dz
-                            jx = min(max(int((qx - x0) / hx), 0), nx - 1)
-                            jy = min(max(int((qy - y0) / hy), 0), ny - 1)
-                            jz = min(max(int((qz - z0) / hz), 0), nz - 1)
-                            vv = (jx * ny + jy) * nz + jz
-                            sa = sigma_a[ch, vv]
-                            ss = sigma_s[ch, vv]
-                            state, ue = rng_uniform(state)
-                            if ue * mu < sa:
-                                w = 0.0  # absorbed
-                                break
-                            elif ue * mu < sa + ss:
-                                # real scattering: next-event connection with the phase function
-                                px = qx
-                                py = qy
-                                pz = qz
-                                state = _connect_scatter(px, py, pz, dx, dy, dz, w, g[vv], optics, x0, y0,
-                                                         z0, hx, hy, hz, nx, ny, nz, sig_t1, surf, tex, Lsurf, tbuf,
-                                                         state, img)
-                                state, h1 = rng_uniform(state)
-                                state, h2 = rng_uniform(state)
-                                dx, dy, dz = sample_hg_direction(dx, dy, dz, g[vv], h1, h2)
-                                scattered = True
-                                break
-                            # null collision: continue
+                        t_next = min(t + tau / mu, t_lim)
+                    t = t_next
+                    if t < t_lim:  # tentative collision
+                        qx = px + t * dx
+                        qy = py + t * dy
+                        qz = pz + t * dz
+                        jx = min(max(int((qx - x0) / hx), 0), nx - 1)
+                        jy = min(max(int((qy - y0) / hy), 0), ny - 1)
+                        jz = min(max(int((qz - z0) / hz), 0), nz - 1)
+                        vv = (jx * ny + jy) * nz + jz
+                        state, ue = rng_uniform(state)
+                        if ue * mu < sigma_a[ch, vv]:
+                            event = 1
+                            break
+                        if ue * mu < sigma_a[ch, vv] + sigma_s[ch, vv]:
+                            px = qx
+                            py = qy
+                            pz = qz
+                            event = 2
+                            break
+                        continue  # null collision
                     if t >= t_surf or t >= tout:
                         break
-                if w == 0.0 or not scattered:
+                if event != 2:
                     break
+                # scattering vertex: next-event connection with the HG phase function
+                state, pix, cdx, cdy, cdz, dist, geom = _stop_connection(px, py, pz, state, optics, surf, tex, Lbuf)
+                if pix >= 0:
+                    transmittance(px, py, pz, cdx, cdy, cdz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1, 0.0,
+                                  dist, tbuf)
+                    cos_t = dx * cdx + dy * cdy + dz * cdz
+                    _score(img, pix, w * hg_phase(g[vv], cos_t) * geom * tbuf[0], optics)
+                state, h1 = rng_uniform(state)
+                state, h2 = rng_uniform(state)
+                dx, dy, dz = sample_hg_direction(dx, dy, dz, g[vv], h1, h2)
     return images
-
-
-@njit(cache=True, inline="always")
-def surf_pick_prob(cdf, s):
-    return cdf[s] - (cdf[s - 1] if s > 0 else 0.0)
 
 
 @njit(cache=True, inline="always")
@@ -441,41 +405,6 @@ def _cell_exit(qx, qy, qz, dx, dy, dz, cx0, cy0, cz0, sx, sy, sz):
         elif d < 0.0:
             t = min(t, (lo - q) / d)
     return max(t, 0.0)
-
-
-@njit(cache=True, inline="always")
-def _connect_scatter(px, py, pz, dx, dy, dz, w, g, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                     sig_t1, surf, tex, Lbuf, tbuf, state, img):
-    """Next-event connection from a scattering vertex: radiant intensity toward
-    the connection = bundle power x HG phase function (per sr)."""
-    rs = optics[_o.O_STOP_R]
-    while True:
-        state, u1 = rng_uniform(state)
-        state, u2 = rng_uniform(state)
-        ax = 2.0 * u1 - 1.0
-        ay = 2.0 * u2 - 1.0
-        if ax * ax + ay * ay <= 1.0:
-            break
-    ex = rs * ax - px
-    ey = rs * ay - py
-    ez = -pz
-    r2 = ex * ex + ey * ey + ez * ez
-    dist = math.sqrt(r2)
-    cdx = ex / dist
-    cdy = ey / dist
-    cdz = ez / dist
-    t_hit = surfaces_hit(px, py, pz, cdx, cdy, cdz, dist, surf, tex, Lbuf)
-    if t_hit < dist:
-        return state
-    pix = _o.trace_to_sensor(px, py, pz, cdx, cdy, cdz, optics)
-    if pix < 0:
-        return state
-    transmittance(px, py, pz, cdx, cdy, cdz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1, 0.0, dist, tbuf)
-    cos_t = dx * cdx + dy * cdy + dz * cdz
-    val = w * hg_phase(g, cos_t) * math.pi * rs * rs * (-cdz) / r2 * tbuf[0]
-    ncols = int(optics[_o.O_NCOLS])
-    img[pix // ncols, pix % ncols] += val
-    return state
 
 
 N_CHUNKS = 16
@@ -561,7 +490,7 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
         surf_cdf = np.cumsum(ps) / P_surf if P_surf > 0 else np.ones(max(1, len(ps)))
         images = np.zeros((N_CHUNKS, nrows, ncols))
         _forward_kernel(N_CHUNKS, per_chunk, seed + 7919 * c, camera.packed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                        sa, ss, g, maj, scattering, vox_cdf, surf, tex, surf_cdf, P_vol / total, P_vol, c, images)
+                        sa, ss, g, maj, scattering, vox_cdf, surf, tex, surf_cdf, P_vol / total, total, c, images)
         raw[c] = images.sum(axis=0)
         se[c] = np.sqrt(N_CHUNKS) * images.std(axis=0, ddof=1)
     meta = {

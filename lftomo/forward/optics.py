@@ -272,6 +272,19 @@ def mla_forward(px, py, pz, dx, dy, dz, optics):
 
 
 @njit(cache=True, inline="always")
+def sample_unit_disc(state):
+    """Uniform point on the unit disc by rejection from the enclosing square
+    (no trigonometry; 4/pi pairs of draws on average). Returns (state, x, y)."""
+    while True:
+        state, u1 = rng_uniform(state)
+        state, u2 = rng_uniform(state)
+        x = 2.0 * u1 - 1.0
+        y = 2.0 * u2 - 1.0
+        if x * x + y * y <= 1.0:
+            return state, x, y
+
+
+@njit(cache=True, inline="always")
 def sample_pixel_ray(row, col, state, optics):
     """Sample one backward ray from pixel (row, col) into object space.
 
@@ -325,16 +338,8 @@ def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
             if i < 0 or j < 0 or i >= int(optics[O_M_NY]) or j >= int(optics[O_M_NX]):
                 return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     cx, cy = lenslet_center(i, j, optics)
-    # uniform point on the disc by rejection from the enclosing square
-    # (no trigonometry; 4/pi pairs of draws on average)
     rs = optics[O_SAMPLE_R]
-    while True:
-        state, u3 = rng_uniform(state)
-        state, u4 = rng_uniform(state)
-        ax = 2.0 * u3 - 1.0
-        ay = 2.0 * u4 - 1.0
-        if ax * ax + ay * ay <= 1.0:
-            break
+    state, ax, ay = sample_unit_disc(state)
     qx = cx + rs * ax
     qy = cy + rs * ay
     qz = optics[O_M2_ZV]

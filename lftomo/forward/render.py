@@ -14,51 +14,11 @@ image does not depend on the number of threads.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Sequence
 
 import numpy as np
-from numba import njit, prange
-
 from .._validate import require_int
-from . import optics as _o
-from .rng import rng_init
-from .surfaces import surfaces_hit
-
-MODE_SURFACES = 0
-MODE_ABSORBING = 1
-MODE_SCATTERING = 2
-
-
-@njit(cache=True, parallel=True)
-def _render_rows(row0, row1, optics, surf, tex, n_ch, rays_per_pixel, seed, mean, sq, etendue):
-    """Render sensor rows [row0, row1) for a surfaces-only scene."""
-    ncols = int(optics[_o.O_NCOLS])
-    n_pix = (row1 - row0) * ncols
-    inv_n = 1.0 / rays_per_pixel
-    for k in prange(n_pix):
-        r = row0 + k // ncols
-        c = k % ncols
-        state = rng_init(seed, r * ncols + c)
-        L = np.zeros(n_ch)
-        acc = np.zeros(n_ch)
-        acc2 = np.zeros(n_ch)
-        wsum = 0.0
-        for _ in range(rays_per_pixel):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
-            if not ok:
-                continue
-            wsum += w
-            surfaces_hit(ox, oy, oz, dx, dy, dz, math.inf, surf, tex, L)
-            for ch in range(n_ch):
-                v = w * L[ch]
-                acc[ch] += v
-                acc2[ch] += v * v
-        for ch in range(n_ch):
-            mean[ch, r, c] = acc[ch] * inv_n
-            sq[ch, r, c] = acc2[ch] * inv_n
-        etendue[r, c] = wsum * inv_n
 
 
 def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
@@ -125,23 +85,20 @@ def render(
     nrows, ncols = camera.sensor_shape
     mean = np.zeros((n_ch, nrows, ncols))
     sq = np.zeros((n_ch, nrows, ncols))
-    etendue = np.zeros((nrows, ncols))
     t0 = time.perf_counter()
-    medium_kernel = None
-    if scene.medium is not None:
-        from .media_render import medium_row_kernel
+    from .media_render import empty_row_kernel, medium_row_kernel
 
-        medium_kernel = medium_row_kernel(scene.medium, wl, camera)
+    if scene.medium is not None:
+        row_kernel = medium_row_kernel(scene.medium, wl, camera)
+    else:
+        row_kernel = empty_row_kernel(n_ch)
     ppl = camera.pixels_per_lenslet
     step = max(ppl, (nrows // 20) // ppl * ppl) if nrows >= 20 * ppl else nrows
     chunks = [(r, min(r + step, nrows)) for r in range(0, nrows, step)]
     show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
     bar = _progress(len(chunks) * step * ncols, show, "render")
     for r0, r1 in chunks:
-        if medium_kernel is None:
-            _render_rows(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq, etendue)
-        else:
-            medium_kernel(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq)
+        row_kernel(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq)
         bar.update((r1 - r0) * ncols)
     bar.close()
     elapsed = time.perf_counter() - t0
