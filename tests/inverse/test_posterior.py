@@ -1,0 +1,317 @@
+"""Posterior sampling (emcee) and Laplace approximation in reduced temperature bases.
+
+Monte Carlo tolerances come from the chain itself: the standard error of a
+posterior mean is ``std · sqrt(tau / (n_walkers · n_kept))`` (N_eff = N / tau),
+and the sample covariance whitened by the true covariance has entries with
+standard error ``sqrt((1 + δ_ij) / N_eff)``.  Seeds are fixed, so every run is
+the same; the bounds (5 standard errors) are what a correct sampler meets.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import lftomo as lt
+from lftomo.forward.phantoms import axisymmetric_flame
+from lftomo.inverse.basis import BSplineBasis, DCTBasis, LinearBasis, ParametricFlame
+from lftomo.inverse.posterior import (
+    ConvergenceError,
+    build_log_posterior,
+    gaussian_sufficient_statistics,
+    laplace_approximation,
+    sample_posterior,
+    sufficient_statistics,
+)
+from lftomo.inverse.problem import LinearProblem
+from lftomo.inverse.regularizers import prior_operator
+
+WL = 650e-9
+
+
+def _grid(shape=(4, 4, 4)):
+    return lt.Grid(shape, (-0.02, -0.03, 0.98), (0.02, 0.03, 1.02))
+
+
+# ------------------------------------------------------------------ linear-Gaussian fixture
+LIN_PRIOR_STD = 200.0
+LIN_PRIOR_MEAN = 10.0
+LIN_LAMBDA = 2.0
+LIN_TSCALE = 100.0
+
+
+@pytest.fixture(scope="module")
+def linear_case():
+    """x = T = B c (emission='linear'): the posterior of c is exactly Gaussian."""
+    rng = np.random.default_rng(1)
+    g = _grid()
+    basis = DCTBasis(g, (2, 2, 2))
+    n, m = g.n_voxels, 150
+    A = sp.random(m, n, density=0.3, random_state=2, format="csr")
+    c_true = np.array([1500.0, 100, -50, 30, 20, -10, 5, 40])
+    sigma = 3.0 + 4.0 * rng.random(m)
+    bg = 10.0 * rng.random(m)
+    y = A @ basis.T(c_true) + bg + sigma * rng.standard_normal(m)
+    prob = LinearProblem(A, y, sigma, g, wavelength=None, background=bg)
+    kw = dict(
+        basis=basis, emission="linear", bounds=None, prior_std=LIN_PRIOR_STD,
+        prior_mean=np.full(8, LIN_PRIOR_MEAN), regularization=LIN_LAMBDA, T_scale=LIN_TSCALE,
+    )
+    # closed form: precision P = Bᵀ Aᵀ Σ⁻¹ A B + I/s² + (λ/T_s²) (L B)ᵀ (L B)
+    B = basis.matrix
+    Ad = A.toarray()
+    W = 1.0 / sigma**2
+    LB = prior_operator(g, "gradient", dimensionless=True) @ B
+    P = B.T @ Ad.T @ (W[:, None] * Ad) @ B + np.eye(8) / LIN_PRIOR_STD**2 + LIN_LAMBDA / LIN_TSCALE**2 * LB.T @ LB
+    rhs = B.T @ Ad.T @ (W * (y - bg)) + LIN_PRIOR_MEAN / LIN_PRIOR_STD**2
+    cov = np.linalg.inv(P)
+    mean = cov @ rhs
+    return dict(prob=prob, basis=basis, kw=kw, mean=mean, cov=0.5 * (cov + cov.T))
+
+
+def test_laplace_is_exact_for_linear_gaussian(linear_case):
+    lap = laplace_approximation(linear_case["prob"], **linear_case["kw"])
+    mean, cov = linear_case["mean"], linear_case["cov"]
+    assert lap.converged
+    np.testing.assert_allclose(lap.c_map, mean, rtol=1e-8, atol=1e-8 * np.abs(mean).max())
+    np.testing.assert_allclose(lap.cov, cov, rtol=1e-8, atol=1e-8 * np.abs(cov).max())
+    B = linear_case["basis"].matrix
+    T_std = np.sqrt(np.einsum("ik,kl,il->i", B, cov, B))
+    np.testing.assert_allclose(lap.T_std.ravel(), T_std, rtol=1e-8)
+    np.testing.assert_allclose(lap.T_mean.ravel(), B @ mean, rtol=1e-10)
+
+
+def test_mcmc_matches_closed_form_linear_gaussian(linear_case):
+    post = sample_posterior(linear_case["prob"], n_walkers=32, n_steps=4000, seed=3, progress=False, **linear_case["kw"])
+    mean, cov = linear_case["mean"], linear_case["cov"]
+    assert post.converged and post.n_eff > 2000
+    assert post.samples.shape == (32 * 3000, 8) and post.chain.shape == (4000, 32, 8)
+    assert post.log_prob_trace.shape == (4000, 32)
+    assert 0.15 < np.mean(post.acceptance_fraction) < 0.7
+    # means within 5 MC standard errors
+    z = (post.coeff_mean - mean) / post.coeff_mean_stderr
+    assert np.all(np.abs(z) < 5.0), z
+    # covariance: whitened sample covariance ≈ identity within 5 standard errors
+    Li = np.linalg.inv(np.linalg.cholesky(cov))
+    Cw = Li @ post.coeff_cov @ Li.T
+    tol = 5.0 * np.sqrt((1.0 + np.eye(8)) / post.n_eff)
+    assert np.all(np.abs(Cw - np.eye(8)) < tol), np.abs(Cw - np.eye(8)).max()
+    # induced temperature field summaries
+    B = linear_case["basis"].matrix
+    np.testing.assert_allclose(post.T_mean.ravel(), B @ post.coeff_mean, rtol=1e-10)
+    T_std = np.sqrt(np.einsum("ik,kl,il->i", B, cov, B))
+    np.testing.assert_allclose(post.T_std.ravel(), T_std, rtol=5.0 / np.sqrt(2.0 * post.n_eff))
+    width = (post.T_upper - post.T_lower).ravel()
+    np.testing.assert_allclose(width, 2 * 1.6448536 * T_std, rtol=0.15)
+    assert np.all(post.T_lower < post.T_mean) and np.all(post.T_mean < post.T_upper)
+    assert post.T_mean.shape == post.grid.shape
+
+
+@pytest.fixture(scope="module")
+def planck_case():
+    rng = np.random.default_rng(1)
+    g = _grid()
+    basis = BSplineBasis(g, (2, 2, 2))
+    m = 120
+    A = sp.random(m, g.n_voxels, density=0.3, random_state=3, format="csr") * 1e-8
+    c_true = 1500.0 + 300.0 * rng.random(8)
+    y0 = A @ lt.planck(basis.T(c_true), WL)
+    sigma = np.full(m, 0.01 * y0.mean())
+    y = y0 + sigma * rng.standard_normal(m)
+    return dict(prob=LinearProblem(A, y, sigma, g, wavelength=WL), basis=basis, c_true=c_true)
+
+
+def test_planck_mcmc_mean_matches_laplace_when_narrow(planck_case):
+    prob, basis = planck_case["prob"], planck_case["basis"]
+    lap = laplace_approximation(prob, basis=basis)
+    assert lap.converged and np.all(lap.std < 10.0)  # narrow: a few K at 1500-1800 K
+    assert np.all(np.abs(lap.c_map - planck_case["c_true"]) < 5 * lap.std)
+    post = sample_posterior(prob, basis=basis, n_walkers=32, n_steps=3000, seed=0, progress=False)
+    assert post.converged
+    z = (post.coeff_mean - lap.c_map) / post.coeff_mean_stderr
+    assert np.all(np.abs(z) < 5.0), z
+    np.testing.assert_allclose(post.coeff_std, lap.std, rtol=5.0 / np.sqrt(2.0 * post.n_eff))
+    np.testing.assert_allclose(post.laplace.c_map, lap.c_map, rtol=1e-9)
+
+
+def test_short_chain_warns_and_strict_raises(planck_case):
+    kw = dict(basis=planck_case["basis"], n_walkers=16, n_steps=40, seed=1, progress=False)
+    with pytest.warns(UserWarning, match="50 integrated autocorrelation times"):
+        post = sample_posterior(planck_case["prob"], **kw)
+    assert not post.converged
+    with pytest.raises(ConvergenceError, match="n_steps"):
+        sample_posterior(planck_case["prob"], strict=True, **kw)
+
+
+def test_seeded_runs_are_reproducible(planck_case):
+    kw = dict(basis=planck_case["basis"], n_walkers=16, n_steps=30, burn=10, progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        a = sample_posterior(planck_case["prob"], seed=5, **kw)
+        b = sample_posterior(planck_case["prob"], seed=5, **kw)
+        c = sample_posterior(planck_case["prob"], seed=6, **kw)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    assert not np.array_equal(a.samples, c.samples)
+
+
+# ------------------------------------------------------------------ likelihood and gradients
+@pytest.mark.parametrize("dense_max", [0, 10**6])
+def test_sufficient_statistics_equal_direct_residual(dense_max):
+    rng = np.random.default_rng(7)
+    m, n = 300, 60
+    A = sp.random(m, n, density=0.2, random_state=8, format="csr") * 1e-6
+    x_true = 1e9 * (1.0 + rng.random(n))
+    bg = 1e2 * rng.random(m)
+    y0 = A @ x_true + bg
+    sigma = 0.01 * y0.mean() * (0.5 + rng.random(m))
+    y = y0 + sigma * rng.standard_normal(m)
+    stats = gaussian_sufficient_statistics(A, y, sigma, bg, dense_max=dense_max)
+    assert stats.dense == (dense_max > 0)
+    X = x_true * (1.0 + 0.02 * rng.standard_normal((5, n)))
+    X[0] = x_true  # near the optimum: chi² ≈ m while c0 ≈ m·SNR²
+    direct = -0.5 * np.sum(((y - bg - (A @ X.T).T) / sigma) ** 2, axis=1)
+    for s in (stats, stats.recentered(x_true), gaussian_sufficient_statistics(A, y, sigma, bg, x_ref=X[2])):
+        np.testing.assert_allclose(s.log_likelihood(X), direct, rtol=1e-10)
+        assert s.log_likelihood(X[3]) == pytest.approx(direct[3], rel=1e-10)
+    H = stats.H.toarray() if not stats.dense else stats.H
+    Ad = A.toarray()
+    np.testing.assert_allclose(H, Ad.T @ (Ad / sigma[:, None] ** 2), rtol=1e-12, atol=1e-12 * np.abs(H).max())
+    np.testing.assert_allclose(stats.b, Ad.T @ ((y - bg) / sigma**2), rtol=1e-12)
+
+
+def test_log_posterior_gradient_matches_finite_differences(planck_case):
+    """Gauss–Newton gradient (used by the MAP search) = numerical gradient, with prior and regularization."""
+    basis = planck_case["basis"]
+    lp = build_log_posterior(
+        planck_case["prob"], basis=basis, prior_std=300.0, prior_mean=np.full(8, 1600.0),
+        regularization=5.0, T_scale=1000.0, T_ref=np.full(basis.n_voxels, 1000.0),
+    )
+    c = planck_case["c_true"] + 3.0
+    val, grad, G = lp.gauss_newton(c)
+    h = 1e-3
+    fd = np.array([(lp(c + h * e) - lp(c - h * e)) / (2 * h) for e in np.eye(8)])
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.abs(grad).max())
+    assert np.all(np.linalg.eigvalsh(G) > 0)
+    # terms are separable and recentering does not change the value
+    t = lp.terms(c[None])
+    assert val == pytest.approx(float(t["log_likelihood"][0] + t["regularization"][0] + t["prior"][0]), rel=1e-13)
+    lp.recenter(c + 10.0)
+    assert lp(c) == pytest.approx(val, rel=1e-10, abs=1e-8)
+    assert lp(np.full(8, 5000.0)) == -np.inf  # outside the default bounds (300, 3000) K
+
+
+# ------------------------------------------------------------------ bases
+def _flame_grid():
+    return lt.Grid((7, 8, 7), (-0.025, -0.03, 0.975), (0.025, 0.03, 1.025))
+
+
+FLAME_C = np.array([1800.0, 0.002, 0.999, 0.02, 0.004, 0.1])
+
+
+@pytest.mark.parametrize(
+    "make, c",
+    [
+        (lambda g: DCTBasis(g, (2, 3, 2)), None),
+        (lambda g: BSplineBasis(g, (4, 4, 2)), None),
+        (lambda g: BSplineBasis(g, (3, 4, 3)), None),
+        (lambda g: ParametricFlame(g), FLAME_C),
+    ],
+)
+def test_basis_jacobian_matches_finite_differences(make, c):
+    basis = make(_flame_grid())
+    K = basis.n_params
+    if c is None:
+        c = np.random.default_rng(0).normal(1000.0, 100.0, K)
+    J = basis.jacobian(c)
+    assert J.shape == (basis.n_voxels, K)
+    h = 1e-6 * np.maximum(np.abs(c), 1e-2)
+    fd = np.stack([(basis.T(c + h[k] * e) - basis.T(c - h[k] * e)) / (2 * h[k]) for k, e in enumerate(np.eye(K))], 1)
+    np.testing.assert_allclose(J, fd, rtol=1e-5, atol=1e-6 * np.abs(J).max())
+    C = np.stack([c, 1.01 * c])
+    T1 = basis.T(1.01 * c)
+    np.testing.assert_allclose(basis.T(C)[1], T1, rtol=1e-13, atol=1e-13 * np.abs(T1).max())
+    np.testing.assert_allclose(basis.jacobian(C)[1], basis.jacobian(1.01 * c), rtol=1e-13, atol=1e-13 * np.abs(J).max())
+    assert basis.field(c).shape == basis.grid.shape
+
+
+@pytest.mark.parametrize("make", [lambda g: DCTBasis(g, (3, 4, 3)), lambda g: BSplineBasis(g, (3, 4, 3))])
+def test_linear_basis_fit_reproduces_fields_in_span(make):
+    basis = make(_flame_grid())
+    c = np.random.default_rng(4).normal(0.0, 300.0, basis.n_params)
+    np.testing.assert_allclose(basis.fit(basis.field(c)), c, rtol=1e-10, atol=1e-10 * np.abs(c).max())
+    # a field outside the span: the fit is the orthogonal projection
+    T = np.random.default_rng(5).normal(1000.0, 50.0, basis.n_voxels)
+    r = T - basis.T(basis.fit(T))
+    assert np.abs(basis.matrix.T @ r).max() < 1e-8 * np.abs(basis.matrix.T @ T).max()
+
+
+def test_dct_and_bspline_coefficient_meaning():
+    g = _flame_grid()
+    T = np.random.default_rng(6).normal(1200.0, 100.0, g.n_voxels)
+    assert DCTBasis(g, (2, 2, 2)).fit(T)[0] == pytest.approx(T.mean(), rel=1e-12)
+    np.testing.assert_allclose(BSplineBasis(g, (3, 4, 3)).fit(np.full(g.shape, 700.0)), 700.0, rtol=1e-12)
+
+
+def test_parametric_flame_is_the_phantom_and_fit_recovers_it():
+    g = _flame_grid()
+    flame = ParametricFlame(g)
+    med = axisymmetric_flame(g, axis=(FLAME_C[1], FLAME_C[2]), T_peak=FLAME_C[0], height_peak=FLAME_C[3],
+                             width_base=FLAME_C[4], width_growth=FLAME_C[5])
+    np.testing.assert_allclose(flame.field(FLAME_C), np.asarray(med.T), rtol=1e-12)
+    c_fit = flame.fit(np.asarray(med.T))
+    np.testing.assert_allclose(c_fit, FLAME_C, rtol=1e-6)
+    assert flame.in_bounds(FLAME_C) and not flame.in_bounds(FLAME_C * [1, 1, 1, 1, -1, 1])
+
+
+def test_parametric_flame_laplace_recovers_truth_from_planck_data():
+    g = _flame_grid()
+    flame = ParametricFlame(g)
+    m = 400
+    A = sp.random(m, g.n_voxels, density=0.2, random_state=11, format="csr") * 1e-8
+    y0 = A @ lt.planck(flame.T(FLAME_C), WL)
+    sigma = np.full(m, 1e-3 * y0.mean())
+    y = y0 + sigma * np.random.default_rng(12).standard_normal(m)
+    lap = laplace_approximation(LinearProblem(A, y, sigma, g, wavelength=WL), basis=flame, bounds=(250.0, 3000.0))
+    assert lap.converged
+    assert np.all(np.abs(lap.c_map - FLAME_C) < 5.0 * lap.std), (lap.c_map - FLAME_C) / lap.std
+
+
+# ------------------------------------------------------------------ bad input
+def test_bad_input_raises_value_error(planck_case):
+    g = _grid()
+    prob, basis = planck_case["prob"], planck_case["basis"]
+    with pytest.raises(ValueError, match="K = 50.*40"):
+        DCTBasis(_flame_grid(), (5, 5, 2))
+    with pytest.raises(ValueError, match="K = 48.*40"):
+        BSplineBasis(_flame_grid(), (4, 4, 3))
+    with pytest.raises(ValueError, match=r"n_coeffs\[0\] = 5 exceeds the 4 voxels"):
+        DCTBasis(g, (5, 1, 1))
+    with pytest.raises(ValueError, match="40"):
+        LinearBasis(_flame_grid(), np.random.default_rng(0).random((_flame_grid().n_voxels, 41)))
+    with pytest.raises(ValueError, match="n_walkers must be >= 2 K = 16.*got 10"):
+        sample_posterior(prob, basis=basis, n_walkers=10, n_steps=10, seed=0, progress=False)
+    with pytest.raises(ValueError, match="T_min < T_max"):
+        sample_posterior(prob, basis=basis, bounds=(3000.0, 300.0), n_steps=10, seed=0, progress=False)
+    with pytest.raises(ValueError, match="T_min < T_max"):
+        laplace_approximation(prob, basis=basis, bounds=(3000.0, 300.0))
+    with pytest.raises(ValueError, match="burn must be < n_steps"):
+        sample_posterior(prob, basis=basis, n_steps=10, burn=10, seed=0, progress=False)
+    with pytest.raises(ValueError, match="grid shape"):
+        sample_posterior(prob, basis=DCTBasis(_flame_grid(), (2, 2, 2)), n_steps=10, progress=False)
+    with pytest.raises(ValueError, match="prior_std"):
+        laplace_approximation(prob, basis=basis, prior_std=-1.0)
+    with pytest.raises(ValueError, match="outside the bounds"):
+        laplace_approximation(prob, basis=basis, T_start=np.full(g.shape, 200.0))
+    A = sp.random(20, g.n_voxels, density=0.3, random_state=0, format="csr")
+    sigma = np.ones(20)
+    sigma[3] = 0.0
+    with pytest.raises(ValueError, match="sigma must be > 0"):
+        gaussian_sufficient_statistics(A, np.ones(20), sigma)
+    with pytest.raises(ValueError, match="sigma must be > 0"):
+        LinearProblem(A, np.ones(20), sigma, g, wavelength=WL)
+    with pytest.raises(ValueError, match="shape of y"):
+        gaussian_sufficient_statistics(A, np.ones(19), np.ones(20))
+    assert sufficient_statistics(LinearProblem(A, np.ones(20), np.ones(20), g)).n == g.n_voxels
+    with pytest.raises(ValueError, match="emission must be one of"):
+        build_log_posterior(prob, basis=basis, emission="blackbody")
