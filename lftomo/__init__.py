@@ -15,6 +15,8 @@ from .radiation import planck, planck_inverse, dplanck_dT, gray_intensity, gray_
 from .forward.grid import Grid
 from .forward.medium import Medium, SootRule, load_field
 from .forward import phantoms
+from .forward.weights import WeightMatrix, RaySegments, RefocusWeights, weights, ray_segments, weights_refocus
+from .inverse.measurement import SensorModel, add_noise, saturated_mask, Measurement
 
 __all__ = [
     "__version__",
@@ -48,4 +50,14 @@ __all__ = [
     "SootRule",
     "load_field",
     "phantoms",
+    "WeightMatrix",
+    "RaySegments",
+    "RefocusWeights",
+    "weights",
+    "ray_segments",
+    "weights_refocus",
+    "SensorModel",
+    "add_noise",
+    "saturated_mask",
+    "Measurement",
 ]

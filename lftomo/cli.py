@@ -84,6 +84,34 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_weights(args) -> int:
+    from .forward.weights import weights
+
+    cfg = _load(args.scene)
+    medium = cfg.scene.medium
+    if medium is None:
+        raise ValueError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
+    rpp = args.rays_per_pixel or cfg.rays_per_pixel
+    seed = cfg.seed if args.seed is None else args.seed
+    channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
+    out = Path(args.output)
+    if out.suffix != ".npz":
+        out = out.with_suffix(".npz")
+    limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
+    for wl in channels:
+        path = out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz")
+        band = "gray" if wl is None else f"{wl * 1e9:.0f} nm"
+        print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {band})", file=sys.stderr)
+        W = weights(cfg.camera, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
+                    wavelength="gray" if wl is None else wl, rays_per_pixel=rpp, seed=seed,
+                    surfaces=cfg.scene.surfaces or None, memory_limit=limit, progress=not args.quiet)
+        W.save(path)
+        est = W.metadata["estimate"]
+        print(f"{W.shape[0]} pixel rows x {W.shape[1]} voxels in {len(W.blocks)} views: nnz {W.nnz} "
+              f"(estimated {est['nnz']}), {W.nbytes / 1e6:.1f} MB, {W.metadata['build_seconds']:.1f} s; wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -98,6 +126,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=None, help="override render.seed")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_render)
+    w = sub.add_parser("weights", help="build the ray-voxel weight matrix of the scene's medium grid (.npz)")
+    w.add_argument("scene", help="TOML scene file with a [medium]")
+    w.add_argument("-o", "--output", default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
+    w.add_argument("--rays-per-pixel", type=int, default=None, help="override render.rays_per_pixel")
+    w.add_argument("--seed", type=int, default=None, help="override render.seed")
+    w.add_argument("--memory-limit-gb", type=float, default=None,
+                   help="refuse a build estimated above this size (default: half the machine's memory)")
+    w.add_argument("--quiet", action="store_true", help="no progress bar")
+    w.set_defaults(func=cmd_weights)
     return p
 
 

@@ -85,3 +85,34 @@ def test_texture_file_is_loaded_without_pickle(tmp_path):
             {"surface": [{"center": [0, 0, 1], "size": [0.01, 0.01], "texture": "file", "path": "o.npy"}]},
             base=tmp_path,
         )
+
+
+def test_weights_command_writes_a_loadable_matrix(tmp_path):
+    scene = tmp_path / "m.toml"
+    scene.write_text(
+        """
+[camera]
+focus_distance = 1.0
+[camera.mla]
+count = [10, 10]
+[render]
+rays_per_pixel = 2
+[medium]
+phantom = "gaussian_blob"
+shape = [4, 4, 4]
+lower = [-0.01, -0.01, 0.99]
+upper = [0.01, 0.01, 1.01]
+[medium.params]
+center = [0.0, 0.0, 1.0]
+width = 0.005
+T_peak = 1500.0
+sigma_a_peak = 20.0
+"""
+    )
+    out = tmp_path / "W.npz"
+    assert main(["weights", str(scene), "-o", str(out), "--quiet"]) == 0
+    from lftomo.config import load_scene_file
+
+    cfg = load_scene_file(scene)
+    W = lt.WeightMatrix.load(out, cfg.camera, cfg.scene.medium.grid)
+    assert W.shape[1] == 64
