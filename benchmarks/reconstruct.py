@@ -1,0 +1,155 @@
+"""Time of the T-only reconstruction (optimistix) against the scipy linear baseline.
+
+Problem (issue 5, §7): a 32³ reconstruction grid.
+
+* If the weight-matrix builder is available (``lftomo.weights``, else
+  ``lftomo.forward.weights.weights``) and ``--synthetic`` is not given: the
+  seed camera (all lit views), :func:`lftomo.phantoms.default_flame_grid`,
+  the :func:`lftomo.phantoms.axisymmetric_flame` absorption at 650 nm,
+  ``--rays`` rays per pixel.  Data ``y = W I_b(T) + noise`` on the same grid
+  (a timing benchmark, not an accuracy claim: that needs data rendered on a
+  finer grid).
+* Otherwise a synthetic ray-cast operator of comparable size: ``--rows`` random
+  straight lines (default 300 000) through the 32³ box, ``A[i, j]`` = chord
+  length × 1e-6, and a Gaussian hot spot 800 → 2000 K.
+
+Noise: ``--noise`` (default 1 %) of the mean signal, Gaussian, seed 0.
+In the same run it times :func:`lftomo.inverse.solvers.solve_temperature`
+(λ by the discrepancy principle, gradient prior, Levenberg–Marquardt; JIT
+compilation included — the first call with these shapes) and
+:func:`lftomo.inverse.solvers.solve_linear_baseline` at the λ chosen, and
+prints both times, their ratio and the temperature errors (where T > 800 K).
+
+Usage::
+
+    python benchmarks/reconstruct.py [--synthetic] [--n 32] [--rows 300000] [--rays 4] [--noise 0.01]
+                                     [--rtol 1e-4] [--max-steps 100] [--linear-max-steps 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+import lftomo as lt
+from lftomo.inverse.problem import LinearProblem
+from lftomo.inverse.solvers import solve_linear_baseline, solve_temperature
+
+
+def ray_operator(grid, n_rays, *, seed=0, samples_per_voxel=2, scale=1e-6, chunk=10000):
+    """Random straight lines through the box; ``A[i, j]`` = sampled chord length × ``scale``."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
+    size = hi - lo
+    h = float(np.min(grid.spacing)) / samples_per_voxel
+    diag = float(np.linalg.norm(size))
+    t = np.arange(-0.5 * diag, 0.5 * diag, h) + 0.5 * h
+    blocks = []
+    for start in range(0, n_rays, chunk):
+        k = min(chunk, n_rays - start)
+        p = lo + rng.random((k, 3)) * size
+        u = rng.normal(size=(k, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        pts = p[:, None, :] + t[None, :, None] * u[:, None, :]
+        idx = np.floor((pts - lo) / grid.spacing).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2)
+        r, s = np.nonzero(inside)
+        flat = np.ravel_multi_index(tuple(idx[r, s].T), grid.shape)
+        B = sp.csr_matrix((np.full(r.size, h * scale), (r, flat)), shape=(k, grid.n_voxels))
+        B.sum_duplicates()
+        blocks.append(B)
+    return sp.vstack(blocks, format="csr")
+
+
+def synthetic_problem(n, rows, noise):
+    grid = lt.Grid((n, n, n), (-0.025, -0.025, 0.975), (0.025, 0.025, 1.025))
+    A = ray_operator(grid, rows)
+    X, Y, Z = grid.centers_mesh()
+    c, w = grid.center, 0.3 * grid.size
+    G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
+    T = 800.0 + 1200.0 * G
+    wl = 650e-9
+    y0 = A @ lt.planck(T, wl).ravel()
+    return A, y0, grid, T, wl, "synthetic ray-cast"
+
+
+def camera_problem(n, rays):
+    builder = getattr(lt, "weights", None)
+    if builder is None:
+        from lftomo.forward.weights import weights as builder
+    cam = lt.Camera.seed(1.0)
+    grid = lt.phantoms.default_flame_grid((n, n, n))
+    flame = lt.phantoms.axisymmetric_flame(grid)
+    wl = 650e-9
+    W = builder(cam, grid, sigma_a=flame.sigma_a_at(wl), wavelength=wl, rays_per_pixel=rays, seed=1, progress=False)
+    T = np.asarray(flame.T, dtype=np.float64).reshape(grid.shape)
+    y0 = W.matrix @ lt.planck(T, wl).ravel() + W.background
+    return W.matrix, y0, grid, T, wl, f"seed camera, {rays} rays/pixel"
+
+
+def have_weights() -> bool:
+    if hasattr(lt, "weights"):
+        return True
+    try:
+        from lftomo.forward.weights import weights  # noqa: F401
+    except Exception:
+        return False
+    return True
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--synthetic", action="store_true", help="use the synthetic ray-cast operator")
+    ap.add_argument("--n", type=int, default=32, help="voxels per axis")
+    ap.add_argument("--rows", type=int, default=300_000, help="rows of the synthetic operator")
+    ap.add_argument("--rays", type=int, default=4, help="rays per pixel of the camera weights")
+    ap.add_argument("--noise", type=float, default=0.01, help="noise std relative to the mean signal")
+    ap.add_argument("--rtol", type=float, default=1e-4, help="rtol = atol of solve_temperature")
+    ap.add_argument("--max-steps", type=int, default=100, help="max nonlinear steps per solve")
+    ap.add_argument("--linear-max-steps", type=int, default=30, help="LSMR iterations per step")
+    args = ap.parse_args()
+
+    t = time.perf_counter()
+    if args.synthetic or not have_weights():
+        A, y0, grid, T, wl, what = synthetic_problem(args.n, args.rows, args.noise)
+    else:
+        A, y0, grid, T, wl, what = camera_problem(args.n, args.rays)
+    t_build = time.perf_counter() - t
+    sigma = np.full(y0.size, args.noise * np.abs(y0[y0 > 0]).mean())
+    y = y0 + np.random.default_rng(0).normal(size=y0.size) * sigma
+    problem = LinearProblem(A, y, sigma, grid, wl)
+    print(f"problem: {what}; grid {grid.shape}; A {A.shape[0]} x {A.shape[1]}, nnz {A.nnz}, "
+          f"{int(np.count_nonzero(np.diff(A.indptr)))} non-empty rows; built in {t_build:.1f} s; "
+          f"cpu count {os.cpu_count()}")
+
+    t = time.perf_counter()
+    sol = solve_temperature(problem, rtol=args.rtol, atol=args.rtol, max_steps=args.max_steps,
+                            linear_max_steps=args.linear_max_steps)
+    t_nl = time.perf_counter() - t
+    t = time.perf_counter()
+    base = solve_linear_baseline(problem, regularization=sol.regularization)
+    t_lin = time.perf_counter() - t
+
+    hot = T > 800.0
+    def errs(Tr):
+        e = np.abs(Tr / T - 1)[hot]
+        return f"mean {100 * e.mean():.2f} %, max {100 * e.max():.2f} %"
+
+    ch = sol.lambda_choice
+    print(f"solve_temperature    : {t_nl:8.2f} s  (setup {sol.timing['setup']:.2f}, initial guess "
+          f"{sol.timing['initial_guess']:.2f}, λ search + solves {sol.timing['lambda']:.2f}; JIT included)")
+    print(f"  λ = {sol.regularization:.4g} by {ch.rule} ({len(ch.candidates)} solves, {sol.total_iterations} LM steps), "
+          f"chi2/m = {sol.chi2:.4f}, converged = {sol.converged} ({sol.message})")
+    print(f"  |ΔT|/T where T > 800 K: {errs(sol.T)}")
+    print(f"solve_linear_baseline: {t_lin:8.2f} s  ({base.iterations} LSQR iterations, same λ, prior on I_b), "
+          f"chi2/m = {base.chi2:.4f}")
+    print(f"  |ΔT|/T where T > 800 K: {errs(base.T)}")
+    print(f"ratio solve_temperature / baseline = {t_nl / t_lin:.1f}   (aim: solve_temperature <= 60 s on 2 cores)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1166 @@
+"""Temperature reconstruction: regularized nonlinear least squares with optimistix.
+
+Model (DESIGN §4)
+-----------------
+For one channel (:class:`lftomo.inverse.problem.LinearProblem`) the data are
+``y = A I_b(T) + background + noise``, noise ``N(0, diag σ²)``.  The unknown is
+the temperature field ``T`` on the reconstruction grid (``n`` voxels, flat C
+order).  :func:`solve_temperature` minimises
+
+    Φ_λ(θ) = ‖(A I_b(T(θ)) + background − y) / σ‖² + λ ‖R(T(θ))‖²
+
+over the unconstrained ``θ ∈ ℝⁿ`` with the bounds enforced by the
+parameterisation ``T(θ) = T_min + (T_max − T_min) · sigmoid(θ)``.  The prior
+residual ``R`` is
+
+* ``penalize="temperature"`` (default): ``R = L T / T_s`` with
+  ``T_s = T_max − T_min`` and
+* ``penalize="intensity"``: ``R = L I_b(T) / I_s`` with
+  ``I_s = ∂I_b/∂T(T_ref) · T_s`` (so that to first order about ``T_ref`` the two
+  penalties are equal: a λ has a comparable meaning for both), ``T_ref`` by
+  default the middle of the bounds,
+
+where ``L`` is the dimensionless operator of
+:func:`lftomo.inverse.regularizers.prior_operator` (forward differences between
+neighbouring voxels for ``"gradient"``, ``h̄²`` × Laplacian for
+``"laplacian"``, Neumann boundaries), or for ``"tv"`` the residual of the
+smoothed total variation (:func:`~lftomo.inverse.regularizers.tv_residuals`,
+smoothing ``tv_eps`` in the same dimensionless units).  λ is therefore
+dimensionless; ``χ²/m`` below always means ``‖(A I_b + bg − y)/σ‖² / m``.
+
+Solver
+------
+``optimistix.least_squares`` with ``optimistix.LevenbergMarquardt`` or
+``optimistix.GaussNewton``.  The Jacobian is never formed: optimistix
+linearises the residual with ``jax.linearize`` and each (damped) Gauss–Newton
+step is solved matrix-free by LSMR (``lineax.LSMR`` on the stacked operator
+``[J; √μ I]``, with ``A`` applied as a ``jax.experimental.sparse.BCOO`` matvec
+and its transpose), truncated after ``linear_max_steps`` iterations (an inexact
+Newton step; a truncated step is accepted, never reported as a failure; the
+trust region of Levenberg–Marquardt globalises it).  Empty rows of ``A`` are
+dropped from the JAX residual (their constant contribution is added back to
+``χ²``).  Variables are Jacobi-scaled: each chunk of at most 10 optimistix
+steps works on ``ψ`` with ``θ = θ_c + D ψ``, ``D = 1/‖column of [J; √λ R']‖`` at
+the chunk's start ``θ_c`` (norms from the sparse matrices, no Jacobian formed;
+floored at 1e-3 of their RMS), which makes the identity damping of
+Levenberg–Marquardt a Marquardt (diagonal-Hessian) damping and equalises the
+columns that LSMR sees — essential at visible wavelengths, where ``∂I_b/∂T``
+spans many decades across a flame.  Between chunks the solve also stops when
+the temperature changes by less than ``atol·(T_max − T_min) + rtol·|T|`` (K) and the objective by less than ``rtol`` relatively —
+this ends the slow drift of ``θ → ±∞`` for voxels whose optimum lies on a
+bound, which optimistix's Cauchy test in ``θ`` would never accept.
+
+Choice of λ (``regularization="auto"``)
+----------------------------------------
+``λ_ref`` is the *balanced* weight at the initial guess: trace of ``JᵀJ`` of the
+data term over trace of ``RᵀR`` of the prior (equal average curvature).
+Candidate λ are multiples of it.
+
+* ``"discrepancy"`` (Morozov): λ such that ``χ²/m = 1 + safety`` (default
+  ``discrepancy_safety=0``; a positive safety factor over-smooths
+  deliberately), found by factor-10 bracketing then Illinois regula falsi on
+  ``log(χ²/m)`` against ``log λ`` (χ² increases with λ), each nonlinear solve
+  warm-started from the solution at the nearest λ already solved; stops when
+  ``|χ²/m − target| ≤ 1e-3 · target`` or the bracket is narrower than a factor
+  1.1.  If even the smallest λ (``λ_ref · 1e-10``) cannot reach the target, or
+  the largest (``λ_ref · 1e4``) stays below it, that end is used and the note
+  says so.  Morozov's rule is known to over-smooth somewhat: on the 8³ test
+  problems (m = 3n–8n rows, 2–5 % noise) it gave 1.9–2.9 × the error-optimal
+  λ.
+* ``"gcv"``: generalised cross-validation of the problem *linearised* about the
+  current nonlinear solution ``θ̂`` (first at ``λ_ref · 1e-2``):
+  ``GCV(λ) = m' ‖r_d + J δ_λ‖² / (m' − tr H_λ)²`` over the non-empty rows
+  ``m'``, ``δ_λ`` the regularized Gauss–Newton step and
+  ``H_λ = J (JᵀJ + λ RᵀR)⁻¹ Jᵀ``; the trace by Hutchinson's estimator with
+  ``gcv_probes`` Rademacher vectors (the same vectors for every λ, seed
+  ``seed``), each ``(JᵀJ + λRᵀR)⁻¹ Jᵀ z`` by LSMR.  Minimum over
+  ``n_lambda`` log-spaced candidates in ``λ_ref · lambda_range``, refined by a
+  parabola in ``log λ``; the nonlinear problem is then solved at that λ and,
+  if λ moved by more than a factor 3 from the linearisation λ, linearised again
+  there (two passes at most).
+* ``"lcurve"``: nonlinear solutions at ``n_lambda`` log-spaced candidates (from
+  large to small λ, warm-started), the curve ``(log ‖r‖, log ‖R‖)`` and its
+  curvature by finite differences in ``log λ``; the λ of maximum curvature
+  (interior candidates only).  The two axes are first normalised to [0, 1]
+  over the candidates (so that the corner does not depend on the units), and
+  candidates where the curve hardly moves (``|d(x, y)/d log λ| < 0.01`` in
+  normalised units: plateaus, whose curvature is rounding noise) are skipped.
+
+Importing this module enables float64 in JAX (``jax_enable_x64``) globally.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import lineax as lx  # noqa: E402
+import numpy as np  # noqa: E402
+import optimistix as optx  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
+import scipy.sparse.linalg as spla  # noqa: E402
+from scipy import constants as _c  # noqa: E402
+from scipy.optimize import lsq_linear  # noqa: E402
+
+from .. import radiation as _rad  # noqa: E402
+from .._validate import require_finite_scalar, require_int, require_nonnegative, require_positive  # noqa: E402
+from .problem import LinearProblem  # noqa: E402
+from .regularizers import PRIORS, prior_operator, to_bcoo, tv_residuals  # noqa: E402
+
+__all__ = [
+    "METHODS",
+    "RULES",
+    "PENALIZE",
+    "planck_jax",
+    "dplanck_dT_jax",
+    "gray_intensity_jax",
+    "blackbody_jax",
+    "LambdaChoice",
+    "TemperatureSolution",
+    "BaselineSolution",
+    "solve_temperature",
+    "solve_linear_baseline",
+]
+
+#: Nonlinear least-squares methods of :func:`solve_temperature`.
+METHODS = ("levenberg-marquardt", "gauss-newton")
+#: λ rules of :func:`solve_temperature` for ``regularization="auto"``.
+RULES = ("discrepancy", "gcv", "lcurve")
+#: What the prior acts on.
+PENALIZE = ("temperature", "intensity")
+
+_C1 = 2.0 * _c.h * _c.c**2  # W m² sr⁻¹
+_C2 = _c.h * _c.c / _c.k  # m K
+_SIGMA = _c.Stefan_Boltzmann
+_CHUNK = 10
+
+
+# --------------------------------------------------------------------------- Planck (JAX)
+def planck_jax(T: Any, wavelength: Any) -> jax.Array:
+    """Spectral blackbody radiance in JAX (differentiable).
+
+    Parameters
+    ----------
+    T : array_like
+        Temperature (K), > 0.
+    wavelength : float or array_like
+        Wavelength in vacuum (m), > 0, broadcast against ``T``.
+
+    Returns
+    -------
+    jax.Array
+        ``I_b = C1 λ⁻⁵ e^{−x} / (1 − e^{−x})``, ``x = C2/(λT)``
+        (W·m⁻²·sr⁻¹·m⁻¹), broadcast shape; ``1 − e^{−x}`` as ``−expm1(−x)``.
+        No input checks (traced code); see :func:`lftomo.planck` for those.
+    """
+    T = jnp.asarray(T, dtype=jnp.float64)
+    lam = jnp.asarray(wavelength, dtype=jnp.float64)
+    x = _C2 / (lam * T)
+    return _C1 / lam**5 * jnp.exp(-x) / (-jnp.expm1(-x))
+
+
+def dplanck_dT_jax(T: Any, wavelength: Any) -> jax.Array:
+    """Analytic ``∂I_b/∂T = I_b x / (T (1 − e^{−x}))`` in JAX (W·m⁻²·sr⁻¹·m⁻¹·K⁻¹)."""
+    T = jnp.asarray(T, dtype=jnp.float64)
+    lam = jnp.asarray(wavelength, dtype=jnp.float64)
+    x = _C2 / (lam * T)
+    one_minus = -jnp.expm1(-x)
+    return _C1 / lam**5 * jnp.exp(-x) / one_minus * x / (T * one_minus)
+
+
+def gray_intensity_jax(T: Any) -> jax.Array:
+    """Band-integrated blackbody radiance ``σ T⁴ / π`` in JAX (W·m⁻²·sr⁻¹)."""
+    T = jnp.asarray(T, dtype=jnp.float64)
+    return _SIGMA * T**4 / jnp.pi
+
+
+def blackbody_jax(T: Any, wavelength: float | None) -> jax.Array:
+    """Planck radiance at ``wavelength`` (m), or the gray radiance if it is None."""
+    return gray_intensity_jax(T) if wavelength is None else planck_jax(T, wavelength)
+
+
+def _blackbody_np(T: np.ndarray, wavelength: float | None) -> np.ndarray:
+    return np.asarray(_rad.gray_intensity(T) if wavelength is None else _rad.planck(T, wavelength), dtype=np.float64)
+
+
+def _dblackbody_np(T: np.ndarray, wavelength: float | None) -> np.ndarray:
+    if wavelength is None:
+        return 4.0 * _SIGMA * np.asarray(T, dtype=np.float64) ** 3 / np.pi
+    return np.asarray(_rad.dplanck_dT(T, wavelength), dtype=np.float64)
+
+
+def _inverse_np(I: np.ndarray, wavelength: float | None) -> np.ndarray:
+    return np.asarray(_rad.gray_inverse(I) if wavelength is None else _rad.planck_inverse(I, wavelength), dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True, eq=False)
+class LambdaChoice:
+    """How the regularization weight λ was chosen.
+
+    Attributes
+    ----------
+    rule : str
+        ``"fixed"`` (given by the caller), ``"discrepancy"``, ``"gcv"`` or ``"lcurve"``.
+    value : float
+        λ used (dimensionless, see the module docstring).
+    candidates : ndarray, shape (k,)
+        Every λ evaluated, in the order evaluated.
+    chi2 : ndarray, shape (k,)
+        ``χ²/m`` at each candidate (for GCV: of the linearised problem).
+    regularization_norms : ndarray, shape (k,)
+        ``‖R‖`` at each candidate (prior residual norm, without √λ).
+    criterion : ndarray, shape (k,)
+        Rule's criterion per candidate: discrepancy ``χ²/m − target``; GCV
+        value; L-curve curvature (NaN at the ends).
+    target : float or None
+        Discrepancy target ``χ²/m`` (None for other rules).
+    reference : float
+        ``λ_ref``, the balanced weight that scales the candidates.
+    note : str
+        Human-readable summary (bracketing, end reached, passes...).
+    """
+
+    rule: str
+    value: float
+    candidates: np.ndarray
+    chi2: np.ndarray
+    regularization_norms: np.ndarray
+    criterion: np.ndarray
+    target: float | None = None
+    reference: float = float("nan")
+    note: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class TemperatureSolution:
+    """Result of :func:`solve_temperature`.
+
+    Attributes
+    ----------
+    T : ndarray, shape grid.shape
+        Temperature field (K), within ``bounds``.
+    I_b : ndarray, shape grid.shape
+        Blackbody radiance ``I_b(T)`` (W·m⁻²·sr⁻¹·m⁻¹, or W·m⁻²·sr⁻¹ gray).
+    regularization : float
+        λ used.
+    lambda_choice : LambdaChoice
+        Rule, candidates and their norms.
+    chi2 : float
+        Whitened ``χ²/m`` of the data at the solution.
+    residual_norm : float
+        Whitened data residual norm ``‖(A I_b + bg − y)/σ‖`` = ``sqrt(m χ²/m)``.
+    regularization_norm : float
+        ``‖R(T)‖`` (dimensionless; square root of the TV value for ``"tv"``).
+    iterations : int
+        Nonlinear steps of the final solve (at the chosen λ).
+    total_iterations : int
+        Nonlinear steps of all solves (every λ candidate included).
+    n_solves : int
+        Number of nonlinear solves.
+    converged : bool
+        Whether the final solve met its tolerances.
+    message : str
+        optimistix result / stopping reason of the final solve.
+    timing : dict
+        Seconds: ``"setup"``, ``"initial_guess"``, ``"lambda"`` (all solves),
+        ``"total"``.
+    method, prior, penalize : str
+        Options used.
+    bounds : tuple of 2 float
+        ``(T_min, T_max)`` (K).
+    """
+
+    T: np.ndarray
+    I_b: np.ndarray
+    regularization: float
+    lambda_choice: LambdaChoice
+    chi2: float
+    residual_norm: float
+    regularization_norm: float
+    iterations: int
+    total_iterations: int
+    n_solves: int
+    converged: bool
+    message: str
+    timing: dict
+    method: str
+    prior: str
+    penalize: str
+    bounds: tuple[float, float]
+
+
+@dataclass(frozen=True, eq=False)
+class BaselineSolution:
+    """Result of :func:`solve_linear_baseline`.
+
+    Attributes
+    ----------
+    I_b : ndarray, shape grid.shape
+        Radiance field solving the linear regularized problem (may be < 0 with
+        ``method="lsqr"``).
+    T : ndarray, shape grid.shape
+        ``planck_inverse(max(I_b, tiny))`` clipped to ``bounds`` (K).
+    T_unclipped : ndarray, shape grid.shape
+        The same before clipping (K; ``tiny`` gives a very low temperature).
+    regularization : float
+        λ used.
+    chi2 : float
+        Whitened ``χ²/m`` of ``I_b``.
+    regularization_norm : float
+        ``‖L I_b / I_s‖``.
+    iterations : int
+        LSQR / lsq_linear iterations.
+    time : float
+        Wall time (s).
+    method : str
+        ``"lsqr"`` or ``"bounded"``.
+    status : int
+        scipy stop code (``istop`` of LSQR, ``status`` of lsq_linear).
+    """
+
+    I_b: np.ndarray
+    T: np.ndarray
+    T_unclipped: np.ndarray
+    regularization: float
+    chi2: float
+    regularization_norm: float
+    iterations: int
+    time: float
+    method: str
+    status: int
+
+
+# --------------------------------------------------------------------------- validation
+def _check_problem(problem: Any) -> LinearProblem:
+    if not isinstance(problem, LinearProblem):
+        raise ValueError(f"problem must be an lftomo.inverse.problem.LinearProblem, got {type(problem).__name__}")
+    return problem
+
+
+def _check_bounds(bounds: Any) -> tuple[float, float]:
+    try:
+        items = list(bounds)
+    except TypeError:
+        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}") from None
+    if len(items) != 2:
+        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}")
+    lo = require_positive("bounds[0] (T_min)", items[0])
+    hi = require_finite_scalar("bounds[1] (T_max)", items[1])
+    if not hi > lo:
+        raise ValueError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
+    return lo, hi
+
+
+def _check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+    return value
+
+
+def _check_regularization(value: Any, *, allow_auto: bool) -> float | None:
+    if isinstance(value, str):
+        if allow_auto and value == "auto":
+            return None
+        allowed = "'auto' or a finite float >= 0" if allow_auto else "a finite float >= 0"
+        raise ValueError(f"regularization must be {allowed}, got {value!r}")
+    return require_nonnegative("regularization", value)
+
+
+# --------------------------------------------------------------------------- setup
+@dataclass(eq=False)
+class _Setup:
+    problem: LinearProblem
+    grid: Any
+    wavelength: float | None
+    tmin: float
+    tmax: float
+    T_ref: float
+    I_scale: float  # numerical scale of I_b (I_b(T_ref))
+    I_reg: float  # prior scale for penalize="intensity"
+    T_scale: float
+    prior: str
+    penalize: str
+    tv_eps: float
+    A_s: sp.csr_matrix  # whitened, pruned, scaled by I_scale: rows used
+    d: np.ndarray  # whitened data minus background, rows used
+    chi2_empty: float  # constant chi² of the empty rows
+    m_total: int
+    L: sp.csr_matrix  # dimensionless prior operator
+
+    def jax_args(self) -> dict:
+        """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding)."""
+        reg_scale = 1.0 / self.T_scale if self.penalize == "temperature" else self.I_scale / self.I_reg
+        return {
+            "A": to_bcoo(self.A_s),
+            "d": jnp.asarray(self.d),
+            "L": to_bcoo(self.L),
+            "lam": jnp.asarray(0.0),
+            "tmin": jnp.asarray(self.tmin),
+            "tspan": jnp.asarray(self.tmax - self.tmin),
+            "inv_iscale": jnp.asarray(1.0 / self.I_scale),
+            "reg_scale": jnp.asarray(reg_scale),
+            "wl": jnp.asarray(1.0 if self.wavelength is None else self.wavelength),
+            "eps": jnp.asarray(self.tv_eps),
+        }
+
+
+def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
+    tmin, tmax = bounds
+    wl = problem.wavelength
+    wl = None if wl is None else float(wl)
+    if T_ref is None:
+        T_ref = 0.5 * (tmin + tmax)
+    else:
+        T_ref = require_positive("T_ref", T_ref)
+    A = problem.A
+    w = 1.0 / problem.sigma
+    d_all = w * (problem.y - problem.background)
+    nnz_row = np.diff(A.indptr)
+    used = nnz_row > 0
+    I_scale = float(_blackbody_np(np.float64(T_ref), wl))
+    T_scale = tmax - tmin
+    I_reg = float(_dblackbody_np(np.float64(T_ref), wl)) * T_scale
+    A_s = (sp.diags(w[used] * I_scale) @ A[used]).tocsr()
+    L = prior_operator(problem.grid, prior, dimensionless=True)
+    s = _Setup(
+        problem=problem,
+        grid=problem.grid,
+        wavelength=wl,
+        tmin=tmin,
+        tmax=tmax,
+        T_ref=T_ref,
+        I_scale=I_scale,
+        I_reg=I_reg,
+        T_scale=T_scale,
+        prior=prior,
+        penalize=penalize,
+        tv_eps=tv_eps,
+        A_s=A_s,
+        d=d_all[used],
+        chi2_empty=float(np.sum(d_all[~used] ** 2)),
+        m_total=A.shape[0],
+        L=L,
+    )
+    return s
+
+
+# --------------------------------------------------------------------------- residuals (JAX)
+@functools.lru_cache(maxsize=None)
+def _functions(gray: bool, tv: bool, penalize: str):
+    """Residual functions for one static configuration (cached: same objects -> jit cache hits)."""
+
+    def temperature(theta, args):
+        return args["tmin"] + args["tspan"] * jax.nn.sigmoid(theta)
+
+    def scaled_intensity(T, args):
+        Ib = gray_intensity_jax(T) if gray else planck_jax(T, args["wl"])
+        return Ib * args["inv_iscale"]
+
+    def data_res(theta, args):
+        b = scaled_intensity(temperature(theta, args), args)
+        return args["A"] @ b - args["d"]
+
+    def reg_res(theta, args):
+        T = temperature(theta, args)
+        u = T if penalize == "temperature" else scaled_intensity(T, args)
+        u = u * args["reg_scale"]
+        if tv:
+            return tv_residuals(u, args["L"], args["eps"])
+        return args["L"] @ u
+
+    def residual(psi, args):
+        # Jacobi-scaled variables: theta = theta_c + D * psi (D = 1 / column norms at theta_c)
+        theta = args["theta_c"] + args["D"] * psi
+        return jnp.concatenate([data_res(theta, args), jnp.sqrt(args["lam"]) * reg_res(theta, args)])
+
+    @jax.jit
+    def terms(theta, args):
+        rd = data_res(theta, args)
+        rr = reg_res(theta, args)
+        return jnp.sum(rd * rd), jnp.sum(rr * rr)
+
+    return {"temperature": temperature, "data": data_res, "reg": reg_res, "residual": residual, "terms": terms}
+
+
+class _TruncatedLSMR(lx.AbstractLinearSolver):
+    """``lineax.LSMR`` whose step cap counts as success (truncated / inexact Newton step).
+
+    LSMR with ``max_steps`` reports ``max_steps_reached``, which optimistix
+    would turn into a failed solve; inside a trust-region method an inexact
+    step is fine, so the cap is reported as success.  Other results
+    (e.g. ``conlim``) are passed through.
+    """
+
+    inner: lx.LSMR
+
+    def init(self, operator, options):
+        return self.inner.init(operator, options)
+
+    def compute(self, state, vector, options):
+        x, result, stats = self.inner.compute(state, vector, options)
+        result = lx.RESULTS.where(result == lx.RESULTS.max_steps_reached, lx.RESULTS.successful, result)
+        return x, result, stats
+
+    def transpose(self, state, options):
+        return self.inner.transpose(state, options)
+
+    def conj(self, state, options):
+        return self.inner.conj(state, options)
+
+    def assume_full_rank(self):
+        return False
+
+
+@functools.lru_cache(maxsize=None)
+def _linear_solver(linear_rtol: float, linear_max_steps: int) -> lx.AbstractLinearSolver:
+    return _TruncatedLSMR(lx.LSMR(rtol=linear_rtol, atol=linear_rtol, max_steps=linear_max_steps))
+
+
+@functools.lru_cache(maxsize=None)
+def _nl_solver(method: str, rtol: float, atol: float, linear_rtol: float, linear_max_steps: int):
+    ls = _linear_solver(linear_rtol, linear_max_steps)
+    if method == "levenberg-marquardt":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm, linear_solver=ls)
+    return optx.GaussNewton(rtol=rtol, atol=atol, norm=optx.rms_norm, linear_solver=ls)
+
+
+@dataclass
+class _Eval:
+    lam: float
+    theta: np.ndarray
+    chi2: float  # chi²/m (all rows)
+    reg: float  # ‖R‖
+    steps: int
+    converged: bool
+    message: str
+
+
+class _Runner:
+    """Nonlinear solves at given λ with warm starts; keeps every evaluation."""
+
+    def __init__(self, s: _Setup, *, method, rtol, atol, max_steps, linear_rtol, linear_max_steps):
+        self.s = s
+        self.f = _functions(s.wavelength is None, s.prior == "tv", s.penalize)
+        self._args = s.jax_args()
+        self.colsq_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
+        self.colsq_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
+        if s.prior == "tv":
+            self.colsq_L = self.colsq_L / (2.0 * s.tv_eps)
+        self.solver = _nl_solver(method, rtol, atol, linear_rtol, linear_max_steps)
+        self.rtol, self.atol, self.max_steps = rtol, atol, max_steps
+        self.evals: list[_Eval] = []
+        self.total_steps = 0
+
+    def args(self, lam: float) -> dict:
+        a = dict(self._args)
+        a["lam"] = jnp.asarray(float(lam))
+        return a
+
+    def T_of(self, theta) -> np.ndarray:
+        return np.asarray(self.s.tmin + (self.s.tmax - self.s.tmin) * jax.nn.sigmoid(jnp.asarray(theta)))
+
+    def terms(self, theta, lam) -> tuple[float, float]:
+        c, r = self.f["terms"](jnp.asarray(theta), self.args(lam))
+        return (float(c) + self.s.chi2_empty) / self.s.m_total, math.sqrt(max(float(r), 0.0))
+
+    def column_scale(self, theta: np.ndarray, lam: float) -> np.ndarray:
+        """``D = 1 / ‖column j of the stacked Jacobian‖`` at ``theta``.
+
+        Norms are floored at 1e-3 of their RMS over the voxels so that a voxel
+        the data barely see (cold at a short wavelength) does not get an
+        enormous step per unit of the scaled variable.
+        """
+        s = self.s
+        sig = 1.0 / (1.0 + np.exp(-theta))
+        T = s.tmin + (s.tmax - s.tmin) * sig
+        dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
+        dI = _dblackbody_np(T, s.wavelength) / s.I_scale
+        reg_f = dT / s.T_scale if s.penalize == "temperature" else dI * dT * s.I_scale / s.I_reg
+        c2 = self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * reg_f**2
+        c = np.sqrt(np.maximum(c2, 0.0))
+        rms = float(np.sqrt(np.mean(c2))) if c.size and np.isfinite(c2).all() and c2.max() > 0 else 1.0
+        return 1.0 / np.maximum(c, 1e-3 * rms)
+
+    def solve(self, lam: float, theta0) -> _Eval:
+        args = self.args(lam)
+        theta = np.asarray(theta0, dtype=np.float64)
+        steps, converged, message = 0, False, "max_steps reached"
+        T_prev = self.T_of(theta)
+        obj_prev = None
+        zeros = jnp.zeros(theta.shape)
+        while steps < self.max_steps:
+            chunk = min(_CHUNK, self.max_steps - steps)
+            D = self.column_scale(theta, lam)
+            args["theta_c"] = jnp.asarray(theta)
+            args["D"] = jnp.asarray(D)
+            sol = optx.least_squares(
+                self.f["residual"], self.solver, zeros, args=args, max_steps=chunk, throw=False
+            )
+            n = int(sol.stats["num_steps"])
+            steps += n
+            theta_new = theta + D * np.asarray(sol.value)
+            if not np.all(np.isfinite(theta_new)):
+                message = "non-finite iterate"
+                break
+            theta = theta_new
+            if sol.result == optx.RESULTS.successful:
+                converged, message = True, "converged (optimistix Cauchy criterion)"
+                break
+            if sol.result != optx.RESULTS.nonlinear_max_steps_reached:
+                message = str(sol.result)
+                break
+            T_new = self.T_of(theta)
+            c, r = self.terms(theta, lam)
+            obj = c * self.s.m_total + lam * r * r
+            small_T = np.all(np.abs(T_new - T_prev) <= self.atol * self.s.T_scale + self.rtol * np.abs(T_new))
+            small_f = obj_prev is not None and abs(obj_prev - obj) <= self.rtol * max(obj, 1e-300)
+            if small_T and small_f:
+                converged, message = True, "converged (temperature and objective change)"
+                break
+            T_prev, obj_prev = T_new, obj
+            if n == 0:
+                break
+        self.total_steps += steps
+        chi2, reg = self.terms(theta, lam)
+        e = _Eval(float(lam), np.asarray(theta), chi2, reg, steps, converged, message)
+        self.evals.append(e)
+        return e
+
+    def nearest(self, lam: float, default) -> np.ndarray:
+        if not self.evals:
+            return default
+        k = int(np.argmin([abs(math.log(e.lam / lam)) if e.lam > 0 else np.inf for e in self.evals]))
+        return self.evals[k].theta if self.evals[k].lam > 0 else default
+
+
+# --------------------------------------------------------------------------- λ helpers
+def _theta_of_T(T: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
+    frac = np.clip((np.asarray(T, dtype=np.float64) - tmin) / (tmax - tmin), 1e-2, 1.0 - 1e-2)
+    return np.log(frac) - np.log1p(-frac)
+
+
+def _balanced_lambda(s: _Setup, T: np.ndarray) -> float:
+    """trace(JᵀJ) of the data term / trace(RᵀR) of the prior at temperature ``T`` (flat)."""
+    frac = (T - s.tmin) / (s.tmax - s.tmin)
+    dT = (s.tmax - s.tmin) * frac * (1.0 - frac)
+    dI = _dblackbody_np(T, s.wavelength) / s.I_scale
+    col_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
+    col_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
+    data = float(np.sum(col_A * (dI * dT) ** 2))
+    if s.penalize == "temperature":
+        reg = float(np.sum(col_L * (dT / s.T_scale) ** 2))
+    else:
+        reg = float(np.sum(col_L * (dI * dT * s.I_scale / s.I_reg) ** 2))
+    if s.prior == "tv":
+        reg /= 2.0 * s.tv_eps
+    if not (np.isfinite(data) and np.isfinite(reg)) or data <= 0 or reg <= 0:
+        return 1.0
+    return data / reg
+
+
+def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float):
+    target = 1.0 + safety
+    lo_lim, hi_lim = lam_ref * 1e-10, lam_ref * 1e4
+
+    def g(e: _Eval) -> float:
+        return math.log(max(e.chi2, 1e-300) / target)
+
+    lam = lam_ref * 1e-2
+    e = run.solve(lam, theta0)
+    note = ""
+    if g(e) < 0:  # too little misfit: increase λ
+        lo = e
+        hi = None
+        while lam < hi_lim:
+            lam *= 10.0
+            e = run.solve(lam, lo.theta)
+            if g(e) >= 0:
+                hi = e
+                break
+            lo = e
+        if hi is None:
+            note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
+            return lo, target, note
+    else:
+        hi = e
+        lo = None
+        while lam > lo_lim:
+            lam /= 10.0
+            e = run.solve(lam, hi.theta)
+            if g(e) < 0:
+                lo = e
+                break
+            hi = e
+        if lo is None:
+            note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
+            return hi, target, note
+    # Illinois regula falsi in log λ on g (increasing)
+    glo, ghi = g(lo), g(hi)
+    xlo, xhi = math.log(lo.lam), math.log(hi.lam)
+    best = lo if abs(glo) < abs(ghi) else hi
+    side = 0
+    for _ in range(20):
+        if abs(math.exp(g(best)) - 1.0) <= 1e-3 or xhi - xlo < math.log(1.1):
+            break
+        x = xhi - ghi * (xhi - xlo) / (ghi - glo) if ghi != glo else 0.5 * (xlo + xhi)
+        x = min(max(x, xlo + 0.05 * (xhi - xlo)), xhi - 0.05 * (xhi - xlo))
+        lam = math.exp(x)
+        e = run.solve(lam, run.nearest(lam, theta0))
+        ge = g(e)
+        if abs(ge) < abs(g(best)):
+            best = e
+        if ge < 0:
+            xlo, glo = x, ge
+            if side == -1:
+                ghi *= 0.5
+            side = -1
+        else:
+            xhi, ghi = x, ge
+            if side == 1:
+                glo *= 0.5
+            side = 1
+    note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {abs(math.exp(g(best)) - 1):.2e}"
+    return best, target, note
+
+
+@functools.lru_cache(maxsize=None)
+def _gcv_function(gray: bool, tv: bool, penalize: str):
+    """Jitted GCV pieces of the problem linearised about ``theta`` (cached per configuration)."""
+    f = _functions(gray, tv, penalize)
+    ls = lx.LSMR(rtol=1e-7, atol=1e-7, max_steps=1000)
+
+    @jax.jit
+    def gcv_eval(theta, args, lam, probes):
+        rd0, Jd = jax.linearize(lambda t: f["data"](t, args), theta)
+        rr0, Jr = jax.linearize(lambda t: f["reg"](t, args), theta)
+        sq = jnp.sqrt(lam)
+        struct = jax.ShapeDtypeStruct(theta.shape, theta.dtype)
+        op = lx.FunctionLinearOperator(lambda v: (Jd(v), sq * Jr(v)), struct)
+        delta = lx.linear_solve(op, (-rd0, -sq * rr0), ls, throw=False).value
+        rd = rd0 + Jd(delta)
+        rr = rr0 + Jr(delta)
+        zero = jnp.zeros_like(rr0)
+
+        def quad(z):  # zᵀ H z = zᵀ J (JᵀJ + λRᵀR)⁻¹ Jᵀ z
+            x = lx.linear_solve(op, (z, zero), ls, throw=False).value
+            return jnp.vdot(z, Jd(x))
+
+        tr = jnp.mean(jax.vmap(quad)(probes))
+        return jnp.sum(rd * rd), jnp.sum(rr * rr), tr
+
+    return gcv_eval
+
+
+def _rule_gcv(run: _Runner, theta0, lam_ref, lambda_range, n_lambda, probes_n, seed):
+    s = run.s
+    m_used = s.d.size
+    rng = np.random.default_rng(seed)
+    probes = jnp.asarray(rng.choice([-1.0, 1.0], size=(probes_n, m_used)))
+    gcv_eval = _gcv_function(s.wavelength is None, s.prior == "tv", s.penalize)
+    lam_lin = lam_ref * 1e-2
+    e = run.solve(lam_lin, theta0)
+    cands, chi2s, regs, crit = [], [], [], []
+    notes = []
+    for npass in range(2):
+        grid = lam_ref * np.logspace(np.log10(lambda_range[0]), np.log10(lambda_range[1]), n_lambda)
+        vals = []
+        for lam in grid:
+            c, r, tr = gcv_eval(jnp.asarray(e.theta), run.args(lam), jnp.asarray(lam), probes)
+            c, r, tr = float(c), float(r), float(tr)
+            G = m_used * c / max(m_used - tr, 1e-12) ** 2
+            vals.append(G)
+            cands.append(lam)
+            chi2s.append((c + s.chi2_empty) / s.m_total)
+            regs.append(math.sqrt(max(r, 0.0)))
+            crit.append(G)
+        vals = np.asarray(vals)
+        k = int(np.argmin(vals))
+        x = np.log(grid)
+        lam_star = grid[k]
+        if 0 < k < n_lambda - 1:
+            y0, y1, y2 = np.log(vals[k - 1 : k + 2])
+            den = y0 - 2 * y1 + y2
+            if den > 0:
+                h = x[k + 1] - x[k]
+                lam_star = float(np.exp(x[k] + 0.5 * h * (y0 - y2) / den))
+        else:
+            notes.append(f"pass {npass + 1}: GCV minimum at the end of the λ range")
+        moved = abs(math.log(lam_star / lam_lin))
+        e = run.solve(lam_star, e.theta)
+        notes.append(f"pass {npass + 1}: linearised at λ={lam_lin:.3g}, GCV minimum λ={lam_star:.3g}")
+        if moved <= math.log(3.0):
+            break
+        lam_lin = lam_star
+    return e, np.array(cands), np.array(chi2s), np.array(regs), np.array(crit), "; ".join(notes)
+
+
+def _rule_lcurve(run: _Runner, theta0, lam_ref, lambda_range, n_lambda):
+    grid = lam_ref * np.logspace(np.log10(lambda_range[1]), np.log10(lambda_range[0]), n_lambda)
+    theta = theta0
+    evals = []
+    for lam in grid:
+        e = run.solve(lam, theta)
+        theta = e.theta
+        evals.append(e)
+    t = np.log(grid)
+    x = np.log(np.sqrt(np.maximum([e.chi2 * run.s.m_total for e in evals], 1e-300)))
+    y = np.log(np.maximum([e.reg for e in evals], 1e-300))
+    xn = (x - x.min()) / max(x.max() - x.min(), 1e-300)
+    yn = (y - y.min()) / max(y.max() - y.min(), 1e-300)
+    dx, dy = np.gradient(xn, t), np.gradient(yn, t)
+    ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
+    speed2 = dx * dx + dy * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kappa = (dx * ddy - dy * ddx) / speed2**1.5
+    # plateaus (the solution no longer changes with λ) give curvature from rounding noise
+    kappa[speed2 < 1e-4] = np.nan
+    kappa[0] = kappa[-1] = np.nan
+    k = int(np.nanargmax(kappa)) if np.any(np.isfinite(kappa)) else n_lambda // 2
+    return evals[k], grid, np.array([e.chi2 for e in evals]), np.array([e.reg for e in evals]), kappa
+
+
+# --------------------------------------------------------------------------- public solvers
+def solve_temperature(
+    problem: LinearProblem,
+    *,
+    regularization: str | float = "auto",
+    prior: str = "gradient",
+    bounds: tuple[float, float] = (300.0, 3000.0),
+    T0: Any = None,
+    method: str = "levenberg-marquardt",
+    rule: str = "discrepancy",
+    max_steps: int = 200,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    penalize: str = "temperature",
+    T_ref: float | None = None,
+    tv_eps: float = 1e-3,
+    discrepancy_safety: float = 0.0,
+    lambda_range: tuple[float, float] = (1e-6, 1e1),
+    n_lambda: int = 13,
+    gcv_probes: int = 8,
+    seed: int = 0,
+    linear_rtol: float = 1e-6,
+    linear_max_steps: int = 100,
+) -> TemperatureSolution:
+    """Reconstruct the temperature field by regularized nonlinear least squares.
+
+    Minimises ``‖(A I_b(T) + bg − y)/σ‖² + λ ‖R(T)‖²`` with ``T`` in
+    ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, using
+    optimistix (matrix-free; see the module docstring for the residual, its
+    scaling and the λ rules).
+
+    Parameters
+    ----------
+    problem : LinearProblem
+        Forward operator ``A`` (m, n) (m² sr), data ``y`` (m,), noise ``sigma``
+        (m,), grid (n voxels), wavelength (m) or None for gray, background.
+    regularization : "auto" or float, keyword-only
+        λ ≥ 0 (dimensionless), or ``"auto"`` to choose it by ``rule``.
+    prior : {"gradient", "laplacian", "tv"}, keyword-only
+        Smoothness prior (Neumann boundaries).
+    bounds : (float, float), keyword-only
+        ``(T_min, T_max)`` (K), ``0 < T_min < T_max``.
+    T0 : None, float, "uniform" or array of shape grid.shape, keyword-only
+        Initial temperature (K).  None: the linear baseline
+        (:func:`solve_linear_baseline`, λ decreased by factors 100 from the
+        balanced weight of the linear problem until ``χ²/m ≤ 2``) clipped into
+        the bounds; ``"uniform"`` or a float: a uniform field (the middle of the
+        bounds for ``"uniform"``).  Values are clipped 0.1 % inside the bounds.
+    method : {"levenberg-marquardt", "gauss-newton"}, keyword-only
+        ``optimistix.LevenbergMarquardt`` or ``optimistix.GaussNewton``.
+    rule : {"discrepancy", "gcv", "lcurve"}, keyword-only
+        λ rule when ``regularization="auto"`` (ignored otherwise).
+    max_steps : int, keyword-only
+        Maximum nonlinear steps per solve (≥ 1).
+    rtol, atol : float, keyword-only
+        Tolerances (≥ 0) of the optimistix Cauchy test (``θ`` and residual,
+        RMS norm), and of the between-chunk test (``|ΔT| ≤ atol · (T_max −
+        T_min) + rtol |T|`` and relative change of the objective ≤ ``rtol``).
+    penalize : {"temperature", "intensity"}, keyword-only
+        Whether the prior acts on ``T / T_s`` or on ``I_b(T) / I_s``.
+    T_ref : float, optional, keyword-only
+        Reference temperature (K) for the radiance scale ``I_s``; default the
+        middle of the bounds.
+    tv_eps : float, keyword-only
+        TV smoothing ε (> 0), dimensionless (differences of ``T/T_s``).
+    discrepancy_safety : float, keyword-only
+        Discrepancy target is ``χ²/m = 1 + discrepancy_safety`` (≥ 0).
+    lambda_range : (float, float), keyword-only
+        GCV / L-curve candidates span ``λ_ref · lambda_range`` (log-spaced).
+    n_lambda : int, keyword-only
+        Number of GCV / L-curve candidates (≥ 4).
+    gcv_probes : int, keyword-only
+        Hutchinson probe vectors for the GCV trace (≥ 1).
+    seed : int, keyword-only
+        Seed of the GCV probes.
+    linear_rtol : float, keyword-only
+        LSMR tolerance (``rtol = atol``) of each Gauss–Newton step, > 0.
+    linear_max_steps : int, keyword-only
+        LSMR iteration cap per step (truncated step beyond it), ≥ 1.
+
+    Returns
+    -------
+    TemperatureSolution
+        Fields ``T`` and ``I_b`` on ``grid.shape``, λ and how it was chosen,
+        ``χ²/m``, norms, iterations, convergence flag and timing.
+
+    Raises
+    ------
+    ValueError
+        Before any solving, for: a problem that is not a LinearProblem; bounds
+        not ``0 < T_min < T_max``; unknown ``prior``, ``method``, ``rule`` or
+        ``penalize``; negative or non-finite λ; a bad ``T0`` (shape, NaN,
+        outside the bounds); bad tolerances or counts.
+    """
+    t_start = time.perf_counter()
+    problem = _check_problem(problem)
+    bounds = _check_bounds(bounds)
+    prior = _check_choice("prior", prior, PRIORS)
+    method = _check_choice("method", method, METHODS)
+    rule = _check_choice("rule", rule, RULES)
+    penalize = _check_choice("penalize", penalize, PENALIZE)
+    lam_fixed = _check_regularization(regularization, allow_auto=True)
+    max_steps = require_int("max_steps", max_steps, minimum=1)
+    rtol = require_nonnegative("rtol", rtol)
+    atol = require_nonnegative("atol", atol)
+    if rtol == 0 and atol == 0:
+        raise ValueError("rtol and atol must not both be 0")
+    tv_eps = require_positive("tv_eps", tv_eps)
+    safety = require_nonnegative("discrepancy_safety", discrepancy_safety)
+    try:
+        lr = (require_positive("lambda_range[0]", lambda_range[0]), require_positive("lambda_range[1]", lambda_range[1]))
+    except (TypeError, IndexError):
+        raise ValueError(f"lambda_range must be (low, high) multipliers > 0, got {lambda_range!r}") from None
+    if not lr[1] > lr[0]:
+        raise ValueError(f"lambda_range must satisfy low < high, got {lambda_range!r}")
+    n_lambda = require_int("n_lambda", n_lambda, minimum=4)
+    gcv_probes = require_int("gcv_probes", gcv_probes, minimum=1)
+    seed = require_int("seed", seed, minimum=0)
+    linear_rtol = require_positive("linear_rtol", linear_rtol)
+    linear_max_steps = require_int("linear_max_steps", linear_max_steps, minimum=1)
+    grid = problem.grid
+    n = grid.n_voxels
+    T0_arr = None
+    T0_mode = "baseline"
+    if isinstance(T0, str):
+        if T0 != "uniform":
+            raise ValueError(f"T0 must be None, 'uniform', a temperature (K) or an array of shape {grid.shape}, got {T0!r}")
+        T0_mode = "uniform"
+        T0_arr = np.full(n, 0.5 * (bounds[0] + bounds[1]))
+    elif T0 is not None:
+        arr = np.asarray(T0, dtype=np.float64)
+        if arr.ndim == 0:
+            arr = np.full(n, float(arr))
+        if arr.size != n or arr.shape not in ((n,), tuple(grid.shape)):
+            raise ValueError(f"T0 must have shape {tuple(grid.shape)}, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError("T0 must be finite, got NaN or inf")
+        if arr.min() < bounds[0] or arr.max() > bounds[1]:
+            raise ValueError(
+                f"T0 must lie within bounds {bounds} K, got range [{arr.min():.6g}, {arr.max():.6g}]"
+            )
+        T0_mode = "given"
+        T0_arr = arr.ravel()
+
+    # ---- setup
+    s = _make_setup(problem, bounds=bounds, prior=prior, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
+    run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
+                  linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
+    t_setup = time.perf_counter()
+
+    # ---- initial guess
+    if T0_arr is None:
+        T0_arr = _initial_from_baseline(s)
+    theta0 = _theta_of_T(T0_arr, bounds[0], bounds[1])
+    T0_clipped = run.T_of(theta0)
+    lam_ref = _balanced_lambda(s, T0_clipped)
+    t_init = time.perf_counter()
+
+    # ---- λ and the solve
+    if lam_fixed is not None:
+        e = run.solve(lam_fixed, theta0)
+        choice = LambdaChoice(
+            rule="fixed", value=lam_fixed, candidates=np.array([lam_fixed]), chi2=np.array([e.chi2]),
+            regularization_norms=np.array([e.reg]), criterion=np.array([np.nan]), target=None,
+            reference=lam_ref, note="λ given by the caller",
+        )
+    elif rule == "discrepancy":
+        e, target, note = _rule_discrepancy(run, theta0, lam_ref, safety)
+        ev = run.evals
+        choice = LambdaChoice(
+            rule=rule, value=e.lam, candidates=np.array([x.lam for x in ev]), chi2=np.array([x.chi2 for x in ev]),
+            regularization_norms=np.array([x.reg for x in ev]), criterion=np.array([x.chi2 - target for x in ev]),
+            target=target, reference=lam_ref, note=note,
+        )
+    elif rule == "gcv":
+        e, c, ch, rg, cr, note = _rule_gcv(run, theta0, lam_ref, lr, n_lambda, gcv_probes, seed)
+        choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
+                              target=None, reference=lam_ref, note=note)
+    else:
+        e, c, ch, rg, cr = _rule_lcurve(run, theta0, lam_ref, lr, n_lambda)
+        choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
+                              target=None, reference=lam_ref, note="maximum curvature of (log‖r‖, log‖R‖)")
+    t_end = time.perf_counter()
+
+    T = run.T_of(e.theta)
+    Ib = _blackbody_np(T, s.wavelength)
+    return TemperatureSolution(
+        T=T.reshape(grid.shape),
+        I_b=Ib.reshape(grid.shape),
+        regularization=float(e.lam),
+        lambda_choice=choice,
+        chi2=e.chi2,
+        residual_norm=math.sqrt(e.chi2 * s.m_total),
+        regularization_norm=e.reg,
+        iterations=e.steps,
+        total_iterations=run.total_steps,
+        n_solves=len(run.evals),
+        converged=e.converged,
+        message=e.message,
+        timing={
+            "setup": t_setup - t_start,
+            "initial_guess": t_init - t_setup,
+            "lambda": t_end - t_init,
+            "total": t_end - t_start,
+            "T0": T0_mode,
+        },
+        method=method,
+        prior=prior,
+        penalize=penalize,
+        bounds=bounds,
+    )
+
+
+def _balanced_lambda_intensity(s: _Setup) -> float:
+    """Balanced λ of the linear problem in ``I_b / I_scale`` (baseline scaling)."""
+    col_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
+    col_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
+    reg = float(np.sum(col_L)) * (s.I_scale / s.I_reg) ** 2
+    data = float(np.sum(col_A))
+    return data / reg if reg > 0 and data > 0 else 1.0
+
+
+def _initial_from_baseline(s: _Setup, *, iter_lim: int = 150) -> np.ndarray:
+    """Initial temperature (flat, K) from the linear baseline.
+
+    λ_I = ``λ_I,ref · 10^{-2k}``, k = 1, 2, ... 6 (``λ_I,ref`` the balanced weight
+    of the linear problem), stopping at the first whose ``χ²/m ≤ 2`` (an
+    inexpensive discrepancy-like choice; LSQR limited to ``iter_lim``
+    iterations and warm-started).
+    """
+    lam_ref = _balanced_lambda_intensity(s)
+    x0 = None
+    best = None
+    for k in range(1, 7):
+        base = _baseline_core(s, lam_ref * 10.0 ** (-2 * k), method="lsqr", atol=1e-6, btol=1e-6,
+                              iter_lim=iter_lim, x0=x0)
+        x0 = base.I_b.ravel() / s.I_scale
+        best = base
+        if base.chi2 <= 2.0:
+            break
+    return best.T.ravel()
+
+
+def _baseline_core(s: _Setup, lam: float, *, method: str, atol: float, btol: float, iter_lim: int | None, x0=None):
+    t0 = time.perf_counter()
+    K = sp.vstack([s.A_s, (math.sqrt(lam) * s.I_scale / s.I_reg) * s.L], format="csr")
+    rhs = np.concatenate([s.d, np.zeros(s.L.shape[0])])
+    if method == "lsqr":
+        out = spla.lsqr(K, rhs, atol=atol, btol=btol, iter_lim=iter_lim, x0=x0)
+        b, status, iters = out[0], int(out[1]), int(out[2])
+    else:
+        res = lsq_linear(K, rhs, bounds=(0.0, np.inf), lsq_solver="lsmr", tol=max(atol, 1e-12),
+                         max_iter=iter_lim, lsmr_tol="auto")
+        b, status, iters = res.x, int(res.status), int(res.nit)
+    Ib = b * s.I_scale
+    r = s.A_s @ b - s.d
+    chi2 = (float(r @ r) + s.chi2_empty) / s.m_total
+    reg = float(np.linalg.norm(s.L @ b) * s.I_scale / s.I_reg)
+    tiny = np.finfo(np.float64).tiny
+    T_raw = _inverse_np(np.maximum(Ib, tiny), s.wavelength)
+    T = np.clip(T_raw, s.tmin, s.tmax)
+    shape = s.grid.shape
+    return BaselineSolution(
+        I_b=Ib.reshape(shape), T=T.reshape(shape), T_unclipped=T_raw.reshape(shape), regularization=float(lam),
+        chi2=chi2, regularization_norm=reg, iterations=iters, time=time.perf_counter() - t0, method=method,
+        status=status,
+    )
+
+
+def solve_linear_baseline(
+    problem: LinearProblem,
+    *,
+    regularization: float,
+    prior: str = "gradient",
+    bounds: tuple[float, float] = (300.0, 3000.0),
+    T_ref: float | None = None,
+    method: str = "lsqr",
+    atol: float = 1e-8,
+    btol: float = 1e-8,
+    iter_lim: int | None = None,
+) -> BaselineSolution:
+    """Linear baseline: regularized least squares in ``I_b`` with scipy, then ``T = Planck⁻¹``.
+
+    Solves ``min_I ‖(A I + bg − y)/σ‖² + λ ‖L I / I_s‖²`` — the stacked
+    whitened system ``[A/σ; √λ L/I_s] I = [(y − bg)/σ; 0]`` — with
+    ``scipy.sparse.linalg.lsqr`` (``method="lsqr"``) or
+    ``scipy.optimize.lsq_linear`` with ``I ≥ 0`` (``method="bounded"``), then
+    ``T = planck_inverse(max(I, tiny))`` (or the gray inverse) clipped to
+    ``bounds``.  ``L`` is the same dimensionless operator as in
+    :func:`solve_temperature` and ``I_s = ∂I_b/∂T(T_ref) · (T_max − T_min)``:
+    linearised about ``T_ref`` this penalty equals the temperature penalty
+    ``λ ‖L T / (T_max − T_min)‖²`` of :func:`solve_temperature`, so a λ has a
+    comparable meaning (and the *same* meaning as
+    ``solve_temperature(..., penalize="intensity")``).
+
+    Parameters
+    ----------
+    problem : LinearProblem
+        The data and forward operator.
+    regularization : float, keyword-only
+        λ ≥ 0 (dimensionless).
+    prior : {"gradient", "laplacian"}, keyword-only
+        Quadratic prior on ``I_b`` (TV is not linear: not offered here).
+    bounds : (float, float), keyword-only
+        ``(T_min, T_max)`` (K), for the clip of ``T`` and for ``I_s``.
+    T_ref : float, optional, keyword-only
+        Reference temperature (K) of ``I_s``; default the middle of the bounds.
+    method : {"lsqr", "bounded"}, keyword-only
+        Unconstrained LSQR or non-negative bounded least squares.
+    atol, btol : float, keyword-only
+        LSQR stopping tolerances (``atol`` is also lsq_linear's ``tol``).
+    iter_lim : int, optional, keyword-only
+        Iteration limit (scipy's default when None).
+
+    Returns
+    -------
+    BaselineSolution
+
+    Raises
+    ------
+    ValueError
+        Bad problem, negative or non-numeric λ, unknown prior or method,
+        inverted bounds.
+    """
+    problem = _check_problem(problem)
+    lam = _check_regularization(regularization, allow_auto=False)
+    prior = _check_choice("prior", prior, ("gradient", "laplacian"))
+    method = _check_choice("method", method, ("lsqr", "bounded"))
+    bounds = _check_bounds(bounds)
+    atol = require_nonnegative("atol", atol)
+    btol = require_nonnegative("btol", btol)
+    if iter_lim is not None:
+        iter_lim = require_int("iter_lim", iter_lim, minimum=1)
+    s = _make_setup(problem, bounds=bounds, prior=prior, penalize="intensity", tv_eps=1e-3, T_ref=T_ref)
+    return _baseline_core(s, lam, method=method, atol=atol, btol=btol, iter_lim=iter_lim)

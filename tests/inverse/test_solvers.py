@@ -1,0 +1,300 @@
+"""Tests of the temperature solvers and regularizers (lftomo.inverse.solvers / .regularizers).
+
+Synthetic forward operator: straight lines cast through the grid in random
+directions from random points; ``A[i, j]`` is the length of line ``i`` inside
+voxel ``j`` (sampled at a quarter voxel) times 1e-6 (a stand-in for m² sr).
+Truth: a smooth Gaussian hot spot, 800 K at the edge to 2000 K at the centre.
+All grids are 8³ (or 6³) so the suite stays fast; problems with the same
+shapes reuse the compiled JAX code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import lftomo as lt
+from lftomo.inverse.problem import LinearProblem
+from lftomo.inverse.regularizers import (
+    gradient_operator,
+    jax_operator,
+    laplacian_operator,
+    prior_operator,
+    tv,
+)
+from lftomo.inverse.solvers import (
+    dplanck_dT_jax,
+    gray_intensity_jax,
+    planck_jax,
+    solve_linear_baseline,
+    solve_temperature,
+)
+
+
+# --------------------------------------------------------------------------- helpers
+def ray_operator(grid, n_rays, *, seed=0, samples_per_voxel=4, scale=1e-6):
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
+    size = hi - lo
+    h = float(np.min(grid.spacing)) / samples_per_voxel
+    diag = float(np.linalg.norm(size))
+    t = np.arange(-0.5 * diag, 0.5 * diag, h) + 0.5 * h
+    p = lo + rng.random((n_rays, 3)) * size
+    u = rng.normal(size=(n_rays, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    pts = p[:, None, :] + t[None, :, None] * u[:, None, :]
+    idx = np.floor((pts - lo) / grid.spacing).astype(np.int64)
+    inside = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2)
+    r, s = np.nonzero(inside)
+    flat = np.ravel_multi_index(tuple(idx[r, s].T), grid.shape)
+    A = sp.csr_matrix((np.full(r.size, h * scale), (r, flat)), shape=(n_rays, grid.n_voxels))
+    A.sum_duplicates()
+    return A
+
+
+def hot_spot(grid, T_edge=800.0, T_peak=2000.0):
+    X, Y, Z = grid.centers_mesh()
+    c, w = grid.center, 0.3 * grid.size
+    G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
+    return T_edge + (T_peak - T_edge) * G
+
+
+def make_problem(n=8, *, rel_noise=0.0, wavelength=None, rows_per_voxel=3, seed=0, noise_seed=1,
+                 T_edge=800.0, T_peak=2000.0):
+    grid = lt.Grid((n, n, n), (-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
+    A = ray_operator(grid, rows_per_voxel * grid.n_voxels, seed=seed)
+    T = hot_spot(grid, T_edge, T_peak)
+    Ib = lt.gray_intensity(T) if wavelength is None else lt.planck(T, wavelength)
+    y0 = A @ Ib.ravel()
+    sig_level = (rel_noise if rel_noise > 0 else 1e-6) * np.abs(y0).mean()
+    sigma = np.full(y0.size, sig_level)
+    y = y0 + (np.random.default_rng(noise_seed).normal(size=y0.size) * sigma if rel_noise > 0 else 0.0)
+    return LinearProblem(A, y, sigma, grid, wavelength), T
+
+
+@pytest.fixture(scope="module")
+def gray_clean():
+    return make_problem(8)
+
+
+@pytest.fixture(scope="module")
+def gray_noisy():
+    return make_problem(8, rel_noise=0.02)
+
+
+# --------------------------------------------------------------------------- Planck in JAX
+def test_planck_jax_matches_numpy():
+    T = np.array([300.0, 800.0, 1500.0, 2200.0, 3000.0])
+    for lam in (400e-9, 650e-9, 1.0e-6, 10e-6):
+        np.testing.assert_allclose(np.asarray(planck_jax(T, lam)), lt.planck(T, lam), rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(dplanck_dT_jax(T, lam)), lt.dplanck_dT(T, lam), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(gray_intensity_jax(T)), lt.gray_intensity(T), rtol=1e-12)
+
+
+def test_planck_jax_derivative_is_autodiff():
+    import jax
+
+    g = jax.vmap(jax.grad(lambda t: planck_jax(t, 650e-9)))(np.array([900.0, 1800.0]))
+    np.testing.assert_allclose(np.asarray(g), lt.dplanck_dT(np.array([900.0, 1800.0]), 650e-9), rtol=1e-10)
+
+
+# --------------------------------------------------------------------------- regularizers
+def test_gradient_operator_neumann_and_scaling():
+    grid = lt.Grid((4, 3, 5), (0.0, 0.0, 0.0), (0.04, 0.06, 0.05))  # spacing 10, 20, 10 mm
+    D = gradient_operator(grid)
+    n = grid.n_voxels
+    assert D.shape == (3 * n, n)
+    X, Y, Z = grid.centers_mesh()
+    f = (3.0 * X + 2.0 * Y - Z).ravel()
+    g = (D @ f).reshape(3, *grid.shape)
+    # linear field: exact derivative inside, zero on the last layer (Neumann)
+    np.testing.assert_allclose(g[0][:-1], 3.0, rtol=1e-12)
+    np.testing.assert_allclose(g[1][:, :-1], 2.0, rtol=1e-12)
+    np.testing.assert_allclose(g[2][:, :, :-1], -1.0, rtol=1e-12)
+    assert np.all(g[0][-1] == 0) and np.all(g[1][:, -1] == 0) and np.all(g[2][:, :, -1] == 0)
+    assert np.allclose(D @ np.ones(n), 0.0)
+
+
+def test_laplacian_operator_properties():
+    grid = lt.Grid((5, 4, 6), (0.0, 0.0, 0.0), (0.05, 0.04, 0.06))
+    L = laplacian_operator(grid)
+    assert abs(L - L.T).max() < 1e-9
+    assert np.allclose(L @ np.ones(grid.n_voxels), 0.0)
+    X, _, _ = grid.centers_mesh()
+    f = (X**2).ravel()
+    lap = (L @ f).reshape(grid.shape)
+    np.testing.assert_allclose(lap[1:-1], 2.0, rtol=1e-9)  # interior: exact for a quadratic
+    w = np.linalg.eigvalsh(L.toarray())
+    assert w.max() < 1e-9  # negative semi-definite
+
+
+def test_tv_and_jax_operator():
+    grid = lt.Grid((6, 6, 6), (0.0, 0.0, 0.0), (0.06, 0.06, 0.06))
+    X, _, _ = grid.centers_mesh()
+    step = np.where(X > 0.03, 1.0, 0.0)
+    # a unit step across a 6x6 face: |∇x| = 1/h on 36 voxels -> TV ≈ 36/h for small eps
+    val = float(tv(step, grid, 1e-6))
+    assert val == pytest.approx(36 / 0.01, rel=1e-6)
+    fn, B = jax_operator(grid, "gradient")
+    np.testing.assert_allclose(np.asarray(fn(step.ravel())), prior_operator(grid, "gradient") @ step.ravel())
+    fn_tv, _ = jax_operator(grid, "tv", eps=1e-3)
+    r = np.asarray(fn_tv(step.ravel()))
+    assert np.sum(r**2) == pytest.approx(36 * (np.sqrt(1 + 1e-6) - 1e-3), rel=1e-9)
+    with pytest.raises(ValueError, match="prior"):
+        jax_operator(grid, "curvature")
+
+
+# --------------------------------------------------------------------------- solver accuracy
+def test_noise_free_gray_recovers_truth(gray_clean):
+    problem, T = gray_clean
+    sol = solve_temperature(problem, regularization=1e-8)
+    assert sol.converged, sol.message
+    assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
+    assert sol.T.shape == problem.grid.shape and sol.I_b.shape == problem.grid.shape
+    np.testing.assert_allclose(sol.I_b, lt.gray_intensity(sol.T), rtol=1e-12)
+    assert sol.lambda_choice.rule == "fixed" and sol.regularization == 1e-8
+
+
+def test_noise_free_650nm_recovers_truth():
+    problem, T = make_problem(8, wavelength=650e-9)
+    sol = solve_temperature(problem, regularization=1e-10)
+    assert sol.converged, sol.message
+    assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
+
+
+def test_gauss_newton_noise_free(gray_clean):
+    problem, T = gray_clean
+    sol = solve_temperature(problem, regularization=1e-8, method="gauss-newton")
+    assert sol.method == "gauss-newton"
+    assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
+
+
+def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy):
+    """Test problem: gray, 8³, 1536 rays, 2 % noise, gradient prior.
+
+    Scan λ on a log grid (factor 10^0.25), take the λ of minimum RMS relative
+    temperature error (refined by a parabola in log λ), compare with the
+    discrepancy-principle λ.
+    """
+    problem, T = gray_noisy
+    auto = solve_temperature(problem, rule="discrepancy")
+    ch = auto.lambda_choice
+    assert ch.rule == "discrepancy" and ch.target == 1.0
+    assert auto.chi2 == pytest.approx(1.0, abs=1e-2)
+    assert len(ch.candidates) == len(ch.chi2) == len(ch.regularization_norms) >= 3
+    lam_ref = ch.reference
+    lams = lam_ref * 10.0 ** np.arange(-3.0, 0.01, 0.25)
+    errs = []
+    T0 = None
+    for lam in lams[::-1]:  # warm starts from smooth to rough
+        s = solve_temperature(problem, regularization=float(lam), T0=T0)
+        T0 = s.T
+        errs.append(np.sqrt(np.mean((s.T / T - 1) ** 2)))
+    errs = np.log(np.array(errs[::-1]))
+    k = int(np.argmin(errs))
+    assert 0 < k < len(lams) - 1, "error-optimal λ must be inside the scanned range"
+    x = np.log(lams)
+    den = errs[k - 1] - 2 * errs[k] + errs[k + 1]
+    lam_opt = np.exp(x[k] + 0.5 * (x[1] - x[0]) * (errs[k - 1] - errs[k + 1]) / den)
+    ratio = auto.regularization / lam_opt
+    print(f"discrepancy λ {auto.regularization:.4g}, error-optimal λ {lam_opt:.4g}, ratio {ratio:.3f}")
+    assert 1 / 3 <= ratio <= 3, f"discrepancy λ {auto.regularization:.3g} vs optimal {lam_opt:.3g}"
+
+
+def test_lcurve_and_gcv_report_their_path():
+    problem, T = make_problem(6, rel_noise=0.02)
+    lc = solve_temperature(problem, rule="lcurve", n_lambda=7, lambda_range=(1e-4, 1.0))
+    ch = lc.lambda_choice
+    assert ch.rule == "lcurve" and len(ch.candidates) == 7
+    assert np.isnan(ch.criterion[0]) and np.isnan(ch.criterion[-1])
+    assert lc.regularization in ch.candidates[1:-1]
+    g = solve_temperature(problem, rule="gcv", n_lambda=5, gcv_probes=2, lambda_range=(1e-4, 1.0))
+    assert g.lambda_choice.rule == "gcv" and np.all(np.isfinite(g.lambda_choice.criterion))
+    assert np.all(g.lambda_choice.criterion > 0)
+    assert np.sqrt(np.mean((g.T / T - 1) ** 2)) < 0.1
+
+
+def test_optimistix_agrees_with_scipy_baseline_on_linear_case(gray_noisy):
+    """Same λ, same prior acting on I_b (penalize="intensity"): the objectives are
+    then identical up to the change of variables I_b = I_b(T(θ)), a bijection on
+    the interior of the bounds, so both solvers must reach the same I_b."""
+    problem, _ = gray_noisy
+    lam = 1e4  # large enough that the baseline I_b is positive everywhere
+    base = solve_linear_baseline(problem, regularization=lam, prior="gradient", atol=1e-14, btol=1e-14,
+                                 iter_lim=20000)
+    assert np.all(base.I_b > lt.gray_intensity(300.0)) and np.all(base.I_b < lt.gray_intensity(3000.0))
+    sol = solve_temperature(problem, regularization=lam, prior="gradient", penalize="intensity",
+                            rtol=1e-10, atol=1e-10, max_steps=400)
+    np.testing.assert_allclose(sol.I_b, base.I_b, rtol=1e-5)
+    np.testing.assert_allclose(sol.T, base.T, rtol=1e-6)
+    assert sol.chi2 == pytest.approx(base.chi2, rel=1e-6)
+
+
+def test_bounds_respected(gray_clean):
+    problem, T = gray_clean
+    sol = solve_temperature(problem, regularization=1e-6, bounds=(900.0, 1600.0))
+    assert sol.T.min() >= 900.0 and sol.T.max() <= 1600.0
+    assert sol.T.max() > 1590.0  # the hot core (2000 K) pushes against the upper bound
+    b = solve_linear_baseline(problem, regularization=1.0, bounds=(900.0, 1600.0))
+    assert b.T.min() >= 900.0 and b.T.max() <= 1600.0
+
+
+def test_bounded_baseline_nonnegative(gray_noisy):
+    problem, T = gray_noisy
+    b = solve_linear_baseline(problem, regularization=1e2, method="bounded")
+    assert np.all(b.I_b >= 0)
+    assert np.sqrt(np.mean((b.T / T - 1) ** 2)) < 0.05
+
+
+# --------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"bounds": (3000.0, 300.0)}, "bounds"),
+        ({"bounds": (300.0, 300.0)}, "bounds"),
+        ({"bounds": (-10.0, 300.0)}, "bounds"),
+        ({"prior": "curvature"}, "prior"),
+        ({"method": "newton"}, "method"),
+        ({"rule": "guess"}, "rule"),
+        ({"regularization": -1.0}, "regularization"),
+        ({"regularization": float("nan")}, "regularization"),
+        ({"regularization": "best"}, "regularization"),
+        ({"penalize": "both"}, "penalize"),
+        ({"max_steps": 0}, "max_steps"),
+        ({"T0": np.full((3, 3, 3), 1000.0)}, "T0"),
+        ({"T0": 5000.0}, "T0"),
+    ],
+)
+def test_bad_input_raises_before_solving(gray_clean, kwargs, match, monkeypatch):
+    import lftomo.inverse.solvers as S
+
+    def boom(*a, **k):  # any solve would call this
+        raise AssertionError("solver reached")
+
+    monkeypatch.setattr(S, "_make_setup", boom)
+    problem, _ = gray_clean
+    with pytest.raises(ValueError, match=match):
+        solve_temperature(problem, **kwargs)
+
+
+def test_bad_baseline_input(gray_clean):
+    problem, _ = gray_clean
+    with pytest.raises(ValueError, match="regularization"):
+        solve_linear_baseline(problem, regularization=-1.0)
+    with pytest.raises(ValueError, match="prior"):
+        solve_linear_baseline(problem, regularization=1.0, prior="tv")
+    with pytest.raises(ValueError, match="method"):
+        solve_linear_baseline(problem, regularization=1.0, method="cg")
+    with pytest.raises(ValueError, match="bounds"):
+        solve_linear_baseline(problem, regularization=1.0, bounds=(2000.0, 1000.0))
+    with pytest.raises(ValueError, match="LinearProblem"):
+        solve_temperature("not a problem")
+
+
+def test_nan_data_rejected_by_problem(gray_clean):
+    problem, _ = gray_clean
+    y = problem.y.copy()
+    y[3] = np.nan
+    with pytest.raises(ValueError, match="y"):
+        LinearProblem(problem.A, y, problem.sigma, problem.grid, None)
