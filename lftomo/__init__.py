@@ -17,6 +17,11 @@ from .forward.medium import Medium, SootRule, load_field
 from .forward import phantoms
 from .forward.weights import WeightMatrix, RaySegments, RefocusWeights, weights, ray_segments, weights_refocus
 from .inverse.measurement import SensorModel, add_noise, saturated_mask, Measurement
+from .inverse.problem import LinearProblem
+from .inverse.reconstruct import Reconstruction, reconstruct
+from .inverse.solvers import solve_temperature, solve_linear_baseline
+from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
+from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 
 __all__ = [
     "__version__",
@@ -60,4 +65,15 @@ __all__ = [
     "add_noise",
     "saturated_mask",
     "Measurement",
+    "LinearProblem",
+    "Reconstruction",
+    "reconstruct",
+    "solve_temperature",
+    "solve_linear_baseline",
+    "Posterior",
+    "sample_posterior",
+    "laplace_approximation",
+    "DCTBasis",
+    "BSplineBasis",
+    "ParametricFlame",
 ]
