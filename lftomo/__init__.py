@@ -14,7 +14,7 @@ from .lightfield import LightField, calibrate_centers, geometric_centers, alpha_
 from .radiation import planck, planck_inverse, dplanck_dT, gray_intensity, gray_inverse, blackbody_intensity
 from .forward.grid import Grid
 from .forward.medium import Medium, SootRule, load_field
-from .forward import phantoms
+from .forward import phantoms, reference_cases
 from .forward.weights import WeightMatrix, RaySegments, RefocusWeights, weights, ray_segments, weights_refocus
 from .inverse.measurement import SensorModel, add_noise, saturated_mask, Measurement
 from .inverse.problem import LinearProblem
@@ -55,6 +55,7 @@ __all__ = [
     "SootRule",
     "load_field",
     "phantoms",
+    "reference_cases",
     "WeightMatrix",
     "RaySegments",
     "RefocusWeights",
