@@ -32,7 +32,7 @@ from numba import njit, prange
 
 from .._validate import require_int
 from . import optics as _o
-from .dda import integrate_emission, transmittance
+from .dda import integrate_emission, ray_box, transmittance
 from .rng import rng_init, rng_uniform
 from .scattering import hg_phase, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance
 from .surfaces import surfaces_hit
@@ -320,7 +320,7 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
             # majorant); only scattering vertices score further (next events)
             w = W if u < p_volume else W_walk
             while True:
-                tin, tout = _box(px, py, pz, dx, dy, dz, x0, y0, z0, x0 + nx * hx, y0 + ny * hy, z0 + nz * hz)
+                tin, tout = ray_box(px, py, pz, dx, dy, dz, x0, y0, z0, x0 + nx * hx, y0 + ny * hy, z0 + nz * hz)
                 if tout <= max(tin, 0.0):
                     break
                 t = max(tin, 0.0)
@@ -376,24 +376,6 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
                 state, h2 = rng_uniform(state)
                 dx, dy, dz = sample_hg_direction(dx, dy, dz, g[vv], h1, h2)
     return images
-
-
-@njit(cache=True, inline="always")
-def _box(ox, oy, oz, dx, dy, dz, x0, y0, z0, x1, y1, z1):
-    t0 = -math.inf
-    t1 = math.inf
-    for o, d, lo, hi in ((ox, dx, x0, x1), (oy, dy, y0, y1), (oz, dz, z0, z1)):
-        if d == 0.0:
-            if o < lo or o > hi:
-                return math.inf, -math.inf
-        else:
-            a = (lo - o) / d
-            b = (hi - o) / d
-            if a > b:
-                a, b = b, a
-            t0 = max(t0, a)
-            t1 = min(t1, b)
-    return t0, t1
 
 
 @njit(cache=True, inline="always")

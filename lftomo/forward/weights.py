@@ -690,20 +690,7 @@ def _pos_scratch(n_vox: int) -> np.ndarray:
     return np.full((numba.get_num_threads(), n_vox), -1, dtype=np.int32)
 
 
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress(total: int, show: bool, desc: str):
-    if not show:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="px", unit_scale=True, leave=False)
+from .render import _progress  # noqa: E402  (shared progress bar)
 
 
 def _version() -> str:
