@@ -33,13 +33,11 @@ the views that contribute to it.  It is linear in ``raw``:
 
 from __future__ import annotations
 
-import io
 import json
-import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import scipy.optimize

@@ -28,7 +28,7 @@ from numba import njit, prange
 
 from .._validate import require_int, require_positive, require_finite_scalar
 from . import optics as _o
-from .rng import rng_init, rng_uniform
+from .rng import rng_init
 
 
 EXIT_PUPIL_CULL_MARGIN = 1.25

@@ -15,7 +15,7 @@ image does not depend on the number of threads.
 from __future__ import annotations
 
 import time
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from .._validate import require_int
