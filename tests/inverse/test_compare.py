@@ -1,6 +1,7 @@
 """compare_refocus_subaperture: both inversions run on the same data and are reported."""
 
 import numpy as np
+import pytest
 
 import lftomo as lt
 from lftomo.inverse.compare import compare_refocus_subaperture, effective_truth, resample_mean
@@ -33,3 +34,33 @@ def test_comparison_runs_both_inversions_on_the_same_data():
         assert np.all(np.diff(c.singular_values[kind]) <= 0)
     assert c.subaperture.data_kind == "subaperture" and c.refocus.data_kind == "refocus"
     assert c.refocus.details.lambda_choice is not None
+
+
+def test_monte_carlo_std_explains_the_difference_of_two_renders():
+    """Two independent renders differ by sqrt(se_a² + se_b²); the floor covers zero-hit pixels."""
+    import dataclasses
+
+    from lftomo.inverse.compare import monte_carlo_std
+
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    box = dict(lower=(-0.004, -0.004, 0.996), upper=(0.004, 0.004, 1.004))
+    flame = lt.phantoms.gaussian_blob(lt.Grid(shape=(8, 8, 8), **box), center=(0.0, 0.0, 1.0), width=0.002,
+                                      T_peak=1800.0, sigma_a_peak=20.0)
+    scene = lt.Scene(medium=flame)
+    a, b = (dataclasses.replace(lt.render(scene, cam, rays_per_pixel=16, seed=s, wavelengths="gray", progress=False),
+                                min_etendue_fraction=0.2) for s in (1, 2))
+    s = monte_carlo_std(a, weights_rays_per_pixel=16, rays_per_pixel=16)
+    assert s.shape == a.raw.shape
+    idx = a.view_index[a.view_mask]
+    z = (a.raw.ravel() - b.raw.ravel())[idx] / s.ravel()[idx]
+    lit = b.raw.ravel()[idx] > 0
+    # sqrt(2) se_a estimates the sd of the difference: chi²/dof near 1 (the floor only adds)
+    covered = lit & (s.ravel()[idx] > 0)
+    assert np.mean(covered[lit]) > 0.99  # without the floor: zero-hit pixels with sigma 0, chi² infinite
+    m = int(covered.sum())
+    chi2 = float(np.mean(z[covered] ** 2))
+    assert m > 200
+    # the model may overestimate sigma (floor at sharp edges) but must not underestimate it
+    assert chi2 < 1.0 + 5 * np.sqrt(2.0 / m), chi2
+    with pytest.raises(ValueError, match="rays per pixel"):
+        monte_carlo_std(a, weights_rays_per_pixel=0, rays_per_pixel=16)
