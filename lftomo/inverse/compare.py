@@ -194,6 +194,7 @@ def compare_refocus_subaperture(
     bounds: tuple[float, float] = (300.0, 3000.0),
     n_singular: int = 40,
     hot: float = 800.0,
+    min_etendue_fraction: float = 0.2,
     progress: bool = False,
     **solver_options: Any,
 ) -> Comparison:
@@ -222,6 +223,10 @@ def compare_refocus_subaperture(
         Leading singular values computed per operator.
     hot : float
         Errors are evaluated where the true T exceeds this (K).
+    min_etendue_fraction : float
+        Pixels whose étendue is below this fraction of the peak (rims of the
+        microlens images, where the Monte Carlo error of data and weights is
+        large) are left out of both data sets.
 
     Returns
     -------
@@ -238,6 +243,8 @@ def compare_refocus_subaperture(
         raise ValueError("scene must contain a medium (the flame to reconstruct)")
     if not depths:
         raise ValueError("depths must list at least one refocus depth (m)")
+    if not 0.0 <= min_etendue_fraction < 1.0:
+        raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
     t0 = time.perf_counter()
     wl = None if wavelength is None else float(wavelength)
     wls = "gray" if wl is None else (wl,)
@@ -247,8 +254,10 @@ def compare_refocus_subaperture(
     # The data and the weight matrix are both Monte Carlo estimates: their
     # per-pixel MC variance joins the measurement noise (monte_carlo_std).
     n_w = weights_rays_per_pixel or rays_per_pixel
+    lf = dataclasses.replace(lf, min_etendue_fraction=min_etendue_fraction)
     mc = monte_carlo_std(lf, weights_rays_per_pixel=n_w, rays_per_pixel=rays_per_pixel)
-    noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2))
+    noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2),
+                                min_etendue_fraction=min_etendue_fraction)
     W = build_weights(camera, recon_grid, sigma_a=sa_c, wavelength="gray" if wl is None else wl,
                       rays_per_pixel=weights_rays_per_pixel or rays_per_pixel, seed=seed + 2,
                       surfaces=scene.surfaces or None, progress=progress)
