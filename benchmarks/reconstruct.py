@@ -20,8 +20,13 @@ compilation included — the first call with these shapes) and
 :func:`lftomo.inverse.solvers.solve_linear_baseline` at the λ chosen, and
 prints both times, their ratio and the temperature errors (where T > 800 K).
 
+``--matvec`` only times the sparse products used inside the solver: JAX
+``BCOO`` against :class:`lftomo.inverse.hostsparse.HostCSR` (scipy through a
+linear host callback), each as a ratio to plain scipy in the same run.
+
 Usage::
 
+    python benchmarks/reconstruct.py --matvec [--rows 133000] [--n 24]
     python benchmarks/reconstruct.py [--synthetic] [--n 32] [--rows 300000] [--rays 4] [--noise 0.01]
                                      [--rtol 1e-4] [--max-steps 100] [--linear-max-steps 30]
 """
@@ -101,9 +106,48 @@ def have_weights() -> bool:
     return True
 
 
+def matvec_benchmark(rows: int, n: int, per_row: int = 60, repeat: int = 20) -> None:
+    """Time A @ x and Aᵀ @ y inside jitted JAX: BCOO vs HostCSR, against scipy in the same run."""
+    import jax
+    import jax.numpy as jnp
+
+    from lftomo.inverse.hostsparse import host_csr
+    from lftomo.inverse.regularizers import to_bcoo
+
+    A = sp.random(rows, n, density=per_row / n, format="csr", random_state=0)
+    x = jnp.asarray(np.random.default_rng(0).random(n))
+    u = jnp.asarray(np.random.default_rng(1).random(rows))
+    B, H = to_bcoo(A), host_csr(A)
+    bcoo_mv = jax.jit(lambda B, x: B @ x)
+    bcoo_rmv = jax.jit(lambda B, u: jax.vjp(lambda z: B @ z, x)[1](u)[0])
+    host_mv = jax.jit(lambda x: H @ x)
+    host_rmv = jax.jit(lambda u: jax.vjp(lambda z: H @ z, x)[1](u)[0])
+    xn, un, AT = np.asarray(x), np.asarray(u), A.T.tocsr()
+
+    def timed(fn):
+        fn()
+        t = time.perf_counter()
+        for _ in range(repeat):
+            fn()
+        return (time.perf_counter() - t) / repeat
+
+    t_sp = timed(lambda: A @ xn)
+    t_spT = timed(lambda: AT @ un)
+    t_b = timed(lambda: bcoo_mv(B, x).block_until_ready())
+    t_bT = timed(lambda: bcoo_rmv(B, u).block_until_ready())
+    t_h = timed(lambda: host_mv(x).block_until_ready())
+    t_hT = timed(lambda: host_rmv(u).block_until_ready())
+    print(f"A: {rows} x {n}, nnz {A.nnz}")
+    print(f"scipy CSR      A x {1e3 * t_sp:7.1f} ms   Aᵀ y {1e3 * t_spT:7.1f} ms")
+    print(f"JAX BCOO       A x {1e3 * t_b:7.1f} ms   Aᵀ y {1e3 * t_bT:7.1f} ms   ratio to scipy {t_b / t_sp:.1f} / {t_bT / t_spT:.1f}")
+    print(f"JAX HostCSR    A x {1e3 * t_h:7.1f} ms   Aᵀ y {1e3 * t_hT:7.1f} ms   ratio to scipy {t_h / t_sp:.1f} / {t_hT / t_spT:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--synthetic", action="store_true", help="use the synthetic ray-cast operator")
+    ap.add_argument("--matvec", action="store_true",
+                    help="only time the sparse products (BCOO vs HostCSR vs scipy) on --rows x n³")
     ap.add_argument("--n", type=int, default=32, help="voxels per axis")
     ap.add_argument("--rows", type=int, default=300_000, help="rows of the synthetic operator")
     ap.add_argument("--rays", type=int, default=4, help="rays per pixel of the camera weights")
@@ -112,6 +156,9 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=100, help="max nonlinear steps per solve")
     ap.add_argument("--linear-max-steps", type=int, default=30, help="LSMR iterations per step")
     args = ap.parse_args()
+    if args.matvec:
+        matvec_benchmark(args.rows, args.n ** 3)
+        return
 
     t = time.perf_counter()
     if args.synthetic or not have_weights():

@@ -63,9 +63,10 @@ Candidate λ are multiples of it.
   ``log(χ²/m)`` against ``log λ`` (χ² increases with λ), each nonlinear solve
   warm-started from the solution at the nearest λ already solved; stops when
   ``|χ²/m − target| ≤ 1e-3 · target`` or the bracket is narrower than a factor
-  1.1.  If even the smallest λ (``λ_ref · 1e-10``) cannot reach the target, or
-  the largest (``λ_ref · 1e4``) stays below it, that end is used and the note
-  says so.  Morozov's rule is known to over-smooth somewhat: on the 8³ test
+  1.1.  If even the smallest λ (``λ_ref · 1e-10``) cannot reach the target,
+  that end is used and the note says so; if the largest (``λ_ref · 1e4``)
+  stays below it (σ overestimated), the L-curve corner of the solutions
+  computed on the way (factors of 10) is used instead, and the note says so.  Morozov's rule is known to over-smooth somewhat: on the 8³ test
   problems (m = 3n–8n rows, 2–5 % noise) it gave 1.9–2.9 × the error-optimal
   λ.
 * ``"gcv"``: generalised cross-validation of the problem *linearised* about the
@@ -690,6 +691,17 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float):
                 break
             lo = e
         if hi is None:
+            # χ² below the target everywhere: the noise σ is overestimated (e.g. a
+            # conservative Monte Carlo error model), and the largest λ would give a
+            # featureless field.  Fall back on the corner of the L-curve of the
+            # solutions already computed (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
+            path = sorted(run.evals, key=lambda x: x.lam)
+            kappa = _lcurve_curvature(run, path) if len(path) >= 4 else np.array([np.nan])
+            if np.any(np.isfinite(kappa)):
+                best = path[int(np.nanargmax(kappa))]
+                note = (f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): "
+                        f"L-curve corner of the {len(path)} solutions used, λ = {best.lam:.3g}")
+                return best, target, note
             note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
             return lo, target, note
     else:
@@ -813,7 +825,15 @@ def _rule_lcurve(run: _Runner, theta0, lam_ref, lambda_range, n_lambda):
         e = run.solve(lam, theta)
         theta = e.theta
         evals.append(e)
-    t = np.log(grid)
+    kappa = _lcurve_curvature(run, evals)
+    k = int(np.nanargmax(kappa)) if np.any(np.isfinite(kappa)) else n_lambda // 2
+    return evals[k], grid, np.array([e.chi2 for e in evals]), np.array([e.reg for e in evals]), kappa
+
+
+def _lcurve_curvature(run: _Runner, evals: list) -> np.ndarray:
+    """Curvature of ``(log ‖r‖, log ‖R‖)`` (axes normalised to [0, 1]) against ``log λ``; NaN at the ends
+    and on plateaus.  ``evals`` sorted by λ (either direction)."""
+    t = np.log([e.lam for e in evals])
     x = np.log(np.sqrt(np.maximum([e.chi2 * run.s.m_total for e in evals], 1e-300)))
     y = np.log(np.maximum([e.reg for e in evals], 1e-300))
     xn = (x - x.min()) / max(x.max() - x.min(), 1e-300)
@@ -826,8 +846,7 @@ def _rule_lcurve(run: _Runner, theta0, lam_ref, lambda_range, n_lambda):
     # plateaus (the solution no longer changes with λ) give curvature from rounding noise
     kappa[speed2 < 1e-4] = np.nan
     kappa[0] = kappa[-1] = np.nan
-    k = int(np.nanargmax(kappa)) if np.any(np.isfinite(kappa)) else n_lambda // 2
-    return evals[k], grid, np.array([e.chi2 for e in evals]), np.array([e.reg for e in evals]), kappa
+    return kappa
 
 
 # --------------------------------------------------------------------------- public solvers

@@ -202,6 +202,21 @@ def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy):
     assert 1 / 3 <= ratio <= 3, f"discrepancy λ {auto.regularization:.3g} vs optimal {lam_opt:.3g}"
 
 
+def test_discrepancy_falls_back_on_lcurve_corner_when_sigma_is_overestimated(gray_noisy):
+    """σ stated 1000x too large: χ²/m < 1 at every λ; the rule must not return the
+    largest λ (a featureless field) but the L-curve corner of its path, and say so."""
+    problem, T = gray_noisy
+    inflated = LinearProblem(problem.A, problem.y, problem.sigma * 1000.0, problem.grid, problem.wavelength)
+    sol = solve_temperature(inflated, rule="discrepancy")
+    ch = sol.lambda_choice
+    assert "L-curve corner" in ch.note
+    assert sol.chi2 < 1.0
+    assert sol.regularization < ch.candidates.max() / 10
+    err = np.sqrt(np.mean((sol.T / T - 1) ** 2))
+    flat = np.sqrt(np.mean((np.full_like(T, np.average(T)) / T - 1) ** 2))
+    assert err < 0.5 * flat, (err, flat)
+
+
 def test_lcurve_and_gcv_report_their_path():
     problem, T = make_problem(6, rel_noise=0.02)
     lc = solve_temperature(problem, rule="lcurve", n_lambda=7, lambda_range=(1e-4, 1.0))
