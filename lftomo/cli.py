@@ -41,7 +41,6 @@ def cmd_camera(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from . import plot
     from .forward.render import render
 
     cfg = _load(args.scene)
@@ -54,18 +53,10 @@ def cmd_render(args) -> int:
     lf = render(cfg.scene, cfg.camera, rays_per_pixel=rpp, seed=seed, wavelengths=cfg.wavelengths or "gray",
                 progress=not args.quiet)
     t_render = time.perf_counter() - t0
-    lf.save(out / "lightfield.npz")
-    files = [out / "lightfield.npz"]
-    files += lf.export_images(out, fmt="png")
-    files.append(plot.lightfield_overview(lf, out / "overview.png"))
-    depths = cfg.focal_stack_depths or (cfg.camera.focus_distance,)
-    files.append(plot.focal_stack_figure(lf, depths, out / "focal_stack.png"))
-    from .io_images import write_image16
+    from .demo import save_lightfield_products
 
-    stack = lf.focal_stack(depths)
-    for d, img in zip(depths, stack):
-        img0 = img if lf.n_channels == 1 else img[0]
-        files.append(write_image16(out / f"refocus_{d * 1000:.0f}mm.png", img0))
+    depths = cfg.focal_stack_depths or (cfg.camera.focus_distance,)
+    files = save_lightfield_products(lf, out, depths)
     summary = {
         "scene": cfg.source,
         "rays_per_pixel": rpp,
@@ -109,6 +100,129 @@ def cmd_weights(args) -> int:
     return 0
 
 
+def cmd_demo(args) -> int:
+    from .demo import run_demo
+
+    out = Path(args.output)
+    print(f"lftomo demo: {'quick' if args.quick else 'default'} run, seed {args.seed} -> {out}/", file=sys.stderr)
+    run_demo(out, quick=args.quick, seed=args.seed, progress=not args.quiet)
+    if args.quiet:
+        print(out / "index.html")
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from .demo import run_reconstruct
+
+    if args.posterior_steps is not None and not args.posterior:
+        raise ValueError("--posterior-steps is only used with --posterior")
+    m = run_reconstruct(
+        args.output, scene=args.scene, lightfield=args.lightfield, weights=args.weights, noise=args.noise,
+        data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule, prior=args.prior,
+        bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis,
+        posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
+        rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
+        min_etendue_fraction=args.min_etendue_fraction, progress=not args.quiet)
+    r = m["reconstruction"]
+    print(f"reconstructed {'x'.join(map(str, r['grid_shape']))} voxels from {m['measurement']['n_data']} "
+          f"{r['data']} data: lambda {r['regularization']:.3g} ({r['lambda_rule']}), chi2/m {r['chi2_per_datum']:.3g}, "
+          f"{m['timings_s']['total']:.1f} s")
+    for key in ("errors_T_gt_800K", "errors_T_gt_1400K"):
+        e = r.get(key)
+        if e:
+            print(f"  {key}: mean {100 * e['mean_rel']:.1f} %, max {100 * e['max_rel']:.1f} %, rms {e['rms_K']:.0f} K")
+    if "posterior" in m:
+        p = m["posterior"]
+        print(f"  posterior: acceptance {p['acceptance_mean']:.2f}, tau max {max(t for t in p['tau'] if t is not None):.1f}, "
+              f"{'converged' if p['converged'] else 'NOT converged'}")
+    print(f"wrote {Path(args.output)}/: " + ", ".join(m["files"]))
+    return 0
+
+
+# ---- argument types: argparse names the option in its error message
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return v
+
+
+def _pos_int(text: str) -> int:
+    v = _nonneg_int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return v
+
+
+def _pos_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return v
+
+
+def _fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}") from None
+    if not 0.0 <= v < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}")
+    return v
+
+
+def _regularization(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a number >= 0, got {text!r}") from None
+    if not (np.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a finite number >= 0, got {text!r}")
+    return v
+
+
+def _float_list(text: str) -> list[float]:
+    try:
+        vals = [float(t) for t in text.replace(" ", "").split(",") if t]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, e.g. 0.98,1.0,1.02; got {text!r}") from None
+    if not vals:
+        raise argparse.ArgumentTypeError(f"expected at least one number, got {text!r}")
+    return vals
+
+
+def _depths(text: str) -> list[float]:
+    vals = _float_list(text)
+    if not all(np.isfinite(v) and v > 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"depths must be positive distances in m from the aperture stop, got {text!r}")
+    return vals
+
+
+def _bounds(text: str) -> tuple[float, float]:
+    vals = _float_list(text)
+    if len(vals) != 2 or not (np.isfinite(vals[0]) and np.isfinite(vals[1]) and 0 < vals[0] < vals[1]):
+        raise argparse.ArgumentTypeError(f"expected T_min,T_max (K) with 0 < T_min < T_max, got {text!r}")
+    return vals[0], vals[1]
+
+
+def _shape3(text: str) -> tuple[int, int, int]:
+    try:
+        vals = [int(t) for t in text.replace("x", ",").split(",") if t]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three integers nx,ny,nz, got {text!r}") from None
+    if len(vals) != 3 or min(vals) < 1:
+        raise argparse.ArgumentTypeError(f"expected three integers >= 1 (nx,ny,nz), got {text!r}")
+    return tuple(vals)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -132,6 +246,51 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refuse a build estimated above this size (default: half the machine's memory)")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
     w.set_defaults(func=cmd_weights)
+    d = sub.add_parser("demo", help="the whole story on the built-in flame: render, weights, reconstruction, "
+                                     "posterior, refocus vs views; writes an HTML report")
+    d.add_argument("-o", "--output", default="lftomo-demo", help="report directory (default lftomo-demo)")
+    d.add_argument("--quick", action="store_true", help="small camera and grids, short chain (~1 min on 2 cores with a warm numba cache)")
+    d.add_argument("--seed", type=_nonneg_int, default=0, help="base seed (render s, noise s+1, weights s+2, "
+                                                               "posterior s+3)")
+    d.add_argument("--quiet", action="store_true", help="no stage messages, progress bars or summary")
+    d.set_defaults(func=cmd_demo)
+    rc = sub.add_parser("reconstruct", help="reconstruct the temperature field from a saved light field + weight "
+                                            "matrix, or from a scene file")
+    rc.add_argument("scene", nargs="?", default=None,
+                    help="TOML scene file with a [medium] (renders the truth and the weights); "
+                         "or give --lightfield and --weights")
+    rc.add_argument("--lightfield", default=None, help="light field .npz (lftomo render / LightField.save)")
+    rc.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
+    rc.add_argument("-o", "--output", default="lftomo-reconstruct", help="output directory")
+    rc.add_argument("--noise", type=_pos_float, default=None,
+                    help="relative Gaussian noise added to a noise-free light field (default 0.01)")
+    rc.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
+    rc.add_argument("--depths", type=_depths, default=None,
+                    help="refocus depths in m, comma-separated (with --data refocus; default the scene's "
+                         "output.focal_stack_depths)")
+    rc.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
+    rc.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
+                    help="lambda rule with --regularization auto")
+    rc.add_argument("--prior", choices=("gradient", "laplacian", "tv"), default="gradient", help="smoothness prior")
+    rc.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
+    rc.add_argument("--min-etendue-fraction", type=_fraction, default=0.2,
+                    help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "
+                         "images, default 0.2)")
+    rc.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
+    rc.add_argument("--posterior", action="store_true", help="also sample the posterior (emcee) of a small basis")
+    rc.add_argument("--posterior-basis", choices=("flame", "dct"), default="flame",
+                    help="6-parameter flame or 12 DCT modes")
+    rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
+    rc.add_argument("--recon-shape", type=_shape3, default=None,
+                    help="scene mode: reconstruction grid nx,ny,nz dividing the [medium] shape (default half)")
+    rc.add_argument("--rays-per-pixel", type=_pos_int, default=None, help="scene mode: override render.rays_per_pixel")
+    rc.add_argument("--seed", type=_nonneg_int, default=None,
+                    help="seed s: scene mode renders with s, noise s+1, weights s+2 (default render.seed); "
+                         "file mode: noise s+1")
+    rc.add_argument("--channel", type=_nonneg_int, default=None, help="wavelength channel (default: the first / "
+                                                                      "the one matching --weights)")
+    rc.add_argument("--quiet", action="store_true", help="no progress bars")
+    rc.set_defaults(func=cmd_reconstruct)
     return p
 
 
