@@ -51,7 +51,10 @@ def main():
     n = a.n
     fine = lt.phantoms.default_flame_grid((n * a.refine,) * 3)
     coarse = lt.phantoms.default_flame_grid((n,) * 3)
-    kw = {"width_base": a.width} if a.width > 0 else {}
+    if a.flame == "axisymmetric":
+        kw = {"width_base": a.width} if a.width > 0 else {}
+    else:  # two lobes: --width scales the default lobe widths (3 and 2 mm) so that the main lobe is --width
+        kw = {"width_scale": a.width / (0.06 * fine.size[0])} if a.width > 0 else {}
     flame = getattr(lt.phantoms, f"{a.flame}_flame")(fine, **kw)
     wl = a.wavelength
     sa_c, T_true = effective_truth(flame, coarse, wl)

@@ -275,6 +275,7 @@ def two_lobed_flame(
     g: float = 0.0,
     reference_wavelength: float = 650e-9,
     alpha: float = 1.38,
+    width_scale: float = 1.0,
 ) -> Medium:
     """Asymmetric flame: a large main lobe and a smaller, cooler, lower side lobe.
 
@@ -297,22 +298,26 @@ def two_lobed_flame(
     so the side lobe alone peaks near ``T_ambient + a (T_peak − T_ambient)``
     (1340 K by default).  No mirror plane x = cx or z = cz exists.  With
     :func:`default_flame_grid` the side faces of the box stay within 1 K of
-    ``T_ambient``.
+    ``T_ambient``.  ``width_scale`` multiplies both base widths (the
+    reconstruction studies use 4: lobes 12 and 8 mm wide at the base in the
+    default box, resolved by a 16³–24³ grid; the side faces then no longer
+    stay at ``T_ambient``).
     """
     a = require_nonnegative("secondary_amplitude", secondary_amplitude)
     if a > 1.0:
         raise ValueError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+    ws = require_positive("width_scale", width_scale)
     L = grid.size
     c = grid.center
     y0 = grid.lower[1]
     X, Y, Z = grid.centers_mesh()
     t1 = _flame_shape(
         X, Y, Z, xc=c[0] - 0.10 * L[0], zc=c[2] - 0.06 * L[2], y_base=y0,
-        height_peak=0.40 * L[1], width_base=0.06 * L[0], width_growth=0.04, axial_order=2.0,
+        height_peak=0.40 * L[1], width_base=0.06 * L[0] * ws, width_growth=0.04, axial_order=2.0,
     )
     t2 = _flame_shape(
         X, Y, Z, xc=c[0] + 0.16 * L[0], zc=c[2] + 0.10 * L[2], y_base=y0,
-        height_peak=0.25 * L[1], width_base=0.04 * L[0], width_growth=0.04, axial_order=2.0,
+        height_peak=0.25 * L[1], width_base=0.04 * L[0] * ws, width_growth=0.04, axial_order=2.0,
     )
     theta = 1.0 - (1.0 - t1) * (1.0 - a * t2)
     return _flame_medium(

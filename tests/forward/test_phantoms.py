@@ -140,3 +140,16 @@ def test_reference_cases():
         assert 0.5 <= m.optical_thickness_max() <= 2.0
     u = uniform_box(g, T=1000.0, sigma_a=1.0, sigma_s=2.0, g=0.5)
     assert np.all(u.g == 0.5) and np.all(u.T == 1000.0)
+
+
+def test_two_lobed_width_scale_widens_both_lobes():
+    g = default_flame_grid((24, 24, 24))
+    base, wide = two_lobed_flame(g), two_lobed_flame(g, width_scale=2.0)
+    # at the side lobe's peak height the hot cross-section grows about 4x (widths doubled)
+    k = int((0.015) / g.spacing[1])
+    a0 = np.count_nonzero(base.T[:, k, :] > 800.0)
+    a1 = np.count_nonzero(wide.T[:, k, :] > 800.0)
+    assert 2.5 * a0 < a1 < 6.0 * a0, (a0, a1)
+    assert abs(wide.T.max() - base.T.max()) < 50.0
+    with pytest.raises(ValueError, match="width_scale"):
+        two_lobed_flame(g, width_scale=0.0)
