@@ -52,7 +52,9 @@ def test_monte_carlo_std_explains_the_difference_of_two_renders():
     s = monte_carlo_std(a, weights_rays_per_pixel=16, rays_per_pixel=16)
     assert s.shape == a.raw.shape
     idx = a.view_index[a.view_mask]
-    z = (a.raw.ravel() - b.raw.ravel())[idx] / s.ravel()[idx]
+    diff = (a.raw.ravel() - b.raw.ravel())[idx]
+    sd = s.ravel()[idx]
+    z = np.divide(diff, sd, out=np.full_like(diff, np.inf), where=sd > 0)
     lit = b.raw.ravel()[idx] > 0
     # sqrt(2) se_a estimates the sd of the difference: chi²/dof near 1 (the floor only adds)
     covered = lit & (s.ravel()[idx] > 0)
