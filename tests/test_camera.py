@@ -1,13 +1,12 @@
 """Optics of the plenoptic camera against independent references."""
 
 import math
-import warnings
 
 import numpy as np
 import pytest
 
 import lftomo as lt
-from lftomo.forward.camera import spherical_aberration, trace_axial_point, _cardinal_points
+from lftomo.forward.camera import spherical_aberration
 from lftomo.forward.optics import trace_to_sensor_batch
 
 
