@@ -1,0 +1,91 @@
+"""Posterior coverage study (issue 5 §5): do the 90 % credible intervals contain the truth?
+
+For ``--draws`` independent noise draws of one Monte Carlo render of the flame
+(truth on a grid ``--refine`` times finer than the posterior grid), sample the
+posterior of the six-parameter :class:`lftomo.ParametricFlame` with emcee and
+count the hot voxels (effective true T > 800 K) whose equal-tailed 90 %
+interval contains the effective true temperature.  With ``--model-data`` the
+data are instead made by the weight matrix from the flame's own parametric
+form on the posterior grid (no model error: the intervals should then cover
+≈ 90 %), which separates the sampler's calibration from model error.
+
+Noise model, camera and data selection as in ``studies/accuracy.py``.
+
+Usage::
+
+    python studies/posterior_coverage.py [--n 12] [--draws 10] [--steps 1500] [--model-data]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import numpy as np
+
+import lftomo as lt
+from lftomo.inverse.compare import effective_truth, monte_carlo_std
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=12)
+    ap.add_argument("--refine", type=int, default=2)
+    ap.add_argument("--rays", type=int, default=32)
+    ap.add_argument("--weight-rays", type=int, default=32)
+    ap.add_argument("--noise", type=float, default=0.01)
+    ap.add_argument("--draws", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--walkers", type=int, default=16)
+    ap.add_argument("--width", type=float, default=0.012)
+    ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
+    ap.add_argument("--model-data", action="store_true", help="data from W and the parametric truth (no model error)")
+    ap.add_argument("--json", default="")
+    a = ap.parse_args()
+    wl = 650e-9
+    cam = lt.Camera.seed(1.0) if a.mla == 0 else lt.Camera.seed(1.0, mla={"count": (a.mla, a.mla)})
+    fine = lt.phantoms.default_flame_grid((a.n * a.refine,) * 3)
+    coarse = lt.phantoms.default_flame_grid((a.n,) * 3)
+    flame = lt.phantoms.axisymmetric_flame(fine, width_base=a.width)
+    sa_c, T_true = effective_truth(flame, coarse, wl)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays, seed=21, wavelengths=(wl,), progress=False)
+    lf = dataclasses.replace(lf, min_etendue_fraction=0.2)
+    W = lt.weights(cam, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=a.weight_rays, seed=22, progress=False)
+    basis = lt.ParametricFlame(coarse)
+    hot = T_true > 800.0
+    if a.model_data:
+        c_true = np.array([1900.0, coarse.center[0], coarse.center[2], 0.35 * coarse.size[1], a.width, 0.06])
+        T_true = basis.field(c_true)
+        hot = T_true > 800.0
+        sig = W.to_raw(W @ lt.planck(T_true, wl).ravel() + W.background)
+        lf = dataclasses.replace(lf, raw=np.asarray(sig).reshape(lf.raw.shape), std_error=None)
+        mc = np.zeros_like(lf.raw)
+    else:
+        mc = monte_carlo_std(lf, weights_rays_per_pixel=a.weight_rays, rays_per_pixel=a.rays)
+    rows = []
+    for d in range(a.draws):
+        noisy = lt.add_noise(dataclasses.replace(lf, std_error=None), relative_std=a.noise, seed=300 + d)
+        noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std ** 2 + mc ** 2))
+        m = lt.Measurement.from_lightfield(noisy, data="subaperture")
+        t = time.perf_counter()
+        post = lt.sample_posterior(m.problem(W, coarse), basis=basis, n_walkers=a.walkers, n_steps=a.steps,
+                                   seed=400 + d, progress=False)
+        inside = (post.T_lower <= T_true) & (T_true <= post.T_upper)
+        row = {"draw": d, "coverage_hot": float(inside[hot].mean()), "n_hot": int(hot.sum()),
+               "converged": bool(post.converged), "tau_max": float(np.nanmax(post.tau)),
+               "acceptance": float(np.mean(post.acceptance_fraction)),
+               "median_abs_error_K": float(np.median(np.abs(post.T_mean - T_true)[hot])),
+               "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t}
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    cov = np.array([r["coverage_hot"] for r in rows])
+    print(f"coverage of the 90 % intervals over {len(rows)} draws: mean {cov.mean():.3f} "
+          f"(min {cov.min():.3f}, max {cov.max():.3f}); target 0.80-0.97")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump({"args": vars(a), "draws": rows, "mean_coverage": float(cov.mean())}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
