@@ -167,40 +167,28 @@ def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
 
     Returns ``(noisy light field, description of the rule)``.
     """
-    if min_etendue_fraction is not None:
-        lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
-        noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
+    from .inverse.compare import with_monte_carlo_noise
+
     if lf.std_error is None:
+        if min_etendue_fraction is not None:
+            noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
         return noisy, "measurement noise only (the light field has no Monte Carlo standard error)"
     n_data = int(n_data or 1)
     n_weights = int(n_weights or n_data)
-    from .inverse.compare import monte_carlo_std
-
-    mc = monte_carlo_std(lf, weights_rays_per_pixel=n_weights, rays_per_pixel=n_data)
+    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=n_data, weights_rays_per_pixel=n_weights,
+                                   min_etendue_fraction=min_etendue_fraction)
     rule = (f"sigma^2 = noise^2 + mc^2, mc = lftomo.inverse.compare.monte_carlo_std "
             f"(render MC standard error floored per view, x sqrt(1 + {n_data}/{n_weights}))")
-    return dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2)), rule
-
-
-def _chi2_at(problem, T, wavelength) -> float:
-    """χ²/m of a temperature field for a LinearProblem (diagnostic)."""
-    from . import radiation as rad
-
-    Ib = rad.planck(T, wavelength) if wavelength is not None else rad.gray_intensity(T)
-    r = (problem.A @ np.asarray(Ib).ravel() + problem.background - problem.y) / problem.sigma
-    return float(np.mean(r * r))
+    return noisy, rule
 
 
 def temperature_errors(T, T_true, hot: float = HOT) -> dict[str, float] | None:
     """``{"mean_rel", "max_rel", "rms_K", "n_voxels"}`` where ``T_true > hot`` (K); None if no voxel is that hot."""
-    T = np.asarray(T, float)
-    T_true = np.asarray(T_true, float)
-    sel = T_true > hot
-    if not sel.any():
+    from .inverse.reconstruct import temperature_errors as errors
+
+    if not np.any(np.asarray(T_true, float) > hot):
         return None
-    rel = np.abs(T[sel] - T_true[sel]) / T_true[sel]
-    return {"mean_rel": float(rel.mean()), "max_rel": float(rel.max()),
-            "rms_K": float(np.sqrt(np.mean((T[sel] - T_true[sel]) ** 2))), "n_voxels": int(sel.sum())}
+    return errors(T, T_true, hot=hot)
 
 
 # ============================================================================ figures
@@ -495,7 +483,7 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
         noisy, noise_rule = _noise_with_mc_error(noisy, lf, n_d, n_w, MIN_ETENDUE_FRACTION)
         m = lt.Measurement.from_lightfield(noisy, data="subaperture")
         problem = m.problem(W, coarse)
-        chi2_truth = _chi2_at(problem, T_eff, wl)
+        chi2_truth = problem.chi2(T_eff)
     metrics["measurement"] = {
         "data": "subaperture", "n_data": m.size, "noise": noisy.metadata.get("noise"), "noise_model": noise_rule,
         "min_etendue_fraction": MIN_ETENDUE_FRACTION,
@@ -890,7 +878,7 @@ def run_reconstruct(
                               "min_etendue_fraction": min_etendue_fraction,
                               "wavelength": wl}
     if T_true is not None:
-        metrics["measurement"]["chi2_at_effective_truth"] = _chi2_at(problem, T_true, wl)
+        metrics["measurement"]["chi2_at_effective_truth"] = problem.chi2(T_true)
 
     # ---- reconstruction
     with st("reconstruct", f"reconstruct ({rule} rule, {prior} prior)"):

@@ -16,14 +16,13 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 
 import numpy as np
 
 import lftomo as lt
-from lftomo.inverse.compare import effective_truth, monte_carlo_std
+from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
 
 
 def main():
@@ -66,12 +65,11 @@ def main():
     hot = T_true > 800
     print(f"hot voxels {hot.sum()} of {hot.size}; T_true max {T_true.max():.0f}")
     out = []
-    lf = dataclasses.replace(lf, min_etendue_fraction=a.min_etendue)
-    mc = monte_carlo_std(lf, weights_rays_per_pixel=a.weight_rays, rays_per_pixel=a.rays)
     regs = [a.regularization] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for d, reg in ((d, reg) for d in range(a.draws) for reg in regs):
         noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
-        noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std ** 2 + mc ** 2))
+        noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+                                       min_etendue_fraction=a.min_etendue)
         m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
         t = time.perf_counter()
         rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior)
@@ -82,9 +80,7 @@ def main():
         e["mean_rel_visible"] = float(np.mean(np.abs(rec.T[visible] / T_true[visible] - 1))) if visible.any() else None
         e["n_visible"] = int(visible.sum())
         # misfit of the effective truth itself
-        p = m.problem(W, coarse)
-        r = (p.A @ lt.planck(T_true, wl).ravel() + p.background - p.y) / p.sigma
-        chi2_true = float(np.mean(r ** 2))
+        chi2_true = m.problem(W, coarse).chi2(T_true)
         row = {"draw": d, **e, "lambda": rec.regularization, "chi2": rec.chi2, "chi2_truth": chi2_true,
                "seconds": dt, "converged": rec.converged}
         print(json.dumps(row))

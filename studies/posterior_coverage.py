@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 import lftomo as lt
-from lftomo.inverse.compare import effective_truth, monte_carlo_std
+from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
 
 
 def main():
@@ -50,7 +50,7 @@ def main():
     flame = lt.phantoms.axisymmetric_flame(fine, width_base=a.width)
     sa_c, T_true = effective_truth(flame, coarse, wl)
     lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays, seed=21, wavelengths=(wl,), progress=False)
-    lf = dataclasses.replace(lf, min_etendue_fraction=0.2)
+    lf = dataclasses.replace(lf, min_etendue_fraction=0.2)  # also what with_monte_carlo_noise sets
     W = lt.weights(cam, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=a.weight_rays, seed=22, progress=False)
     basis = lt.ParametricFlame(coarse)
     hot = T_true > 800.0
@@ -60,13 +60,11 @@ def main():
         hot = T_true > 800.0
         sig = W.to_raw(W @ lt.planck(T_true, wl).ravel() + W.background)
         lf = dataclasses.replace(lf, raw=np.asarray(sig).reshape(lf.raw.shape), std_error=None)
-        mc = np.zeros_like(lf.raw)
-    else:
-        mc = monte_carlo_std(lf, weights_rays_per_pixel=a.weight_rays, rays_per_pixel=a.rays)
     rows = []
     for d in range(a.draws):
         noisy = lt.add_noise(dataclasses.replace(lf, std_error=None), relative_std=a.noise, seed=300 + d)
-        noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std ** 2 + mc ** 2))
+        if not a.model_data:  # the Monte Carlo error of data and weights joins the noise
+            noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays)
         m = lt.Measurement.from_lightfield(noisy, data="subaperture")
         t = time.perf_counter()
         post = lt.sample_posterior(m.problem(W, coarse), basis=basis, n_walkers=a.walkers, n_steps=a.steps,

@@ -120,6 +120,37 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> 
     return out.reshape(np.shape(lf.raw))
 
 
+def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_pixel: int,
+                           min_etendue_fraction: float | None = 0.2):
+    """The noisy light field with :func:`monte_carlo_std` added to its ``noise_std``.
+
+    ``min_etendue_fraction`` (if not None) first replaces the decode's
+    threshold of both light fields: the rim pixels it drops are then not data.
+
+    Parameters
+    ----------
+    noisy : LightField
+        From :func:`lftomo.add_noise` of ``lf``.
+    lf : LightField
+        The noise-free Monte Carlo render (``std_error`` set).
+    rays_per_pixel, weights_rays_per_pixel : int
+        Rays per pixel of the render and of the weight matrix.
+    min_etendue_fraction : float or None
+
+    Returns
+    -------
+    LightField
+        ``noise_std = sqrt(noise_std² + monte_carlo_std²)``.
+    """
+    if min_etendue_fraction is not None:
+        if not 0.0 <= min_etendue_fraction < 1.0:
+            raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+        lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
+        noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
+    mc = monte_carlo_std(lf, weights_rays_per_pixel=weights_rays_per_pixel, rays_per_pixel=rays_per_pixel)
+    return dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2))
+
+
 @dataclass(frozen=True, eq=False)
 class Comparison:
     """Result of :func:`compare_refocus_subaperture` (see its docstring)."""
@@ -254,10 +285,8 @@ def compare_refocus_subaperture(
     # The data and the weight matrix are both Monte Carlo estimates: their
     # per-pixel MC variance joins the measurement noise (monte_carlo_std).
     n_w = weights_rays_per_pixel or rays_per_pixel
-    lf = dataclasses.replace(lf, min_etendue_fraction=min_etendue_fraction)
-    mc = monte_carlo_std(lf, weights_rays_per_pixel=n_w, rays_per_pixel=rays_per_pixel)
-    noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2),
-                                min_etendue_fraction=min_etendue_fraction)
+    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=rays_per_pixel, weights_rays_per_pixel=n_w,
+                                   min_etendue_fraction=min_etendue_fraction)
     W = build_weights(camera, recon_grid, sigma_a=sa_c, wavelength="gray" if wl is None else wl,
                       rays_per_pixel=weights_rays_per_pixel or rays_per_pixel, seed=seed + 2,
                       surfaces=scene.surfaces or None, progress=progress)

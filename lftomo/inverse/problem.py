@@ -73,6 +73,15 @@ class LinearProblem:
     def shape(self) -> tuple[int, int]:
         return self.A.shape
 
+    def chi2(self, T: Any) -> float:
+        """``‖(A I_b(T) + background − y) / σ‖² / m`` of a temperature field (K), shape grid.shape or (n,)."""
+        from .. import radiation as rad
+
+        T = np.asarray(T, dtype=np.float64).ravel()
+        Ib = rad.planck(T, self.wavelength) if self.wavelength is not None else rad.gray_intensity(T)
+        r = (self.A @ np.asarray(Ib).ravel() + self.background - self.y) / self.sigma
+        return float(np.mean(r * r))
+
     def whitened(self) -> tuple[sp.csr_matrix, np.ndarray]:
         """(Σ^{-1/2} A, Σ^{-1/2} (y - background))."""
         w = 1.0 / self.sigma

@@ -72,16 +72,7 @@ class Reconstruction:
         T_true = np.asarray(T_true, dtype=float)
         if T_true.shape != self.T.shape:
             raise ValueError(f"shape of T_true {T_true.shape} does not match the reconstruction {self.T.shape}")
-        sel = T_true > hot
-        if not sel.any():
-            raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
-        rel = np.abs(self.T[sel] - T_true[sel]) / T_true[sel]
-        return {
-            "mean_rel": float(rel.mean()),
-            "max_rel": float(rel.max()),
-            "rms_K": float(np.sqrt(np.mean((self.T[sel] - T_true[sel]) ** 2))),
-            "n_voxels": int(sel.sum()),
-        }
+        return temperature_errors(self.T, T_true, hot=hot)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -95,6 +86,26 @@ class Reconstruction:
             "converged": self.converged,
             "timing_s": self.timing,
         }
+
+
+def temperature_errors(T: np.ndarray, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
+    """Relative errors of ``T`` against ``T_true`` (same shape, K) where ``T_true > hot``.
+
+    Returns ``{"mean_rel", "max_rel", "rms_K", "n_voxels"}``; raises ValueError
+    when no voxel is that hot.
+    """
+    T = np.asarray(T, dtype=float)
+    T_true = np.asarray(T_true, dtype=float)
+    sel = T_true > hot
+    if not sel.any():
+        raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
+    rel = np.abs(T[sel] - T_true[sel]) / T_true[sel]
+    return {
+        "mean_rel": float(rel.mean()),
+        "max_rel": float(rel.max()),
+        "rms_K": float(np.sqrt(np.mean((T[sel] - T_true[sel]) ** 2))),
+        "n_voxels": int(sel.sum()),
+    }
 
 
 def _grid_of(W) -> Grid:

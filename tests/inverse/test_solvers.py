@@ -313,3 +313,13 @@ def test_nan_data_rejected_by_problem(gray_clean):
     y[3] = np.nan
     with pytest.raises(ValueError, match="y"):
         LinearProblem(problem.A, y, problem.sigma, problem.grid, None)
+
+
+def test_problem_chi2_of_a_temperature_field(gray_noisy):
+    problem, T = gray_noisy
+    Ib = lt.gray_intensity(T).ravel()
+    expected = np.mean(((problem.A @ Ib + problem.background - problem.y) / problem.sigma) ** 2)
+    assert problem.chi2(T) == pytest.approx(expected, rel=1e-12)
+    # the data were drawn with this sigma around A I_b(T): chi²/m ≈ 1 within its sampling error
+    m = problem.y.size
+    assert abs(problem.chi2(T) - 1.0) < 5 * np.sqrt(2.0 / m)
