@@ -597,7 +597,7 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
             scene, camera, coarse, noise=NOISE, depths=list(COMPARE_DEPTHS), seed=cfg["seeds"]["compare"],
             rays_per_pixel=n_d, weights_rays_per_pixel=n_w, wavelength=wl, regularization="auto",
             bounds=BOUNDS, n_singular=cfg["n_singular"], hot=HOT, progress=progress, rule="discrepancy",
-            **extra, **opts)
+            lightfield=lf, weights=W, **extra, **opts)
     same = bool(np.allclose(comp.subaperture.T, rec.T))
     csum = comp.summary()
     metrics["compare"] = {**csum, "depth_profile": comp.depth_profile, "singular_values": comp.singular_values,

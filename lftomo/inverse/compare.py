@@ -226,6 +226,8 @@ def compare_refocus_subaperture(
     n_singular: int = 40,
     hot: float = 800.0,
     min_etendue_fraction: float = 0.2,
+    lightfield: Any = None,
+    weights: Any = None,
     progress: bool = False,
     **solver_options: Any,
 ) -> Comparison:
@@ -258,6 +260,14 @@ def compare_refocus_subaperture(
         Pixels whose étendue is below this fraction of the peak (rims of the
         microlens images, where the Monte Carlo error of data and weights is
         large) are left out of both data sets.
+    lightfield : LightField, optional
+        The noise-free render of ``scene`` by ``camera`` with ``seed`` and
+        ``rays_per_pixel`` if the caller already has it (not rendered again).
+    weights : WeightMatrix, optional
+        The weight matrix on ``recon_grid`` for the effective σₐ, built with
+        seed ``seed + 2`` and ``weights_rays_per_pixel``, if the caller already
+        has it (not built again).  The caller vouches for both; shapes are
+        checked.
 
     Returns
     -------
@@ -280,16 +290,26 @@ def compare_refocus_subaperture(
     wl = None if wavelength is None else float(wavelength)
     wls = "gray" if wl is None else (wl,)
     sa_c, T_true = effective_truth(scene.medium, recon_grid, wl)
-    lf = render(scene, camera, rays_per_pixel=rays_per_pixel, seed=seed, wavelengths=wls, progress=progress)
+    if lightfield is None:
+        lf = render(scene, camera, rays_per_pixel=rays_per_pixel, seed=seed, wavelengths=wls, progress=progress)
+    else:
+        lf = lightfield
+        if lf.camera.sensor_shape != camera.sensor_shape or lf.n_channels != 1:
+            raise ValueError("lightfield must be a one-channel render by the given camera")
     noisy = add_noise(lf, relative_std=noise, seed=seed + 1)
     # The data and the weight matrix are both Monte Carlo estimates: their
     # per-pixel MC variance joins the measurement noise (monte_carlo_std).
     n_w = weights_rays_per_pixel or rays_per_pixel
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=rays_per_pixel, weights_rays_per_pixel=n_w,
                                    min_etendue_fraction=min_etendue_fraction)
-    W = build_weights(camera, recon_grid, sigma_a=sa_c, wavelength="gray" if wl is None else wl,
-                      rays_per_pixel=weights_rays_per_pixel or rays_per_pixel, seed=seed + 2,
-                      surfaces=scene.surfaces or None, progress=progress)
+    if weights is None:
+        W = build_weights(camera, recon_grid, sigma_a=sa_c, wavelength="gray" if wl is None else wl,
+                          rays_per_pixel=weights_rays_per_pixel or rays_per_pixel, seed=seed + 2,
+                          surfaces=scene.surfaces or None, progress=progress)
+    else:
+        W = weights
+        if W.shape[1] != recon_grid.n_voxels:
+            raise ValueError(f"weights has {W.shape[1]} columns, recon_grid {recon_grid.n_voxels} voxels")
     results, errors, profile, spectra, resolution = {}, {}, {}, {}, {}
     L = prior_operator(recon_grid, "gradient")
     hot_mask = T_true > hot
