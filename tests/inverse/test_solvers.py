@@ -254,6 +254,51 @@ def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
     assert 100.0 <= e.lam <= 2000.0, e.lam  # near the corner, not at the jump
 
 
+class _LocalMinimumRunner(_BranchRunner):
+    """The structured branch reaches χ²/m = 1 near λ = 2.3e4, but there a solve
+    from the initial guess finds the flat branch (χ²/m 1.34) with the lower
+    objective: the two-lobed flame at 16³ with Monte Carlo data."""
+
+    def __init__(self, theta0):
+        super().__init__()
+        self.theta0 = theta0
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        from lftomo.inverse.solvers import _Eval
+
+        if start is self.theta0 and lam >= 2e4:
+            chi2, reg = 1.34, 0.1
+        else:
+            chi2 = 0.76 + 0.24 * (lam / 2.3e4) ** 2
+            reg = 1.5 + 1.0 / (1.0 + (lam / 500.0) ** 2)
+        e = _Eval(float(lam), np.zeros(1), chi2, reg, 10, True, "")
+        self.evals.append(e)
+        return e
+
+    def nearest(self, lam, default):
+        return np.zeros(1)  # a warm start: never the initial guess itself
+
+
+def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
+    from lftomo.inverse.solvers import LambdaChoice, _discrepancy_local_minimum, _rule_discrepancy
+
+    theta0 = np.zeros(1)
+    run = _LocalMinimumRunner(theta0)
+    e, target, note = _rule_discrepancy(run, theta0, 5000.0, 0.0, None, 1e-3)
+    assert abs(e.chi2 - 1.0) < 0.01 and e.lam > 2e4  # the search itself meets the target
+    choice = LambdaChoice(rule="discrepancy", value=e.lam, candidates=np.array([e.lam]), chi2=np.array([e.chi2]),
+                          regularization_norms=np.array([e.reg]), criterion=np.array([0.0]), target=target)
+    e2 = run.solve(e.lam, theta0)
+    e_new, e2_new, choice_new = _discrepancy_local_minimum(run, e, e2, choice, theta0)
+    assert "local minimum" in choice_new.note and "L-curve corner" in choice_new.note, choice_new.note
+    assert 100.0 <= e_new.lam <= 5000.0 and e_new.lam == choice_new.value == e2_new.lam
+    # the global minimiser meeting the target is left alone
+    run2 = _BranchRunner()
+    e, target, _ = _rule_discrepancy(run2, theta0, 4000.0, 0.0, None, 1e-3)
+    same = _discrepancy_local_minimum(run2, e, e, choice, theta0)
+    assert same[0] is e
+
+
 def test_discrepancy_falls_back_on_lcurve_corner_when_sigma_is_overestimated(gray_noisy):
     """σ stated 1000x too large: χ²/m < 1 at every λ; the rule must not return the
     largest λ (a featureless field) but the L-curve corner of its path, and say so."""
