@@ -1,0 +1,107 @@
+"""How well can the seed camera determine the temperature at all? (issue 5 §5)
+
+The Cramér–Rao bound of the T-only problem without any prior: for data
+``y = A I_b(T) + noise`` with noise ``N(0, diag σ²)`` the Fisher information of
+the voxel temperatures is ``F = Jᵀ Σ⁻¹ J`` with ``J = A diag(∂I_b/∂T)``.  Any
+unbiased estimator has ``var T_i ≥ (F⁻¹)_ii`` (marginal bound; here over the voxels with
+T > 800 K, every cooler voxel being told exactly, which only makes it
+smaller), and even an
+estimator told every other voxel exactly has ``var T_i ≥ 1 / F_ii``
+(conditional bound).  A regularized reconstruction can beat the marginal bound
+only by trading variance for bias, i.e. by what the prior assumes.
+
+The study builds ``A`` exactly as ``studies/accuracy.py`` does (seed camera,
+axisymmetric flame with a 12 mm base, known sigma_a, sub-aperture data with the
+étendue cut), evaluates ``F`` at the true field with ``σ = --noise × signal``
+(no Monte Carlo error: an optimistic bound), and reports, over the voxels with
+T > 800 K, the bounds relative to T and the fraction of voxels whose bound is
+below 1 %.  It also prints the singular values of the whitened, T-scaled
+Jacobian ``Σ^{-1/2} J diag(T)``: how many independent combinations the data fix
+to better than 1 % at this noise.
+
+Usage::
+
+    python studies/information_limit.py [--n 16] [--rays 64] [--noise 0.01]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import scipy.sparse as sp
+
+import lftomo as lt
+from lftomo import radiation as rad
+from lftomo.inverse.compare import effective_truth
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=16)
+    ap.add_argument("--rays", type=int, default=64, help="rays/pixel of the weight matrix")
+    ap.add_argument("--noise", type=float, default=0.01)
+    ap.add_argument("--wavelength", type=float, default=650e-9)
+    ap.add_argument("--width", type=float, default=0.012)
+    ap.add_argument("--min-etendue", type=float, default=0.2)
+    ap.add_argument("--json", default="")
+    a = ap.parse_args()
+    if a.n > 20:
+        raise SystemExit(f"--n {a.n}: the dense Fisher matrix of n³ voxels is formed; use --n <= 20")
+    cam = lt.Camera.seed(1.0)
+    grid = lt.phantoms.default_flame_grid((a.n,) * 3)
+    fine = lt.phantoms.default_flame_grid((2 * a.n,) * 3)
+    flame = lt.phantoms.axisymmetric_flame(fine, width_base=a.width)
+    wl = a.wavelength
+    sa, T = effective_truth(flame, grid, wl)
+    W = lt.weights(cam, grid, sigma_a=sa, wavelength=wl, rays_per_pixel=a.rays, seed=12, progress=False)
+    # the measurement's pixel selection: noise-free render of the coarse field through W itself
+    lf = lt.render(lt.Scene(medium=lt.Medium(grid, sigma_a=sa, T=T)), cam, rays_per_pixel=a.rays, seed=11,
+                   wavelengths=(wl,), progress=False)
+    noisy = lt.add_noise(lf, relative_std=a.noise, seed=0)
+    m = lt.Measurement.from_lightfield(noisy, data="subaperture", depths=None)
+    prob = m.problem(W, grid)
+    A = prob.A.tocsr()
+    Ib = rad.planck(T.ravel(), wl)
+    y0 = A @ Ib
+    floor = a.noise * 1e-3 * y0.max()
+    sigma = a.noise * np.maximum(y0, floor)
+    keep = sigma > 0
+    d = rad.dplanck_dT(T.ravel(), wl)
+    J = sp.diags(1.0 / sigma[keep]) @ A[keep] @ sp.diags(d)  # (m, n) sparse
+    F = (J.T @ J).toarray()
+    Tf = T.ravel()
+    hot = Tf > 800
+    idx = np.flatnonzero(hot)
+    # marginal bound over the hot voxels, every cooler voxel told exactly (optimistic)
+    Fh = F[np.ix_(idx, idx)] * np.outer(Tf[idx], Tf[idx])  # information on T/T_true
+    w, V = np.linalg.eigh(Fh)
+    w_pos = np.maximum(w, w.max() * 1e-300)
+    rel_m = np.sqrt(np.einsum("ij,j,ij->i", V, 1.0 / w_pos, V))
+    rel_c = 1.0 / np.sqrt(np.diag(Fh))
+    # eigenvalues of Fh are the squared singular values s² of the whitened Jacobian in
+    # relative temperature: a unit-norm direction u of δT/T moves the data by s σ; it is
+    # fixed to 1 % RMS per voxel when 1/(s √n_hot) < 0.01
+    s = np.sqrt(np.maximum(w[::-1], 0.0))
+    out = {
+        "n": a.n, "rays": a.rays, "noise": a.noise, "m": int(keep.sum()), "hot_voxels": int(hot.sum()),
+        "conditional_bound_rel": {"median": float(np.median(rel_c)), "max": float(np.max(rel_c)),
+                                  "fraction_below_1pct": float(np.mean(rel_c < 0.01))},
+        "marginal_bound_rel": {"median": float(np.median(rel_m)), "mean": float(np.mean(np.minimum(rel_m, 1e6))),
+                               "max": float(np.max(rel_m)),
+                               "fraction_below_1pct": float(np.mean(rel_m < 0.01)),
+                               "fraction_below_5pct": float(np.mean(rel_m < 0.05))},
+        "fisher_condition_number_hot": float(w.max() / max(w.min(), 1e-300)),
+        # a unit-norm direction u in relative T moves the data by s·‖u‖ σ; a 1 % RMS change
+        # over all observed voxels is ‖u‖ = 0.01 √n_obs
+        "directions_fixed_to_1pct_rms": int(np.sum(s * 0.01 * np.sqrt(idx.size) > 1.0)),
+        "singular_values_rel_T": [float(v) for v in s[:: max(1, s.size // 32)]],
+    }
+    print(json.dumps(out, indent=1))
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
