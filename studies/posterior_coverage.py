@@ -34,9 +34,8 @@ import scipy.sparse as sp
 
 import lftomo as lt
 from lftomo import radiation as rad
-from lftomo.inverse.regularizers import prior_operator
 from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
-
+from lftomo.inverse.regularizers import prior_operator
 
 _Z90 = 1.6448536269514722  # two-sided 90 % of the standard normal
 

@@ -222,7 +222,7 @@ class _BranchRunner:
     corner near λ = 400) and a flat branch beyond it (χ²/m 1.09): the χ² of the
     standard flame at 24³ with Monte Carlo data.  No λ attains χ²/m = 1."""
 
-    class s:  # noqa: N801 - mimics the runner's setup attribute
+    class s:  # mimics the runner's setup attribute
         m_total = 100_000
 
     def __init__(self):
@@ -280,11 +280,15 @@ class _LocalMinimumRunner(_BranchRunner):
 
 
 def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
-    from lftomo.inverse.solvers import LambdaChoice, _discrepancy_local_minimum, _rule_discrepancy
+    from lftomo.inverse.solvers import (
+        LambdaChoice,
+        _discrepancy_local_minimum,
+        _rule_discrepancy,
+    )
 
     theta0 = np.zeros(1)
     run = _LocalMinimumRunner(theta0)
-    e, target, note = _rule_discrepancy(run, theta0, 5000.0, 0.0, None, 1e-3)
+    e, target, _ = _rule_discrepancy(run, theta0, 5000.0, 0.0, None, 1e-3)
     assert abs(e.chi2 - 1.0) < 0.01 and e.lam > 2e4  # the search itself meets the target
     choice = LambdaChoice(rule="discrepancy", value=e.lam, candidates=np.array([e.lam]), chi2=np.array([e.chi2]),
                           regularization_norms=np.array([e.reg]), criterion=np.array([0.0]), target=target)
