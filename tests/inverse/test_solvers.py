@@ -303,6 +303,34 @@ def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
     assert same[0] is e
 
 
+class _FlatBelowTargetRunner(_BranchRunner):
+    """χ²/m below the target at every λ, and beyond λ = 1e3 a flat branch whose
+    ‖R‖ keeps falling tenfold per decade (the quick demo's path)."""
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        from lftomo.inverse.solvers import _Eval
+
+        if lam < 1e3:
+            chi2, reg = 0.745 + 1e-5 * lam, 1.75 - 0.1 * np.log10(lam)
+        else:
+            chi2, reg = 0.804, 10.0 / lam
+        e = _Eval(float(lam), np.zeros(1), chi2, reg, 10, True, "")
+        self.evals.append(e)
+        return e
+
+
+def test_discrepancy_fallback_ignores_the_flat_branch():
+    """An L-curve over the whole path finds its sharpest bend on the flat
+    branch (λ ≥ 1e3, a featureless field); the fallback must stay on the
+    structured branch."""
+    from lftomo.inverse.solvers import _rule_discrepancy
+
+    run = _FlatBelowTargetRunner()
+    e, _, note = _rule_discrepancy(run, np.zeros(1), 3000.0, 0.0, None, 1e-3)
+    assert "overestimated" in note, note
+    assert e.lam < 1e3, (e.lam, note)
+
+
 def test_discrepancy_falls_back_on_lcurve_corner_when_sigma_is_overestimated(gray_noisy):
     """σ stated 1000x too large: χ²/m < 1 at every λ; the rule must not return the
     largest λ (a featureless field) but the L-curve corner of its path, and say so."""
