@@ -15,11 +15,18 @@ of matrices is static data (a traced handle was zeroed by optimistix's
 closure conversion), so a jitted function is compiled once per matrix; the
 registry entry lives as long as the :class:`HostCSR` made by :func:`host_csr`
 (a weak finaliser removes it).
+
+The products run in a numba kernel parallel over the rows of ``A`` (for
+``A x``) or of a CSR copy of ``Aᵀ`` (for ``Aᵀ y``): scipy's CSR product is
+single-threaded.  Calls are serialised by a lock, because XLA may run two
+independent callbacks at once (``A x`` and ``L x`` of one residual) and
+numba's default threading layer does not allow concurrent parallel launches.
 """
 
 from __future__ import annotations
 
 import itertools
+import threading
 import weakref
 from typing import Any
 
@@ -28,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 from jax.custom_derivatives import linear_call
+from numba import njit, prange
 
 __all__ = ["HostCSR", "host_csr"]
 
@@ -35,10 +43,27 @@ _REGISTRY: dict[int, tuple[sp.csr_matrix, sp.csr_matrix]] = {}
 _COUNTER = itertools.count(1)
 
 
+_LOCK = threading.Lock()
+
+
+@njit(cache=True, parallel=True)
+def csr_matvec(indptr, indices, data, x, out):
+    """``out = M x`` for the CSR arrays of ``M`` (rows in parallel)."""
+    for i in prange(out.shape[0]):
+        acc = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            acc += data[k] * x[indices[k]]
+        out[i] = acc
+
+
 def _apply(handle: Any, x: Any, transpose: bool) -> np.ndarray:
     A, AT = _REGISTRY[handle]
     M = AT if transpose else A
-    return np.asarray(M @ np.asarray(x, dtype=np.float64), dtype=np.float64)
+    v = np.ascontiguousarray(x, dtype=np.float64)
+    out = np.empty(M.shape[0], dtype=np.float64)
+    with _LOCK:
+        csr_matvec(M.indptr, M.indices, M.data, v, out)
+    return out
 
 
 def _callback(handle: int, x, transpose: bool, n_out: int):
