@@ -157,24 +157,23 @@ def _pos_int(text: str) -> int:
     return v
 
 
-def _pos_float(text: str) -> float:
+def _float_where(text: str, ok, allowed: str) -> float:
+    """``float(text)`` if finite and ``ok(value)``; else an argparse error saying ``allowed``."""
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}") from None
+    if not (np.isfinite(v) and ok(v)):
+        raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}")
     return v
+
+
+def _pos_float(text: str) -> float:
+    return _float_where(text, lambda v: v > 0, "a finite number > 0")
 
 
 def _fraction(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}") from None
-    if not 0.0 <= v < 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}")
-    return v
+    return _float_where(text, lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
 
 
 def _regularization(text: str):

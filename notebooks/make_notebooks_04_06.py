@@ -49,6 +49,19 @@ IMPORTS_SRC = """
     T_START = time.perf_counter()
     """
 IMPORTS = code(IMPORTS_SRC)
+
+#: The small scene of notebooks 05 and 06: reduced camera (30 × 30 lenslets),
+#: 24 mm box at 1 m, flame truth on 16³, reconstruction grid 8³.
+SMALL_FLAME_SRC = """\
+        WL = 650e-9
+        cam = lt.Camera.seed(1.0, mla={"count": (30, 30)})
+        HALF = 0.012
+        box = dict(lower=(-HALF, -HALF, 1.0 - HALF), upper=(HALF, HALF, 1.0 + HALF))
+        fine, grid = lt.Grid((16, 16, 16), **box), lt.Grid((8, 8, 8), **box)
+        FLAME = dict(T_peak=1800.0, T_ambient=300.0, sigma_a_peak=30.0, soot_exponent=1.0,
+                     width_base=0.006, width_growth=0.1, height_peak=0.6 * HALF)
+        flame = lt.phantoms.axisymmetric_flame(fine, **FLAME)
+"""
 IMPORTS_NO_WARNINGS = code(IMPORTS_SRC.replace("    import warnings\n", ""))
 
 
@@ -573,15 +586,9 @@ NB05 = [
         import scipy.sparse as sp
         from lftomo.inverse.compare import compare_refocus_subaperture, effective_truth
 
-        WL = 650e-9
-        cam = lt.Camera.seed(1.0, mla={"count": (30, 30)})
-        HALF = 0.012
-        box = dict(lower=(-HALF, -HALF, 1.0 - HALF), upper=(HALF, HALF, 1.0 + HALF))
-        fine, grid = lt.Grid((16, 16, 16), **box), lt.Grid((8, 8, 8), **box)
-        FLAME = dict(T_peak=1800.0, T_ambient=300.0, sigma_a_peak=30.0, soot_exponent=1.0,
-                     width_base=0.006, width_growth=0.1, height_peak=0.6 * HALF)
-        flame = lt.phantoms.axisymmetric_flame(fine, **FLAME)
-        DEPTHS = list(np.round(np.linspace(1.0 - 0.8 * HALF, 1.0 + 0.8 * HALF, 5), 5))
+"""
+        + SMALL_FLAME_SRC
+        + """        DEPTHS = list(np.round(np.linspace(1.0 - 0.8 * HALF, 1.0 + 0.8 * HALF, 5), 5))
         BOUNDS = (300.0, 2500.0)
         HOT = 800.0
         print(f"truth {fine.shape}, reconstruction {grid.shape} ({grid.spacing[2]*1e3:.0f} mm voxels), "
@@ -909,15 +916,9 @@ NB06 = [
         import emcee
         from lftomo.inverse.compare import effective_truth
 
-        WL = 650e-9
-        cam = lt.Camera.seed(1.0, mla={"count": (30, 30)})
-        HALF = 0.012
-        box = dict(lower=(-HALF, -HALF, 1.0 - HALF), upper=(HALF, HALF, 1.0 + HALF))
-        fine, grid = lt.Grid((16, 16, 16), **box), lt.Grid((8, 8, 8), **box)
-        FLAME = dict(T_peak=1800.0, T_ambient=300.0, sigma_a_peak=30.0, soot_exponent=1.0,
-                     width_base=0.006, width_growth=0.1, height_peak=0.6 * HALF)
-        flame = lt.phantoms.axisymmetric_flame(fine, **FLAME)
-        sa_c, T_c = effective_truth(flame, grid, WL)
+"""
+        + SMALL_FLAME_SRC
+        + """        sa_c, T_c = effective_truth(flame, grid, WL)
         HOT = 800.0
         hot = T_c > HOT
 

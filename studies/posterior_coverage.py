@@ -51,7 +51,7 @@ def laplace_field_std(problem, T, lam, wavelength, *, prior="gradient", T_scale=
     n = T.size
     if n > 8000:
         raise SystemExit(f"--laplace-field forms a dense {n}×{n} precision: use --n <= 20")
-    J = sp.diags(1.0 / problem.sigma) @ problem.A @ sp.diags(rad.dplanck_dT(T.ravel(), wavelength))
+    J = problem.whitened()[0] @ sp.diags(rad.dplanck_dT(T.ravel(), wavelength))
     L = prior_operator(problem.grid, prior, dimensionless=True)
     H = (J.T @ J).toarray() + lam * (L.T @ L).toarray() / T_scale**2
     return np.sqrt(np.diag(np.linalg.inv(H))).reshape(T.shape)

@@ -936,6 +936,21 @@ def _lcurve_curvature(run: _Runner, evals: list) -> np.ndarray:
     return kappa
 
 
+def _objective(run: _Runner, x: _Eval) -> float:
+    """``χ²·m + λ‖R‖²`` of an evaluation (the minimised objective)."""
+    return x.chi2 * run.s.m_total + x.lam * x.reg**2
+
+
+def _discrepancy_choice(run: _Runner, e: _Eval, target: float, reference: float, note: str) -> LambdaChoice:
+    """The :class:`LambdaChoice` of the discrepancy rule: every evaluation so far."""
+    ev = run.evals
+    return LambdaChoice(
+        rule="discrepancy", value=e.lam, candidates=np.array([x.lam for x in ev]),
+        chi2=np.array([x.chi2 for x in ev]), regularization_norms=np.array([x.reg for x in ev]),
+        criterion=np.array([x.chi2 - target for x in ev]), target=target, reference=reference, note=note,
+    )
+
+
 def _discrepancy_local_minimum(run: _Runner, e: _Eval, e2: _Eval, choice: LambdaChoice, theta0):
     """Check the discrepancy solution ``e`` against ``e2``, the solve at the same
     λ from the initial guess.
@@ -948,13 +963,8 @@ def _discrepancy_local_minimum(run: _Runner, e: _Eval, e2: _Eval, choice: Lambda
     structured branch below this λ (:func:`_branch_corner`) and solve there
     from the initial guess.  Returns ``(e, e2, choice)``.
     """
-    s = run.s
-
-    def objective(x: _Eval) -> float:
-        return x.chi2 * s.m_total + x.lam * x.reg**2
-
     t = choice.target
-    if t is None or not (objective(e2) < objective(e) and e2.chi2 > t * (1 + _DISCREPANCY_JUMP)
+    if t is None or not (_objective(run, e2) < _objective(run, e) and e2.chi2 > t * (1 + _DISCREPANCY_JUMP)
                          and e.chi2 <= t * (1 + _DISCREPANCY_JUMP)):
         return e, e2, choice
     found = _branch_corner(run, e.lam / (1 + 1e-9), t)
@@ -965,13 +975,7 @@ def _discrepancy_local_minimum(run: _Runner, e: _Eval, e2: _Eval, choice: Lambda
     note = (f"the solution meeting the target at λ = {lam_local:.3g} is a local minimum only (from the "
             f"initial guess: chi²/m {e2.chi2:.3g} with a lower objective): {found[1]}")
     e2 = run.solve(e.lam, theta0)
-    ev = run.evals
-    choice = LambdaChoice(
-        rule=choice.rule, value=e.lam, candidates=np.array([x.lam for x in ev]),
-        chi2=np.array([x.chi2 for x in ev]), regularization_norms=np.array([x.reg for x in ev]),
-        criterion=np.array([x.chi2 - t for x in ev]), target=t, reference=choice.reference, note=note,
-    )
-    return e, e2, choice
+    return e, e2, _discrepancy_choice(run, e, t, choice.reference, note)
 
 
 # --------------------------------------------------------------------------- public solvers
@@ -1155,12 +1159,7 @@ def solve_temperature(
         )
     elif rule == "discrepancy":
         e, target, note = _rule_discrepancy(run, theta0, lam_ref, safety, search_steps, float(search_rtol))
-        ev = run.evals
-        choice = LambdaChoice(
-            rule=rule, value=e.lam, candidates=np.array([x.lam for x in ev]), chi2=np.array([x.chi2 for x in ev]),
-            regularization_norms=np.array([x.reg for x in ev]), criterion=np.array([x.chi2 - target for x in ev]),
-            target=target, reference=lam_ref, note=note,
-        )
+        choice = _discrepancy_choice(run, e, target, lam_ref, note)
     elif rule == "gcv":
         e, c, ch, rg, cr, note = _rule_gcv(run, theta0, lam_ref, lr, n_lambda, gcv_probes, seed)
         choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
@@ -1178,13 +1177,10 @@ def solve_temperature(
         # λ from the initial guess with the full step budget and keep the lower
         # objective (the discrepancy search stops each candidate at the looser
         # `search_rtol`: its χ² only has to locate λ).
-        def objective(x: _Eval) -> float:
-            return x.chi2 * s.m_total + x.lam * x.reg**2
-
         e2 = run.solve(e.lam, theta0)
         if rule == "discrepancy":
             e, e2, choice = _discrepancy_local_minimum(run, e, e2, choice, theta0)
-        if objective(e2) <= objective(e) or not e.converged:
+        if _objective(run, e2) <= _objective(run, e) or not e.converged:
             e = e2
     t_end = time.perf_counter()
 
