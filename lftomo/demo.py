@@ -57,7 +57,7 @@ DEMO_SETTINGS = {
         "rays_per_pixel_data": 32,
         "rays_per_pixel_weights": 32,
         "max_steps": 100,
-        "linear_max_steps": 50,
+        "linear_max_steps": 20,
         "posterior_steps": 400,
         "n_singular": 20,
     },
@@ -68,7 +68,7 @@ DEMO_SETTINGS = {
         "rays_per_pixel_data": 64,
         "rays_per_pixel_weights": 64,
         "max_steps": 200,  # the library's default: the λ search needs converged χ²
-        "linear_max_steps": 100,
+        "linear_max_steps": 20,  # truncated Newton steps: same λ and error as 100 at 16³, 23 % faster
         "posterior_steps": 2000,
         "n_singular": 40,
     },

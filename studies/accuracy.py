@@ -43,6 +43,8 @@ def main():
     ap.add_argument("--min-etendue", type=float, default=0.2,
                     help="pixels with étendue below this fraction of the peak are left out")
     ap.add_argument("--width", type=float, default=0.0, help="flame base width (m); 0: the phantom's default")
+    ap.add_argument("--linear-max-steps", type=int, default=0,
+                    help="LSMR iterations per nonlinear step (0: the solver's default)")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     t0 = time.perf_counter()
@@ -72,7 +74,8 @@ def main():
                                        min_etendue_fraction=a.min_etendue)
         m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
         t = time.perf_counter()
-        rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior)
+        opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}
+        rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, **opts)
         dt = time.perf_counter() - t
         e = rec.errors(T_true)
         sel = T_true > 800
