@@ -13,15 +13,21 @@ reconstruction grid, bounded by parameterisation
 Residual: the whitened data of every channel, and ``√λ`` times the
 dimensionless prior operator applied to ``T / (T_max − T_min)`` and to
 ``σ_ref / σ_max``.  Solved with optimistix (Levenberg–Marquardt, matrix-free
-LSMR on the JAX linearisation; the transmittance is differentiated exactly).
+LSMR on the JAX linearisation; the transmittance is differentiated exactly),
+started (unless ``T0`` and ``sigma_a0`` are given) from tomographic two-colour
+pyrometry: each channel inverted linearly for its emission coefficient in the
+optically thin limit, the per-voxel ratio of two channels giving ``T``
+(e.g. the two-colour method of soot pyrometry, Hottel & Broughton 1932, applied to
+tomographic fields) and the level giving ``σ_a``.
 
-λ rule (``regularization="auto"``): discrepancy principle on a decade grid —
-solutions at λ = 10⁻¹, 10⁻², …, 10⁻⁶ (warm-started from the previous one); the
-largest λ whose ``χ²/m ≤ 1`` is kept (the smallest if none reaches it).
+λ rule (``regularization="auto"``): discrepancy principle (Morozov), the largest
+λ with ``χ²/m ≤ 1``: bracketed by factors of 10 from λ = 10⁻² (each solve
+warm-started from the nearest λ solved), refined by two bisections in log λ.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any, Sequence
 
@@ -47,6 +53,59 @@ def _rows_for(measurement, segments) -> np.ndarray:
     return lookup[measurement.raw_index]
 
 
+def _two_colour_start(ms, segments, rows, wls, alpha, prior, lo, hi, sigma_a_max):
+    """Starting fields ``(T, σ_ref)`` (flat, K and m⁻¹) by tomographic two-colour pyrometry.
+
+    Optically thin model per channel: ``y_c ≈ P S_c`` with ``P = W(σ_a → 0)/σ_a``
+    (chord lengths × étendue, from the segment table) and the emission
+    coefficient ``S_c = σ_ref (λ_ref/λ_c)^α I_b(T, λ_c)``, solved per channel by
+    the linear baseline (LSQR, the same smoothness prior, its starting-λ rule).
+    The ratio of the shortest- and longest-wavelength ``S`` fixes ``T`` voxel
+    by voxel (Planck ratio, tabulated over the bounds), then
+    ``σ_ref = S_ref / I_b(T, λ_ref)``.  Voxels whose ``S`` is below 5 % of its
+    maximum in either channel (no reliable ratio) get the lowest ``T`` of the
+    others and ``σ_ref`` = 0.1 % of ``sigma_a_max``.
+    """
+    import scipy.sparse as sp
+
+    from .problem import LinearProblem
+    from .solvers import _baseline_start, _blackbody_np, _make_setup
+
+    eps = 1e-9  # m⁻¹: transmittance 1 to better than 1e-9 over any chord here
+    W0 = segments.weights(eps)
+    P = sp.csr_matrix(W0.matrix) / eps
+    bg0 = np.asarray(W0.background, dtype=np.float64)
+    S = []
+    for m, r, wl in zip(ms, rows, wls):
+        valid = (r >= 0).astype(np.float64)
+        rr = np.maximum(r, 0)
+        A = sp.diags(valid) @ P[rr]
+        problem = LinearProblem(A, np.asarray(m.y, float), np.asarray(m.sigma, float), Grid.from_dict(
+            segments.metadata["grid"]), wavelength=wl, background=bg0[rr] * valid)
+        st = _make_setup(problem, bounds=(lo, hi), prior="gradient" if prior == "tv" else prior,
+                         penalize="temperature", tv_eps=1e-3, T_ref=None)
+        S.append(_baseline_start(st).I_b.ravel())
+    order = np.argsort(wls)
+    a, b = int(order[0]), int(order[-1])
+    f = [(wls[0] / w) ** alpha for w in wls]
+    T_tab = np.linspace(lo, hi, 4001)
+    ratio_tab = np.log(f[a] * _blackbody_np(T_tab, wls[a])) - np.log(f[b] * _blackbody_np(T_tab, wls[b]))
+    ok = (S[a] > 0.05 * S[a].max()) & (S[b] > 0.05 * S[b].max())
+    T = np.empty(S[a].size)
+    if ok.any():
+        ratio = np.log(S[a][ok]) - np.log(S[b][ok])
+        k = np.argsort(ratio_tab)
+        T[ok] = np.interp(ratio, ratio_tab[k], T_tab[k])
+        T[~ok] = T[ok].min()  # dim: cool or soot-free; at most as hot as the coolest reliable voxel
+    else:
+        T[:] = 0.5 * (lo + hi)
+    T = np.clip(T, lo + 1e-3 * (hi - lo), hi - 1e-3 * (hi - lo))
+    sref = np.full(T.size, 1e-3 * sigma_a_max)
+    sref[ok] = S[0][ok] / _blackbody_np(T[ok], wls[0])
+    sref = np.clip(sref, 1e-3 * sigma_a_max, 0.99 * sigma_a_max)
+    return T, sref
+
+
 def solve_temperature_absorption(
     measurements: Sequence[Any],
     segments,
@@ -64,6 +123,7 @@ def solve_temperature_absorption(
     atol: float = 1e-6,
     linear_rtol: float = 1e-6,
     linear_max_steps: int = 50,
+    engine: str = "host",
 ) -> Reconstruction:
     """Fit ``T`` and ``σ_a`` jointly (see the module docstring).
 
@@ -73,14 +133,28 @@ def solve_temperature_absorption(
         Sub-aperture measurements at distinct wavelengths (two or more).
     segments : RaySegments
         Ray-segment table on the reconstruction grid (same camera and decode).
-    regularization, prior, bounds, method, T0
+    regularization, prior, bounds, method
         As in :func:`lftomo.reconstruct`.
+    T0 : ndarray of shape grid.shape, optional
+        Initial temperature (K).  Default: tomographic two-colour pyrometry
+        (see ``_two_colour_start``: optically thin linear inversion per channel, then the
+        Planck ratio of the shortest and longest wavelengths per voxel).
     alpha : float
         Soot exponent of ``σ_a(λ) ∝ λ^-α``.
     sigma_a_max : float
         Upper bound of ``σ_a`` at the first wavelength (m⁻¹).
-    sigma_a0 : ndarray, optional
-        Initial ``σ_a`` at the first wavelength (default 1 % of ``sigma_a_max``).
+    sigma_a0 : ndarray of shape grid.shape, optional
+        Initial ``σ_a`` at the first wavelength (m⁻¹); default from the same
+        two-colour start.
+
+    engine : {"host", "jax"}
+        How the forward model and its exact derivatives are evaluated:
+        ``"host"`` (default) builds the sparse Jacobians ``W(σ_a)`` and
+        ``∂F/∂σ_a`` of the segment table once per evaluation point and applies
+        them in every Jacobian product (:mod:`lftomo.inverse.hostsegments`);
+        ``"jax"`` differentiates :meth:`lftomo.RaySegments.forward_jax` with
+        JAX autodiff (same values to rounding, each product walks every segment:
+        about 30× slower per step).
 
     Returns
     -------
@@ -100,6 +174,8 @@ def solve_temperature_absorption(
         wls.append(float(m.wavelength))
     if len(set(wls)) != len(wls):
         raise ValueError(f"the measurements' wavelengths must differ, got {wls}")
+    if engine not in ("host", "jax"):
+        raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
@@ -114,8 +190,17 @@ def solve_temperature_absorption(
     valid = [jnp.asarray(r >= 0) for r in rows]
     factors = [(wls[0] / w) ** alpha for w in wls]
     L = to_bcoo(prior_operator(grid, prior))
-    seg = segments.to_jax()
+    if engine == "host":
+        from .hostsegments import host_forward
+
+        seg = None
+        host_F = host_forward(segments)
+    else:
+        seg = segments.to_jax()
     m_total = sum(m.y.size for m in ms)
+
+    def model_signal(seg_, Ib, sa):
+        return host_F(Ib, sa) if seg_ is None else seg_.forward(Ib, sa)
 
     def unpack(p):
         th, rho = p[:n], p[n:]
@@ -126,7 +211,7 @@ def solve_temperature_absorption(
         T, sref = unpack(p)
         out = []
         for c in range(len(ms)):
-            s = seg_.forward(planck_jax(T, wls[c]), sref * factors[c])
+            s = model_signal(seg_, planck_jax(T, wls[c]), sref * factors[c])
             model = jnp.where(valid[c], s[rows_j[c]], 0.0)
             out.append((model - ys[c]) * inv_s[c])
         out.append(jnp.sqrt(lam) * (L @ ((T - lo) / (hi - lo))))
@@ -137,8 +222,15 @@ def solve_temperature_absorption(
         x = np.clip(x, 1e-6, 1 - 1e-6)
         return np.log(x / (1 - x))
 
-    T_init = np.full(n, 0.5 * (lo + hi)) if T0 is None else np.asarray(T0, float).ravel()
-    s_init = np.full(n, 0.01 * sigma_a_max) if sigma_a0 is None else np.asarray(sigma_a0, float).ravel()
+    start = "given"
+    if T0 is None or sigma_a0 is None:
+        if isinstance(T0, str) or isinstance(sigma_a0, str):
+            raise ValueError("T0 and sigma_a0 must be arrays or None")
+        t_tc = time.perf_counter()
+        T_tc, s_tc = _two_colour_start(ms, segments, rows, wls, alpha, prior, lo, hi, sigma_a_max)
+        start = f"two-colour ({time.perf_counter() - t_tc:.1f} s)"
+    T_init = T_tc if T0 is None else np.asarray(T0, float).ravel()
+    s_init = s_tc if sigma_a0 is None else np.asarray(sigma_a0, float).ravel()
     if T_init.size != n or s_init.size != n:
         raise ValueError(f"T0 and sigma_a0 must have {n} voxels (grid {grid.shape})")
     p = jnp.asarray(np.concatenate([logit((T_init - lo) / (hi - lo)), logit(s_init / sigma_a_max)]))
@@ -151,20 +243,44 @@ def solve_temperature_absorption(
 
     path = []
     if regularization == "auto":
-        lams = [10.0 ** (-k) for k in range(1, 7)]
-        chosen = None
-        for lam in lams:
-            sol, chi2 = solve(p, lam)
-            p = sol.value
+        # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10 from
+        # λ = 1e-2 (warm starts from the nearest λ solved), then two bisections
+        # in log λ.
+        sols = {}
+
+        def at(lam):
+            near = min(sols, key=lambda q: abs(math.log(q / lam))) if sols else None
+            sol, chi2 = solve(p if near is None else sols[near][0].value, lam)
+            sols[lam] = (sol, chi2)
             path.append((lam, chi2))
-            if chi2 <= 1.0 and chosen is None:
-                chosen = (lam, sol, chi2)
-                break
-        if chosen is None:
-            lam, chi2 = path[-1]
-            chosen = (lam, sol, chi2)
-        lam, sol, chi2 = chosen
-        rule = "discrepancy (decade grid)"
+            return chi2
+
+        lam = 1e-2
+        if at(lam) <= 1.0:
+            while lam < 1e4 and at(lam * 10.0) <= 1.0:
+                lam *= 10.0
+        else:
+            while lam > 1e-8 and at(lam / 10.0) > 1.0:
+                lam /= 10.0
+        ok = sorted(q for q, (_, c) in sols.items() if c <= 1.0)
+        bad = sorted(q for q, (_, c) in sols.items() if c > 1.0)
+        if ok and bad and bad[-1] > ok[-1]:
+            lo_l, hi_l = ok[-1], min(q for q in bad if q > ok[-1])
+            for _ in range(2):
+                mid = math.sqrt(lo_l * hi_l)
+                if at(mid) <= 1.0:
+                    lo_l = mid
+                else:
+                    hi_l = mid
+            lam = lo_l
+            rule = "discrepancy (largest λ with chi²/m ≤ 1: factor-10 bracket, 2 bisections in log λ)"
+        elif ok:
+            lam = ok[-1]
+            rule = "discrepancy: chi²/m ≤ 1 up to the largest λ tried"
+        else:
+            lam = bad[0]
+            rule = "discrepancy: chi²/m > 1 down to the smallest λ tried"
+        sol, chi2 = sols[lam]
     else:
         lam = float(regularization)
         if not (lam >= 0):
@@ -187,5 +303,6 @@ def solve_temperature_absorption(
         timing={"total": time.perf_counter() - t_start},
         unknowns="T+sigma_a",
         data_kind="subaperture",
-        details={"lambda_path": path, "wavelengths": wls, "alpha": alpha},
+        details={"lambda_path": path, "wavelengths": wls, "alpha": alpha, "start": start,
+                 "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape)},
     )
