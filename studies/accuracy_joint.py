@@ -18,7 +18,7 @@ segment table.
 Usage::
 
     python studies/accuracy_joint.py [--n 8] [--refine 2] [--rays 32] [--segment-rays 16]
-                                     [--regularization auto|<float>] [--json out.json]
+                                     [--regularization auto|<float>[,<float>...]] [--json out.json]
 """
 from __future__ import annotations
 
@@ -70,43 +70,45 @@ def main():
     print(f"grid {coarse.shape} (truth {fine.shape}); {len(views)} views, {ms[0].size} data per channel, "
           f"{seg.n_segments} segments; hot voxels {int(hot.sum())}; setup {t_setup:.1f} s", flush=True)
 
-    reg = a.regularization if a.regularization == "auto" else float(a.regularization)
-    t = time.perf_counter()
-    rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps)
-    t_joint = time.perf_counter() - t
-
     def rel(x, ref):
         return np.abs(x[hot] / ref[hot] - 1.0)
-
-    eT, es = rel(rec.T, T_true), rel(rec.sigma_a, sa_c)
-    T_start, s_start = rec.details["T_start"], rec.details["sigma_a_start"]
-    eT0, es0 = rel(T_start, T_true), rel(s_start, sa_c)
 
     W = seg.weights(sa_c)
     t = time.perf_counter()
     only = lt.reconstruct(ms[0], W)
     t_only = time.perf_counter() - t
     eO = rel(only.T, T_true)
-    row = {
-        "n": a.n, "views": len(views), "data_per_channel": int(ms[0].size),
-        "joint": {"T_mean_rel": float(eT.mean()), "T_max_rel": float(eT.max()),
-                  "sigma_a_mean_rel": float(es.mean()), "sigma_a_max_rel": float(es.max()),
-                  "lambda": rec.regularization, "rule": rec.lambda_rule, "chi2": rec.chi2,
-                  "converged": rec.converged, "seconds": t_joint, "lambda_path": rec.details["lambda_path"],
-                  "start": rec.details["start"]},
-        "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
-        "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),
-                                 "lambda": only.regularization, "seconds": t_only},
-    }
-    print(f"joint T+sigma_a : T {eT.mean():.2%} mean / {eT.max():.1%} max, sigma_a {es.mean():.1%} mean; "
-          f"lambda {rec.regularization:g} ({rec.lambda_rule}), chi2/m {rec.chi2:.3f}, {t_joint:.0f} s")
-    print(f"two-colour start: T {eT0.mean():.2%} mean, sigma_a {es0.mean():.1%} mean ({rec.details['start']})")
     print(f"T only (sigma_a known), channel 1: T {eO.mean():.2%} mean / {eO.max():.1%} max, "
-          f"lambda {only.regularization:.3g}, {t_only:.0f} s")
-    print(json.dumps(row, default=float))
+          f"lambda {only.regularization:.3g}, {t_only:.0f} s", flush=True)
+    rows = []
+    regs = ["auto"] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
+    for reg in regs:
+        t = time.perf_counter()
+        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps)
+        t_joint = time.perf_counter() - t
+        eT, es = rel(rec.T, T_true), rel(rec.sigma_a, sa_c)
+        T_start, s_start = rec.details["T_start"], rec.details["sigma_a_start"]
+        eT0, es0 = rel(T_start, T_true), rel(s_start, sa_c)
+        row = {
+            "n": a.n, "views": len(views), "data_per_channel": int(ms[0].size),
+            "joint": {"T_mean_rel": float(eT.mean()), "T_max_rel": float(eT.max()),
+                      "sigma_a_mean_rel": float(es.mean()), "sigma_a_max_rel": float(es.max()),
+                      "lambda": rec.regularization, "rule": rec.lambda_rule, "chi2": rec.chi2,
+                      "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
+                      "lambda_path": rec.details["lambda_path"], "start": rec.details["start"]},
+            "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
+            "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),
+                                     "lambda": only.regularization, "seconds": t_only},
+        }
+        print(f"joint T+sigma_a : T {eT.mean():.2%} mean / {eT.max():.1%} max, sigma_a {es.mean():.1%} mean; "
+              f"lambda {rec.regularization:g} ({rec.lambda_rule}), chi2/m {rec.chi2:.3f}, "
+              f"{rec.iterations} steps, converged {rec.converged}, {t_joint:.0f} s")
+        print(f"  start ({rec.details['start']}): T {eT0.mean():.2%} mean, sigma_a {es0.mean():.1%} mean")
+        print(json.dumps(row, default=float), flush=True)
+        rows.append(row)
     if a.json:
         with open(a.json, "w") as f:
-            json.dump(row, f, indent=1, default=float)
+            json.dump(rows, f, indent=1, default=float)
 
 
 if __name__ == "__main__":

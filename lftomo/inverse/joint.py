@@ -38,11 +38,17 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
 
 from ..forward.grid import Grid  # noqa: E402
 from .reconstruct import Reconstruction  # noqa: E402
 from .regularizers import prior_operator, to_bcoo  # noqa: E402
-from .solvers import _nl_solver, planck_jax  # noqa: E402
+from .solvers import _blackbody_np, _dblackbody_np, _nl_solver, planck_jax  # noqa: E402
+
+
+#: A solve also stops when its objective changes by less than this fraction
+#: over a chunk of 10 steps (or ``rtol`` if larger).
+_OBJECTIVE_RTOL = 1e-4
 
 
 def _rows_for(measurement, segments) -> np.ndarray:
@@ -189,7 +195,8 @@ def solve_temperature_absorption(
     rows_j = [jnp.asarray(np.maximum(r, 0)) for r in rows]
     valid = [jnp.asarray(r >= 0) for r in rows]
     factors = [(wls[0] / w) ** alpha for w in wls]
-    L = to_bcoo(prior_operator(grid, prior))
+    L_sp = prior_operator(grid, prior)
+    L = to_bcoo(L_sp)
     if engine == "host":
         from .hostsegments import host_forward
 
@@ -236,10 +243,68 @@ def solve_temperature_absorption(
     p = jnp.asarray(np.concatenate([logit((T_init - lo) / (hi - lo)), logit(s_init / sigma_a_max)]))
     solver = _nl_solver(method, rtol, atol, linear_rtol, linear_max_steps)
 
+    # Jacobi scaling, as in the T-only solver: chunks of optimistix steps on ψ
+    # with p = p_c + D ψ, D = 1/‖column of the whitened Jacobian and prior‖ at
+    # p_c (exact sparse Jacobians of the segment table).  Without it the
+    # Levenberg–Marquardt damping treats log-odds of T and of σ_a alike while
+    # their columns differ by orders of magnitude.
+    colsq_L = np.asarray(L_sp.multiply(L_sp).sum(axis=0)).ravel()
+    whiten = [sp.diags((r >= 0) / np.asarray(m.sigma, float)) for m, r in zip(ms, rows)]
+    rows_np = [np.maximum(r, 0) for r in rows]
+
+    def column_scale(pv, lam):
+        sg, sr = 1.0 / (1.0 + np.exp(-pv[:n])), 1.0 / (1.0 + np.exp(-pv[n:]))
+        T, sref = lo + (hi - lo) * sg, sigma_a_max * sr
+        dT, ds = (hi - lo) * sg * (1.0 - sg), sigma_a_max * sr * (1.0 - sr)
+        c2 = np.zeros(2 * n)
+        for c in range(len(ms)):
+            sa_c = sref * factors[c]
+            Wc = whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]]
+            Jc = whiten[c] @ sp.csr_matrix(segments.jacobian(_blackbody_np(T, wls[c]), sa_c)[1])[rows_np[c]]
+            c2[:n] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * (_dblackbody_np(T, wls[c]) * dT) ** 2
+            c2[n:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
+        c2[:n] += lam * colsq_L * (dT / (hi - lo)) ** 2
+        c2[n:] += lam * colsq_L * (ds / sigma_a_max) ** 2
+        rms = float(np.sqrt(np.mean(c2))) if np.isfinite(c2).all() and c2.max() > 0 else 1.0
+        return 1.0 / np.maximum(np.sqrt(np.maximum(c2, 0.0)), 1e-3 * rms)
+
+    def scaled_residual(psi, args):
+        seg_, lam, pc, D = args
+        return residual(pc + D * psi, (seg_, lam))
+
+    def objective(pv, lam):
+        r = residual(jnp.asarray(pv), (seg, lam))
+        return float(jnp.sum(r * r))
+
+    class _Sol:  # what the callers read of a solve
+        def __init__(self, value, steps, result):
+            self.value, self.stats, self.result = value, {"num_steps": steps}, result
+
     def solve(p0, lam):
-        sol = optx.least_squares(residual, solver, p0, args=(seg, lam), max_steps=max_steps, throw=False)
-        r = residual(sol.value, (seg, 0.0))[:m_total]
-        return sol, float(jnp.sum(r * r)) / m_total
+        pv = np.asarray(p0, dtype=np.float64)
+        steps, result = 0, optx.RESULTS.nonlinear_max_steps_reached
+        obj_prev = objective(pv, lam)
+        zeros = jnp.zeros(2 * n)
+        while steps < max_steps:
+            k = min(10, max_steps - steps)
+            D = column_scale(pv, lam)
+            sol = optx.least_squares(scaled_residual, solver, zeros, args=(seg, lam, jnp.asarray(pv), jnp.asarray(D)),
+                                     max_steps=k, throw=False)
+            steps += int(sol.stats["num_steps"])
+            new = pv + D * np.asarray(sol.value)
+            if not np.all(np.isfinite(new)):
+                break
+            pv = new
+            obj = objective(pv, lam)
+            if sol.result == optx.RESULTS.successful or abs(obj_prev - obj) <= max(rtol, _OBJECTIVE_RTOL) * obj:
+                result = optx.RESULTS.successful
+                break
+            if sol.result != optx.RESULTS.nonlinear_max_steps_reached:
+                result = sol.result
+                break
+            obj_prev = obj
+        r = residual(jnp.asarray(pv), (seg, 0.0))[:m_total]
+        return _Sol(jnp.asarray(pv), steps, result), float(jnp.sum(r * r)) / m_total
 
     path = []
     if regularization == "auto":
