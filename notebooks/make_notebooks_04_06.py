@@ -379,13 +379,15 @@ NB04 = [
         `lt.reconstruct(..., unknowns="T+sigma_a")` fits both fields through the ray-segment table
         (`lt.ray_segments`), differentiating the exact transmittance.
 
-        This solver is much slower than the T-only one (its JAX graph compiles for tens of
-        seconds, and each step walks every ray segment), so it runs on a smaller problem: the same
-        flame on a 12³ truth grid, a 6³ reconstruction grid, the 16 best-lit views, 8 rays per
-        pixel, a fixed λ = 1e-2 (one solve; the solver's own decade rule costs one solve per
-        decade), at most 10 Levenberg–Marquardt steps of at most 10 LSMR iterations each — far
-        from converged, as printed. The same noise model as above, per channel. Start: a uniform
-        1400 K and 2 m⁻¹ (the solver's defaults).
+        Each step of this solver builds the exact sparse Jacobians of the segment table at the
+        current fields (`W(σ_a)` and `∂F/∂σ_a`, both channels) and applies them in its LSMR
+        iterations; it is still much slower than the T-only solver, so it runs on a smaller
+        problem: the same flame on a 12³ truth grid, a 6³ reconstruction grid, the 16 best-lit
+        views, 8 rays per pixel, a fixed λ = 1e-2 (one solve; the solver's own discrepancy rule
+        costs several), at most 10 Levenberg–Marquardt steps of at most 10 LSMR iterations each,
+        as printed. The same noise model as above, per channel. Start: a uniform 1400 K and
+        2 m⁻¹ (given here; by default the solver starts from tomographic two-colour pyrometry).
+        `studies/accuracy_joint.py` measures the joint fit at 8³ (see the README).
 
         This shows the call at the size this notebook can afford, not an accuracy: 4 mm voxels
         are coarse against the 1.2 mm lenslet footprint, and the `χ²/m` of the effective truth
@@ -413,7 +415,7 @@ NB04 = [
         seg = lt.ray_segments(cam, grid2, rays_per_pixel=RAYS2, seed=11, views=views, progress=False)
         print(f"two-wavelength data: {len(views)} views, {ms2[0].size} data per channel; setup {time.perf_counter() - t0:.1f} s")
 
-        T_START2, SA_START2 = 0.5 * (BOUNDS[0] + BOUNDS[1]), 2.0  # the solver's defaults: mid-bounds, 1 % of sigma_a_max
+        T_START2, SA_START2 = 0.5 * (BOUNDS[0] + BOUNDS[1]), 2.0  # mid-bounds and 1 % of sigma_a_max
         T0_2, SA0_2 = np.full(grid2.shape, T_START2), np.full(grid2.shape, SA_START2)
         t0 = time.perf_counter()
         with warnings.catch_warnings():

@@ -123,6 +123,8 @@ def solve_temperature_absorption(
     T0: Any = None,
     alpha: float = 1.38,
     sigma_a_max: float = 200.0,
+    sigma_a_scale: float | None = None,
+    sigma_a_ridge: float = 0.0,
     sigma_a0: Any = None,
     max_steps: int = 100,
     rtol: float = 1e-6,
@@ -187,6 +189,12 @@ def solve_temperature_absorption(
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     if not (sigma_a_max > 0):
         raise ValueError(f"sigma_a_max must be > 0, got {sigma_a_max!r}")
+    s_scale = float(sigma_a_max if sigma_a_scale is None else sigma_a_scale)
+    ridge = float(sigma_a_ridge)
+    if not (ridge >= 0 and math.isfinite(ridge)):
+        raise ValueError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
+    if not (s_scale > 0 and math.isfinite(s_scale)):
+        raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
     grid = Grid.from_dict(segments.metadata["grid"])
     n = grid.n_voxels
     rows = [_rows_for(m, segments) for m in ms]
@@ -222,7 +230,8 @@ def solve_temperature_absorption(
             model = jnp.where(valid[c], s[rows_j[c]], 0.0)
             out.append((model - ys[c]) * inv_s[c])
         out.append(jnp.sqrt(lam) * (L @ ((T - lo) / (hi - lo))))
-        out.append(jnp.sqrt(lam) * (L @ (sref / sigma_a_max)))
+        out.append(jnp.sqrt(lam) * (L @ (sref / s_scale)))
+        out.append(jnp.sqrt(lam * ridge) * (sref / s_scale))
         return jnp.concatenate(out)
 
     def logit(x):
@@ -264,7 +273,7 @@ def solve_temperature_absorption(
             c2[:n] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * (_dblackbody_np(T, wls[c]) * dT) ** 2
             c2[n:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
         c2[:n] += lam * colsq_L * (dT / (hi - lo)) ** 2
-        c2[n:] += lam * colsq_L * (ds / sigma_a_max) ** 2
+        c2[n:] += lam * (colsq_L + ridge) * (ds / s_scale) ** 2
         rms = float(np.sqrt(np.mean(c2))) if np.isfinite(c2).all() and c2.max() > 0 else 1.0
         return 1.0 / np.maximum(np.sqrt(np.maximum(c2, 0.0)), 1e-3 * rms)
 
