@@ -75,3 +75,23 @@ def test_joint_engines_agree(table):
     assert host.chi2 == pytest.approx(ref.chi2, rel=1e-2)
     with pytest.raises(ValueError, match="engine"):
         lt.reconstruct(ms, seg, engine="numpy", **kw)
+
+
+def test_joint_sigma_a_prior_options(table):
+    """The ridge term pulls sigma_a towards 0; bad prior options are refused."""
+    cam, grid, seg = table
+    rng = np.random.default_rng(3)
+    T = 1500.0 + 300.0 * rng.random(grid.shape)
+    sa = 10.0 + 20.0 * rng.random(grid.shape)
+    flame = lt.Medium(grid, sigma_a=sa, T=T, sigma_a_rule=lt.SootRule(650e-9, 1.38))
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=4, seed=2, wavelengths=(650e-9, 800e-9))
+    clean = dataclasses.replace(lf, noise_std=1e-2 * lf.raw + 1e-6 * lf.raw.max(), signal=lf.raw)
+    ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
+    kw = dict(unknowns="T+sigma_a", regularization=1e-2, bounds=(1000.0, 2500.0), max_steps=20,
+              T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), sigma_a_scale=20.0)
+    free = lt.reconstruct(ms, seg, **kw)
+    pulled = lt.reconstruct(ms, seg, sigma_a_ridge=1e8, **kw)
+    assert pulled.sigma_a.mean() < 0.7 * free.sigma_a.mean(), (pulled.sigma_a.mean(), free.sigma_a.mean())
+    for bad in ({"sigma_a_scale": -1.0}, {"sigma_a_ridge": float("nan")}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            lt.reconstruct(ms, seg, **{**kw, **bad})
