@@ -21,6 +21,17 @@ def table():
     return cam, grid, lt.ray_segments(cam, grid, rays_per_pixel=4, seed=2)
 
 
+def _two_wavelength_measurements(cam, grid, seed):
+    """Noise-free two-wavelength sub-aperture data (1 % σ) of a random soot-like medium."""
+    rng = np.random.default_rng(seed)
+    T = 1500.0 + 300.0 * rng.random(grid.shape)
+    sa = 10.0 + 20.0 * rng.random(grid.shape)
+    flame = lt.Medium(grid, sigma_a=sa, T=T, sigma_a_rule=lt.SootRule(650e-9, 1.38))
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=4, seed=2, wavelengths=(650e-9, 800e-9))
+    clean = dataclasses.replace(lf, noise_std=1e-2 * lf.raw + 1e-6 * lf.raw.max(), signal=lf.raw)
+    return [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
+
+
 def test_host_forward_jvp_vjp_match_jax_autodiff(table):
     _, grid, seg = table
     rng = np.random.default_rng(0)
@@ -58,13 +69,7 @@ def test_joint_engines_agree(table):
     host Jacobians and with JAX autodiff of the segment table (to rounding
     amplified by the ill-conditioned steps: measured 1e-7 in T)."""
     cam, grid, seg = table
-    rng = np.random.default_rng(1)
-    T = 1500.0 + 300.0 * rng.random(grid.shape)
-    sa = 10.0 + 20.0 * rng.random(grid.shape)
-    flame = lt.Medium(grid, sigma_a=sa, T=T, sigma_a_rule=lt.SootRule(650e-9, 1.38))
-    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=4, seed=2, wavelengths=(650e-9, 800e-9))
-    clean = dataclasses.replace(lf, noise_std=1e-2 * lf.raw + 1e-6 * lf.raw.max(), signal=lf.raw)
-    ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
+    ms = _two_wavelength_measurements(cam, grid, seed=1)
     kw = dict(unknowns="T+sigma_a", regularization=1e-3, bounds=(1000.0, 2500.0), max_steps=10,
               T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0))
     host = lt.reconstruct(ms, seg, engine="host", **kw)
@@ -80,13 +85,7 @@ def test_joint_engines_agree(table):
 def test_joint_sigma_a_prior_options(table):
     """The ridge term pulls sigma_a towards 0; bad prior options are refused."""
     cam, grid, seg = table
-    rng = np.random.default_rng(3)
-    T = 1500.0 + 300.0 * rng.random(grid.shape)
-    sa = 10.0 + 20.0 * rng.random(grid.shape)
-    flame = lt.Medium(grid, sigma_a=sa, T=T, sigma_a_rule=lt.SootRule(650e-9, 1.38))
-    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=4, seed=2, wavelengths=(650e-9, 800e-9))
-    clean = dataclasses.replace(lf, noise_std=1e-2 * lf.raw + 1e-6 * lf.raw.max(), signal=lf.raw)
-    ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
+    ms = _two_wavelength_measurements(cam, grid, seed=3)
     kw = dict(unknowns="T+sigma_a", regularization=1e-2, bounds=(1000.0, 2500.0), max_steps=20,
               T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), sigma_a_scale=20.0)
     free = lt.reconstruct(ms, seg, **kw)
