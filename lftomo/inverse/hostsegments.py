@@ -39,7 +39,7 @@ import numpy as np
 import scipy.sparse as sp
 from jax.custom_derivatives import SymbolicZero, linear_call
 
-from .hostsparse import _LOCK, csr_matvec
+from .hostsparse import _LOCK, csr_product
 
 __all__ = ["host_forward"]
 
@@ -52,7 +52,7 @@ _CACHE_POINTS = 6  # two or three channels × (current point, trial point)
 class _Point:
     """Signal and exact sparse Jacobians of one table at one ``(I_b, σ_a)``."""
 
-    __slots__ = ("signal", "W", "WT", "J", "JT")
+    __slots__ = ("J", "JT", "W", "WT", "signal")
 
     def __init__(self, segments, Ib: np.ndarray, sa: np.ndarray):
         W = segments.weights(sa)
@@ -79,13 +79,6 @@ def _point(handle: int, Ib, sa) -> _Point:
     else:
         cache.move_to_end(key)
     return p
-
-
-def _mv(M: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    out = np.empty(M.shape[0], dtype=np.float64)
-    with _LOCK:
-        csr_matvec(M.indptr, M.indices, M.data, np.ascontiguousarray(x, dtype=np.float64), out)
-    return out
 
 
 def host_forward(segments) -> Any:
@@ -118,7 +111,7 @@ def host_forward(segments) -> Any:
     def product(which: str, transpose: bool):
         def host(a, b, v):
             p = _point(handle, a, b)
-            return _mv(getattr(p, which + ("T" if transpose else "")), v)
+            return csr_product(getattr(p, which + ("T" if transpose else "")), v)
 
         def apply(res, v):
             Ib, sa = res

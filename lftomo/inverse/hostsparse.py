@@ -56,14 +56,17 @@ def csr_matvec(indptr, indices, data, x, out):
         out[i] = acc
 
 
-def _apply(handle: Any, x: Any, transpose: bool) -> np.ndarray:
-    A, AT = _REGISTRY[handle]
-    M = AT if transpose else A
-    v = np.ascontiguousarray(x, dtype=np.float64)
+def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
+    """``M x`` (float64) by :func:`csr_matvec` under the module's lock."""
     out = np.empty(M.shape[0], dtype=np.float64)
     with _LOCK:
-        csr_matvec(M.indptr, M.indices, M.data, v, out)
+        csr_matvec(M.indptr, M.indices, M.data, np.ascontiguousarray(x, dtype=np.float64), out)
     return out
+
+
+def _apply(handle: Any, x: Any, transpose: bool) -> np.ndarray:
+    A, AT = _REGISTRY[handle]
+    return csr_product(AT if transpose else A, x)
 
 
 def _callback(handle: int, x, transpose: bool, n_out: int):

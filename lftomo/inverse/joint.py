@@ -29,22 +29,31 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-import optimistix as optx  # noqa: E402
-import scipy.sparse as sp  # noqa: E402
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import scipy.sparse as sp
 
-from ..forward.grid import Grid  # noqa: E402
-from .reconstruct import Reconstruction  # noqa: E402
-from .regularizers import prior_operator, to_bcoo  # noqa: E402
-from .solvers import _blackbody_np, _dblackbody_np, _nl_solver, planck_jax  # noqa: E402
-
+from ..forward.grid import Grid
+from .problem import LinearProblem
+from .reconstruct import Reconstruction
+from .regularizers import prior_operator, to_bcoo
+from .solvers import (
+    _baseline_start,
+    _blackbody_np,
+    _dblackbody_np,
+    _jacobi_scale,
+    _make_setup,
+    _nl_solver,
+    planck_jax,
+)
 
 #: A solve also stops when its objective changes by less than this fraction
 #: over a chunk of 10 steps (or ``rtol`` if larger).
@@ -59,12 +68,12 @@ def _rows_for(measurement, segments) -> np.ndarray:
     return lookup[measurement.raw_index]
 
 
-def _two_colour_start(ms, segments, rows, wls, alpha, prior, lo, hi, sigma_a_max):
+def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max):
     """Starting fields ``(T, σ_ref)`` (flat, K and m⁻¹) by tomographic two-colour pyrometry.
 
     Optically thin model per channel: ``y_c ≈ P S_c`` with ``P = W(σ_a → 0)/σ_a``
     (chord lengths × étendue, from the segment table) and the emission
-    coefficient ``S_c = σ_ref (λ_ref/λ_c)^α I_b(T, λ_c)``, solved per channel by
+    coefficient ``S_c = σ_ref f_c I_b(T, λ_c)`` (``factors`` f_c = (λ_ref/λ_c)^α), solved per channel by
     the linear baseline (LSQR, the same smoothness prior, its starting-λ rule).
     The ratio of the shortest- and longest-wavelength ``S`` fixes ``T`` voxel
     by voxel (Planck ratio, tabulated over the bounds), then
@@ -72,11 +81,6 @@ def _two_colour_start(ms, segments, rows, wls, alpha, prior, lo, hi, sigma_a_max
     maximum in either channel (no reliable ratio) get the lowest ``T`` of the
     others and ``σ_ref`` = 0.1 % of ``sigma_a_max``.
     """
-    import scipy.sparse as sp
-
-    from .problem import LinearProblem
-    from .solvers import _baseline_start, _blackbody_np, _make_setup
-
     eps = 1e-9  # m⁻¹: transmittance 1 to better than 1e-9 over any chord here
     W0 = segments.weights(eps)
     P = sp.csr_matrix(W0.matrix) / eps
@@ -93,9 +97,9 @@ def _two_colour_start(ms, segments, rows, wls, alpha, prior, lo, hi, sigma_a_max
         S.append(_baseline_start(st).I_b.ravel())
     order = np.argsort(wls)
     a, b = int(order[0]), int(order[-1])
-    f = [(wls[0] / w) ** alpha for w in wls]
     T_tab = np.linspace(lo, hi, 4001)
-    ratio_tab = np.log(f[a] * _blackbody_np(T_tab, wls[a])) - np.log(f[b] * _blackbody_np(T_tab, wls[b]))
+    ratio_tab = (np.log(factors[a] * _blackbody_np(T_tab, wls[a]))
+                 - np.log(factors[b] * _blackbody_np(T_tab, wls[b])))
     ok = (S[a] > 0.05 * S[a].max()) & (S[b] > 0.05 * S[b].max())
     T = np.empty(S[a].size)
     if ok.any():
@@ -243,7 +247,7 @@ def solve_temperature_absorption(
         if isinstance(T0, str) or isinstance(sigma_a0, str):
             raise ValueError("T0 and sigma_a0 must be arrays or None")
         t_tc = time.perf_counter()
-        T_tc, s_tc = _two_colour_start(ms, segments, rows, wls, alpha, prior, lo, hi, sigma_a_max)
+        T_tc, s_tc = _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max)
         start = f"two-colour ({time.perf_counter() - t_tc:.1f} s)"
     T_init = T_tc if T0 is None else np.asarray(T0, float).ravel()
     s_init = s_tc if sigma_a0 is None else np.asarray(sigma_a0, float).ravel()
@@ -274,16 +278,16 @@ def solve_temperature_absorption(
             c2[n:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
         c2[:n] += lam * colsq_L * (dT / (hi - lo)) ** 2
         c2[n:] += lam * (colsq_L + ridge) * (ds / s_scale) ** 2
-        rms = float(np.sqrt(np.mean(c2))) if np.isfinite(c2).all() and c2.max() > 0 else 1.0
-        return 1.0 / np.maximum(np.sqrt(np.maximum(c2, 0.0)), 1e-3 * rms)
+        return _jacobi_scale(c2)
 
     def scaled_residual(psi, args):
         seg_, lam, pc, D = args
         return residual(pc + D * psi, (seg_, lam))
 
     def objective(pv, lam):
+        """The minimised objective at ``pv`` and its data part ‖r‖² (one residual evaluation)."""
         r = residual(jnp.asarray(pv), (seg, lam))
-        return float(jnp.sum(r * r))
+        return float(jnp.sum(r * r)), float(jnp.sum(r[:m_total] ** 2))
 
     class _Sol:  # what the callers read of a solve
         def __init__(self, value, steps, result):
@@ -292,7 +296,7 @@ def solve_temperature_absorption(
     def solve(p0, lam):
         pv = np.asarray(p0, dtype=np.float64)
         steps, result = 0, optx.RESULTS.nonlinear_max_steps_reached
-        obj_prev = objective(pv, lam)
+        obj_prev, data_sq = objective(pv, lam)
         zeros = jnp.zeros(2 * n)
         while steps < max_steps:
             k = min(10, max_steps - steps)
@@ -304,7 +308,7 @@ def solve_temperature_absorption(
             if not np.all(np.isfinite(new)):
                 break
             pv = new
-            obj = objective(pv, lam)
+            obj, data_sq = objective(pv, lam)
             if sol.result == optx.RESULTS.successful or abs(obj_prev - obj) <= max(rtol, _OBJECTIVE_RTOL) * obj:
                 result = optx.RESULTS.successful
                 break
@@ -312,8 +316,7 @@ def solve_temperature_absorption(
                 result = sol.result
                 break
             obj_prev = obj
-        r = residual(jnp.asarray(pv), (seg, 0.0))[:m_total]
-        return _Sol(jnp.asarray(pv), steps, result), float(jnp.sum(r * r)) / m_total
+        return _Sol(jnp.asarray(pv), steps, result), data_sq / m_total
 
     path = []
     if regularization == "auto":
