@@ -21,6 +21,7 @@ from .inverse.problem import LinearProblem
 from .inverse.reconstruct import Reconstruction, reconstruct
 from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
+from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 
 __all__ = [
@@ -74,6 +75,8 @@ __all__ = [
     "Posterior",
     "sample_posterior",
     "laplace_approximation",
+    "FieldPosterior",
+    "laplace_posterior",
     "DCTBasis",
     "BSplineBasis",
     "ParametricFlame",

@@ -133,8 +133,13 @@ def cmd_reconstruct(args) -> int:
             print(f"  {key}: mean {100 * e['mean_rel']:.1f} %, max {100 * e['max_rel']:.1f} %, rms {e['rms_K']:.0f} K")
     if "posterior" in m:
         p = m["posterior"]
-        print(f"  posterior: acceptance {p['acceptance_mean']:.2f}, tau max {max(t for t in p['tau'] if t is not None):.1f}, "
-              f"{'converged' if p['converged'] else 'NOT converged'}")
+        if p["basis"] == "field":
+            print(f"  posterior: full-grid Laplace ({p['method']}), lambda {p['regularization']:.3g} by evidence, "
+                  f"median std {p['median_std_K']:.0f} K" + (f", 90 % coverage {p['coverage_90']:.2f}"
+                                                              if "coverage_90" in p else ""))
+        else:
+            print(f"  posterior: acceptance {p['acceptance_mean']:.2f}, tau max "
+                  f"{max(t for t in p['tau'] if t is not None):.1f}, {'converged' if p['converged'] else 'NOT converged'}")
     print(f"wrote {Path(args.output)}/: " + ", ".join(m["files"]))
     return 0
 
@@ -277,8 +282,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "images, default 0.2)")
     rc.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
     rc.add_argument("--posterior", action="store_true", help="also sample the posterior (emcee) of a small basis")
-    rc.add_argument("--posterior-basis", choices=("flame", "dct"), default="flame",
-                    help="6-parameter flame or 12 DCT modes")
+    rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default="flame",
+                    help="emcee on the 6-parameter flame or 12 DCT modes, or 'field': the full-grid Laplace "
+                         "posterior with lambda by empirical Bayes (lftomo.laplace_posterior)")
     rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,
                     help="scene mode: reconstruction grid nx,ny,nz dividing the [medium] shape (default half)")

@@ -895,7 +895,17 @@ def run_reconstruct(
         metrics["reconstruction"]["errors_T_gt_1400K"] = temperature_errors(rec.T, T_true, HOT_CORE)
 
     post = None
-    if posterior:
+    if posterior and posterior_basis == "field":
+        if prior == "tv":
+            raise ValueError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
+        with st("posterior", "posterior (full-grid Laplace, lambda by evidence)"):
+            post = lt.laplace_posterior(problem, regularization="evidence", prior=prior, bounds=tuple(bounds),
+                                        lambda0=rec.regularization, seed=post_seed, max_steps=max_steps)
+        metrics["posterior"] = {"basis": "field", **post.summary()}
+        if T_true is not None:
+            metrics["posterior"]["coverage_90"] = post.coverage(T_true, hot=HOT)
+            metrics["posterior"]["errors_T_gt_800K"] = post.errors(T_true, hot=HOT)
+    elif posterior:
         with st("posterior", f"posterior ({posterior_basis} basis, {posterior_steps} steps)"):
             if posterior_basis == "flame":
                 basis = lt.ParametricFlame(grid)

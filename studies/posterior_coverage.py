@@ -9,18 +9,14 @@ data are instead made by the weight matrix from the flame's own parametric
 form on the posterior grid (no model error: the intervals should then cover
 ≈ 90 %), which separates the sampler's calibration from model error.
 
-With ``--laplace-field`` the posterior is instead the Gaussian (Laplace,
-Gauss–Newton) approximation on the *full* reconstruction grid about the
-regularized reconstruction (``lftomo.reconstruct``, λ by its rule or
-``--regularization``), with the prior that the Tikhonov term is (precision
-``JᵀΣ⁻¹J + λ LᵀL / T_s²``, dense: small grids only): no basis truncation, so
-what is left of the miss is the prior's bias.  ``--regularization evidence``
-picks λ by empirical Bayes instead: the largest Laplace approximation of the
-marginal likelihood ``p(y | λ)`` over λ = 1 … 1000 (factors √10, then a parabola
-through the maximum and its neighbours in log λ; MacKay 1992, "Bayesian
-interpolation", Neural Computation 4: 415–447) — the λ at which the smoothness
-prior is a consistent description of the data, rather than the discrepancy
-rule's point estimate.
+With ``--laplace-field`` the posterior is instead :func:`lftomo.laplace_posterior`:
+the Gaussian (Laplace, Gauss–Newton) approximation on the *full*
+reconstruction grid about the regularized reconstruction, with the prior that
+the Tikhonov term is — no basis truncation, so what is left of the miss is the
+prior's bias.  ``--regularization evidence`` (default there) picks λ by
+empirical Bayes (MacKay's fixed point for the largest Laplace evidence);
+``auto`` takes the reconstruction's discrepancy λ; a number fixes λ.
+``--method dense`` (exact, small grids) or ``sampled`` (matrix-free draws).
 
 Noise model, camera and data selection as in ``studies/accuracy.py``.
 
@@ -36,45 +32,9 @@ import json
 import time
 
 import numpy as np
-import scipy.sparse as sp
 
 import lftomo as lt
-from lftomo import radiation as rad
 from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
-from lftomo.inverse.regularizers import prior_operator
-
-_Z90 = 1.6448536269514722  # two-sided 90 % of the standard normal
-
-
-def laplace_field(problem, T, lam, wavelength, *, prior="gradient", T_scale=2700.0):
-    """Per-voxel posterior std (K) of the Gaussian approximation about ``T``,
-    and ``log det`` of its precision.
-
-    Precision ``H = JᵀΣ⁻¹J + λ LᵀL / T_s²`` with ``J = A diag(∂I_b/∂T)``: the
-    Gauss–Newton Hessian of half the reconstruction's objective (the solver's
-    convention, ``lftomo.inverse.solvers``; ``T_s`` = T_max − T_min of the
-    default bounds).  Dense: n ≤ 8000 voxels.
-    """
-    n = T.size
-    if n > 8000:
-        raise SystemExit(f"--laplace-field forms a dense {n}×{n} precision: use --n <= 20")
-    J = problem.whitened()[0] @ sp.diags(rad.dplanck_dT(T.ravel(), wavelength))
-    L = prior_operator(problem.grid, prior, dimensionless=True)
-    H = (J.T @ J).toarray() + lam * (L.T @ L).toarray() / T_scale**2
-    C = np.linalg.cholesky(H)
-    logdet = 2.0 * float(np.sum(np.log(np.diag(C))))
-    Ci = np.linalg.inv(C)
-    std = np.sqrt(np.sum(Ci * Ci, axis=0))  # diag(H⁻¹) = column sums of (C⁻¹)²
-    return std.reshape(T.shape), logdet
-
-
-def log_evidence(rec, lam, logdet, n):
-    """Laplace approximation of ``log p(y | λ)`` up to a λ-independent constant
-    (MacKay's evidence framework): ``−½ (‖r‖² + λ‖R‖²) + (n−1)/2 · log λ − ½ log det H``;
-    the gradient prior's precision ``λ LᵀL/T_s²`` has rank n − 1 (constant null
-    space), whose pseudo-determinant contributes ``λ^{(n−1)/2}``."""
-    phi = rec.residual_norm**2 + lam * rec.regularization_norm**2
-    return -0.5 * phi + 0.5 * (n - 1) * np.log(lam) - 0.5 * logdet
 
 
 def main():
@@ -92,9 +52,12 @@ def main():
     ap.add_argument("--model-data", action="store_true", help="data from W and the parametric truth (no model error)")
     ap.add_argument("--laplace-field", action="store_true",
                     help="full-grid Laplace posterior about the regularized reconstruction instead of emcee")
-    ap.add_argument("--regularization", default="auto",
-                    help="λ for --laplace-field: 'auto' (the reconstruction's rule), 'evidence' (largest Laplace "
-                         "evidence over λ = 1 … 1000, factors √10, refined by a parabola in log λ) or a number")
+    ap.add_argument("--regularization", default="evidence",
+                    help="λ for --laplace-field: 'evidence' (empirical Bayes), 'auto' (the reconstruction's "
+                         "discrepancy rule) or a number")
+    ap.add_argument("--method", choices=("auto", "dense", "sampled"), default="auto",
+                    help="--laplace-field: dense (exact, n <= 4096) or sampled (matrix-free draws)")
+    ap.add_argument("--samples", type=int, default=64, help="--laplace-field --method sampled: draws")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     wl = 650e-9
@@ -122,40 +85,17 @@ def main():
         m = lt.Measurement.from_lightfield(noisy, data="subaperture")
         t = time.perf_counter()
         if a.laplace_field:
-            problem = m.problem(W, coarse)
-            evidence = None
-            if a.regularization == "evidence":
-                # empirical Bayes: the λ of largest Laplace evidence on a grid of factors √10
-                cands, T0 = [], None
-                for lam in np.logspace(0.0, 3.0, 7)[::-1]:
-                    r = lt.reconstruct(m, W, regularization=float(lam), T0=T0)
-                    T0 = r.T
-                    sd, ld = laplace_field(problem, r.T, float(lam), wl)
-                    cands.append((log_evidence(r, float(lam), ld, r.T.size), float(lam), r, sd))
-                k = int(np.argmax([c[0] for c in cands]))
-                _, lam_e, rec, std = cands[k]
-                at_edge = k in (0, len(cands) - 1)
-                if not at_edge:  # parabola through the maximum and its neighbours in log λ
-                    f0, f1, f2 = cands[k - 1][0], cands[k][0], cands[k + 1][0]
-                    x0, x1 = np.log(cands[k - 1][1]), np.log(cands[k][1])
-                    h = x1 - x0  # the grid is uniform in log λ (descending: h < 0)
-                    lam_e = float(np.exp(x1 + 0.5 * h * (f0 - f2) / (f0 - 2.0 * f1 + f2)))
-                    rec = lt.reconstruct(m, W, regularization=lam_e, T0=rec.T)
-                    std, ld = laplace_field(problem, rec.T, lam_e, wl)
-                    cands.append((log_evidence(rec, lam_e, ld, rec.T.size), lam_e, rec, std))
-                evidence = {"lambdas": [c[1] for c in cands], "log_evidence": [c[0] for c in cands],
-                            "at_edge": at_edge}
-            else:
-                reg = a.regularization if a.regularization == "auto" else float(a.regularization)
-                rec = lt.reconstruct(m, W, regularization=reg)
-                std, _ = laplace_field(problem, rec.T, rec.regularization, wl)
-            inside = np.abs(rec.T - T_true) <= _Z90 * std
-            row = {"draw": d, "coverage_hot": float(inside[hot].mean()), "n_hot": int(hot.sum()),
-                   "lambda": rec.regularization, "mean_rel_error": rec.errors(T_true)["mean_rel"],
-                   "median_abs_error_K": float(np.median(np.abs(rec.T - T_true)[hot])),
-                   "median_std_K": float(np.median(std[hot])), "seconds": time.perf_counter() - t}
-            if evidence is not None:
-                row["evidence"] = evidence
+            reg = a.regularization if a.regularization in ("evidence", "auto") else float(a.regularization)
+            post = lt.laplace_posterior(m, W, regularization=reg, method=a.method, n_samples=a.samples,
+                                        seed=400 + d)
+            row = {"draw": d, "coverage_hot": post.coverage(T_true), "n_hot": int(hot.sum()),
+                   "lambda": post.regularization, "lambda_rule": post.lambda_rule, "method": post.method,
+                   "mean_rel_error": post.errors(T_true)["mean_rel"],
+                   "median_abs_error_K": float(np.median(np.abs(post.T_mean - T_true)[hot])),
+                   "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t,
+                   "solve_s": post.metadata["solve_s"], "posterior_s": post.metadata["posterior_s"]}
+            if post.evidence is not None:
+                row["evidence"] = {k: post.evidence[k] for k in ("lambda", "gamma", "log_evidence", "converged")}
         else:
             post = lt.sample_posterior(m.problem(W, coarse), basis=basis, n_walkers=a.walkers, n_steps=a.steps,
                                        seed=400 + d, progress=False)

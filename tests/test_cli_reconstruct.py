@@ -86,6 +86,22 @@ def test_reconstruct_from_scene_refocus_fixed_lambda_with_posterior(tmp_path):
     assert len(m["posterior"]["names"]) == 12 and 0 <= m["posterior"]["acceptance_mean"] <= 1
 
 
+def test_reconstruct_with_full_grid_laplace_posterior(tmp_path, capsys):
+    scene = _scene(tmp_path)
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(scene), "-o", str(out), "--posterior", "--posterior-basis", "field", *FAST]) == 0
+    m = _check_outputs(out, (4, 4, 4), truth=True, posterior=True)
+    p = m["posterior"]
+    assert p["basis"] == "field" and p["lambda_rule"] == "evidence" and p["method"] == "dense"
+    assert p["regularization"] > 0 and p["evidence"]["iterations"] >= 1 and 0.0 <= p["coverage_90"] <= 1.0
+    f = np.load(out / "fields.npz")
+    assert np.all(f["T_posterior_std"] > 0)
+    assert "full-grid Laplace" in capsys.readouterr().out
+    rc = main(["reconstruct", str(scene), "-o", str(tmp_path / "tv"), "--prior", "tv", "--posterior",
+               "--posterior-basis", "field", *FAST])
+    assert rc == 2 and "Gaussian prior" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
     """A rendered light field (8^3 truth, seed 0) and a weight matrix on a 4^3 grid (seed 7)."""

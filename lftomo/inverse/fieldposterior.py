@@ -1,0 +1,446 @@
+"""Gaussian (Laplace) posterior of the whole temperature field, λ by empirical Bayes.
+
+The regularized reconstruction minimises (``lftomo.inverse.solvers``)
+
+    Φ(T) = ‖(A I_b(T) + bg − y)/σ‖² + λ ‖L T / T_s‖²,
+
+which is −2 log of a Gaussian likelihood times a Gaussian smoothness prior of
+precision ``λ LᵀL / T_s²`` (``T_s = T_max − T_min``).  About the minimiser
+``T̂`` the Gauss–Newton (Laplace) approximation of the posterior is Gaussian
+with precision
+
+    H = JᵀJ + λ M,   J = Σ^{-1/2} A diag(∂I_b/∂T (T̂)),   M = LᵀL / T_s²,
+
+on every voxel of the reconstruction grid (no basis truncation).  λ is the
+prior's precision, so it can be chosen by the data like any other parameter:
+the *evidence* rule maximises the Laplace approximation of the marginal
+likelihood
+
+    log p(y | λ) ≈ −½ Φ(T̂_λ) + (r/2) log λ − ½ log det H + const
+
+(``r = rank L``: the gradient and Laplacian priors leave the constant field
+free, ``r = n − 1``).  Its stationarity condition is MacKay's fixed point
+(MacKay 1992, "Bayesian interpolation", Neural Computation 4: 415–447, eq. 4.9
+there in other notation)
+
+    λ = γ / ‖L T̂ / T_s‖²,   γ = r − λ tr(H⁻¹ M),
+
+``γ`` being the number of field components the data determine.  Iterating it
+(with warm-started reconstructions) needs only ``tr(H⁻¹ M)``, never log det H.
+
+Two ways to evaluate the posterior at a given λ:
+
+* ``"dense"`` (n ≤ ``dense_max``): Cholesky factor of H; exact diag(H⁻¹),
+  tr(H⁻¹M) and log det H (so the log-evidence itself is reported).
+* ``"sampled"`` (any n, matrix-free): K exact draws ``δ ~ N(0, H⁻¹)`` by
+  perturbation-optimisation — ``δ = H⁻¹ (Jᵀ ε₁ + √λ (L/T_s)ᵀ ε₂)`` with
+  ``ε ~ N(0, I)``, whose covariance is ``H⁻¹ H H⁻¹ = H⁻¹`` (Papandreou & Yuille
+  2010, "Gaussian sampling by local perturbations", NIPS) — solved together by
+  Jacobi-preconditioned block conjugate gradients.  The voxel variances are
+  ``mean δ²`` (relative standard error √(2/K)); ``tr(H⁻¹M) = E[δᵀ M δ]`` comes
+  from the same draws, with its standard error.
+
+The credible interval is ``T̂ ± z σ`` (equal-tailed Gaussian).  Bounds of the
+reconstruction are not part of the Gaussian approximation.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+from scipy.special import ndtri
+
+from .._validate import require_int, require_positive
+from .problem import LinearProblem
+from .reconstruct import _grid_of, temperature_errors
+from .regularizers import prior_operator
+from .solvers import _check_bounds, _dblackbody_np, solve_temperature
+
+_PRIORS = ("gradient", "laplacian")
+_METHODS = ("auto", "dense", "sampled")
+
+
+@dataclass(frozen=True, eq=False)
+class FieldPosterior:
+    """Laplace posterior of the temperature field on the reconstruction grid.
+
+    Attributes
+    ----------
+    T_mean : ndarray, grid.shape
+        Posterior mean (K): the regularized reconstruction ``T̂`` at ``regularization``.
+    T_std : ndarray, grid.shape
+        Posterior standard deviation per voxel (K).
+    T_lower, T_upper : ndarray, grid.shape
+        Equal-tailed credible interval ``T̂ ∓ z σ`` (K) of probability ``credible_level``.
+    credible_level : float
+    regularization : float
+        λ of the prior (dimensionless, the reconstruction's convention).
+    lambda_rule : str
+        ``"evidence"``, the reconstruction's rule (``"discrepancy"``, …) or ``"fixed"``.
+    method : {"dense", "sampled"}
+    n_samples : int
+        Posterior draws used (0 for ``"dense"``).
+    samples : ndarray or None, shape (n_samples, *grid.shape)
+        Draws of the field (K) for ``"sampled"``: ``T̂ + δ``.
+    evidence : dict or None
+        For ``lambda_rule="evidence"``: per iterate ``"lambda"``, ``"gamma"``,
+        ``"trace"`` (tr H⁻¹M), ``"trace_se"`` (its standard error; 0 when
+        exact), ``"log_evidence"`` (up to a constant; NaN for ``"sampled"``),
+        and ``"converged"``, ``"iterations"``.
+    solution : TemperatureSolution
+        The regularized reconstruction at ``regularization``
+        (:func:`lftomo.solve_temperature`).
+    grid : Grid
+    elapsed_s : float
+    metadata : dict
+        ``"cg_iterations"`` (of the last sampled evaluation), ``"solve_s"`` and
+        ``"posterior_s"``: seconds in the reconstructions and in the posterior
+        evaluations.
+    """
+
+    T_mean: np.ndarray
+    T_std: np.ndarray
+    T_lower: np.ndarray
+    T_upper: np.ndarray
+    credible_level: float
+    regularization: float
+    lambda_rule: str
+    method: str
+    n_samples: int
+    samples: np.ndarray | None
+    evidence: dict | None
+    solution: Any
+    grid: Any
+    elapsed_s: float
+    metadata: dict = field(default_factory=dict)
+
+    def coverage(self, T_true: Any, *, hot: float = 800.0) -> float:
+        """Fraction of the voxels with ``T_true > hot`` (K) whose credible interval contains ``T_true``."""
+        T_true = np.asarray(T_true, dtype=float)
+        if T_true.shape != self.T_mean.shape:
+            raise ValueError(f"shape of T_true {T_true.shape} does not match the posterior {self.T_mean.shape}")
+        sel = T_true > hot
+        if not sel.any():
+            raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
+        inside = (self.T_lower <= T_true) & (T_true <= self.T_upper)
+        return float(inside[sel].mean())
+
+    def errors(self, T_true: Any, *, hot: float = 800.0) -> dict[str, float]:
+        """Relative errors of the posterior mean (see :func:`lftomo.inverse.reconstruct.temperature_errors`)."""
+        return temperature_errors(self.T_mean, T_true, hot=hot)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "regularization": self.regularization,
+            "lambda_rule": self.lambda_rule,
+            "method": self.method,
+            "n_samples": self.n_samples,
+            "credible_level": self.credible_level,
+            "median_std_K": float(np.median(self.T_std)),
+            "evidence": self.evidence,
+            "elapsed_s": self.elapsed_s,
+        }
+
+
+@dataclass(frozen=True)
+class _Stats:
+    var: np.ndarray  # (n,) diag H⁻¹ (K²)
+    trace: float  # tr(H⁻¹ M)
+    trace_se: float  # its standard error (0: exact)
+    logdet: float  # log det H (NaN: not computed)
+    deltas: np.ndarray | None  # (K, n) draws of N(0, H⁻¹)
+    cg_iterations: int
+
+
+def precision_factors(problem: Any, T: Any, *, prior: str = "gradient",
+                      bounds: tuple[float, float] = (300.0, 3000.0)) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """The two factors of the Laplace precision ``H = JᵀJ + λ Lsᵀ Ls`` at ``T``.
+
+    Parameters
+    ----------
+    problem : LinearProblem
+        One channel (``A`` (m, n), ``sigma`` (m,), grid, wavelength).
+    T : array_like, shape grid.shape or (n,)
+        Temperature (K) about which to linearise.
+    prior : {"gradient", "laplacian"}
+    bounds : (T_min, T_max)
+        Bounds of the reconstruction (K); ``T_s = T_max − T_min`` scales the prior.
+
+    Returns
+    -------
+    J : csr_matrix, shape (m, n)
+        Whitened Jacobian of the data in T (1/K).
+    Ls : csr_matrix, shape (p, n)
+        Prior operator over ``T_s`` (1/K): ``λ Lsᵀ Ls`` is the prior precision.
+    """
+    T = np.asarray(T, dtype=np.float64).ravel()
+    Aw = problem.whitened()[0]
+    J = (Aw @ sp.diags(_dblackbody_np(T, problem.wavelength))).tocsr()
+    Ls = (prior_operator(problem.grid, prior, dimensionless=True) / float(bounds[1] - bounds[0])).tocsr()
+    return J, Ls
+
+
+def _null_dimension(Ls: sp.csr_matrix) -> int:
+    """Dimension of the prior's null space: 1 when constants are free, else 0."""
+    n = Ls.shape[1]
+    scale = float(abs(Ls).sum(axis=1).max()) or 1.0
+    return 1 if float(np.abs(Ls @ np.ones(n)).max()) <= 1e-10 * scale else 0
+
+
+def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
+    H = (J.T @ J).toarray() + lam * (Ls.T @ Ls).toarray()
+    c, info = sla.lapack.dpotrf(H, lower=1, clean=1, overwrite_a=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"the Laplace precision is not positive definite (dpotrf info {info})")
+    logdet = 2.0 * float(np.sum(np.log(np.diag(c))))
+    inv, info = sla.lapack.dpotri(c, lower=1, overwrite_c=1)  # lower triangle of H⁻¹
+    if info != 0:
+        raise np.linalg.LinAlgError(f"inverting the Laplace precision failed (dpotri info {info})")
+    M = (Ls.T @ Ls).tocoo()
+    i, j = np.maximum(M.row, M.col), np.minimum(M.row, M.col)
+    trace = float(np.sum(inv[i, j] * M.data))
+    return _Stats(var=np.diag(inv).copy(), trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0)
+
+
+def block_pcg(apply_H, B: np.ndarray, inv_diag: np.ndarray, *, rtol: float, max_iter: int) -> tuple[np.ndarray, int]:
+    """Solve ``H X = B`` column by column (vectorised) by Jacobi-preconditioned conjugate gradients.
+
+    Parameters
+    ----------
+    apply_H : callable
+        ``X (n, k) -> H X`` for a symmetric positive definite H.
+    B : ndarray, shape (n, k)
+    inv_diag : ndarray, shape (n,)
+        ``1 / diag(H)``.
+    rtol : float
+        Stop when every column has ``‖B − H X‖ ≤ rtol ‖B‖``.
+    max_iter : int
+
+    Returns
+    -------
+    X : ndarray, shape (n, k)
+    iterations : int
+        Iterations used; raises RuntimeError if ``max_iter`` was not enough.
+    """
+    X = np.zeros_like(B)
+    R = B.copy()
+    Z = inv_diag[:, None] * R
+    P = Z.copy()
+    rz = np.sum(R * Z, axis=0)
+    goal = rtol * np.linalg.norm(B, axis=0)
+    for it in range(1, max_iter + 1):
+        Q = apply_H(P)
+        pq = np.sum(P * Q, axis=0)
+        alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=pq > 0)
+        X += alpha * P
+        R -= alpha * Q
+        if np.all(np.linalg.norm(R, axis=0) <= goal):
+            return X, it
+        Z = inv_diag[:, None] * R
+        rz_new = np.sum(R * Z, axis=0)
+        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz > 0)
+        rz = rz_new
+        P = Z + beta * P
+    worst = float(np.max(np.linalg.norm(R, axis=0) / np.maximum(np.linalg.norm(B, axis=0), 1e-300)))
+    raise RuntimeError(f"block CG did not reach rtol={rtol:g} in max_iter={max_iter} iterations "
+                       f"(worst relative residual {worst:.2e}); raise cg_max_iter or cg_rtol")
+
+
+def _sampled_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, n_samples: int, rng: np.random.Generator,
+                   rtol: float, max_iter: int) -> _Stats:
+    E1 = rng.standard_normal((J.shape[0], n_samples))
+    E2 = rng.standard_normal((Ls.shape[0], n_samples))
+    B = J.T @ E1 + math.sqrt(lam) * (Ls.T @ E2)  # covariance H: the solve's result has covariance H⁻¹
+    JT, LsT = J.T.tocsr(), Ls.T.tocsr()
+
+    def apply_H(X):
+        return JT @ (J @ X) + lam * (LsT @ (Ls @ X))
+
+    diag = np.asarray(J.multiply(J).sum(axis=0)).ravel() + lam * np.asarray(Ls.multiply(Ls).sum(axis=0)).ravel()
+    X, iters = block_pcg(apply_H, B, 1.0 / diag, rtol=rtol, max_iter=max_iter)
+    q = np.sum((Ls @ X) ** 2, axis=0)  # δᵀ M δ per draw
+    return _Stats(var=np.mean(X * X, axis=1), trace=float(q.mean()), trace_se=float(q.std(ddof=1) / math.sqrt(n_samples)),
+                  logdet=float("nan"), deltas=X.T.copy(), cg_iterations=iters)
+
+
+def laplace_posterior(
+    measurement,
+    weights=None,
+    *,
+    regularization: str | float = "evidence",
+    prior: str = "gradient",
+    bounds: tuple[float, float] = (300.0, 3000.0),
+    credible_level: float = 0.9,
+    method: str = "auto",
+    dense_max: int = 4096,
+    n_samples: int = 64,
+    lambda0: float | None = None,
+    max_iter: int = 12,
+    lambda_rtol: float = 0.05,
+    cg_rtol: float = 1e-5,
+    cg_max_iter: int = 5000,
+    seed: int | None = 0,
+    progress: bool = False,
+    **options: Any,
+) -> FieldPosterior:
+    """Full-grid Laplace posterior of the temperature field (T only, known ``sigma_a``).
+
+    Parameters
+    ----------
+    measurement : Measurement or LinearProblem
+        One wavelength channel; a :class:`LinearProblem` is used as it is
+        (then ``weights`` must be None).
+    weights : WeightMatrix, optional
+        Forward model on the reconstruction grid (as for :func:`lftomo.reconstruct`).
+    regularization : "evidence", "auto" or float, keyword-only
+        λ of the smoothness prior: ``"evidence"`` (default) iterates MacKay's
+        fixed point ``λ = γ / ‖L T̂/T_s‖²`` to the maximum of the Laplace
+        evidence; ``"auto"`` takes the reconstruction's own rule (the
+        discrepancy principle by default, a point-estimate rule: its intervals
+        are typically too narrow); a float fixes λ.
+    prior : {"gradient", "laplacian"}, keyword-only
+        Quadratic smoothness prior (TV has no Gaussian posterior).
+    bounds : (T_min, T_max), keyword-only
+        Reconstruction bounds (K); ``T_max − T_min`` scales the prior.
+    credible_level : float in (0, 1), keyword-only
+    method : {"auto", "dense", "sampled"}, keyword-only
+        ``"auto"``: dense when the grid has at most ``dense_max`` voxels.
+    dense_max : int, keyword-only
+        Largest voxel count for the dense method (memory 8 n² bytes).
+    n_samples : int ≥ 8, keyword-only
+        Draws for the sampled method (variance relative std √(2/K)).
+    lambda0 : float, optional, keyword-only
+        Start of the evidence iteration; default the discrepancy λ.
+    max_iter : int, keyword-only
+        Evidence iterations (each is one warm-started reconstruction).
+    lambda_rtol : float, keyword-only
+        Stop when the fixed point moves λ by less than this fraction (or by
+        less than twice its own sampling noise, for the sampled method).
+    cg_rtol, cg_max_iter : float, int, keyword-only
+        Block conjugate-gradient tolerance and cap (sampled method).
+    seed : int or None, keyword-only
+        Seed of the sampled method's draws.
+    progress : bool, keyword-only
+        Print one line per evidence iteration.
+    **options
+        Passed to :func:`lftomo.solve_temperature` (e.g. ``linear_max_steps``).
+
+    Returns
+    -------
+    FieldPosterior
+
+    Raises
+    ------
+    ValueError
+        For a bad argument (before any solve).
+    """
+    t_start = time.perf_counter()
+    if prior not in _PRIORS:
+        raise ValueError(f"prior must be one of {_PRIORS} (a Gaussian prior), got {prior!r}")
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
+    if not (isinstance(credible_level, (int, float)) and 0.0 < float(credible_level) < 1.0):
+        raise ValueError(f"credible_level must be in (0, 1), got {credible_level!r}")
+    if isinstance(regularization, str):
+        if regularization not in ("evidence", "auto"):
+            raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {regularization!r}")
+    else:
+        regularization = require_positive("regularization", regularization)
+    bounds = _check_bounds(bounds)
+    if options.get("penalize", "temperature") != "temperature":
+        raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
+    if isinstance(measurement, (list, tuple)):
+        raise ValueError("laplace_posterior takes one Measurement (one wavelength channel)")
+    dense_max = require_int("dense_max", dense_max, minimum=1)
+    n_samples = require_int("n_samples", n_samples, minimum=8)
+    max_iter = require_int("max_iter", max_iter, minimum=1)
+    cg_max_iter = require_int("cg_max_iter", cg_max_iter, minimum=1)
+    lambda_rtol = require_positive("lambda_rtol", lambda_rtol)
+    cg_rtol = require_positive("cg_rtol", cg_rtol)
+    if lambda0 is not None:
+        lambda0 = require_positive("lambda0", lambda0)
+    if isinstance(measurement, LinearProblem):
+        if weights is not None:
+            raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
+        problem = measurement
+    else:
+        if weights is None:
+            raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
+        problem = measurement.problem(weights, _grid_of(weights))  # validates data against the weights
+    grid = problem.grid
+    n = grid.n_voxels
+    if method == "auto":
+        method = "dense" if n <= dense_max else "sampled"
+    rng = np.random.default_rng(seed)
+
+    clock = {"solve_s": 0.0, "posterior_s": 0.0}
+
+    def solve(reg, T0=None):
+        t = time.perf_counter()
+        sol = solve_temperature(problem, regularization=reg, prior=prior, bounds=bounds, T0=T0, **options)
+        clock["solve_s"] += time.perf_counter() - t
+        return sol
+
+    def stats_at(T, lam) -> _Stats:
+        t = time.perf_counter()
+        J, Ls = precision_factors(problem, T, prior=prior, bounds=bounds)
+        if method == "dense":
+            st = _dense_stats(J, Ls, lam)
+        else:
+            st = _sampled_stats(J, Ls, lam, n_samples, rng, cg_rtol, cg_max_iter)
+        clock["posterior_s"] += time.perf_counter() - t
+        return st
+
+    evidence = None
+    if regularization == "evidence":
+        rec = solve("auto" if lambda0 is None else lambda0)
+        r = n - _null_dimension(precision_factors(problem, rec.T, prior=prior, bounds=bounds)[1])
+        lam = rec.regularization
+        path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2")}
+        converged = False
+        for it in range(max_iter):
+            if it > 0:
+                rec = solve(lam, rec.T)
+            st = stats_at(rec.T, lam)
+            R2 = rec.regularization_norm**2
+            gamma = r - lam * st.trace
+            log_ev = (-0.5 * (rec.residual_norm**2 + lam * R2) + 0.5 * r * math.log(lam) - 0.5 * st.logdet)
+            for k, v in zip(path, (lam, gamma, st.trace, st.trace_se, log_ev, rec.chi2)):
+                path[k].append(float(v))
+            if progress:
+                print(f"evidence iteration {it}: lambda {lam:.4g}, gamma {gamma:.1f} of {r}, chi2/m {rec.chi2:.3f}",
+                      flush=True)
+            if not (gamma > 0 and R2 > 0):
+                raise RuntimeError(f"evidence fixed point broke down at lambda={lam:g} (gamma={gamma:g}, "
+                                   f"|L T/T_s|^2={R2:g})")
+            step = math.log(gamma / R2 / lam)
+            noise = lam * st.trace_se / gamma  # std of the step from the trace's sampling error
+            if abs(step) <= max(lambda_rtol, 2.0 * noise):
+                converged = True
+                break
+            if it == max_iter - 1:
+                break  # keep λ consistent with the last reconstruction
+            lam = lam * math.exp(min(max(step, -math.log(10.0)), math.log(10.0)))
+        evidence = {**path, "converged": converged, "iterations": len(path["lambda"]), "rank": r}
+        rule = "evidence"
+    else:
+        rec = solve(regularization)
+        lam = rec.regularization
+        st = stats_at(rec.T, lam)
+        rule = rec.lambda_choice.rule if regularization == "auto" else "fixed"
+    std = np.sqrt(st.var).reshape(grid.shape)
+    z = float(ndtri(0.5 + 0.5 * float(credible_level)))
+    samples = None if st.deltas is None else rec.T[None] + st.deltas.reshape((-1, *grid.shape))
+    return FieldPosterior(
+        T_mean=rec.T, T_std=std, T_lower=rec.T - z * std, T_upper=rec.T + z * std,
+        credible_level=float(credible_level), regularization=float(lam), lambda_rule=rule, method=method,
+        n_samples=0 if method == "dense" else n_samples, samples=samples, evidence=evidence, solution=rec,
+        grid=grid, elapsed_s=time.perf_counter() - t_start,
+        metadata={"cg_iterations": st.cg_iterations, **clock},
+    )
