@@ -20,6 +20,13 @@ compilation included — the first call with these shapes) and
 :func:`lftomo.inverse.solvers.solve_linear_baseline` at the λ chosen, and
 prints both times, their ratio and the temperature errors (where T > 800 K).
 
+``--posterior`` then times the two posteriors of issue 5 §3 (aim ≤ 5 min
+each) on the same problem, as ratios to the reconstruction's time:
+:func:`lftomo.laplace_posterior` (full grid, λ by the evidence fixed point
+started at the discrepancy λ and its field, ``--samples`` matrix-free draws)
+and :func:`lftomo.sample_posterior` (emcee, 27 DCT coefficients, 64 walkers,
+``--emcee-steps`` steps).
+
 ``--matvec`` only times the sparse products used inside the solver: JAX
 ``BCOO`` against :class:`lftomo.inverse.hostsparse.HostCSR` (scipy through a
 linear host callback), each as a ratio to plain scipy in the same run.
@@ -29,6 +36,7 @@ Usage::
     python benchmarks/reconstruct.py --matvec [--rows 133000] [--n 24]
     python benchmarks/reconstruct.py [--synthetic] [--n 32] [--rows 300000] [--rays 4] [--noise 0.01]
                                      [--rtol 1e-4] [--max-steps 100] [--linear-max-steps 20]
+                                     [--posterior [--samples 64] [--emcee-steps 2000]]
 """
 
 from __future__ import annotations
@@ -157,6 +165,9 @@ def main() -> None:
     ap.add_argument("--linear-max-steps", type=int, default=20,
                     help="LSMR iterations per step (the demo's setting; studies/accuracy.py --linear-max-steps "
                          "20 vs 100 at 16³: same λ and error)")
+    ap.add_argument("--posterior", action="store_true", help="also time laplace_posterior and sample_posterior")
+    ap.add_argument("--samples", type=int, default=64, help="--posterior: draws of laplace_posterior")
+    ap.add_argument("--emcee-steps", type=int, default=2000, help="--posterior: emcee steps (64 walkers)")
     args = ap.parse_args()
     if args.matvec:
         matvec_benchmark(args.rows, args.n ** 3)
@@ -198,6 +209,32 @@ def main() -> None:
           f"chi2/m = {base.chi2:.4f}")
     print(f"  |ΔT|/T where T > 800 K: {errs(base.T)}")
     print(f"ratio solve_temperature / baseline = {t_nl / t_lin:.1f}   (aim: solve_temperature <= 60 s on 2 cores)")
+    if args.posterior:
+        posterior_benchmark(problem, sol, t_nl, T, args)
+
+
+def posterior_benchmark(problem, sol, t_nl, T, args):
+    t = time.perf_counter()
+    post = lt.laplace_posterior(problem, regularization="evidence", lambda0=sol.regularization, T0=sol.T,
+                                method="sampled", n_samples=args.samples, rtol=args.rtol, atol=args.rtol,
+                                max_steps=args.max_steps, linear_max_steps=args.linear_max_steps)
+    t_lp = time.perf_counter() - t
+    ev = post.evidence
+    print(f"laplace_posterior    : {t_lp:8.2f} s  ({ev['iterations']} evidence iterations, "
+          f"{post.metadata['solve_s']:.1f} s in reconstructions, {post.metadata['posterior_s']:.1f} s in "
+          f"{args.samples} draws; last block CG {post.metadata['cg_iterations']} iterations)")
+    print(f"  λ: {' -> '.join(f'{x:.3g}' for x in ev['lambda'])} (converged = {ev['converged']}); "
+          f"median std {np.median(post.T_std[T > 800.0]):.0f} K where T > 800 K")
+    print(f"  ratio to solve_temperature = {t_lp / t_nl:.2f}   (aim: <= 300 s)")
+    basis = lt.DCTBasis(problem.grid, n_coeffs=(3, 3, 3))
+    t = time.perf_counter()
+    ep = lt.sample_posterior(problem, basis=basis, n_walkers=64, n_steps=args.emcee_steps, seed=0, progress=False,
+                             strict=False)
+    t_mc = time.perf_counter() - t
+    print(f"sample_posterior     : {t_mc:8.2f} s  (emcee, {basis.n_params} DCT coefficients, 64 walkers, "
+          f"{args.emcee_steps} steps; acceptance {np.mean(ep.acceptance_fraction):.2f}, τ max {np.nanmax(ep.tau):.0f}, "
+          f"converged = {ep.converged})")
+    print(f"  ratio to solve_temperature = {t_mc / t_nl:.2f}   (aim: <= 300 s)")
 
 
 if __name__ == "__main__":

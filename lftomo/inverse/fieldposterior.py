@@ -329,7 +329,9 @@ def laplace_posterior(
     progress : bool, keyword-only
         Print one line per evidence iteration.
     **options
-        Passed to :func:`lftomo.solve_temperature` (e.g. ``linear_max_steps``).
+        Passed to :func:`lftomo.solve_temperature` (e.g. ``linear_max_steps``);
+        ``T0`` starts the first reconstruction (e.g. a reconstruction at
+        ``lambda0`` already made).
 
     Returns
     -------
@@ -379,6 +381,7 @@ def laplace_posterior(
         method = "dense" if n <= dense_max else "sampled"
     rng = np.random.default_rng(seed)
 
+    T_start = options.pop("T0", None)
     clock = {"solve_s": 0.0, "posterior_s": 0.0}
 
     def solve(reg, T0=None):
@@ -399,7 +402,7 @@ def laplace_posterior(
 
     evidence = None
     if regularization == "evidence":
-        rec = solve("auto" if lambda0 is None else lambda0)
+        rec = solve("auto" if lambda0 is None else lambda0, T_start)
         r = n - _null_dimension(precision_factors(problem, rec.T, prior=prior, bounds=bounds)[1])
         lam = rec.regularization
         path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2")}
@@ -430,7 +433,7 @@ def laplace_posterior(
         evidence = {**path, "converged": converged, "iterations": len(path["lambda"]), "rank": r}
         rule = "evidence"
     else:
-        rec = solve(regularization)
+        rec = solve(regularization, T_start)
         lam = rec.regularization
         st = stats_at(rec.T, lam)
         rule = rec.lambda_choice.rule if regularization == "auto" else "fixed"
