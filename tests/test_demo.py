@@ -24,7 +24,8 @@ from PIL import Image
 from lftomo.cli import build_parser
 from lftomo.demo import run_demo
 
-STAGES = ("camera", "render", "weights", "measurement", "reconstruct", "posterior", "compare", "total")
+STAGES = ("camera", "render", "weights", "measurement", "reconstruct", "posterior", "field_posterior", "compare",
+          "total")
 IMG_RE = re.compile(r'<img src="data:image/png;base64,([^"]*)" alt="[^"]*" data-file="([^"]+)">')
 
 # Counts the figures that really decoded once the page has loaded, into an
@@ -85,7 +86,7 @@ def test_metrics_are_complete_and_finite(demo):
     m = json.loads(text)
     assert m == json.loads(json.dumps(returned))
     for key in ("parameters", "environment", "camera", "render", "weights", "measurement", "reconstruction",
-                "posterior", "compare", "timings_s", "warnings"):
+                "posterior", "field_posterior", "compare", "timings_s", "warnings"):
         assert key in m, key
     p = m["parameters"]
     assert p["mode"] == "quick" and p["seed"] == 0
@@ -108,6 +109,10 @@ def test_metrics_are_complete_and_finite(demo):
     assert set(po["parameters"]) == {"T_peak", "x_axis", "z_axis", "height_peak", "width_base", "width_growth"}
     for v in po["parameters"].values():
         assert math.isfinite(v["mean"]) and v["std"] >= 0
+    fp = m["field_posterior"]
+    assert fp["lambda_rule"] == "evidence" and fp["method"] == "dense" and fp["regularization"] > 0
+    assert fp["evidence"]["lambda"][0] == r["regularization"]  # started at the discrepancy λ
+    assert 0.0 <= fp["coverage_90_T_gt_800K"] <= 1.0 and fp["median_T_std_K_where_hot"] > 0
     c = m["compare"]
     for kind in ("subaperture", "refocus"):
         assert math.isfinite(c["errors"][kind]["mean_rel"])
@@ -135,7 +140,8 @@ def test_every_figure_exists_beside_the_report_and_decodes(demo):
             assert im.size[0] > 100 and im.size[1] > 100, name
     fields = np.load(out / "fields.npz")
     shape = tuple(fields["grid_shape"])
-    for k in ("T_effective_truth", "T_reconstruction", "T_posterior_mean", "T_posterior_std", "sigma_a"):
+    for k in ("T_effective_truth", "T_reconstruction", "T_posterior_mean", "T_posterior_std", "T_field_posterior_std",
+              "sigma_a"):
         assert fields[k].shape == shape and np.all(np.isfinite(fields[k])), k
 
 

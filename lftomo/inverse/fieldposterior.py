@@ -143,7 +143,9 @@ class FieldPosterior:
             "n_samples": self.n_samples,
             "credible_level": self.credible_level,
             "median_std_K": float(np.median(self.T_std)),
-            "evidence": self.evidence,
+            "evidence": None if self.evidence is None else {
+                k: [None if isinstance(x, float) and not math.isfinite(x) else x for x in v] if isinstance(v, list) else v
+                for k, v in self.evidence.items()},
             "elapsed_s": self.elapsed_s,
         }
 
