@@ -51,40 +51,13 @@ import scipy.sparse as sp
 import lftomo as lt
 from lftomo.inverse.problem import LinearProblem
 from lftomo.inverse.solvers import solve_linear_baseline, solve_temperature
-
-
-def ray_operator(grid, n_rays, *, seed=0, samples_per_voxel=2, scale=1e-6, chunk=10000):
-    """Random straight lines through the box; ``A[i, j]`` = sampled chord length × ``scale``."""
-    rng = np.random.default_rng(seed)
-    lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
-    size = hi - lo
-    h = float(np.min(grid.spacing)) / samples_per_voxel
-    diag = float(np.linalg.norm(size))
-    t = np.arange(-0.5 * diag, 0.5 * diag, h) + 0.5 * h
-    blocks = []
-    for start in range(0, n_rays, chunk):
-        k = min(chunk, n_rays - start)
-        p = lo + rng.random((k, 3)) * size
-        u = rng.normal(size=(k, 3))
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        pts = p[:, None, :] + t[None, :, None] * u[:, None, :]
-        idx = np.floor((pts - lo) / grid.spacing).astype(np.int64)
-        inside = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2)
-        r, s = np.nonzero(inside)
-        flat = np.ravel_multi_index(tuple(idx[r, s].T), grid.shape)
-        B = sp.csr_matrix((np.full(r.size, h * scale), (r, flat)), shape=(k, grid.n_voxels))
-        B.sum_duplicates()
-        blocks.append(B)
-    return sp.vstack(blocks, format="csr")
+from lftomo.inverse.synthetic import hot_spot, line_operator
 
 
 def synthetic_problem(n, rows, noise):
     grid = lt.Grid((n, n, n), (-0.025, -0.025, 0.975), (0.025, 0.025, 1.025))
-    A = ray_operator(grid, rows)
-    X, Y, Z = grid.centers_mesh()
-    c, w = grid.center, 0.3 * grid.size
-    G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
-    T = 800.0 + 1200.0 * G
+    A = line_operator(grid, rows, samples_per_voxel=2)
+    T = hot_spot(grid, 800.0, 2000.0)
     wl = 650e-9
     y0 = A @ lt.planck(T, wl).ravel()
     return A, y0, grid, T, wl, "synthetic ray-cast"

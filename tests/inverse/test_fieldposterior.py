@@ -1,7 +1,7 @@
 """Tests of the full-grid Laplace posterior with λ by empirical Bayes (lftomo.inverse.fieldposterior).
 
-Synthetic straight-line operator as in ``test_solvers.py`` (its helpers are
-repeated here in short); grids of 5³–6³ so that the dense reference is cheap.
+Synthetic straight-line operator (``lftomo.inverse.synthetic``); grids of
+5³–6³ so that the dense reference is cheap.
 """
 
 from __future__ import annotations
@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 import lftomo as lt
 from lftomo.inverse.fieldposterior import (
@@ -22,47 +21,24 @@ from lftomo.inverse.fieldposterior import (
 )
 from lftomo.inverse.problem import LinearProblem
 from lftomo.inverse.regularizers import prior_operator
+from lftomo.inverse.synthetic import hot_spot, line_operator
 
 WL = 650e-9
 BOUNDS = (300.0, 3000.0)
 
 
-def line_operator(grid, n_rays, seed):
-    """``A[i, j]`` = length of random line i in voxel j (quarter-voxel samples) × 1e-6."""
-    rng = np.random.default_rng(seed)
-    lo, size = np.asarray(grid.lower), np.asarray(grid.size)
-    h = float(np.min(grid.spacing)) / 4
-    t = np.arange(-0.5, 0.5, h / np.linalg.norm(size)) * np.linalg.norm(size)
-    p = lo + rng.random((n_rays, 3)) * size
-    u = rng.normal(size=(n_rays, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    idx = np.floor((p[:, None, :] + t[None, :, None] * u[:, None, :] - lo) / grid.spacing).astype(np.int64)
-    r, s = np.nonzero(np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2))
-    A = sp.csr_matrix((np.full(r.size, h * 1e-6), (r, np.ravel_multi_index(tuple(idx[r, s].T), grid.shape))),
-                      shape=(n_rays, grid.n_voxels))
-    A.sum_duplicates()
-    return A
-
-
 def planck_problem(grid, T, rel_noise, seed, rows_per_voxel=3):
-    A = line_operator(grid, rows_per_voxel * grid.n_voxels, seed)
+    A = line_operator(grid, rows_per_voxel * grid.n_voxels, seed=seed)
     y0 = A @ lt.planck(T, WL).ravel()
     sigma = np.full(y0.size, rel_noise * np.abs(y0).mean())
     y = y0 + np.random.default_rng(seed + 1).normal(size=y0.size) * sigma
     return LinearProblem(A, y, sigma, grid, WL)
 
 
-def smooth_flame(grid):
-    X, Y, Z = grid.centers_mesh()
-    c, w = grid.center, 0.3 * grid.size
-    G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
-    return 800.0 + 1200.0 * G
-
-
 @pytest.fixture(scope="module")
 def case():
     grid = lt.Grid((5, 5, 5), (-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
-    T = smooth_flame(grid)
+    T = hot_spot(grid, 800.0, 2000.0)
     return planck_problem(grid, T, 0.01, seed=3), T
 
 

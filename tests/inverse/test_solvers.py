@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 import lftomo as lt
 from lftomo.inverse.problem import LinearProblem
@@ -30,40 +29,14 @@ from lftomo.inverse.solvers import (
     solve_linear_baseline,
     solve_temperature,
 )
+from lftomo.inverse.synthetic import hot_spot, line_operator
 
 
 # --------------------------------------------------------------------------- helpers
-def ray_operator(grid, n_rays, *, seed=0, samples_per_voxel=4, scale=1e-6):
-    rng = np.random.default_rng(seed)
-    lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
-    size = hi - lo
-    h = float(np.min(grid.spacing)) / samples_per_voxel
-    diag = float(np.linalg.norm(size))
-    t = np.arange(-0.5 * diag, 0.5 * diag, h) + 0.5 * h
-    p = lo + rng.random((n_rays, 3)) * size
-    u = rng.normal(size=(n_rays, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    pts = p[:, None, :] + t[None, :, None] * u[:, None, :]
-    idx = np.floor((pts - lo) / grid.spacing).astype(np.int64)
-    inside = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2)
-    r, s = np.nonzero(inside)
-    flat = np.ravel_multi_index(tuple(idx[r, s].T), grid.shape)
-    A = sp.csr_matrix((np.full(r.size, h * scale), (r, flat)), shape=(n_rays, grid.n_voxels))
-    A.sum_duplicates()
-    return A
-
-
-def hot_spot(grid, T_edge=800.0, T_peak=2000.0):
-    X, Y, Z = grid.centers_mesh()
-    c, w = grid.center, 0.3 * grid.size
-    G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
-    return T_edge + (T_peak - T_edge) * G
-
-
 def make_problem(n=8, *, rel_noise=0.0, wavelength=None, rows_per_voxel=3, seed=0, noise_seed=1,
                  T_edge=800.0, T_peak=2000.0):
     grid = lt.Grid((n, n, n), (-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
-    A = ray_operator(grid, rows_per_voxel * grid.n_voxels, seed=seed)
+    A = line_operator(grid, rows_per_voxel * grid.n_voxels, seed=seed)
     T = hot_spot(grid, T_edge, T_peak)
     Ib = lt.gray_intensity(T) if wavelength is None else lt.planck(T, wavelength)
     y0 = A @ Ib.ravel()
