@@ -115,6 +115,20 @@ def test_evidence_fixed_point_is_the_evidence_maximum(case):
         assert _log_evidence(problem, f * lam, post.T_mean) < here
 
 
+def test_sampled_evidence_lands_where_the_dense_one_does(case):
+    """Matrix-free evidence iteration (16-draw traces, then 64 draws at the end) against the exact one.
+    Each stops within max(5 %, twice the step's noise) of its fixed point, and the sampled fixed point
+    is off by the trace's error: noise = λ·SE(trace)/γ in log λ; allow both stops plus 4 noise."""
+    problem, _ = case
+    dense = laplace_posterior(problem, method="dense", lambda0=100.0)
+    samp = laplace_posterior(problem, method="sampled", lambda0=100.0, seed=3)
+    ev = samp.evidence
+    assert ev["converged"] and samp.method == "sampled" and samp.n_samples == 64
+    noise = ev["lambda"][-1] * ev["trace_se"][-1] / ev["gamma"][-1]
+    assert abs(math.log(samp.regularization / dense.regularization)) <= 2 * max(0.05, 2 * noise) + 4 * noise
+    assert samp.samples.shape == (64, *problem.grid.shape)
+
+
 def _prior_draw(grid, lam, rng, T_mean=1700.0):
     """A field of the smoothness prior: precision λ LᵀL/T_s² on the non-constant modes, mean T_mean."""
     L = prior_operator(grid, "gradient").toarray() / (BOUNDS[1] - BOUNDS[0])
