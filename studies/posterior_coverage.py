@@ -47,7 +47,10 @@ def main():
     ap.add_argument("--draws", type=int, default=10)
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--walkers", type=int, default=16)
-    ap.add_argument("--width", type=float, default=0.012)
+    ap.add_argument("--width", type=float, default=0.012,
+                    help="base width of the flame (m); for two_lobed, of its main lobe")
+    ap.add_argument("--flame", default="axisymmetric", choices=["axisymmetric", "two_lobed"],
+                    help="phantom (two_lobed: with --laplace-field; the six-parameter basis is axisymmetric)")
     ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
     ap.add_argument("--model-data", action="store_true", help="data from W and the parametric truth (no model error)")
     ap.add_argument("--laplace-field", action="store_true",
@@ -64,7 +67,12 @@ def main():
     cam = lt.Camera.seed(1.0) if a.mla == 0 else lt.Camera.seed(1.0, mla={"count": (a.mla, a.mla)})
     fine = lt.phantoms.default_flame_grid((a.n * a.refine,) * 3)
     coarse = lt.phantoms.default_flame_grid((a.n,) * 3)
-    flame = lt.phantoms.axisymmetric_flame(fine, width_base=a.width)
+    if a.flame == "two_lobed" and not a.laplace_field:
+        raise SystemExit("--flame two_lobed needs --laplace-field (the emcee basis is an axisymmetric flame)")
+    if a.flame == "axisymmetric":
+        flame = lt.phantoms.axisymmetric_flame(fine, width_base=a.width)
+    else:  # as studies/accuracy.py: the default lobe widths scaled so that the main lobe is --width
+        flame = lt.phantoms.two_lobed_flame(fine, width_scale=a.width / (0.06 * fine.size[0]))
     sa_c, T_true = effective_truth(flame, coarse, wl)
     lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays, seed=21, wavelengths=(wl,), progress=False)
     lf = dataclasses.replace(lf, min_etendue_fraction=0.2)  # also what with_monte_carlo_noise sets
