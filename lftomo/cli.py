@@ -281,7 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "
                          "images, default 0.2)")
     rc.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
-    rc.add_argument("--posterior", action="store_true", help="also sample the posterior (emcee) of a small basis")
+    rc.add_argument("--posterior", action="store_true",
+                    help="also compute a posterior (see --posterior-basis)")
     rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default="flame",
                     help="emcee on the 6-parameter flame or 12 DCT modes, or 'field': the full-grid Laplace "
                          "posterior with lambda by empirical Bayes (lftomo.laplace_posterior)")
