@@ -182,10 +182,17 @@ def precision_factors(problem: Any, T: Any, *, prior: str = "gradient",
         Prior operator over ``T_s`` (1/K): ``λ Lsᵀ Ls`` is the prior precision.
     """
     T = np.asarray(T, dtype=np.float64).ravel()
-    Aw = problem.whitened()[0]
-    J = (Aw @ sp.diags(_dblackbody_np(T, problem.wavelength))).tocsr()
-    Ls = (prior_operator(problem.grid, prior, dimensionless=True) / float(bounds[1] - bounds[0])).tocsr()
-    return J, Ls
+    return _whitened_jacobian(problem, T), _scaled_prior(problem.grid, prior, bounds)
+
+
+def _whitened_jacobian(problem: Any, T: np.ndarray) -> sp.csr_matrix:
+    """``Σ^{-1/2} A diag(∂I_b/∂T)`` (1/K) at the flat temperature field ``T``."""
+    return (problem.whitened()[0] @ sp.diags(_dblackbody_np(T, problem.wavelength))).tocsr()
+
+
+def _scaled_prior(grid: Any, prior: str, bounds: tuple[float, float]) -> sp.csr_matrix:
+    """``L / T_s`` (1/K), the factor of the prior precision; it does not depend on T."""
+    return (prior_operator(grid, prior, dimensionless=True) / float(bounds[1] - bounds[0])).tocsr()
 
 
 def _null_dimension(Ls: sp.csr_matrix) -> int:
@@ -196,7 +203,8 @@ def _null_dimension(Ls: sp.csr_matrix) -> int:
 
 
 def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
-    H = (J.T @ J).toarray() + lam * (Ls.T @ Ls).toarray()
+    M = (Ls.T @ Ls).tocoo()
+    H = (J.T @ J).toarray() + lam * M.toarray()
     c, info = sla.lapack.dpotrf(H, lower=1, clean=1, overwrite_a=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"the Laplace precision is not positive definite (dpotrf info {info})")
@@ -204,7 +212,6 @@ def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
     inv, info = sla.lapack.dpotri(c, lower=1, overwrite_c=1)  # lower triangle of H⁻¹
     if info != 0:
         raise np.linalg.LinAlgError(f"inverting the Laplace precision failed (dpotri info {info})")
-    M = (Ls.T @ Ls).tocoo()
     i, j = np.maximum(M.row, M.col), np.minimum(M.row, M.col)
     trace = float(np.sum(inv[i, j] * M.data))
     return _Stats(var=np.diag(inv).copy(), trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0)
@@ -395,6 +402,7 @@ def laplace_posterior(
 
     T_start = options.pop("T0", None)
     clock = {"solve_s": 0.0, "posterior_s": 0.0}
+    Ls = _scaled_prior(grid, prior, bounds)
 
     def solve(reg, T0=None):
         t = time.perf_counter()
@@ -404,7 +412,7 @@ def laplace_posterior(
 
     def stats_at(T, lam, k=n_samples) -> _Stats:
         t = time.perf_counter()
-        J, Ls = precision_factors(problem, T, prior=prior, bounds=bounds)
+        J = _whitened_jacobian(problem, np.asarray(T, dtype=np.float64).ravel())
         if method == "dense":
             st = _dense_stats(J, Ls, lam)
         else:
@@ -415,7 +423,7 @@ def laplace_posterior(
     evidence = None
     if regularization == "evidence":
         rec = solve("auto" if lambda0 is None else lambda0, T_start)
-        r = n - _null_dimension(precision_factors(problem, rec.T, prior=prior, bounds=bounds)[1])
+        r = n - _null_dimension(Ls)
         lam = rec.regularization
         path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2")}
         converged = False
