@@ -25,8 +25,16 @@ holds; with ``x_ref = 0`` these are ``Aᵀ Σ⁻¹ A``, ``Aᵀ Σ⁻¹ (y - bg)`
 ``(y - bg)ᵀ Σ⁻¹ (y - bg)``.  The samplers re-centre ``x_ref`` at the starting
 point (one pass over the data) so that the three terms are of the size of the
 posterior spread and no digits are lost to cancellation against ``c0 ~ m·SNR²``.
-``H`` is dense when ``n <= dense_max`` (default 8000: 512 MB), else scipy CSR.
-Per ensemble step the cost is one ``(n_walkers, n) @ (n, n)`` product.
+``H`` is dense when ``n <= dense_max`` (default 8000: 512 MB), else scipy CSR —
+unless its non-zeros would outnumber ``A``'s more than three times (long rays
+through a fine grid: at 32³ a 300 k-row operator with 9.9 M non-zeros gives an
+``H`` with 212 M), in which case ``H`` is kept as the product
+``Aᵀ (Σ⁻¹ (A ·))`` (:class:`NormalOperator`), the same quadratic form at 2·nnz(A)
+per vector instead of nnz(H).  Per ensemble step the cost is one
+``(n_walkers, n) @ (n, n)`` product; for large grids :func:`sample_posterior`
+replaces even that by a second-order Taylor model in the coefficients whose
+cost does not depend on n (``likelihood="taylor"``, corrected exactly by
+importance weights).
 
 **Regularization convention** (that of :mod:`lftomo.inverse.solvers` with
 ``penalize="temperature"``): the reconstruction minimises
@@ -48,12 +56,19 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import require_array, require_finite_scalar, require_int, require_nonnegative, require_positive
+from .._validate import (
+    require_array,
+    require_finite_scalar,
+    require_int,
+    require_nonnegative,
+    require_positive,
+)
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
 from .basis import MAX_COEFFS, TemperatureBasis
 
 __all__ = [
     "SufficientStatistics",
+    "NormalOperator",
     "gaussian_sufficient_statistics",
     "sufficient_statistics",
     "LogPosterior",
@@ -73,13 +88,41 @@ class ConvergenceError(RuntimeError):
 
 
 # ============================================================================ likelihood
+class NormalOperator:
+    """``H = Aᵀ diag(w) A`` applied as ``Aᵀ (w ∘ (A X))`` without forming it.
+
+    Parameters
+    ----------
+    A : scipy.sparse.csr_matrix, shape (m, n)
+    w : ndarray, shape (m,)
+        Weights ``1/σ²``.
+    """
+
+    def __init__(self, A: Any, w: np.ndarray) -> None:
+        self.A = A
+        self.w = w
+        self.shape = (A.shape[1], A.shape[1])
+
+    def __matmul__(self, X: Any) -> np.ndarray:
+        X = np.asarray(X, dtype=np.float64)
+        AX = np.asarray(self.A @ X)
+        AX *= self.w if X.ndim == 1 else self.w[:, None]
+        return np.asarray(self.A.T @ AX)
+
+
+def _normal_nnz_bound(A: Any) -> int:
+    """Upper bound of nnz(Aᵀ A): Σ over rows of (row nnz)², capped at n²."""
+    counts = np.diff(A.indptr).astype(np.int64)
+    return int(min(int(np.sum(counts * counts)), A.shape[1] ** 2))
+
+
 @dataclass(frozen=True, eq=False)
 class SufficientStatistics:
     """Exact Gaussian sufficient statistics of one data channel.
 
     Attributes
     ----------
-    H : ndarray (n, n) or scipy.sparse.csr_matrix
+    H : ndarray (n, n), scipy.sparse.csr_matrix or NormalOperator
         ``Aᵀ Σ⁻¹ A`` ((m² sr)² / data-unit²).
     b : ndarray, shape (n,)
         ``Aᵀ Σ⁻¹ (y - bg - A x_ref)``.
@@ -173,7 +216,9 @@ def gaussian_sufficient_statistics(
     x_ref : array_like, shape (n,), optional
         Reference intensity field; default 0.
     dense_max : int
-        Densify ``H`` when ``n <= dense_max`` (memory ``8 n²`` bytes).
+        Densify ``H`` when ``n <= dense_max`` (memory ``8 n²`` bytes).  Above it,
+        a sparse ``A`` gives a CSR ``H`` unless ``Σ_rows nnz(row)²`` (a bound of
+        nnz(H)) exceeds ``3 nnz(A)``: then ``H`` is a :class:`NormalOperator`.
 
     Returns
     -------
@@ -196,10 +241,13 @@ def gaussian_sufficient_statistics(
     dense_max = require_int("dense_max", dense_max, minimum=0)
     w = 1.0 / s**2
     if sp.issparse(A):
-        H = (A.T @ sp.diags(w) @ A).tocsr()
-        if n <= dense_max:
-            H = H.toarray()
-            H = 0.5 * (H + H.T)
+        if n > dense_max and _normal_nnz_bound(A) > 3 * A.nnz:
+            H = NormalOperator(A, w)
+        else:
+            H = (A.T @ sp.diags(w) @ A).tocsr()
+            if n <= dense_max:
+                H = H.toarray()
+                H = 0.5 * (H + H.T)
     else:
         H = A.T @ (w[:, None] * A)
         H = 0.5 * (H + H.T)
@@ -817,6 +865,16 @@ class Posterior:
     seed : int or None
     elapsed_s : float
         Wall time of the sampling (s).
+    likelihood : {"exact", "taylor"}
+        The likelihood the walkers sampled.  "taylor": a second-order Taylor
+        model (:class:`~lftomo.inverse.surrogate.TaylorLogPosterior`); then
+        :attr:`samples` is an evenly thinned subset of the chain after burn-in,
+        :attr:`log_prob` its *exact* log-posterior, and every summary uses
+        :attr:`weights`.
+    weights : ndarray, shape (n_samples,) or None
+        Normalised importance weights ``∝ exp(log p - log p_taylor)`` ("taylor"), else None.
+    importance_ess : float or None
+        Effective sample size of the weights, ``1 / Σ w²`` ("taylor").
     """
 
     basis: Any
@@ -845,6 +903,9 @@ class Posterior:
     thin: int
     seed: int | None
     elapsed_s: float
+    likelihood: str = "exact"
+    weights: np.ndarray | None = None
+    importance_ess: float | None = None
 
     @property
     def grid(self) -> Any:
@@ -857,46 +918,72 @@ class Posterior:
 
     @property
     def coeff_mean_stderr(self) -> np.ndarray:
-        """Monte Carlo standard error of :attr:`coeff_mean`: ``std · sqrt(tau / (n_walkers (n_steps - burn)))``."""
+        """Monte Carlo standard error of :attr:`coeff_mean`.
+
+        ``std · sqrt(tau / (n_walkers (n_steps - burn)))``; with importance
+        weights ``std / sqrt(n_eff)``.
+        """
+        if self.weights is not None:
+            return self.coeff_std / np.sqrt(max(self.n_eff, 1.0))
         n = self.n_walkers * (self.n_steps - self.burn)
         return self.coeff_std * np.sqrt(self.tau / n)
 
     def T_samples(self, n: int | None = None, seed: int | None = 0) -> np.ndarray:
-        """Temperature fields of ``n`` random samples (all when None), shape (n, nx, ny, nz)."""
+        """Temperature fields of ``n`` random samples (all when None), shape (n, nx, ny, nz).
+
+        With importance weights, ``n`` draws with replacement in proportion to
+        them (all samples when None: weigh them with :attr:`weights`).
+        """
         idx = np.arange(len(self.samples))
         if n is not None:
             n = require_int("n", n, minimum=1)
-            idx = np.sort(np.random.default_rng(seed).choice(idx, size=min(n, idx.size), replace=False))
+            rng = np.random.default_rng(seed)
+            if self.weights is not None:
+                idx = np.sort(rng.choice(idx, size=n, replace=True, p=self.weights))
+            else:
+                idx = np.sort(rng.choice(idx, size=min(n, idx.size), replace=False))
         return self.basis.field(self.samples[idx])
 
     def summary(self) -> str:
         """A few lines: acceptance, τ, N_eff, convergence."""
+        extra = ""
+        if self.weights is not None:
+            extra = f"; Taylor likelihood, importance ESS {self.importance_ess:.0f} of {len(self.weights)}"
         return (
             f"Posterior: K={len(self.names)}, {self.n_walkers} walkers × {self.n_steps} steps "
             f"(burn {self.burn}, thin {self.thin}); acceptance {np.mean(self.acceptance_fraction):.3f}; "
-            f"tau max {np.nanmax(self.tau):.1f} steps; N_eff ≈ {self.n_eff:.0f}; "
+            f"tau max {np.nanmax(self.tau):.1f} steps; N_eff ≈ {self.n_eff:.0f}{extra}; "
             f"{'converged' if self.converged else 'NOT converged'} (chain >= 50 tau); {self.elapsed_s:.1f} s"
         )
 
 
 def _field_summaries(
-    basis: TemperatureBasis, samples: np.ndarray, level: float, rng: np.random.Generator, max_elements: float
+    basis: TemperatureBasis,
+    samples: np.ndarray,
+    level: float,
+    rng: np.random.Generator,
+    max_elements: float,
+    weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, ...]:
     N = samples.shape[0]
     n = basis.n_voxels
-    shift = basis.T(samples.mean(axis=0))
+    w = np.full(N, 1.0 / N) if weights is None else weights
+    shift = basis.T(w @ samples)
     s1 = np.zeros(n)
     s2 = np.zeros(n)
     chunk = max(1, int(4e6 // n))
     for i in range(0, N, chunk):
         D = basis.T(samples[i : i + chunk]) - shift
-        s1 += D.sum(axis=0)
-        s2 += np.einsum("wi,wi->i", D, D)
-    m1 = s1 / N
-    mean = shift + m1
-    var = np.clip(s2 / N - m1**2, 0.0, None) * (N / max(N - 1, 1))
+        wi = w[i : i + chunk]
+        s1 += wi @ D
+        s2 += np.einsum("w,wi,wi->i", wi, D, D)
+    mean = shift + s1
+    var = np.clip(s2 - s1**2, 0.0, None) / max(1.0 - float(w @ w), 1e-12)  # unbiased (reliability weights)
     nq = int(min(N, max(200, max_elements // n)))
-    idx = np.sort(rng.choice(N, size=nq, replace=False)) if nq < N else np.arange(N)
+    if weights is not None:  # quantiles of a resample in proportion to the weights
+        idx = np.sort(rng.choice(N, size=nq, replace=True, p=weights))
+    else:
+        idx = np.sort(rng.choice(N, size=nq, replace=False)) if nq < N else np.arange(N)
     Tq = basis.T(samples[idx])
     a = 0.5 * (1.0 - level)
     lo, hi = np.quantile(Tq, [a, 1.0 - a], axis=0)
@@ -931,6 +1018,8 @@ def sample_posterior(
     max_field_elements: float = 2e7,
     dense_max: int = 8000,
     moves: Any = None,
+    likelihood: str = "auto",
+    n_importance: int = 2000,
 ) -> Posterior:
     """Sample the posterior of basis coefficients with emcee's affine-invariant ensemble.
 
@@ -973,6 +1062,18 @@ def sample_posterior(
         Content of the per-voxel equal-tailed interval, in (0, 1); default 0.9.
     max_field_elements : float
         Memory cap (number of floats) of the T samples used for the quantiles.
+    likelihood : {"auto", "exact", "taylor"}
+        What the walkers evaluate.  "exact": the log-posterior above (cost
+        per step: one ``(n_walkers, n) @ H`` product).  "taylor": its
+        second-order Taylor model in the coefficients about the start
+        (:class:`~lftomo.inverse.surrogate.TaylorLogPosterior`, linear bases
+        only; cost per step independent of n), then importance weights
+        ``exp(log p - log p_taylor)`` on ``n_importance`` evenly thinned samples
+        make every summary exact up to Monte Carlo error (temperature bounds
+        included).  "auto" (default): "taylor" for a linear basis on a grid
+        above ``dense_max`` voxels, else "exact".
+    n_importance : int
+        Samples given exact log-posteriors and weights ("taylor"), >= 10.
     moves : emcee move(s), optional
         Passed to :class:`emcee.EnsembleSampler`.  Default: the mixture
         ``[(DEMove(), 0.8), (StretchMove(), 0.2)]``, which on Gaussian-like
@@ -992,13 +1093,14 @@ def sample_posterior(
         K > 40, ``n_walkers < 2 K``, inverted bounds, ``burn >= n_steps``, a start
         outside the bounds, grid mismatch, bad prior arguments.
     ConvergenceError
-        With ``strict=True`` when the chain is too short.
+        With ``strict=True`` when the chain is too short, or (``"taylor"``)
+        when the importance ESS is below ``max(50, n_importance / 10)``.
 
     Warns
     -----
     UserWarning
         When the chain after burn-in is shorter than 50 integrated
-        autocorrelation times (and ``strict`` is False).
+        autocorrelation times, or the importance ESS is low (and ``strict`` is False).
     """
     import emcee
 
@@ -1020,6 +1122,17 @@ def sample_posterior(
     level = require_finite_scalar("credible_level", credible_level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"credible_level must be in (0, 1), got {level!r}")
+    if likelihood not in ("auto", "exact", "taylor"):
+        raise ValueError(f"likelihood must be 'auto', 'exact' or 'taylor', got {likelihood!r}")
+    if likelihood == "taylor" and not _basis_is_linear(logpost):
+        raise ValueError(
+            f"likelihood='taylor' needs a linear basis (DCTBasis, BSplineBasis, LinearBasis), "
+            f"got {type(basis).__name__}; use likelihood='exact'"
+        )
+    n_importance = require_int("n_importance", n_importance, minimum=10)
+    if likelihood == "auto":
+        large = any(not ch.stats.dense for ch in logpost.channels)
+        likelihood = "taylor" if (large and _basis_is_linear(logpost)) else "exact"
 
     rng = np.random.default_rng(seed)
     lap = None
@@ -1058,9 +1171,15 @@ def sample_posterior(
     else:
         raise ValueError("could not place the walkers inside the bounds around the starting point; widen bounds")
 
+    if likelihood == "taylor":
+        from .surrogate import TaylorLogPosterior
+
+        target = TaylorLogPosterior(logpost, c_start)
+    else:
+        target = logpost
     if moves is None:
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
-    sampler = emcee.EnsembleSampler(n_walkers, K, logpost, vectorize=True, moves=moves)
+    sampler = emcee.EnsembleSampler(n_walkers, K, target, vectorize=True, moves=moves)
     sampler.random_state = np.random.RandomState(int(rng.integers(2**32 - 1))).get_state()
     t0 = time.perf_counter()
     sampler.run_mcmc(p0, n_steps, progress=progress)
@@ -1082,13 +1201,55 @@ def sample_posterior(
         warnings.warn(msg, UserWarning, stacklevel=2)
     samples = sampler.get_chain(discard=burn, thin=thin, flat=True)
     log_prob = sampler.get_log_prob(discard=burn, thin=thin, flat=True)
-    T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, max_field_elements)
+    n_eff = float(n_walkers * kept / tau_max) if np.isfinite(tau_max) else 0.0
+    weights = ess = None
+    if likelihood == "taylor":
+        samples, log_prob, weights, ess = _importance_correct(logpost, target, samples, n_importance)
+        n_eff = min(float(len(samples)), n_eff) * ess / len(samples)
+        floor = max(50.0, len(samples) / 10.0)
+        if ess < floor:
+            converged = False
+            msg = (
+                f"the Taylor likelihood is far from the exact one: importance ESS {ess:.0f} of {len(samples)} "
+                f"samples (< {floor:.0f}); use likelihood='exact'"
+            )
+            if strict:
+                raise ConvergenceError(msg)
+            warnings.warn(msg, UserWarning, stacklevel=2)
+        elapsed = time.perf_counter() - t0
+    w = np.full(len(samples), 1.0 / len(samples)) if weights is None else weights
+    mean_c = w @ samples
+    Dc = samples - mean_c
+    cov_c = (Dc.T * w) @ Dc / max(1.0 - float(w @ w), 1e-12)
+    T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, max_field_elements, weights)
     return Posterior(
         basis=basis, names=tuple(basis.names), samples=samples, log_prob=log_prob, chain=chain,
-        log_prob_trace=lp_trace, coeff_mean=samples.mean(axis=0), coeff_cov=np.atleast_2d(np.cov(samples, rowvar=False)),
+        log_prob_trace=lp_trace, coeff_mean=mean_c, coeff_cov=np.atleast_2d(cov_c),
         T_mean=T_mean, T_std=T_std, T_lower=T_lo, T_upper=T_hi, credible_level=level, n_field_samples=nq,
         acceptance_fraction=np.asarray(sampler.acceptance_fraction), tau=tau,
-        n_eff=float(n_walkers * kept / tau_max) if np.isfinite(tau_max) else 0.0, converged=converged,
+        n_eff=n_eff, converged=converged,
         c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=n_steps, burn=burn,
-        thin=thin, seed=seed, elapsed_s=elapsed,
+        thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
     )
+
+
+def _importance_correct(
+    logpost: LogPosterior, taylor: Any, samples: np.ndarray, n_importance: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Evenly thinned subset of Taylor-model samples, its exact log-posterior,
+    normalised weights ``∝ exp(log p - log p_taylor)`` and their ESS ``1/Σw²``."""
+    N = len(samples)
+    idx = np.unique(np.linspace(0, N - 1, min(N, n_importance)).round().astype(np.int64))
+    sub = samples[idx]
+    chunk = max(1, min(256, int(4e6 // logpost.basis.n_voxels)))
+    lp = np.concatenate([np.atleast_1d(logpost(sub[i : i + chunk])) for i in range(0, len(sub), chunk)])
+    lq = taylor(sub)
+    logw = np.where(np.isfinite(lp) & np.isfinite(lq), lp - lq, -np.inf)
+    if not np.any(np.isfinite(logw)):
+        raise ValueError(
+            "every sample of the Taylor model lies outside the temperature or basis bounds; "
+            "widen bounds or use likelihood='exact'"
+        )
+    w = np.exp(logw - np.max(logw))
+    w /= w.sum()
+    return sub, lp, w, float(1.0 / np.sum(w * w))

@@ -18,6 +18,8 @@ from lftomo.forward.phantoms import axisymmetric_flame
 from lftomo.inverse.basis import BSplineBasis, DCTBasis, LinearBasis, ParametricFlame
 from lftomo.inverse.posterior import (
     ConvergenceError,
+    NormalOperator,
+    _importance_correct,
     build_log_posterior,
     gaussian_sufficient_statistics,
     laplace_approximation,
@@ -26,6 +28,7 @@ from lftomo.inverse.posterior import (
 )
 from lftomo.inverse.problem import LinearProblem
 from lftomo.inverse.regularizers import prior_operator
+from lftomo.inverse.surrogate import TaylorLogPosterior
 
 WL = 650e-9
 
@@ -315,3 +318,130 @@ def test_bad_input_raises_value_error(planck_case):
     assert sufficient_statistics(LinearProblem(A, np.ones(20), np.ones(20), g)).n == g.n_voxels
     with pytest.raises(ValueError, match="emission must be one of"):
         build_log_posterior(prob, basis=basis, emission="blackbody")
+    with pytest.raises(ValueError, match="likelihood must be 'auto', 'exact' or 'taylor', got 'fast'"):
+        sample_posterior(prob, basis=basis, likelihood="fast", n_steps=10, progress=False)
+    with pytest.raises(ValueError, match="n_importance must be an integer >= 10, got 5"):
+        sample_posterior(prob, basis=basis, likelihood="taylor", n_importance=5, n_steps=10, progress=False)
+    with pytest.raises(ValueError, match="likelihood='taylor' needs a linear basis.*ParametricFlame"):
+        sample_posterior(prob, basis=ParametricFlame(g), likelihood="taylor", n_steps=10, progress=False)
+
+
+# ------------------------------------------------------------------ large grids: implicit H and the Taylor likelihood
+def test_normal_operator_is_the_normal_matrix_and_is_chosen_for_long_rows():
+    """Few long rows: nnz(AᵀA) ≫ nnz(A), so H is kept as Aᵀ(Σ⁻¹(A·)); same χ² as the data."""
+    rng = np.random.default_rng(3)
+    m, n = 20, 60
+    A = sp.random(m, n, density=0.5, random_state=4, format="csr")
+    sigma = 0.5 + rng.random(m)
+    y = A @ (1.0 + rng.random(n)) + sigma * rng.standard_normal(m)
+    stats = gaussian_sufficient_statistics(A, y, sigma, dense_max=0)
+    assert isinstance(stats.H, NormalOperator) and not stats.dense
+    Ad = A.toarray()
+    H = Ad.T @ (Ad / sigma[:, None] ** 2)
+    X = 1.0 + rng.random((n, 4))
+    np.testing.assert_allclose(stats.H @ X, H @ X, rtol=1e-12)
+    np.testing.assert_allclose(stats.H @ X[:, 0], H @ X[:, 0], rtol=1e-12)
+    direct = -0.5 * np.sum(((y[:, None] - Ad @ X) / sigma[:, None]) ** 2, axis=0)
+    np.testing.assert_allclose(stats.log_likelihood(X.T), direct, rtol=1e-12)
+    np.testing.assert_allclose(stats.recentered(X[:, 1]).log_likelihood(X.T), direct, rtol=1e-10)
+    # short rows on many voxels keep an explicit CSR H
+    A2 = sp.random(400, n, density=0.05, random_state=5, format="csr")
+    assert sp.issparse(gaussian_sufficient_statistics(A2, np.ones(400), np.ones(400), dense_max=0).H)
+
+
+def _taylor_case(emission):
+    rng = np.random.default_rng(11)
+    g = _grid()
+    basis = BSplineBasis(g, (2, 2, 2))
+    m = 120
+    A = sp.random(m, g.n_voxels, density=0.3, random_state=12, format="csr") * 1e-8
+    c_true = 1500.0 + 300.0 * rng.random(8)
+    f = (lambda T: T * 1e9) if emission == "linear" else (lambda T: lt.planck(T, WL))
+    y0 = A @ f(basis.T(c_true))
+    sigma = np.full(m, 0.01 * y0.mean())
+    prob = LinearProblem(A, y0 + sigma * rng.standard_normal(m), sigma, g, wavelength=WL)
+    lp = build_log_posterior(
+        prob, basis=basis, emission=emission, prior_std=300.0, prior_mean=np.full(8, 1600.0),
+        regularization=5.0, T_scale=1000.0, T_ref=np.full(g.n_voxels, 1200.0), dense_max=0,
+    )
+    return lp, c_true + 3.0, rng
+
+
+def test_taylor_model_is_exact_for_a_linear_emission():
+    """x = T: the second-order model is the posterior itself (χ², regularization and prior)."""
+    lp, ce, rng = _taylor_case("linear")
+    tl = TaylorLogPosterior(lp, ce)
+    C = ce + 20.0 * rng.standard_normal((6, 8))
+    np.testing.assert_allclose(tl(C), lp(C), rtol=1e-10)
+    assert tl(ce) == pytest.approx(lp(ce), rel=1e-12)
+
+
+def test_taylor_model_error_is_third_order_for_planck():
+    """Planck: log p - log p_taylor vanishes at the expansion point and scales as h³ along a line."""
+    lp, ce, rng = _taylor_case("auto")
+    tl = TaylorLogPosterior(lp, ce)
+    assert tl(ce) == pytest.approx(lp(ce), rel=1e-12)
+    v = rng.standard_normal(8)
+    hs = np.array([2.0, 1.0, 0.5, 0.25])
+    err = np.array([abs(lp(ce + h * v) - tl(ce + h * v)) for h in hs])
+    slope = np.polyfit(np.log(hs), np.log(err), 1)[0]
+    assert 2.7 < slope < 3.3, (slope, err)
+    # the Gauss–Newton quadratic (the Laplace model) drops ½ rᵀ∂²x: its error is second order
+    lp0, g, G = lp.gauss_newton(ce)
+    err_gn = np.array([abs(lp(ce + h * v) - (lp0 + h * g @ v - 0.5 * h * h * v @ G @ v)) for h in hs])
+    assert np.polyfit(np.log(hs), np.log(err_gn), 1)[0] < 2.3
+    assert np.all(err < 0.1 * err_gn), (err, err_gn)
+
+
+def test_importance_weights_correct_a_wrong_proposal_to_the_exact_posterior(linear_case):
+    """Samples of a shifted, wider Gaussian q, weighted by p/q, give the closed-form posterior moments."""
+    lp = build_log_posterior(linear_case["prob"], **linear_case["kw"])
+    mean, cov = linear_case["mean"], linear_case["cov"]
+    rng = np.random.default_rng(4)
+    Lq = 1.3 * np.linalg.cholesky(cov)
+    mq = mean + Lq @ (0.5 * np.ones(8) / np.sqrt(8))
+    S = mq + rng.standard_normal((20000, 8)) @ Lq.T
+    Pq = np.linalg.inv(Lq @ Lq.T)
+
+    def q(C):
+        D = np.atleast_2d(C) - mq
+        return -0.5 * np.einsum("wk,kl,wl->w", D, Pq, D)
+
+    sub, lpv, w, ess = _importance_correct(lp, q, S, 20000)
+    assert sub.shape == (20000, 8) and 1000 < ess < 20000
+    np.testing.assert_allclose(lpv, lp(S), rtol=1e-12)
+    m_w = w @ S
+    se = np.sqrt(np.diag(cov) / ess)
+    assert np.all(np.abs(m_w - mean) < 5.0 * se), (m_w - mean) / se
+    # the unweighted proposal mean is far off: the weights matter
+    assert np.any(np.abs(S.mean(axis=0) - mean) > 20.0 * se)
+    D = S - m_w
+    cov_w = (D.T * w) @ D
+    Li = np.linalg.inv(np.linalg.cholesky(cov))
+    assert np.all(np.abs(Li @ cov_w @ Li.T - np.eye(8)) < 6.0 * np.sqrt(2.0 / ess))
+    with pytest.raises(ValueError, match="outside the temperature or basis bounds"):
+        _importance_correct(lp, q, np.full((5, 8), np.nan), 10)
+
+
+def test_taylor_sampler_matches_the_exact_sampler(planck_case):
+    """Same Planck problem, emcee on the exact and on the Taylor likelihood (with weights): equal moments."""
+    prob, basis = planck_case["prob"], planck_case["basis"]
+    kw = dict(basis=basis, n_walkers=32, n_steps=3000, seed=0, progress=False)
+    ex = sample_posterior(prob, likelihood="exact", **kw)
+    ta = sample_posterior(prob, likelihood="taylor", n_importance=3000, **kw)
+    assert ex.likelihood == "exact" and ex.weights is None
+    assert ta.likelihood == "taylor" and ta.samples.shape == (3000, 8) and ta.weights.shape == (3000,)
+    assert ex.converged and ta.converged and ta.importance_ess > 0.9 * 3000
+    assert ta.weights.sum() == pytest.approx(1.0)
+    se = np.hypot(ex.coeff_mean_stderr, ta.coeff_mean_stderr)
+    assert np.all(np.abs(ex.coeff_mean - ta.coeff_mean) < 5.0 * se), (ex.coeff_mean - ta.coeff_mean) / se
+    np.testing.assert_allclose(ta.coeff_std, ex.coeff_std, rtol=5.0 * np.sqrt(1.0 / (2 * ex.n_eff) + 1.0 / (2 * ta.n_eff)))
+    np.testing.assert_allclose(ta.T_mean.ravel(), basis.T(ta.coeff_mean), rtol=1e-10)
+    assert "importance ESS" in ta.summary()
+    assert ta.T_samples(7).shape == (7,) + basis.grid.shape
+    # auto: small grids (dense H) sample the exact likelihood
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        assert sample_posterior(prob, basis=basis, n_steps=20, progress=False, seed=1).likelihood == "exact"
+        big = sample_posterior(prob, basis=basis, n_steps=20, progress=False, seed=1, dense_max=0, n_importance=50)
+    assert big.likelihood == "taylor"
