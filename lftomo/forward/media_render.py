@@ -175,7 +175,8 @@ def empty_row_kernel(n_ch):
 # Forward (emission) Monte Carlo
 # ---------------------------------------------------------------------------
 
-@njit(cache=True, inline="always")
+@njit(cache=True)  # not inlined: it is called three times in the forward kernel, and inlining
+# three copies of the optics trace made numba compile that kernel for minutes (64 s without)
 def _stop_connection(px, py, pz, state, optics, surf, tex, Lbuf):
     """Connect a point to a uniform point of the aperture stop (next event).
 
