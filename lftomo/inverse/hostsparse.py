@@ -56,6 +56,20 @@ def csr_matvec(indptr, indices, data, x, out):
         out[i] = acc
 
 
+@njit(cache=True, parallel=True)
+def csr_weighted_norms(indptr, indices, data, w, X, out):
+    """``out[j] = Σ_i w_i (M X[j])_i²`` for the CSR arrays of ``M`` and rows ``X`` (W, n) (rows of X in parallel)."""
+    for j in prange(X.shape[0]):
+        x = X[j]
+        acc = 0.0
+        for i in range(indptr.shape[0] - 1):
+            v = 0.0
+            for k in range(indptr[i], indptr[i + 1]):
+                v += data[k] * x[indices[k]]
+            acc += w[i] * v * v
+        out[j] = acc
+
+
 def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
     """``M x`` (float64) by :func:`csr_matvec` under the module's lock."""
     out = np.empty(M.shape[0], dtype=np.float64)

@@ -65,6 +65,7 @@ from .._validate import (
 )
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
 from .basis import MAX_COEFFS, TemperatureBasis
+from .hostsparse import _LOCK, csr_weighted_norms
 
 __all__ = [
     "SufficientStatistics",
@@ -99,7 +100,7 @@ class NormalOperator:
     """
 
     def __init__(self, A: Any, w: np.ndarray) -> None:
-        self.A = A
+        self.A = sp.csr_matrix(A, dtype=np.float64)
         self.w = w
         self.shape = (A.shape[1], A.shape[1])
 
@@ -165,8 +166,14 @@ class SufficientStatistics:
         X = np.asarray(X, dtype=np.float64)
         single = X.ndim == 1
         D = np.atleast_2d(X) - self.x_ref
-        HD = self._H_times_rows(D)
-        q = np.einsum("wi,wi->w", HD, D) - 2.0 * (D @ self.b) + self.c0
+        if isinstance(self.H, NormalOperator):  # dᵀHd = Σ w (A d)²: one product with A, not two
+            A = self.H.A
+            quad = np.empty(D.shape[0])
+            with _LOCK:
+                csr_weighted_norms(A.indptr, A.indices, A.data, self.H.w, np.ascontiguousarray(D), quad)
+        else:
+            quad = np.einsum("wi,wi->w", self._H_times_rows(D), D)
+        q = quad - 2.0 * (D @ self.b) + self.c0
         return float(q[0]) if single else q
 
     def log_likelihood(self, X: Any) -> Any:
