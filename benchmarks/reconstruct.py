@@ -38,7 +38,7 @@ Usage::
     python benchmarks/reconstruct.py --matvec [--rows 133000] [--n 24]
     python benchmarks/reconstruct.py [--synthetic] [--n 32] [--rows 300000] [--rays 4] [--noise 0.01]
                                      [--rtol 1e-4] [--max-steps 100] [--linear-max-steps 20]
-                                     [--posterior [--samples 64] [--emcee-steps 2000]
+                                     [--posterior [--samples 64] [--emcee-steps 10000]
                                                   [--emcee-likelihood auto|exact|taylor]]
 """
 
@@ -143,7 +143,7 @@ def main() -> None:
                          "20 vs 100 at 16³: same λ and error)")
     ap.add_argument("--posterior", action="store_true", help="also time laplace_posterior and sample_posterior")
     ap.add_argument("--samples", type=int, default=64, help="--posterior: draws of laplace_posterior")
-    ap.add_argument("--emcee-steps", type=int, default=2000, help="--posterior: emcee steps (64 walkers)")
+    ap.add_argument("--emcee-steps", type=int, default=10000, help="--posterior: emcee steps (64 walkers)")
     ap.add_argument("--emcee-likelihood", default="auto", choices=("auto", "exact", "taylor"),
                     help="--posterior: likelihood the walkers evaluate (sample_posterior's likelihood=)")
     args = ap.parse_args()

@@ -1199,13 +1199,11 @@ def sample_posterior(
     tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.inf
     converged = bool(np.all(np.isfinite(tau)) and kept >= 50.0 * tau_max)
     if not converged:
-        msg = (
+        _not_converged(
             f"the chain after burn-in ({kept} steps) is shorter than 50 integrated autocorrelation times "
-            f"(max tau = {tau_max:.1f} steps, need >= {50 * tau_max:.0f}); increase n_steps"
+            f"(max tau = {tau_max:.1f} steps, need >= {50 * tau_max:.0f}); increase n_steps",
+            strict,
         )
-        if strict:
-            raise ConvergenceError(msg)
-        warnings.warn(msg, UserWarning, stacklevel=2)
     samples = sampler.get_chain(discard=burn, thin=thin, flat=True)
     log_prob = sampler.get_log_prob(discard=burn, thin=thin, flat=True)
     n_eff = float(n_walkers * kept / tau_max) if np.isfinite(tau_max) else 0.0
@@ -1216,13 +1214,11 @@ def sample_posterior(
         floor = max(50.0, len(samples) / 10.0)
         if ess < floor:
             converged = False
-            msg = (
+            _not_converged(
                 f"the Taylor likelihood is far from the exact one: importance ESS {ess:.0f} of {len(samples)} "
-                f"samples (< {floor:.0f}); use likelihood='exact'"
+                f"samples (< {floor:.0f}); use likelihood='exact'",
+                strict,
             )
-            if strict:
-                raise ConvergenceError(msg)
-            warnings.warn(msg, UserWarning, stacklevel=2)
         elapsed = time.perf_counter() - t0
     w = np.full(len(samples), 1.0 / len(samples)) if weights is None else weights
     mean_c = w @ samples
@@ -1238,6 +1234,12 @@ def sample_posterior(
         c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=n_steps, burn=burn,
         thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
     )
+
+
+def _not_converged(msg: str, strict: bool) -> None:
+    if strict:
+        raise ConvergenceError(msg)
+    warnings.warn(msg, UserWarning, stacklevel=3)
 
 
 def _importance_correct(

@@ -111,18 +111,23 @@ def test_mcmc_matches_closed_form_linear_gaussian(linear_case):
     assert post.T_mean.shape == post.grid.shape
 
 
-@pytest.fixture(scope="module")
-def planck_case():
-    rng = np.random.default_rng(1)
+def _bspline_problem(seed, matrix_seed, emission=lambda T: lt.planck(T, WL)):
+    """Random 120 x 64 operator, 8 B-spline coefficients at 1500-1800 K, 1 % noise."""
+    rng = np.random.default_rng(seed)
     g = _grid()
     basis = BSplineBasis(g, (2, 2, 2))
     m = 120
-    A = sp.random(m, g.n_voxels, density=0.3, random_state=3, format="csr") * 1e-8
+    A = sp.random(m, g.n_voxels, density=0.3, random_state=matrix_seed, format="csr") * 1e-8
     c_true = 1500.0 + 300.0 * rng.random(8)
-    y0 = A @ lt.planck(basis.T(c_true), WL)
+    y0 = A @ emission(basis.T(c_true))
     sigma = np.full(m, 0.01 * y0.mean())
     y = y0 + sigma * rng.standard_normal(m)
-    return dict(prob=LinearProblem(A, y, sigma, g, wavelength=WL), basis=basis, c_true=c_true)
+    return dict(prob=LinearProblem(A, y, sigma, g, wavelength=WL), basis=basis, c_true=c_true, rng=rng)
+
+
+@pytest.fixture(scope="module")
+def planck_case():
+    return _bspline_problem(1, 3)
 
 
 def test_planck_mcmc_mean_matches_laplace_when_narrow(planck_case):
@@ -350,16 +355,8 @@ def test_normal_operator_is_the_normal_matrix_and_is_chosen_for_long_rows():
 
 
 def _taylor_case(emission):
-    rng = np.random.default_rng(11)
-    g = _grid()
-    basis = BSplineBasis(g, (2, 2, 2))
-    m = 120
-    A = sp.random(m, g.n_voxels, density=0.3, random_state=12, format="csr") * 1e-8
-    c_true = 1500.0 + 300.0 * rng.random(8)
-    f = (lambda T: T * 1e9) if emission == "linear" else (lambda T: lt.planck(T, WL))
-    y0 = A @ f(basis.T(c_true))
-    sigma = np.full(m, 0.01 * y0.mean())
-    prob = LinearProblem(A, y0 + sigma * rng.standard_normal(m), sigma, g, wavelength=WL)
+    case = _bspline_problem(11, 12, (lambda T: T * 1e9) if emission == "linear" else (lambda T: lt.planck(T, WL)))
+    prob, basis, c_true, rng, g = case["prob"], case["basis"], case["c_true"], case["rng"], _grid()
     lp = build_log_posterior(
         prob, basis=basis, emission=emission, prior_std=300.0, prior_mean=np.full(8, 1600.0),
         regularization=5.0, T_scale=1000.0, T_ref=np.full(g.n_voxels, 1200.0), dense_max=0,
