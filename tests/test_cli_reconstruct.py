@@ -84,6 +84,7 @@ def test_reconstruct_from_scene_refocus_fixed_lambda_with_posterior(tmp_path):
     assert m["measurement"]["data"] == "refocus" and m["measurement"]["depths"] == [0.997, 1.0, 1.003]
     assert m["reconstruction"]["regularization"] == 1e-3 and m["reconstruction"]["lambda_rule"] == "fixed"
     assert len(m["posterior"]["names"]) == 12 and 0 <= m["posterior"]["acceptance_mean"] <= 1
+    assert m["posterior"]["likelihood"] == "exact" and m["posterior"]["importance_ess"] is None  # 4³: dense H
 
 
 def test_reconstruct_with_full_grid_laplace_posterior(tmp_path, capsys):
