@@ -882,6 +882,8 @@ class Posterior:
         Normalised importance weights ``∝ exp(log p - log p_taylor)`` ("taylor"), else None.
     importance_ess : float or None
         Effective sample size of the weights, ``1 / Σ w²`` ("taylor").
+    likelihood_note : str
+        How the likelihood was chosen (with ``likelihood="auto"``: the pilot's ESS).
     """
 
     basis: Any
@@ -913,6 +915,7 @@ class Posterior:
     likelihood: str = "exact"
     weights: np.ndarray | None = None
     importance_ess: float | None = None
+    likelihood_note: str = ""
 
     @property
     def grid(self) -> Any:
@@ -1078,7 +1081,10 @@ def sample_posterior(
         ``exp(log p - log p_taylor)`` on ``n_importance`` evenly thinned samples
         make every summary exact up to Monte Carlo error (temperature bounds
         included).  "auto" (default): "taylor" for a linear basis on a grid
-        above ``dense_max`` voxels, else "exact".
+        above ``dense_max`` voxels if the weights of a pilot (64 draws from the
+        Laplace approximation at the start) have an ESS of at least half
+        their number, else "exact" (:attr:`Posterior.likelihood_note` says which
+        and why).
     n_importance : int
         Samples given exact log-posteriors and weights ("taylor"), >= 10.
     moves : emcee move(s), optional
@@ -1137,7 +1143,8 @@ def sample_posterior(
             f"got {type(basis).__name__}; use likelihood='exact'"
         )
     n_importance = require_int("n_importance", n_importance, minimum=10)
-    if likelihood == "auto":
+    auto = likelihood == "auto"
+    if auto:
         large = any(not ch.stats.dense for ch in logpost.channels)
         likelihood = "taylor" if (large and _basis_is_linear(logpost)) else "exact"
 
@@ -1178,12 +1185,23 @@ def sample_posterior(
     else:
         raise ValueError("could not place the walkers inside the bounds around the starting point; widen bounds")
 
+    target = logpost
+    note = "exact likelihood" + (" (auto: grid within dense_max, or a nonlinear basis)" if auto else "")
     if likelihood == "taylor":
         from .surrogate import TaylorLogPosterior
 
-        target = TaylorLogPosterior(logpost, c_start)
-    else:
-        target = logpost
+        T_std = None if lap is None else lap.T_std.ravel()
+        target = TaylorLogPosterior(logpost, c_start, T_std=T_std)
+        note = "Taylor likelihood, corrected by importance weights"
+        if auto:  # pilot: weights of 64 draws from the start's Gaussian; keep the model only if they are even
+            Z = c_start + rng.standard_normal((64, K)) @ chol.T
+            ess, n_ok = _pilot_ess(logpost(Z), target(Z))
+            if ess < 0.5 * n_ok or n_ok == 0:
+                likelihood, target = "exact", logpost
+                note = (f"exact likelihood (auto: the Taylor model's pilot importance ESS was {ess:.1f} of {n_ok} "
+                        "draws from the Laplace approximation, < 50 %)")
+            else:
+                note += f" (auto: pilot importance ESS {ess:.1f} of {n_ok})"
     if moves is None:
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
     sampler = emcee.EnsembleSampler(n_walkers, K, target, vectorize=True, moves=moves)
@@ -1233,7 +1251,21 @@ def sample_posterior(
         n_eff=n_eff, converged=converged,
         c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=n_steps, burn=burn,
         thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
+        likelihood_note=note,
     )
+
+
+def _pilot_ess(lp: np.ndarray, lq: np.ndarray) -> tuple[float, int]:
+    """ESS of the weights exp(lp - lq) over the draws either density allows, and their number."""
+    seen = np.isfinite(lp) | np.isfinite(lq)
+    n_ok = int(seen.sum())
+    if n_ok == 0:
+        return 0.0, 0
+    logw = np.where(np.isfinite(lp[seen]) & np.isfinite(lq[seen]), lp[seen] - lq[seen], -np.inf)
+    if not np.any(np.isfinite(logw)):
+        return 0.0, n_ok
+    w = np.exp(logw - np.max(logw))
+    return float(w.sum() ** 2 / np.sum(w * w)), n_ok
 
 
 def _not_converged(msg: str, strict: bool) -> None:

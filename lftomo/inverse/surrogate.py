@@ -19,11 +19,13 @@ independent of the grid size: at 32³ and K = 27 (P = 405) a step of 64 walkers
 takes milliseconds instead of seconds.
 
 The regularization ``(λ/T_s²)||L B c - L T_ref||²`` and the coefficient prior are
-exact quadratics in c and are kept exactly.  Temperature bounds are *not*
-applied (they need T in every voxel): :func:`lftomo.sample_posterior` corrects
-the samples of this model to the exact posterior by importance weights
-``exp(log p - log p_taylor)`` on a thinned subset, which also gives weight 0 to
-samples outside the bounds.
+exact quadratics in c and are kept exactly.  Temperature bounds are applied in
+the voxels where ``T_e`` lies within ``margin`` Laplace standard deviations of
+a bound (all voxels when no standard deviations are given): elsewhere a
+violation would need a ``margin``-σ excursion.  :func:`lftomo.sample_posterior`
+corrects the samples of this model to the exact posterior by importance
+weights ``exp(log p - log p_taylor)`` on a thinned subset, which also gives
+weight 0 to any sample outside the bounds in the other voxels.
 """
 
 from __future__ import annotations
@@ -70,6 +72,11 @@ class TaylorLogPosterior:
         are re-centred at ``c_e`` (exact; one pass over the data).
     c_e : array_like, shape (K,)
         Expansion point (the MAP, usually).
+    T_std : array_like, shape (n_voxels,), optional
+        Laplace standard deviation of T per voxel (K): bounds are checked only
+        where ``T_e`` is within ``margin · T_std`` of one.  Default: everywhere.
+    margin : float
+        See ``T_std``; default 6.
 
     Notes
     -----
@@ -77,7 +84,7 @@ class TaylorLogPosterior:
     basis' coefficient bounds; temperature bounds are not applied (module docstring).
     """
 
-    def __init__(self, logpost: Any, c_e: Any) -> None:
+    def __init__(self, logpost: Any, c_e: Any, T_std: Any = None, margin: float = 6.0) -> None:
         basis = logpost.basis
         if not getattr(basis, "is_linear", False):
             raise ValueError(
@@ -109,6 +116,14 @@ class TaylorLogPosterior:
             self.g += M.T @ st.b
             self.c0 += st.c0
         self.G = 0.5 * (self.G + self.G.T)
+        # temperature bounds in the voxels that can reach them
+        lo, hi = logpost.T_bounds
+        if logpost.nonlinear:
+            lo = max(lo, np.nextafter(0.0, 1.0))
+        reach = np.inf if T_std is None else margin * np.asarray(T_std, dtype=np.float64).ravel()
+        rows = np.flatnonzero(((T_e - lo) < reach) | ((hi - T_e) < reach)) if np.isfinite([lo, hi]).any() else []
+        self._T_lo, self._T_hi = lo, hi
+        self._B_bound = B[rows] if len(rows) else None
         # regularization: exact quadratic in c
         self._reg = logpost._reg
         if self._reg > 0:
@@ -136,6 +151,9 @@ class TaylorLogPosterior:
         C2 = np.atleast_2d(C_arr)
         out = np.full(C2.shape[0], -np.inf)
         ok = self.basis.in_bounds(C2)
+        if self._B_bound is not None and np.any(ok):
+            T = C2[ok] @ self._B_bound.T
+            ok[ok] = np.all((T >= self._T_lo) & (T <= self._T_hi), axis=1)
         if np.any(ok):
             Ci = C2[ok]
             val = -0.5 * self.chi2(Ci)

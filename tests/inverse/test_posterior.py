@@ -371,6 +371,11 @@ def test_taylor_model_is_exact_for_a_linear_emission():
     C = ce + 20.0 * rng.standard_normal((6, 8))
     np.testing.assert_allclose(tl(C), lp(C), rtol=1e-10)
     assert tl(ce) == pytest.approx(lp(ce), rel=1e-12)
+    # temperature bounds (300, 3000) K: checked in every voxel without T_std, only near a bound with it
+    cold = ce - 1300.0
+    assert lp(cold) == -np.inf and tl(cold) == -np.inf
+    far = TaylorLogPosterior(lp, ce, T_std=np.full(lp.basis.n_voxels, 1.0))
+    assert far._B_bound is None and np.isfinite(far(cold))  # T_e is > 6 K from both bounds everywhere
 
 
 def test_taylor_model_error_is_third_order_for_planck():
@@ -441,4 +446,18 @@ def test_taylor_sampler_matches_the_exact_sampler(planck_case):
         warnings.simplefilter("ignore", UserWarning)
         assert sample_posterior(prob, basis=basis, n_steps=20, progress=False, seed=1).likelihood == "exact"
         big = sample_posterior(prob, basis=basis, n_steps=20, progress=False, seed=1, dense_max=0, n_importance=50)
-    assert big.likelihood == "taylor"
+    assert big.likelihood == "taylor" and "pilot importance ESS" in big.likelihood_note
+
+
+def test_auto_likelihood_falls_back_to_exact_when_the_taylor_model_is_poor(planck_case):
+    """100x the noise: T std ~ 460 K, where the Planck expansion fails; the pilot's weights say so."""
+    p = planck_case["prob"]
+    broad = LinearProblem(p.A, p.y, 100.0 * p.sigma, p.grid, wavelength=WL)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        post = sample_posterior(broad, basis=planck_case["basis"], n_steps=20, progress=False, seed=1, dense_max=0)
+        forced = sample_posterior(broad, basis=planck_case["basis"], n_steps=200, progress=False, seed=1,
+                                  dense_max=0, likelihood="taylor", n_importance=200)
+    assert post.likelihood == "exact" and post.weights is None
+    assert "pilot importance ESS" in post.likelihood_note and "< 50 %" in post.likelihood_note
+    assert forced.likelihood == "taylor" and forced.importance_ess < 0.5 * 200  # what the pilot foresaw
