@@ -965,7 +965,8 @@ def run_reconstruct(
             "basis": posterior_basis, "names": list(post.names), "mean": post.coeff_mean, "std": post.coeff_std,
             "acceptance_mean": float(np.mean(post.acceptance_fraction)), "tau": post.tau,
             "n_eff": post.n_eff, "converged": post.converged, "n_steps": post.n_steps, "n_walkers": post.n_walkers,
-            "likelihood": post.likelihood, "importance_ess": post.importance_ess,
+            "likelihood": post.likelihood, "likelihood_note": post.likelihood_note,
+            "importance_ess": post.importance_ess,
             "warnings": [str(w.message) for w in caught if issubclass(w.category, UserWarning)],
         }
 
