@@ -81,7 +81,8 @@ class TaylorLogPosterior:
     Notes
     -----
     Calling it on ``C`` (W, K) returns (W,) log-probabilities, ``-inf`` outside the
-    basis' coefficient bounds; temperature bounds are not applied (module docstring).
+    basis' coefficient bounds and, in the voxels selected by ``T_std``, outside
+    the temperature bounds (module docstring).
     """
 
     def __init__(self, logpost: Any, c_e: Any, T_std: Any = None, margin: float = 6.0) -> None:
