@@ -139,7 +139,8 @@ def cmd_reconstruct(args) -> int:
                                                               if "coverage_90" in p else ""))
         else:
             print(f"  posterior: acceptance {p['acceptance_mean']:.2f}, tau max "
-                  f"{max(t for t in p['tau'] if t is not None):.1f}, {'converged' if p['converged'] else 'NOT converged'}")
+                  f"{max(t for t in p['tau'] if t is not None):.1f}, {'converged' if p['converged'] else 'NOT converged'}; "
+                  f"{p.get('likelihood_note', '')}")
     print(f"wrote {Path(args.output)}/: " + ", ".join(m["files"]))
     return 0
 

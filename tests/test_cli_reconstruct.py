@@ -74,7 +74,7 @@ def test_reconstruct_from_scene_file(tmp_path, capsys):
     assert "reconstructed 4x4x4 voxels" in capsys.readouterr().out
 
 
-def test_reconstruct_from_scene_refocus_fixed_lambda_with_posterior(tmp_path):
+def test_reconstruct_from_scene_refocus_fixed_lambda_with_posterior(tmp_path, capsys):
     scene = _scene(tmp_path)
     out = tmp_path / "rec"
     assert main(["reconstruct", str(scene), "-o", str(out), "--data", "refocus", "--depths", "0.997,1.0,1.003",
@@ -85,6 +85,8 @@ def test_reconstruct_from_scene_refocus_fixed_lambda_with_posterior(tmp_path):
     assert m["reconstruction"]["regularization"] == 1e-3 and m["reconstruction"]["lambda_rule"] == "fixed"
     assert len(m["posterior"]["names"]) == 12 and 0 <= m["posterior"]["acceptance_mean"] <= 1
     assert m["posterior"]["likelihood"] == "exact" and m["posterior"]["importance_ess"] is None  # 4³: dense H
+    assert "exact likelihood (auto: grid within dense_max" in m["posterior"]["likelihood_note"]
+    assert "exact likelihood (auto" in capsys.readouterr().out
 
 
 def test_reconstruct_with_full_grid_laplace_posterior(tmp_path, capsys):
