@@ -78,6 +78,15 @@ def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
     return out
 
 
+def csr_weighted_sq_norms(M: sp.csr_matrix, w: np.ndarray, X: Any) -> np.ndarray:
+    """``Σ_i w_i (M x)_i²`` for every row ``x`` of ``X`` (W, n), by :func:`csr_weighted_norms` under the lock."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    out = np.empty(X.shape[0], dtype=np.float64)
+    with _LOCK:
+        csr_weighted_norms(M.indptr, M.indices, M.data, w, X, out)
+    return out
+
+
 def _apply(handle: Any, x: Any, transpose: bool) -> np.ndarray:
     A, AT = _REGISTRY[handle]
     return csr_product(AT if transpose else A, x)

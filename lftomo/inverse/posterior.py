@@ -65,7 +65,7 @@ from .._validate import (
 )
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
 from .basis import MAX_COEFFS, TemperatureBasis
-from .hostsparse import _LOCK, csr_weighted_norms
+from .hostsparse import csr_weighted_sq_norms
 
 __all__ = [
     "SufficientStatistics",
@@ -167,10 +167,7 @@ class SufficientStatistics:
         single = X.ndim == 1
         D = np.atleast_2d(X) - self.x_ref
         if isinstance(self.H, NormalOperator):  # dᵀHd = Σ w (A d)²: one product with A, not two
-            A = self.H.A
-            quad = np.empty(D.shape[0])
-            with _LOCK:
-                csr_weighted_norms(A.indptr, A.indices, A.data, self.H.w, np.ascontiguousarray(D), quad)
+            quad = csr_weighted_sq_norms(self.H.A, self.H.w, D)
         else:
             quad = np.einsum("wi,wi->w", self._H_times_rows(D), D)
         q = quad - 2.0 * (D @ self.b) + self.c0
@@ -1196,7 +1193,7 @@ def sample_posterior(
         if auto:  # pilot: weights of 64 draws from the start's Gaussian; keep the model only if they are even
             Z = c_start + rng.standard_normal((64, K)) @ chol.T
             ess, n_ok = _pilot_ess(logpost(Z), target(Z))
-            if ess < 0.5 * n_ok or n_ok == 0:
+            if n_ok == 0 or ess < 0.5 * n_ok:
                 likelihood, target = "exact", logpost
                 note = (f"exact likelihood (auto: the Taylor model's pilot importance ESS was {ess:.1f} of {n_ok} "
                         "draws from the Laplace approximation, < 50 %)")
@@ -1255,17 +1252,21 @@ def sample_posterior(
     )
 
 
+def _importance_weights(lp: np.ndarray, lq: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Normalised weights ``∝ exp(lp - lq)`` (0 where either is -inf) and their ESS ``1/Σw²``; None if all are 0."""
+    logw = np.where(np.isfinite(lp) & np.isfinite(lq), lp - lq, -np.inf)
+    if not np.any(np.isfinite(logw)):
+        return None
+    w = np.exp(logw - np.max(logw))
+    w /= w.sum()
+    return w, float(1.0 / np.sum(w * w))
+
+
 def _pilot_ess(lp: np.ndarray, lq: np.ndarray) -> tuple[float, int]:
     """ESS of the weights exp(lp - lq) over the draws either density allows, and their number."""
     seen = np.isfinite(lp) | np.isfinite(lq)
-    n_ok = int(seen.sum())
-    if n_ok == 0:
-        return 0.0, 0
-    logw = np.where(np.isfinite(lp[seen]) & np.isfinite(lq[seen]), lp[seen] - lq[seen], -np.inf)
-    if not np.any(np.isfinite(logw)):
-        return 0.0, n_ok
-    w = np.exp(logw - np.max(logw))
-    return float(w.sum() ** 2 / np.sum(w * w)), n_ok
+    iw = _importance_weights(lp[seen], lq[seen])
+    return (0.0 if iw is None else iw[1]), int(seen.sum())
 
 
 def _not_converged(msg: str, strict: bool) -> None:
@@ -1284,13 +1285,10 @@ def _importance_correct(
     sub = samples[idx]
     chunk = max(1, min(256, int(4e6 // logpost.basis.n_voxels)))
     lp = np.concatenate([np.atleast_1d(logpost(sub[i : i + chunk])) for i in range(0, len(sub), chunk)])
-    lq = taylor(sub)
-    logw = np.where(np.isfinite(lp) & np.isfinite(lq), lp - lq, -np.inf)
-    if not np.any(np.isfinite(logw)):
+    iw = _importance_weights(lp, taylor(sub))
+    if iw is None:
         raise ValueError(
             "every sample of the Taylor model lies outside the temperature or basis bounds; "
             "widen bounds or use likelihood='exact'"
         )
-    w = np.exp(logw - np.max(logw))
-    w /= w.sum()
-    return sub, lp, w, float(1.0 / np.sum(w * w))
+    return sub, lp, iw[0], iw[1]
