@@ -23,6 +23,7 @@ from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
+from .inverse.symmetry import RingGrid, ring_grid
 
 __all__ = [
     "__version__",
@@ -80,4 +81,6 @@ __all__ = [
     "DCTBasis",
     "BSplineBasis",
     "ParametricFlame",
+    "RingGrid",
+    "ring_grid",
 ]

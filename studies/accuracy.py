@@ -45,6 +45,8 @@ def main():
     ap.add_argument("--width", type=float, default=0.0, help="flame base width (m); 0: the phantom's default")
     ap.add_argument("--linear-max-steps", type=int, default=0,
                     help="LSMR iterations per nonlinear step (0: the solver's default)")
+    ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
+                    help="axisymmetric: fit ring cells about the box's vertical axis (lt.ring_grid)")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     t0 = time.perf_counter()
@@ -75,7 +77,8 @@ def main():
         m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
         t = time.perf_counter()
         opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}
-        rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, **opts)
+        sym = None if a.symmetry == "none" else a.symmetry
+        rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, symmetry=sym, **opts)
         dt = time.perf_counter() - t
         e = rec.errors(T_true)
         sel = T_true > 800

@@ -53,6 +53,9 @@ def main():
                     help="weight of the zeroth-order (ridge) prior term on sigma_a, relative to the smoothness term")
     ap.add_argument("--sigma-a-scale", type=float, default=0.0,
                     help="scale (1/m) of sigma_a in its prior term (0: the solver's default)")
+    ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
+                    help="axisymmetric: fit ring cells about the box's vertical axis (lt.ring_grid)")
+    ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian"])
     ap.add_argument("--json", default="")
     ap.add_argument("--npz", default="", help="save truth, start and fitted fields of the last λ here")
     a = ap.parse_args()
@@ -87,7 +90,8 @@ def main():
 
     W = seg.weights(sa_c)
     t = time.perf_counter()
-    only = lt.reconstruct(ms[0], W)
+    sym = None if a.symmetry == "none" else a.symmetry
+    only = lt.reconstruct(ms[0], W, symmetry=sym, prior=a.prior)
     t_only = time.perf_counter() - t
     eO = rel(only.T, T_true)
 
@@ -101,7 +105,8 @@ def main():
         t = time.perf_counter()
         opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
         opts["sigma_a_ridge"] = a.sigma_a_ridge
-        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps, **opts)
+        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps,
+                             symmetry=sym, prior=a.prior, **opts)
         t_joint = time.perf_counter() - t
         eT, es = rel(rec.T, T_true), rel(rec.sigma_a, sa_c)
         # σ_a relative to the field's own scale (the per-voxel ratio explodes where the truth is ~0)
@@ -109,7 +114,7 @@ def main():
         T_start, s_start = rec.details["T_start"], rec.details["sigma_a_start"]
         eT0, es0 = rel(T_start, T_true), rel(s_start, sa_c)
         row = {
-            "n": a.n, "views": len(views), "data_per_channel": int(ms[0].size),
+            "n": a.n, "symmetry": a.symmetry, "prior": a.prior, "views": len(views), "data_per_channel": int(ms[0].size),
             "joint": {"T_mean_rel": float(eT.mean()), "T_max_rel": float(eT.max()),
                       "sigma_a_mean_rel": float(es.mean()), "sigma_a_max_rel": float(es.max()),
                       "sigma_a_l1_rel": es_l1,

@@ -54,6 +54,7 @@ from .solvers import (
     _nl_solver,
     planck_jax,
 )
+from .symmetry import RingGrid
 
 #: A solve also stops when its objective changes by less than this fraction
 #: over a chunk of 10 steps (or ``rtol`` if larger).
@@ -136,6 +137,7 @@ def solve_temperature_absorption(
     linear_rtol: float = 1e-6,
     linear_max_steps: int = 50,
     engine: str = "host",
+    symmetry: Any = None,
 ) -> Reconstruction:
     """Fit ``T`` and ``σ_a`` jointly (see the module docstring).
 
@@ -167,6 +169,11 @@ def solve_temperature_absorption(
         ``"jax"`` differentiates :meth:`lftomo.RaySegments.forward_jax` with
         JAX autodiff (same values to rounding, each product walks every segment:
         about 30× slower per step).
+    symmetry : RingGrid, optional
+        Fit axisymmetric ``T`` and ``σ_a``: the unknowns are the ring cells of
+        this :class:`~lftomo.RingGrid` (on the segments' grid), the prior the
+        voxel grid's restricted to axisymmetric fields; ``T0`` and
+        ``sigma_a0`` may be given on the voxel grid (their ring means are used).
 
     Returns
     -------
@@ -201,13 +208,24 @@ def solve_temperature_absorption(
         raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
     grid = Grid.from_dict(segments.metadata["grid"])
     n = grid.n_voxels
+    ring = symmetry
+    if ring is not None:
+        if not isinstance(ring, RingGrid):
+            raise ValueError(f"symmetry must be None or a RingGrid, got {type(ring).__name__}")
+        if ring.grid != grid:
+            raise ValueError(f"symmetry is a RingGrid on grid shape {tuple(ring.grid.shape)}; the segments' grid is "
+                             f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})")
+    # unknowns: one per voxel, or one per ring cell (voxel values gathered from them)
+    n_u = n if ring is None else ring.n_voxels
+    cell = None if ring is None else jnp.asarray(ring.cell_of_voxel)
+    P = sp.identity(n, format="csr") if ring is None else ring.expansion
     rows = [_rows_for(m, segments) for m in ms]
     ys = [jnp.asarray(m.y) for m in ms]
     inv_s = [jnp.asarray(1.0 / m.sigma) for m in ms]
     rows_j = [jnp.asarray(np.maximum(r, 0)) for r in rows]
     valid = [jnp.asarray(r >= 0) for r in rows]
     factors = [(wls[0] / w) ** alpha for w in wls]
-    L_sp = prior_operator(grid, prior)
+    L_sp = prior_operator(grid if ring is None else ring, prior)
     L = to_bcoo(L_sp)
     if engine == "host":
         from .hostsegments import host_forward
@@ -222,15 +240,19 @@ def solve_temperature_absorption(
         return host_F(Ib, sa) if seg_ is None else seg_.forward(Ib, sa)
 
     def unpack(p):
-        th, rho = p[:n], p[n:]
+        th, rho = p[:n_u], p[n_u:]
         return lo + (hi - lo) * jax.nn.sigmoid(th), sigma_a_max * jax.nn.sigmoid(rho)
+
+    def on_voxels(x):
+        return x if cell is None else x[cell]
 
     def residual(p, args):
         seg_, lam = args
         T, sref = unpack(p)
+        Tv, sv = on_voxels(T), on_voxels(sref)
         out = []
         for c in range(len(ms)):
-            s = model_signal(seg_, planck_jax(T, wls[c]), sref * factors[c])
+            s = model_signal(seg_, planck_jax(Tv, wls[c]), sv * factors[c])
             model = jnp.where(valid[c], s[rows_j[c]], 0.0)
             out.append((model - ys[c]) * inv_s[c])
         out.append(jnp.sqrt(lam) * (L @ ((T - lo) / (hi - lo))))
@@ -253,6 +275,8 @@ def solve_temperature_absorption(
     s_init = s_tc if sigma_a0 is None else np.asarray(sigma_a0, float).ravel()
     if T_init.size != n or s_init.size != n:
         raise ValueError(f"T0 and sigma_a0 must have {n} voxels (grid {grid.shape})")
+    if ring is not None:
+        T_init, s_init = ring.project(T_init).ravel(), ring.project(s_init).ravel()
     p = jnp.asarray(np.concatenate([logit((T_init - lo) / (hi - lo)), logit(s_init / sigma_a_max)]))
     solver = _nl_solver(method, rtol, atol, linear_rtol, linear_max_steps)
 
@@ -266,18 +290,19 @@ def solve_temperature_absorption(
     rows_np = [np.maximum(r, 0) for r in rows]
 
     def column_scale(pv, lam):
-        sg, sr = 1.0 / (1.0 + np.exp(-pv[:n])), 1.0 / (1.0 + np.exp(-pv[n:]))
+        sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
         T, sref = lo + (hi - lo) * sg, sigma_a_max * sr
         dT, ds = (hi - lo) * sg * (1.0 - sg), sigma_a_max * sr * (1.0 - sr)
-        c2 = np.zeros(2 * n)
+        Tv, sv = P @ T, P @ sref
+        c2 = np.zeros(2 * n_u)
         for c in range(len(ms)):
-            sa_c = sref * factors[c]
-            Wc = whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]]
-            Jc = whiten[c] @ sp.csr_matrix(segments.jacobian(_blackbody_np(T, wls[c]), sa_c)[1])[rows_np[c]]
-            c2[:n] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * (_dblackbody_np(T, wls[c]) * dT) ** 2
-            c2[n:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
-        c2[:n] += lam * colsq_L * (dT / (hi - lo)) ** 2
-        c2[n:] += lam * (colsq_L + ridge) * (ds / s_scale) ** 2
+            sa_c = sv * factors[c]
+            Wc = whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]] @ P
+            Jc = whiten[c] @ sp.csr_matrix(segments.jacobian(_blackbody_np(Tv, wls[c]), sa_c)[1])[rows_np[c]] @ P
+            c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * (_dblackbody_np(T, wls[c]) * dT) ** 2
+            c2[n_u:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
+        c2[:n_u] += lam * colsq_L * (dT / (hi - lo)) ** 2
+        c2[n_u:] += lam * (colsq_L + ridge) * (ds / s_scale) ** 2
         return _jacobi_scale(c2)
 
     def scaled_residual(psi, args):
@@ -297,7 +322,7 @@ def solve_temperature_absorption(
         pv = np.asarray(p0, dtype=np.float64)
         steps, result = 0, optx.RESULTS.nonlinear_max_steps_reached
         obj_prev, data_sq = objective(pv, lam)
-        zeros = jnp.zeros(2 * n)
+        zeros = jnp.zeros(2 * n_u)
         while steps < max_steps:
             k = min(10, max_steps - steps)
             D = column_scale(pv, lam)
@@ -365,16 +390,20 @@ def solve_temperature_absorption(
         sol, chi2 = solve(p, lam)
         rule = "fixed"
     T, sref = unpack(sol.value)
+    reg_norm = float(np.linalg.norm(np.asarray(L @ ((T - lo) / (hi - lo)))))
+    T, sref = np.asarray(on_voxels(T)), np.asarray(on_voxels(sref))
+    if ring is not None:
+        T_init, s_init = ring.expand(T_init), ring.expand(s_init)
     steps = int(sol.stats.get("num_steps", -1)) if hasattr(sol, "stats") else -1
     return Reconstruction(
-        T=np.asarray(T).reshape(grid.shape),
-        sigma_a=np.asarray(sref).reshape(grid.shape),
+        T=T.reshape(grid.shape),
+        sigma_a=sref.reshape(grid.shape),
         grid=grid,
         regularization=lam,
         lambda_rule=rule,
         chi2=chi2,
         residual_norm=float(np.sqrt(chi2 * m_total)),
-        regularization_norm=float(np.linalg.norm(np.asarray(L @ ((T - lo) / (hi - lo))))),
+        regularization_norm=reg_norm,
         iterations=steps,
         converged=bool(sol.result == optx.RESULTS.successful),
         timing={"total": time.perf_counter() - t_start},
@@ -382,4 +411,5 @@ def solve_temperature_absorption(
         data_kind="subaperture",
         details={"lambda_path": path, "wavelengths": wls, "alpha": alpha, "start": start,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape)},
+        symmetry=ring,
     )

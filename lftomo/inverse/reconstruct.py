@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 
 from ..forward.grid import Grid
+from .problem import LinearProblem
+from .symmetry import RingGrid, ring_grid
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,7 +46,11 @@ class Reconstruction:
         Seconds per stage.
     unknowns, data_kind : str
     details : Any
-        The solver's own result object.
+        The solver's own result object (for an axisymmetric fit its fields
+        live on the ring cells).
+    symmetry : RingGrid or None
+        The ring grid of an axisymmetric reconstruction (``T`` is then
+        ``symmetry.expand`` of the ring-cell solution), else None.
     """
 
     T: np.ndarray
@@ -62,6 +68,7 @@ class Reconstruction:
     data_kind: str
     details: Any = None
     metadata: dict = field(default_factory=dict)
+    symmetry: Any = None
 
     def errors(self, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
         """Relative temperature errors against ``T_true`` (same grid) where ``T_true > hot`` (K).
@@ -85,6 +92,7 @@ class Reconstruction:
             "iterations": self.iterations,
             "converged": self.converged,
             "timing_s": self.timing,
+            "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
         }
 
 
@@ -126,6 +134,7 @@ def reconstruct(
     method: str = "levenberg-marquardt",
     rule: str = "discrepancy",
     T0: Any = None,
+    symmetry: Any = None,
     **options: Any,
 ) -> Reconstruction:
     """Reconstruct the temperature field from a measurement.
@@ -148,6 +157,14 @@ def reconstruct(
     rule : {"discrepancy", "gcv", "lcurve"}
     T0 : ndarray, optional
         Initial temperature field (default: from the linear baseline).
+    symmetry : None, "axisymmetric" or RingGrid
+        ``"axisymmetric"``: fit an axisymmetric field about the vertical (+y)
+        axis through the box centre (:func:`lftomo.ring_grid`); a
+        :class:`~lftomo.RingGrid` chooses the axis and ring tolerance.  The
+        unknowns are then the ring cells (voxels of one layer at the same
+        distance from the axis), the forward model ``A P`` and the prior the
+        voxel grid's restricted to axisymmetric fields; ``T`` is returned on the
+        voxel grid.  Default None: every voxel free.
     **options
         Passed to :func:`lftomo.inverse.solvers.solve_temperature` (``"T"``) or
         :func:`lftomo.inverse.joint.solve_temperature_absorption`.
@@ -170,20 +187,27 @@ def reconstruct(
         from .joint import solve_temperature_absorption
 
         return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
-                                            bounds=bounds, method=method, T0=T0, **options)
+                                            bounds=bounds, method=method, T0=T0,
+                                            symmetry=_ring_grid_of(symmetry, weights), **options)
     from .solvers import solve_temperature
 
     if isinstance(measurement, (list, tuple)):
         raise ValueError("unknowns='T' takes one Measurement (one wavelength); pass the channel to use")
     t0 = time.perf_counter()
     grid = _grid_of(weights)
+    ring = _ring_grid_of(symmetry, weights)
     problem = measurement.problem(weights, grid)
+    if ring is not None:
+        problem = LinearProblem(A=ring.reduce(problem.A), y=problem.y, sigma=problem.sigma, grid=ring,
+                                wavelength=problem.wavelength, background=problem.background,
+                                metadata=problem.metadata)
+        T0 = _ring_start(T0, ring)
     t_setup = time.perf_counter() - t0
     sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
                             method=method, rule=rule, **options)
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items()}}
     return Reconstruction(
-        T=sol.T,
+        T=sol.T if ring is None else ring.expand(sol.T),
         sigma_a=None,
         grid=grid,
         regularization=sol.regularization,
@@ -197,4 +221,35 @@ def reconstruct(
         unknowns="T",
         data_kind=measurement.kind,
         details=sol,
+        symmetry=ring,
     )
+
+
+def _ring_grid_of(symmetry: Any, weights: Any) -> RingGrid | None:
+    """The ring grid asked for by ``symmetry`` on the weights' grid (None: no symmetry)."""
+    if symmetry is None:
+        return None
+    grid = _grid_of(weights)
+    if isinstance(symmetry, str):
+        if symmetry != "axisymmetric":
+            raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {symmetry!r}")
+        return ring_grid(grid)
+    if isinstance(symmetry, RingGrid):
+        if symmetry.grid != grid:
+            raise ValueError(
+                f"symmetry is a RingGrid on grid shape {tuple(symmetry.grid.shape)} "
+                f"(box {symmetry.grid.lower}–{symmetry.grid.upper}); the weights' grid is "
+                f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})"
+            )
+        return symmetry
+    raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {type(symmetry).__name__}")
+
+
+def _ring_start(T0: Any, ring: RingGrid) -> Any:
+    """A voxel-grid starting field becomes its ring means; scalars and strings pass through."""
+    if T0 is None or isinstance(T0, str) or np.ndim(T0) == 0:
+        return T0
+    arr = np.asarray(T0, dtype=np.float64)
+    if arr.shape in (tuple(ring.grid.shape), (ring.grid.n_voxels,)):
+        return ring.project(arr)
+    return arr

@@ -51,6 +51,7 @@ import scipy.sparse as sp  # noqa: E402
 from jax.experimental import sparse as jsparse  # noqa: E402
 
 from .._validate import require_positive  # noqa: E402
+from .symmetry import RingGrid  # noqa: E402
 
 __all__ = [
     "PRIORS",
@@ -146,8 +147,10 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
 
     Parameters
     ----------
-    grid : Grid
-        Reconstruction grid.
+    grid : Grid or RingGrid
+        Reconstruction grid.  For a :class:`~lftomo.inverse.symmetry.RingGrid`
+        the operator is the voxel grid's, restricted to axisymmetric fields:
+        ``L P`` (rows of the voxel grid, columns = ring cells).
     prior : {"gradient", "laplacian", "tv"}
         ``"gradient"`` and ``"tv"`` give :func:`gradient_operator`,
         ``"laplacian"`` gives :func:`laplacian_operator`.
@@ -169,6 +172,9 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
     """
     if prior not in PRIORS:
         raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
+    if isinstance(grid, RingGrid):
+        # the voxel grid's prior restricted to axisymmetric fields: L P
+        return (prior_operator(grid.grid, prior, dimensionless=dimensionless) @ grid.expansion).tocsr()
     _, h = _check_grid(grid)
     hbar = float(np.prod(h) ** (1.0 / 3.0))
     if prior == "laplacian":
