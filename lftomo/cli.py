@@ -122,7 +122,7 @@ def cmd_reconstruct(args) -> int:
         bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis,
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
         rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
-        min_etendue_fraction=args.min_etendue_fraction, progress=not args.quiet)
+        min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, progress=not args.quiet)
     r = m["reconstruction"]
     print(f"reconstructed {'x'.join(map(str, r['grid_shape']))} voxels from {m['measurement']['n_data']} "
           f"{r['data']} data: lambda {r['regularization']:.3g} ({r['lambda_rule']}), chi2/m {r['chi2_per_datum']:.3g}, "
@@ -282,6 +282,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "
                          "images, default 0.2)")
     rc.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
+    rc.add_argument("--symmetry", choices=("none", "axisymmetric"), default="none",
+                    help="axisymmetric: fit one temperature per ring of voxels about the grid's vertical axis "
+                         "(lftomo.ring_grid; for axisymmetric flames: removes the depth ambiguity of one camera)")
     rc.add_argument("--posterior", action="store_true",
                     help="also compute a posterior (see --posterior-basis)")
     rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default="flame",

@@ -85,6 +85,18 @@ def main():
         visible = sel & (sa_c * np.asarray(coarse.spacing).mean() > 1e-3)
         e["mean_rel_visible"] = float(np.mean(np.abs(rec.T[visible] / T_true[visible] - 1))) if visible.any() else None
         e["n_visible"] = int(visible.sum())
+        # by how visible the voxels are at this wavelength: T bands, and the voxels whose emission
+        # σ_a I_b(T) is >= 1 % of its maximum (at 650 nm a 1000 K voxel emits 3e-5 of a 1900 K one)
+        rel = np.abs(rec.T / T_true - 1)
+        for lo_T in (1100, 1400):
+            band = T_true > lo_T
+            e[f"mean_rel_T_gt_{lo_T}"] = float(rel[band].mean())
+            e[f"max_rel_T_gt_{lo_T}"] = float(rel[band].max())
+        emission = sa_c * lt.planck(T_true, wl)
+        emitting = sel & (emission >= 0.01 * emission.max())
+        e["mean_rel_emitting"] = float(rel[emitting].mean())
+        e["max_rel_emitting"] = float(rel[emitting].max())
+        e["n_emitting"] = int(emitting.sum())
         # misfit of the effective truth itself
         chi2_true = m.problem(W, coarse).chi2(T_true)
         row = {"draw": d, **e, "lambda": rec.regularization, "chi2": rec.chi2, "chi2_truth": chi2_true,

@@ -61,6 +61,10 @@ def main():
     ap.add_argument("--method", choices=("auto", "dense", "sampled"), default="auto",
                     help="--laplace-field: dense (exact, n <= 4096) or sampled (matrix-free draws)")
     ap.add_argument("--samples", type=int, default=64, help="--laplace-field --method sampled: draws")
+    ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
+                    help="--laplace-field: posterior of an axisymmetric field (ring cells, lt.ring_grid)")
+    ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian"],
+                    help="--laplace-field: smoothness prior")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     wl = 650e-9
@@ -95,7 +99,8 @@ def main():
         if a.laplace_field:
             reg = a.regularization if a.regularization in ("evidence", "auto") else float(a.regularization)
             post = lt.laplace_posterior(m, W, regularization=reg, method=a.method, n_samples=a.samples,
-                                        seed=400 + d)
+                                        seed=400 + d, prior=a.prior,
+                                        symmetry=None if a.symmetry == "none" else a.symmetry)
             row = {"draw": d, "coverage_hot": post.coverage(T_true), "n_hot": int(hot.sum()),
                    "lambda": post.regularization, "lambda_rule": post.lambda_rule, "method": post.method,
                    "mean_rel_error": post.errors(T_true)["mean_rel"],

@@ -105,6 +105,28 @@ def test_reconstruct_with_full_grid_laplace_posterior(tmp_path, capsys):
     assert rc == 2 and "Gaussian prior" in capsys.readouterr().err
 
 
+def test_reconstruct_axisymmetric_with_field_posterior(tmp_path, capsys):
+    """--symmetry axisymmetric: the blob (centred on the box's vertical axis) is
+    fitted on ring cells; the field and its posterior std are axisymmetric."""
+    import lftomo as lt
+
+    scene = _scene(tmp_path)
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(scene), "-o", str(out), "--symmetry", "axisymmetric", "--posterior",
+                 "--posterior-basis", "field", *FAST]) == 0
+    m = _check_outputs(out, (4, 4, 4), truth=True, posterior=True)
+    sym = m["reconstruction"]["symmetry"]
+    assert sym["kind"] == "axisymmetric" and sym["n_rings"] == 3 and m["posterior"]["symmetry"]["n_rings"] == 3
+    f = np.load(out / "fields.npz")
+    rg = lt.ring_grid(lt.Grid((4, 4, 4), (-0.006, -0.006, 0.994), (0.006, 0.006, 1.006)))
+    for key in ("T", "T_posterior_std"):
+        np.testing.assert_allclose(rg.expand(rg.project(f[key])), f[key], rtol=1e-12)
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["reconstruct", str(scene), "-o", str(out), "--symmetry", "conical", *FAST])
+    assert "--symmetry" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
     """A rendered light field (8^3 truth, seed 0) and a weight matrix on a 4^3 grid (seed 7)."""

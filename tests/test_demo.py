@@ -24,8 +24,8 @@ from PIL import Image
 from lftomo.cli import build_parser
 from lftomo.demo import run_demo
 
-STAGES = ("camera", "render", "weights", "measurement", "reconstruct", "posterior", "field_posterior", "compare",
-          "total")
+STAGES = ("camera", "render", "weights", "measurement", "reconstruct", "reconstruct_axisymmetric", "posterior",
+          "field_posterior", "compare", "total")
 IMG_RE = re.compile(r'<img src="data:image/png;base64,([^"]*)" alt="[^"]*" data-file="([^"]+)">')
 
 # Counts the figures that really decoded once the page has loaded, into an
@@ -86,7 +86,7 @@ def test_metrics_are_complete_and_finite(demo):
     m = json.loads(text)
     assert m == json.loads(json.dumps(returned))
     for key in ("parameters", "environment", "camera", "render", "weights", "measurement", "reconstruction",
-                "posterior", "field_posterior", "compare", "timings_s", "warnings"):
+                "reconstruction_axisymmetric", "posterior", "field_posterior", "compare", "timings_s", "warnings"):
         assert key in m, key
     p = m["parameters"]
     assert p["mode"] == "quick" and p["seed"] == 0
@@ -103,6 +103,9 @@ def test_metrics_are_complete_and_finite(demo):
     for k in ("mean_rel", "max_rel", "rms_K"):
         assert math.isfinite(r["errors_T_gt_800K"][k]) and r["errors_T_gt_800K"][k] >= 0
     assert r["errors_T_gt_800K"]["n_voxels"] > 0
+    ra = m["reconstruction_axisymmetric"]
+    assert ra["symmetry"]["kind"] == "axisymmetric" and ra["symmetry"]["n_rings"] > 0
+    assert ra["errors_T_gt_800K"]["n_voxels"] == r["errors_T_gt_800K"]["n_voxels"]
     assert math.isfinite(m["measurement"]["chi2_at_effective_truth"])
     po = m["posterior"]
     assert 0 < po["acceptance_mean"] < 1 and po["tau_max_steps"] > 0
@@ -140,7 +143,7 @@ def test_every_figure_exists_beside_the_report_and_decodes(demo):
             assert im.size[0] > 100 and im.size[1] > 100, name
     fields = np.load(out / "fields.npz")
     shape = tuple(fields["grid_shape"])
-    for k in ("T_effective_truth", "T_reconstruction", "T_posterior_mean", "T_posterior_std", "T_field_posterior_std",
+    for k in ("T_effective_truth", "T_reconstruction", "T_reconstruction_axisymmetric", "T_posterior_mean", "T_posterior_std", "T_field_posterior_std",
               "sigma_a"):
         assert fields[k].shape == shape and np.all(np.isfinite(fields[k])), k
 

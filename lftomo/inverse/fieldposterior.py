@@ -61,6 +61,7 @@ from .problem import LinearProblem
 from .reconstruct import _grid_of, temperature_errors
 from .regularizers import prior_operator
 from .solvers import _check_bounds, _dblackbody_np, solve_temperature
+from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 _PRIORS = ("gradient", "laplacian")
 _METHODS = ("auto", "dense", "sampled")
@@ -97,7 +98,12 @@ class FieldPosterior:
         The regularized reconstruction at ``regularization``
         (:func:`lftomo.solve_temperature`).
     grid : Grid
+        The voxel grid (the fields above live on it).
     elapsed_s : float
+    symmetry : RingGrid or None
+        For an axisymmetric posterior, its ring cells: the unknowns, whose
+        posterior is expanded onto the voxel grid (``solution`` stays on the
+        ring cells).
     metadata : dict
         ``"cg_iterations"`` (of the last sampled evaluation), ``"solve_s"`` and
         ``"posterior_s"``: seconds in the reconstructions and in the posterior
@@ -119,6 +125,7 @@ class FieldPosterior:
     grid: Any
     elapsed_s: float
     metadata: dict = field(default_factory=dict)
+    symmetry: Any = None
 
     def coverage(self, T_true: Any, *, hot: float = 800.0) -> float:
         """Fraction of the voxels with ``T_true > hot`` (K) whose credible interval contains ``T_true``."""
@@ -147,6 +154,7 @@ class FieldPosterior:
                 k: [None if isinstance(x, float) and not math.isfinite(x) else x for x in v] if isinstance(v, list) else v
                 for k, v in self.evidence.items()},
             "elapsed_s": self.elapsed_s,
+            "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
         }
 
 
@@ -297,6 +305,7 @@ def laplace_posterior(
     cg_max_iter: int = 5000,
     seed: int | None = 0,
     progress: bool = False,
+    symmetry: Any = None,
     **options: Any,
 ) -> FieldPosterior:
     """Full-grid Laplace posterior of the temperature field (T only, known ``sigma_a``).
@@ -346,6 +355,11 @@ def laplace_posterior(
         Seed of the sampled method's draws.
     progress : bool, keyword-only
         Print one line per evidence iteration.
+    symmetry : None, "axisymmetric" or RingGrid, keyword-only
+        Posterior of an axisymmetric field (as in :func:`lftomo.reconstruct`):
+        the unknowns are the ring cells, the prior the voxel grid's restricted
+        to axisymmetric fields, and the fields are returned on the voxel grid.
+        ``dense_max`` then counts ring cells.
     **options
         Passed to :func:`lftomo.solve_temperature` (e.g. ``linear_max_steps``);
         ``T0`` starts the first reconstruction (e.g. a reconstruction at
@@ -394,6 +408,9 @@ def laplace_posterior(
         if weights is None:
             raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
         problem = measurement.problem(weights, _grid_of(weights))  # validates data against the weights
+    ring = resolve_symmetry(symmetry, problem.grid)
+    if ring is not None:
+        problem = ring_problem(problem, ring)
     grid = problem.grid
     n = grid.n_voxels
     if method == "auto":
@@ -401,6 +418,8 @@ def laplace_posterior(
     rng = np.random.default_rng(seed)
 
     T_start = options.pop("T0", None)
+    if ring is not None:
+        T_start = ring_start(T_start, ring)
     clock = {"solve_s": 0.0, "posterior_s": 0.0}
     Ls = _scaled_prior(grid, prior, bounds)
 
@@ -461,11 +480,17 @@ def laplace_posterior(
         rule = rec.lambda_choice.rule if regularization == "auto" else "fixed"
     std = np.sqrt(st.var).reshape(grid.shape)
     z = float(ndtri(0.5 + 0.5 * float(credible_level)))
-    samples = None if st.deltas is None else rec.T[None] + st.deltas.reshape((-1, *grid.shape))
+    T_hat = rec.T
+    samples = None if st.deltas is None else T_hat.reshape(1, -1) + st.deltas.reshape(-1, n)
+    if ring is not None:  # back on the voxel grid
+        T_hat, std, grid = ring.expand(T_hat), ring.expand(std), ring.grid
+    if samples is not None:
+        samples = ring.expand(samples) if ring is not None else samples.reshape((-1, *grid.shape))
     return FieldPosterior(
-        T_mean=rec.T, T_std=std, T_lower=rec.T - z * std, T_upper=rec.T + z * std,
+        T_mean=T_hat, T_std=std, T_lower=T_hat - z * std, T_upper=T_hat + z * std,
         credible_level=float(credible_level), regularization=float(lam), lambda_rule=rule, method=method,
         n_samples=0 if method == "dense" else n_samples, samples=samples, evidence=evidence, solution=rec,
         grid=grid, elapsed_s=time.perf_counter() - t_start,
         metadata={"cg_iterations": st.cg_iterations, **clock},
+        symmetry=ring,
     )

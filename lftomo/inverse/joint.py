@@ -54,7 +54,7 @@ from .solvers import (
     _nl_solver,
     planck_jax,
 )
-from .symmetry import RingGrid
+from .symmetry import resolve_symmetry
 
 #: A solve also stops when its objective changes by less than this fraction
 #: over a chunk of 10 steps (or ``rtol`` if larger).
@@ -169,9 +169,9 @@ def solve_temperature_absorption(
         ``"jax"`` differentiates :meth:`lftomo.RaySegments.forward_jax` with
         JAX autodiff (same values to rounding, each product walks every segment:
         about 30× slower per step).
-    symmetry : RingGrid, optional
-        Fit axisymmetric ``T`` and ``σ_a``: the unknowns are the ring cells of
-        this :class:`~lftomo.RingGrid` (on the segments' grid), the prior the
+    symmetry : None, "axisymmetric" or RingGrid, optional
+        Fit axisymmetric ``T`` and ``σ_a``: the unknowns are the ring cells
+        (:func:`lftomo.ring_grid` on the segments' grid), the prior the
         voxel grid's restricted to axisymmetric fields; ``T0`` and
         ``sigma_a0`` may be given on the voxel grid (their ring means are used).
 
@@ -208,13 +208,7 @@ def solve_temperature_absorption(
         raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
     grid = Grid.from_dict(segments.metadata["grid"])
     n = grid.n_voxels
-    ring = symmetry
-    if ring is not None:
-        if not isinstance(ring, RingGrid):
-            raise ValueError(f"symmetry must be None or a RingGrid, got {type(ring).__name__}")
-        if ring.grid != grid:
-            raise ValueError(f"symmetry is a RingGrid on grid shape {tuple(ring.grid.shape)}; the segments' grid is "
-                             f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})")
+    ring = resolve_symmetry(symmetry, grid)
     # unknowns: one per voxel, or one per ring cell (voxel values gathered from them)
     n_u = n if ring is None else ring.n_voxels
     cell = None if ring is None else jnp.asarray(ring.cell_of_voxel)

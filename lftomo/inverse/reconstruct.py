@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..forward.grid import Grid
-from .problem import LinearProblem
-from .symmetry import RingGrid, ring_grid
+from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 
 @dataclass(frozen=True, eq=False)
@@ -188,20 +187,18 @@ def reconstruct(
 
         return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
                                             bounds=bounds, method=method, T0=T0,
-                                            symmetry=_ring_grid_of(symmetry, weights), **options)
+                                            symmetry=symmetry, **options)
     from .solvers import solve_temperature
 
     if isinstance(measurement, (list, tuple)):
         raise ValueError("unknowns='T' takes one Measurement (one wavelength); pass the channel to use")
     t0 = time.perf_counter()
     grid = _grid_of(weights)
-    ring = _ring_grid_of(symmetry, weights)
+    ring = resolve_symmetry(symmetry, grid)
     problem = measurement.problem(weights, grid)
     if ring is not None:
-        problem = LinearProblem(A=ring.reduce(problem.A), y=problem.y, sigma=problem.sigma, grid=ring,
-                                wavelength=problem.wavelength, background=problem.background,
-                                metadata=problem.metadata)
-        T0 = _ring_start(T0, ring)
+        problem = ring_problem(problem, ring)
+        T0 = ring_start(T0, ring)
     t_setup = time.perf_counter() - t0
     sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
                             method=method, rule=rule, **options)
@@ -223,33 +220,3 @@ def reconstruct(
         details=sol,
         symmetry=ring,
     )
-
-
-def _ring_grid_of(symmetry: Any, weights: Any) -> RingGrid | None:
-    """The ring grid asked for by ``symmetry`` on the weights' grid (None: no symmetry)."""
-    if symmetry is None:
-        return None
-    grid = _grid_of(weights)
-    if isinstance(symmetry, str):
-        if symmetry != "axisymmetric":
-            raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {symmetry!r}")
-        return ring_grid(grid)
-    if isinstance(symmetry, RingGrid):
-        if symmetry.grid != grid:
-            raise ValueError(
-                f"symmetry is a RingGrid on grid shape {tuple(symmetry.grid.shape)} "
-                f"(box {symmetry.grid.lower}–{symmetry.grid.upper}); the weights' grid is "
-                f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})"
-            )
-        return symmetry
-    raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {type(symmetry).__name__}")
-
-
-def _ring_start(T0: Any, ring: RingGrid) -> Any:
-    """A voxel-grid starting field becomes its ring means; scalars and strings pass through."""
-    if T0 is None or isinstance(T0, str) or np.ndim(T0) == 0:
-        return T0
-    arr = np.asarray(T0, dtype=np.float64)
-    if arr.shape in (tuple(ring.grid.shape), (ring.grid.n_voxels,)):
-        return ring.project(arr)
-    return arr

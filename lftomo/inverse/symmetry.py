@@ -35,8 +35,9 @@ import scipy.sparse as sp
 
 from .._validate import require_array, require_nonnegative, require_vector
 from ..forward.grid import Grid
+from .problem import LinearProblem
 
-__all__ = ["RingGrid", "ring_grid"]
+__all__ = ["RingGrid", "ring_grid", "resolve_symmetry", "ring_problem"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,3 +229,55 @@ def ring_grid(grid: Grid, *, axis: Any = None, tolerance: float | None = None) -
         ring_of_column=ring.reshape(r.shape),
         tolerance=float(tol),
     )
+
+
+def resolve_symmetry(symmetry: Any, grid: Grid) -> RingGrid | None:
+    """The ring grid that a ``symmetry`` argument asks for on ``grid``.
+
+    Parameters
+    ----------
+    symmetry : None, "axisymmetric" or RingGrid
+        None: no symmetry (returns None); ``"axisymmetric"``: rings about the
+        vertical axis through the box centre; a RingGrid: itself, which must be
+        built on ``grid``.
+    grid : Grid
+        The reconstruction grid.
+
+    Returns
+    -------
+    RingGrid or None
+    """
+    if symmetry is None:
+        return None
+    if isinstance(symmetry, str):
+        if symmetry != "axisymmetric":
+            raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {symmetry!r}")
+        return ring_grid(grid)
+    if isinstance(symmetry, RingGrid):
+        if symmetry.grid != grid:
+            raise ValueError(
+                f"symmetry is a RingGrid on grid shape {tuple(symmetry.grid.shape)} "
+                f"(box {symmetry.grid.lower}–{symmetry.grid.upper}); the weights' grid is "
+                f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})"
+            )
+        return symmetry
+    raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {type(symmetry).__name__}")
+
+
+def ring_problem(problem: LinearProblem, ring: RingGrid) -> LinearProblem:
+    """The same data with the forward model ``A P`` on the ring cells of ``ring``."""
+    if problem.grid != ring.grid:
+        raise ValueError(f"the problem's grid {tuple(problem.grid.shape)} is not the ring grid's "
+                         f"{tuple(ring.grid.shape)}")
+    return LinearProblem(A=ring.reduce(problem.A), y=problem.y, sigma=problem.sigma, grid=ring,
+                         wavelength=problem.wavelength, background=problem.background, metadata=problem.metadata)
+
+
+def ring_start(T0: Any, ring: RingGrid) -> Any:
+    """A starting field on the voxel grid becomes its ring means; scalars, strings and None pass through."""
+    if T0 is None or isinstance(T0, str) or np.ndim(T0) == 0:
+        return T0
+    arr = np.asarray(T0, dtype=np.float64)
+    if arr.shape in (tuple(ring.grid.shape), (ring.grid.n_voxels,)):
+        return ring.project(arr)
+    return arr
