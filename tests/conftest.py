@@ -16,6 +16,20 @@ def small_camera():
 
 
 @pytest.fixture(scope="session")
+def gray_blob():
+    """A hot spherical blob at the focus, centred in a 5³ grid (so also axisymmetric about the
+    box's vertical axis), rendered in the gray band (8 rays/pixel, seed 4) by a 12 x 12-lenslet
+    seed camera, and its weight matrix with the same rays: ``(cam, grid, flame, lf, W)``."""
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    grid = lt.Grid(shape=(5, 5, 5), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.004, T_peak=1800.0,
+                                      T_ambient=900.0, sigma_a_peak=30.0)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=8, seed=4, wavelengths="gray")
+    W = lt.weights(cam, grid, sigma_a=flame.sigma_a_at(None), wavelength="gray", rays_per_pixel=8, seed=4)
+    return cam, grid, flame, lf, W
+
+
+@pytest.fixture(scope="session")
 def ideal_camera():
     """Seed camera with the ideal thin main lens (no aberrations)."""
     return lt.Camera.seed(1.0, main_lens={"ideal": True})

@@ -10,14 +10,8 @@ from lftomo.inverse.reconstruct import reconstruct
 
 
 @pytest.fixture(scope="module")
-def setup():
-    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
-    grid = lt.Grid(shape=(5, 5, 5), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
-    flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.004, T_peak=1800.0,
-                                      T_ambient=900.0, sigma_a_peak=30.0)
-    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=8, seed=4, wavelengths="gray")
-    W = lt.weights(cam, grid, sigma_a=flame.sigma_a_at(None), wavelength="gray", rays_per_pixel=8, seed=4)
-    return cam, grid, flame, lf, W
+def setup(gray_blob):
+    return gray_blob
 
 
 def test_noise_free_on_grid_data_recovers_the_field(setup):

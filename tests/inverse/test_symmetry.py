@@ -123,14 +123,8 @@ def test_axisymmetric_solve_recovers_noise_free_field_and_beats_the_free_fit_on_
 
 
 @pytest.fixture(scope="module")
-def blob_setup():
-    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
-    grid = lt.Grid(shape=(5, 5, 5), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
-    flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.004, T_peak=1800.0,
-                                      T_ambient=900.0, sigma_a_peak=30.0)
-    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=8, seed=4, wavelengths="gray")
-    W = lt.weights(cam, grid, sigma_a=flame.sigma_a_at(None), wavelength="gray", rays_per_pixel=8, seed=4)
-    return grid, flame, lf, W
+def blob_setup(gray_blob):
+    return gray_blob[1:]
 
 
 def test_reconstruct_axisymmetric_recovers_a_symmetric_blob(blob_setup):
