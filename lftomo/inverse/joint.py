@@ -212,7 +212,10 @@ def solve_temperature_absorption(
     # unknowns: one per voxel, or one per ring cell (voxel values gathered from them)
     n_u = n if ring is None else ring.n_voxels
     cell = None if ring is None else jnp.asarray(ring.cell_of_voxel)
-    P = sp.identity(n, format="csr") if ring is None else ring.expansion
+
+    def per_unknown(M):
+        """Columns of a voxel matrix summed per unknown (``M P``; ``M`` itself without symmetry)."""
+        return M if ring is None else M @ ring.expansion
     rows = [_rows_for(m, segments) for m in ms]
     ys = [jnp.asarray(m.y) for m in ms]
     inv_s = [jnp.asarray(1.0 / m.sigma) for m in ms]
@@ -287,12 +290,13 @@ def solve_temperature_absorption(
         sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
         T, sref = lo + (hi - lo) * sg, sigma_a_max * sr
         dT, ds = (hi - lo) * sg * (1.0 - sg), sigma_a_max * sr * (1.0 - sr)
-        Tv, sv = P @ T, P @ sref
+        Tv, sv = (T, sref) if ring is None else (ring.expand(T).ravel(), ring.expand(sref).ravel())
         c2 = np.zeros(2 * n_u)
         for c in range(len(ms)):
             sa_c = sv * factors[c]
-            Wc = whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]] @ P
-            Jc = whiten[c] @ sp.csr_matrix(segments.jacobian(_blackbody_np(Tv, wls[c]), sa_c)[1])[rows_np[c]] @ P
+            Wc = per_unknown(whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]])
+            dF_ds = sp.csr_matrix(segments.jacobian(_blackbody_np(Tv, wls[c]), sa_c)[1])
+            Jc = per_unknown(whiten[c] @ dF_ds[rows_np[c]])
             c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * (_dblackbody_np(T, wls[c]) * dT) ** 2
             c2[n_u:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
         c2[:n_u] += lam * colsq_L * (dT / (hi - lo)) ** 2
