@@ -284,7 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
     rc.add_argument("--symmetry", choices=("none", "axisymmetric"), default="none",
                     help="axisymmetric: fit one temperature per ring of voxels about the grid's vertical axis "
-                         "(lftomo.ring_grid; for axisymmetric flames: removes the depth ambiguity of one camera)")
+                         "(lftomo.ring_grid; for axisymmetric flames: removes the depth ambiguity of one camera); "
+                         "applies to the reconstruction and to --posterior-basis field")
     rc.add_argument("--posterior", action="store_true",
                     help="also compute a posterior (see --posterior-basis)")
     rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default="flame",
