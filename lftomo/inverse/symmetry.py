@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import require_array, require_nonnegative, require_vector
+from .._validate import require_nonnegative, require_vector
 from ..forward.grid import Grid
 from .problem import LinearProblem
 
@@ -104,6 +104,11 @@ class RingGrid:
         return (ring * ny + iy).ravel().astype(np.int64)
 
     @functools.cached_property
+    def _cell_counts(self) -> np.ndarray:
+        """Voxels per ring cell, shape (n_rings·ny,)."""
+        return np.bincount(self.cell_of_voxel, minlength=self.n_voxels)
+
+    @functools.cached_property
     def expansion(self) -> sp.csr_matrix:
         """``P``, shape (nx·ny·nz, n_rings·ny): 1 where voxel ``i`` belongs to ring cell ``k``."""
         n = self.grid.n_voxels
@@ -144,8 +149,7 @@ class RingGrid:
                 f"field must have the grid shape {tuple(self.grid.shape)} or ({self.grid.n_voxels},), got {f.shape}"
             )
         sums = np.bincount(self.cell_of_voxel, weights=f.ravel(), minlength=self.n_voxels)
-        counts = np.bincount(self.cell_of_voxel, minlength=self.n_voxels)
-        return (sums / counts).reshape(self.shape)
+        return (sums / self._cell_counts).reshape(self.shape)
 
     def reduce(self, A: Any) -> sp.csr_matrix:
         """``A P``: a matrix acting on voxel values (columns = voxels) made to act on ring cells."""
@@ -225,7 +229,7 @@ def ring_grid(grid: Grid, *, axis: Any = None, tolerance: float | None = None) -
     return RingGrid(
         grid=grid,
         axis=(float(ax[0]), float(ax[1])),
-        radii=require_array("radii", radii),
+        radii=radii,
         ring_of_column=ring.reshape(r.shape),
         tolerance=float(tol),
     )
