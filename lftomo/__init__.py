@@ -23,6 +23,7 @@ from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
+from .inverse.subvoxel import interpolate_field, interpolation_matrix
 from .inverse.symmetry import RingGrid, ring_grid
 
 __all__ = [
@@ -83,4 +84,6 @@ __all__ = [
     "ParametricFlame",
     "RingGrid",
     "ring_grid",
+    "interpolation_matrix",
+    "interpolate_field",
 ]

@@ -58,7 +58,7 @@ from scipy.special import ndtri
 
 from .._validate import require_int, require_positive
 from .problem import LinearProblem
-from .reconstruct import _grid_of, temperature_errors
+from .reconstruct import problem_on_grid, temperature_errors
 from .regularizers import prior_operator
 from .solvers import _check_bounds, _dblackbody_np, solve_temperature
 from .symmetry import resolve_symmetry, ring_problem, ring_start
@@ -194,8 +194,16 @@ def precision_factors(problem: Any, T: Any, *, prior: str = "gradient",
 
 
 def _whitened_jacobian(problem: Any, T: np.ndarray) -> sp.csr_matrix:
-    """``Σ^{-1/2} A diag(∂I_b/∂T)`` (1/K) at the flat temperature field ``T``."""
-    return (problem.whitened()[0] @ sp.diags(_dblackbody_np(T, problem.wavelength))).tocsr()
+    """``Σ^{-1/2} A diag(∂I_b/∂T)`` (1/K) at the flat temperature field ``T``.
+
+    With sub-voxel emission (``problem.interpolation`` E):
+    ``Σ^{-1/2} A diag(∂I_b/∂T (E T)) E``.
+    """
+    Tm = problem.model_temperature(T)
+    J = problem.whitened()[0] @ sp.diags(_dblackbody_np(Tm, problem.wavelength))
+    if problem.interpolation is not None:
+        J = J @ problem.interpolation
+    return J.tocsr()
 
 
 def _scaled_prior(grid: Any, prior: str, bounds: tuple[float, float]) -> sp.csr_matrix:
@@ -306,6 +314,7 @@ def laplace_posterior(
     seed: int | None = 0,
     progress: bool = False,
     symmetry: Any = None,
+    grid: Any = None,
     **options: Any,
 ) -> FieldPosterior:
     """Full-grid Laplace posterior of the temperature field (T only, known ``sigma_a``).
@@ -360,6 +369,9 @@ def laplace_posterior(
         the unknowns are the ring cells, the prior the voxel grid's restricted
         to axisymmetric fields, and the fields are returned on the voxel grid.
         ``dense_max`` then counts ring cells.
+    grid : Grid, optional, keyword-only
+        Reconstruction grid coarser than the weights' (sub-voxel emission, as
+        in :func:`lftomo.reconstruct`); default the weights' grid.
     **options
         Passed to :func:`lftomo.solve_temperature` (e.g. ``linear_max_steps``);
         ``T0`` starts the first reconstruction (e.g. a reconstruction at
@@ -407,7 +419,7 @@ def laplace_posterior(
     else:
         if weights is None:
             raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
-        problem = measurement.problem(weights, _grid_of(weights))  # validates data against the weights
+        problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights
     ring = resolve_symmetry(symmetry, problem.grid)
     if ring is not None:
         problem = ring_problem(problem, ring)

@@ -264,8 +264,18 @@ def gaussian_sufficient_statistics(
     )
 
 
+def _require_voxel_emission(problem: Any, name: str) -> None:
+    """The Gaussian statistics are linear in I_b per voxel: no sub-voxel interpolation."""
+    if getattr(problem, "interpolation", None) is not None:
+        raise ValueError(
+            f"{name} uses sub-voxel emission (an interpolation to a quadrature grid); the basis posterior "
+            "needs a model linear in the voxels' I_b: build the weight matrix on the reconstruction grid"
+        )
+
+
 def sufficient_statistics(problem: Any, *, x_ref: Any = None, dense_max: int = 8000) -> SufficientStatistics:
     """:func:`gaussian_sufficient_statistics` of a :class:`~lftomo.inverse.problem.LinearProblem`."""
+    _require_voxel_emission(problem, "problem")
     return gaussian_sufficient_statistics(
         problem.A, problem.y, problem.sigma, problem.background, x_ref=x_ref, dense_max=dense_max
     )
@@ -521,6 +531,7 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
         for attr in ("A", "y", "sigma", "grid"):
             if not hasattr(p, attr):
                 raise ValueError(f"problem[{i}] must be a LinearProblem, got {type(p).__name__}")
+        _require_voxel_emission(p, f"problem[{i}]")
         if tuple(p.grid.shape) != tuple(basis.grid.shape) or p.A.shape[1] != basis.n_voxels:
             raise ValueError(
                 f"problem[{i}] grid shape {tuple(p.grid.shape)} (A with {p.A.shape[1]} columns) does not match "

@@ -8,6 +8,11 @@ intensity field (DESIGN §3):
 ``A`` (m, n) is a weight matrix (signal per unit I_b, m² sr) already mapped to
 the data space (sub-aperture pixels, or a focal stack ``R @ W``); ``n`` is the
 number of voxels of the reconstruction grid (flat C order).
+
+With an ``interpolation`` matrix ``E`` (n_q, n) the emission is evaluated on a
+finer quadrature grid (:mod:`lftomo.inverse.subvoxel`)::
+
+    y = A @ I_b(E @ T) + background + noise,   A of shape (m, n_q).
 """
 
 from __future__ import annotations
@@ -39,6 +44,10 @@ class LinearProblem:
         Wavelength (m) of the channel; None for the gray band (σT⁴/π).
     background : ndarray, shape (m,), optional
         Known additive signal (e.g. a back-light seen through the medium).
+    interpolation : scipy sparse matrix, shape (n_q, n), optional
+        Sub-voxel emission: ``A`` then has ``n_q`` columns (the quadrature
+        grid's voxels) and the temperature is interpolated by this matrix
+        before Planck's law (:func:`lftomo.interpolation_matrix`).
     """
 
     A: Any
@@ -48,12 +57,27 @@ class LinearProblem:
     wavelength: float | None = 650e-9
     background: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
+    interpolation: Any = None
 
     def __post_init__(self) -> None:
         if not sp.issparse(self.A):
             raise ValueError(f"A must be a scipy sparse matrix, got {type(self.A).__name__}")
         A = sp.csr_matrix(self.A, dtype=np.float64)
         m, n = A.shape
+        if self.interpolation is not None:
+            E = self.interpolation
+            if not sp.issparse(E):
+                raise ValueError(f"interpolation must be a scipy sparse matrix, got {type(E).__name__}")
+            E = sp.csr_matrix(E, dtype=np.float64)
+            if E.shape != (n, self.grid.n_voxels):
+                raise ValueError(
+                    f"interpolation has shape {E.shape}; it must map the grid's {self.grid.n_voxels} voxels "
+                    f"to A's {n} columns, shape ({n}, {self.grid.n_voxels})"
+                )
+            if not np.all(np.isfinite(E.data)) or (E.data < 0).any():
+                raise ValueError("interpolation must have finite, non-negative entries")
+            object.__setattr__(self, "interpolation", E)
+            n = self.grid.n_voxels
         if n != self.grid.n_voxels:
             raise ValueError(
                 f"A has {n} columns but the reconstruction grid has {self.grid.n_voxels} voxels "
@@ -71,13 +95,23 @@ class LinearProblem:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.A.shape
+        """``(m, n)``: data and unknowns (reconstruction voxels)."""
+        return (self.A.shape[0], self.grid.n_voxels)
+
+    def model_temperature(self, T: Any) -> np.ndarray:
+        """The temperature where ``A``'s columns emit (flat, K): ``E @ T`` with an interpolation, else ``T``."""
+        T = np.asarray(T, dtype=np.float64).ravel()
+        return T if self.interpolation is None else self.interpolation @ T
+
+    def linear_operator(self) -> sp.csr_matrix:
+        """``A`` per unit I_b of the grid's voxels: ``A @ E`` with an interpolation (I_b interpolated linearly), else ``A``."""
+        return self.A if self.interpolation is None else (self.A @ self.interpolation).tocsr()
 
     def chi2(self, T: Any) -> float:
         """``‖(A I_b(T) + background − y) / σ‖² / m`` of a temperature field (K), shape grid.shape or (n,)."""
         from .. import radiation as rad
 
-        T = np.asarray(T, dtype=np.float64).ravel()
+        T = self.model_temperature(T)
         Ib = rad.planck(T, self.wavelength) if self.wavelength is not None else rad.gray_intensity(T)
         r = (self.A @ np.asarray(Ib).ravel() + self.background - self.y) / self.sigma
         return float(np.mean(r * r))

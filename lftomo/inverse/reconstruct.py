@@ -92,6 +92,7 @@ class Reconstruction:
             "converged": self.converged,
             "timing_s": self.timing,
             "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
+            "quadrature_grid": self.metadata.get("quadrature_grid"),
         }
 
 
@@ -122,6 +123,43 @@ def _grid_of(W) -> Grid:
     return Grid.from_dict(g)
 
 
+def problem_on_grid(measurement, weights, grid: Grid | None = None):
+    """The linear problem of ``measurement`` with ``weights``, on the reconstruction grid ``grid``.
+
+    Parameters
+    ----------
+    measurement : Measurement
+    weights : WeightMatrix
+        On the reconstruction grid, or on a finer *quadrature* grid inside its
+        box (sub-voxel emission, :mod:`lftomo.inverse.subvoxel`).
+    grid : Grid, optional
+        Reconstruction grid; default the weight matrix's grid.
+
+    Returns
+    -------
+    (LinearProblem, Grid)
+        The problem (with ``interpolation`` when ``grid`` is not the weights'
+        grid) and the reconstruction grid.
+    """
+    wgrid = _grid_of(weights)
+    problem = measurement.problem(weights, wgrid)
+    if grid is None or grid == wgrid:
+        return problem, wgrid
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
+    from .problem import LinearProblem
+    from .subvoxel import interpolation_matrix
+
+    try:
+        E = interpolation_matrix(grid, wgrid)
+    except ValueError as err:
+        raise ValueError(f"grid {tuple(grid.shape)} cannot use the weights' grid {tuple(wgrid.shape)} as its "
+                         f"quadrature grid: {err}") from None
+    meta = {**problem.metadata, "quadrature_grid": wgrid.to_dict()}
+    return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=grid, wavelength=problem.wavelength,
+                         background=problem.background, metadata=meta, interpolation=E), grid
+
+
 def reconstruct(
     measurement,
     weights,
@@ -134,6 +172,7 @@ def reconstruct(
     rule: str = "discrepancy",
     T0: Any = None,
     symmetry: Any = None,
+    grid: Grid | None = None,
     **options: Any,
 ) -> Reconstruction:
     """Reconstruct the temperature field from a measurement.
@@ -164,6 +203,15 @@ def reconstruct(
         distance from the axis), the forward model ``A P`` and the prior the
         voxel grid's restricted to axisymmetric fields; ``T`` is returned on the
         voxel grid.  Default None: every voxel free.
+    grid : Grid, optional
+        Reconstruction grid (``"T"`` only).  Default: the weight matrix's
+        grid.  A coarser grid than the weights' (same box) turns on
+        **sub-voxel emission**: ``T`` is the temperature at ``grid``'s voxel
+        centres, interpolated trilinearly to the weights' (quadrature) voxels,
+        where Planck's law is applied, so the emission follows the temperature
+        gradient inside each reconstruction voxel
+        (:mod:`lftomo.inverse.subvoxel`; build the weights for
+        ``lftomo.interpolate_field(sigma_a, grid, quadrature_grid)``).
     **options
         Passed to :func:`lftomo.inverse.solvers.solve_temperature` (``"T"``) or
         :func:`lftomo.inverse.joint.solve_temperature_absorption`.
@@ -183,6 +231,9 @@ def reconstruct(
             raise ValueError(
                 f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}"
             )
+        if grid is not None:
+            raise ValueError("grid (sub-voxel emission) is supported for unknowns='T' only; the joint fit uses "
+                             "the ray-segment table's grid")
         from .joint import solve_temperature_absorption
 
         return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
@@ -193,9 +244,8 @@ def reconstruct(
     if isinstance(measurement, (list, tuple)):
         raise ValueError("unknowns='T' takes one Measurement (one wavelength); pass the channel to use")
     t0 = time.perf_counter()
-    grid = _grid_of(weights)
+    problem, grid = problem_on_grid(measurement, weights, grid)
     ring = resolve_symmetry(symmetry, grid)
-    problem = measurement.problem(weights, grid)
     if ring is not None:
         problem = ring_problem(problem, ring)
         T0 = ring_start(T0, ring)
@@ -219,4 +269,5 @@ def reconstruct(
         data_kind=measurement.kind,
         details=sol,
         symmetry=ring,
+        metadata={k: problem.metadata[k] for k in ("quadrature_grid",) if k in problem.metadata},
     )

@@ -409,17 +409,23 @@ class _Setup:
     prior: str
     penalize: str
     tv_eps: float
-    A_s: sp.csr_matrix  # whitened, pruned, scaled by I_scale: rows used
+    A_s: sp.csr_matrix  # whitened, pruned, scaled by I_scale: rows used (per unit I_b of the grid's voxels)
     d: np.ndarray  # whitened data minus background, rows used
     chi2_empty: float  # constant chi² of the empty rows
     m_total: int
     L: sp.csr_matrix  # dimensionless prior operator
+    # sub-voxel emission (problem.interpolation): A_q on the quadrature grid and E;
+    # A_s is then A_q @ E (I_b interpolated linearly: baseline, λ scales, Jacobi scaling)
+    A_q: sp.csr_matrix | None = None
+    E: sp.csr_matrix | None = None
 
     def jax_args(self) -> dict:
         """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding)."""
         reg_scale = 1.0 / self.T_scale if self.penalize == "temperature" else self.I_scale / self.I_reg
+        extra = {} if self.E is None else {"E": host_csr(self.E)}
         return {
-            "A": host_csr(self.A_s),
+            **extra,
+            "A": host_csr(self.A_s if self.A_q is None else self.A_q),
             "d": jnp.asarray(self.d),
             "L": host_csr(self.L),
             "lam": jnp.asarray(0.0),
@@ -449,6 +455,10 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     T_scale = tmax - tmin
     I_reg = float(_dblackbody_np(np.float64(T_ref), wl)) * T_scale
     A_s = (sp.diags(w[used] * I_scale) @ A[used]).tocsr()
+    A_q = E = None
+    if problem.interpolation is not None:
+        A_q, E = A_s, problem.interpolation
+        A_s = (A_q @ E).tocsr()
     L = prior_operator(problem.grid, prior, dimensionless=True)
     s = _Setup(
         problem=problem,
@@ -468,14 +478,20 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         chi2_empty=float(np.sum(d_all[~used] ** 2)),
         m_total=A.shape[0],
         L=L,
+        A_q=A_q,
+        E=E,
     )
     return s
 
 
 # --------------------------------------------------------------------------- residuals (JAX)
 @functools.lru_cache(maxsize=None)
-def _functions(gray: bool, tv: bool, penalize: str):
-    """Residual functions for one static configuration (cached: same objects -> jit cache hits)."""
+def _functions(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+    """Residual functions for one static configuration (cached: same objects -> jit cache hits).
+
+    ``subvoxel``: the data term interpolates T to the quadrature grid
+    (``args["E"]``) before Planck's law.
+    """
 
     def temperature(theta, args):
         return args["tmin"] + args["tspan"] * jax.nn.sigmoid(theta)
@@ -485,7 +501,10 @@ def _functions(gray: bool, tv: bool, penalize: str):
         return Ib * args["inv_iscale"]
 
     def data_res(theta, args):
-        b = scaled_intensity(temperature(theta, args), args)
+        T = temperature(theta, args)
+        if subvoxel:
+            T = args["E"] @ T
+        b = scaled_intensity(T, args)
         return args["A"] @ b - args["d"]
 
     def reg_res(theta, args):
@@ -577,7 +596,7 @@ class _Runner:
 
     def __init__(self, s: _Setup, *, method, rtol, atol, max_steps, linear_rtol, linear_max_steps):
         self.s = s
-        self.f = _functions(s.wavelength is None, s.prior == "tv", s.penalize)
+        self.f = _functions(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
         self._args = s.jax_args()
         self.colsq_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
         self.colsq_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
@@ -847,9 +866,9 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
 
 
 @functools.lru_cache(maxsize=None)
-def _gcv_function(gray: bool, tv: bool, penalize: str):
+def _gcv_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
     """Jitted GCV pieces of the problem linearised about ``theta`` (cached per configuration)."""
-    f = _functions(gray, tv, penalize)
+    f = _functions(gray, tv, penalize, subvoxel)
     ls = lx.LSMR(rtol=1e-7, atol=1e-7, max_steps=1000)
 
     @jax.jit
@@ -879,7 +898,7 @@ def _rule_gcv(run: _Runner, theta0, lam_ref, lambda_range, n_lambda, probes_n, s
     m_used = s.d.size
     rng = np.random.default_rng(seed)
     probes = jnp.asarray(rng.choice([-1.0, 1.0], size=(probes_n, m_used)))
-    gcv_eval = _gcv_function(s.wavelength is None, s.prior == "tv", s.penalize)
+    gcv_eval = _gcv_function(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
     lam_lin = lam_ref * 1e-2
     e = run.solve(lam_lin, theta0)
     cands, chi2s, regs, crit = [], [], [], []

@@ -269,10 +269,18 @@ def resolve_symmetry(symmetry: Any, grid: Grid) -> RingGrid | None:
 
 
 def ring_problem(problem: LinearProblem, ring: RingGrid) -> LinearProblem:
-    """The same data with the forward model ``A P`` on the ring cells of ``ring``."""
+    """The same data with the forward model ``A P`` on the ring cells of ``ring``.
+
+    With sub-voxel emission (``problem.interpolation`` E) ``A`` is kept and the
+    interpolation becomes ``E P`` (ring cells → quadrature voxels).
+    """
     if problem.grid != ring.grid:
         raise ValueError(f"the problem's grid {tuple(problem.grid.shape)} is not the ring grid's "
                          f"{tuple(ring.grid.shape)}")
+    if problem.interpolation is not None:
+        return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=ring,
+                             wavelength=problem.wavelength, background=problem.background,
+                             metadata=problem.metadata, interpolation=ring.reduce(problem.interpolation))
     return LinearProblem(A=ring.reduce(problem.A), y=problem.y, sigma=problem.sigma, grid=ring,
                          wavelength=problem.wavelength, background=problem.background, metadata=problem.metadata)
 
