@@ -130,3 +130,23 @@ def test_subvoxel_bad_input(subvoxel_blob, gray_blob):
     with pytest.raises(ValueError, match="interpolation has shape"):
         lt.LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=grid, wavelength=None,
                          interpolation=sp.identity(grid.n_voxels, format="csr"))
+
+
+def test_subvoxel_auto_lambda_is_searched_on_the_surrogate(subvoxel_blob):
+    """regularization="auto": λ chosen on A E (I_b interpolated linearly), the final fit on the sub-voxel model;
+    the λ reported is the surrogate's and the χ² the sub-voxel model's own."""
+    cam, grid, quad, flame, m, W_q = subvoxel_blob
+    problem, _ = problem_on_grid(m, W_q, grid)
+    rng = np.random.default_rng(5)
+    y = problem.y + 0.01 * problem.y * rng.standard_normal(problem.y.size)
+    sigma = 0.01 * np.abs(problem.y) + 1e-6 * np.abs(problem.y).max()
+    noisy = dataclasses.replace(problem, y=y, sigma=sigma)
+    sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient")
+    assert "surrogate" in sol.lambda_choice.note
+    assert set(sol.timing) >= {"surrogate", "subvoxel", "total"}
+    surrogate = lt.LinearProblem(A=problem.linear_operator(), y=y, sigma=sigma, grid=grid, wavelength=None)
+    sur = lt.solve_temperature(surrogate, bounds=(500.0, 2500.0), prior="gradient")
+    assert sol.regularization == pytest.approx(sur.regularization, rel=1e-12)
+    assert sol.chi2 == pytest.approx(noisy.chi2(sol.T), rel=1e-6)
+    with pytest.raises(ValueError, match="subvoxel_search"):
+        lt.solve_temperature(noisy, subvoxel_search="fast")
