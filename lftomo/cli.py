@@ -276,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
     rc.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
                     help="lambda rule with --regularization auto")
-    rc.add_argument("--prior", choices=("gradient", "laplacian", "tv"), default="gradient", help="smoothness prior")
+    rc.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default="gradient", help="smoothness prior (curvature: second differences, free faces)")
     rc.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
     rc.add_argument("--min-etendue-fraction", type=_fraction, default=0.2,
                     help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "

@@ -55,7 +55,7 @@ def main():
                     help="scale (1/m) of sigma_a in its prior term (0: the solver's default)")
     ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
                     help="axisymmetric: fit ring cells about the box's vertical axis (lt.ring_grid)")
-    ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian"])
+    ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian", "curvature"])
     ap.add_argument("--json", default="")
     ap.add_argument("--npz", default="", help="save truth, start and fitted fields of the last λ here")
     a = ap.parse_args()

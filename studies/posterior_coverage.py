@@ -63,7 +63,7 @@ def main():
     ap.add_argument("--samples", type=int, default=64, help="--laplace-field --method sampled: draws")
     ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
                     help="--laplace-field: posterior of an axisymmetric field (ring cells, lt.ring_grid)")
-    ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian"],
+    ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian", "curvature"],
                     help="--laplace-field: smoothness prior")
     ap.add_argument("--json", default="")
     a = ap.parse_args()

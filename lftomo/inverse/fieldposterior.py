@@ -63,7 +63,7 @@ from .regularizers import prior_operator
 from .solvers import _check_bounds, _dblackbody_np, solve_temperature
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
-_PRIORS = ("gradient", "laplacian")
+_PRIORS = ("gradient", "laplacian", "curvature")
 _METHODS = ("auto", "dense", "sampled")
 
 
@@ -178,7 +178,7 @@ def precision_factors(problem: Any, T: Any, *, prior: str = "gradient",
         One channel (``A`` (m, n), ``sigma`` (m,), grid, wavelength).
     T : array_like, shape grid.shape or (n,)
         Temperature (K) about which to linearise.
-    prior : {"gradient", "laplacian"}
+    prior : {"gradient", "laplacian", "curvature"}
     bounds : (T_min, T_max)
         Bounds of the reconstruction (K); ``T_s = T_max − T_min`` scales the prior.
 
@@ -332,7 +332,7 @@ def laplace_posterior(
         evidence; ``"auto"`` takes the reconstruction's own rule (the
         discrepancy principle by default, a point-estimate rule: its intervals
         are typically too narrow); a float fixes λ.
-    prior : {"gradient", "laplacian"}, keyword-only
+    prior : {"gradient", "laplacian", "curvature"}, keyword-only
         Quadratic smoothness prior (TV has no Gaussian posterior).
     bounds : (T_min, T_max), keyword-only
         Reconstruction bounds (K); ``T_max − T_min`` scales the prior.

@@ -586,7 +586,7 @@ def build_log_posterior(
         Extra vectorised log-prior ``prior(C: (W, K)) -> (W,)``.
     regularization : float, optional
         Tikhonov weight λ >= 0 (same convention as the reconstruction, module docstring).
-    L : {"gradient", "laplacian"} or scipy.sparse matrix (p, n_voxels)
+    L : {"gradient", "laplacian", "curvature"} or scipy.sparse matrix (p, n_voxels)
         Regularization operator: a kind for
         ``regularizers.prior_operator(grid, kind, dimensionless=True)`` (default
         "gradient"), or a matrix.
@@ -644,8 +644,8 @@ def build_log_posterior(
         if isinstance(L, str):
             from .regularizers import prior_operator
 
-            if L not in ("gradient", "laplacian"):
-                raise ValueError(f"L must be 'gradient', 'laplacian' or a sparse matrix, got {L!r}")
+            if L not in ("gradient", "laplacian", "curvature"):
+                raise ValueError(f"L must be 'gradient', 'laplacian', 'curvature' or a sparse matrix, got {L!r}")
             Lop = prior_operator(basis.grid, L, dimensionless=True)
         else:
             Lop = L

@@ -188,7 +188,7 @@ def reconstruct(
     unknowns : {"T", "T+sigma_a"}
     regularization : "auto" or float
         λ, or ``"auto"`` to choose it by ``rule``.
-    prior : {"gradient", "laplacian", "tv"}
+    prior : {"gradient", "laplacian", "tv", "curvature"}
     bounds : (T_min, T_max)
         Temperature bounds (K), enforced by parameterisation.
     method : {"levenberg-marquardt", "gauss-newton"}

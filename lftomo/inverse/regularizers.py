@@ -15,6 +15,14 @@ Operators (scipy sparse, float64)
 * :func:`laplacian_operator` — ``Δ = −Dᵀ D`` (shape ``(n, n)``, units field per
   m²): the 7-point Laplacian with mirrored (Neumann) ghost voxels; symmetric
   negative semi-definite, rows sum to zero.
+* :func:`curvature_operator` — second differences along x, y and z, each at
+  the voxels with both neighbours on that axis (units field per m²), stacked
+  as ``[C_x; C_y; C_z]`` of shape ``(3n, n)``; **no boundary condition** (the
+  rows of the face voxels across that face are zero).  Its null space holds
+  the fields linear in each coordinate, so where the data are silent (the
+  cold fringe of a flame, invisible at 650 nm) the fit extrapolates the slope
+  to the box faces instead of flattening it there as the Neumann Laplacian's
+  zero-flux faces do.
 
 Total variation
 ---------------
@@ -57,6 +65,7 @@ __all__ = [
     "PRIORS",
     "gradient_operator",
     "laplacian_operator",
+    "curvature_operator",
     "prior_operator",
     "to_bcoo",
     "tv",
@@ -65,7 +74,7 @@ __all__ = [
 ]
 
 #: Names of the smoothness priors understood by :func:`jax_operator` and the solvers.
-PRIORS = ("gradient", "laplacian", "tv")
+PRIORS = ("gradient", "laplacian", "tv", "curvature")
 
 
 def _check_grid(grid: Any) -> tuple[tuple[int, int, int], np.ndarray]:
@@ -142,6 +151,43 @@ def laplacian_operator(grid: Any) -> sp.csr_matrix:
     return L
 
 
+def _second_diff_1d(n: int, h: float) -> sp.csr_matrix:
+    """``(f[i+1] − 2 f[i] + f[i−1]) / h²`` on rows 1..n−2 of ``n`` points; rows 0 and n−1 zero."""
+    if n < 3:
+        return sp.csr_matrix((n, n))
+    rows = np.repeat(np.arange(1, n - 1), 3)
+    cols = (np.arange(1, n - 1)[:, None] + np.array([-1, 0, 1])[None, :]).ravel()
+    vals = np.tile(np.array([1.0, -2.0, 1.0]) / h**2, n - 2)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+
+
+def curvature_operator(grid: Any) -> sp.csr_matrix:
+    """Second differences along each axis, without boundary conditions.
+
+    Parameters
+    ----------
+    grid : Grid
+        Reconstruction grid.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (3n, n)
+        ``[C_x; C_y; C_z]``: ``(C_x f)[ix, iy, iz] = (f[ix+1] − 2 f[ix] +
+        f[ix−1]) / dx²`` for ``0 < ix < nx − 1`` and 0 on the two x faces,
+        likewise for y and z (field per m²).  Null space: fields linear in each
+        coordinate (``a + b x + c y + d z + e xy + …``), so no temperature is
+        imposed at the faces.
+    """
+    (nx, ny, nz), h = _check_grid(grid)
+    ix, iy, iz = sp.identity(nx, format="csr"), sp.identity(ny, format="csr"), sp.identity(nz, format="csr")
+    cx = sp.kron(sp.kron(_second_diff_1d(nx, h[0]), iy), iz)
+    cy = sp.kron(sp.kron(ix, _second_diff_1d(ny, h[1])), iz)
+    cz = sp.kron(sp.kron(ix, iy), _second_diff_1d(nz, h[2]))
+    C = sp.vstack([cx, cy, cz], format="csr")
+    C.eliminate_zeros()
+    return C.astype(np.float64)
+
+
 def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.csr_matrix:
     """Sparse matrix of a quadratic prior (TV uses the gradient).
 
@@ -151,9 +197,10 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
         Reconstruction grid.  For a :class:`~lftomo.inverse.symmetry.RingGrid`
         the operator is the voxel grid's, restricted to axisymmetric fields:
         ``L P`` (rows of the voxel grid, columns = ring cells).
-    prior : {"gradient", "laplacian", "tv"}
+    prior : {"gradient", "laplacian", "tv", "curvature"}
         ``"gradient"`` and ``"tv"`` give :func:`gradient_operator`,
-        ``"laplacian"`` gives :func:`laplacian_operator`.
+        ``"laplacian"`` gives :func:`laplacian_operator`, ``"curvature"``
+        :func:`curvature_operator`.
     dimensionless : bool, keyword-only
         If True (default) scale the operator by ``h̄`` (gradient, TV) or
         ``h̄²`` (Laplacian), ``h̄ = (dx dy dz)^{1/3}``, so that it returns
@@ -163,7 +210,7 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
     Returns
     -------
     scipy.sparse.csr_matrix
-        Shape (3n, n) for gradient/TV, (n, n) for the Laplacian.
+        Shape (3n, n) for gradient/TV/curvature, (n, n) for the Laplacian.
 
     Raises
     ------
@@ -177,8 +224,8 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
         return (prior_operator(grid.grid, prior, dimensionless=dimensionless) @ grid.expansion).tocsr()
     _, h = _check_grid(grid)
     hbar = float(np.prod(h) ** (1.0 / 3.0))
-    if prior == "laplacian":
-        L = laplacian_operator(grid)
+    if prior in ("laplacian", "curvature"):
+        L = laplacian_operator(grid) if prior == "laplacian" else curvature_operator(grid)
         return (L * hbar**2).tocsr() if dimensionless else L
     D = gradient_operator(grid)
     return (D * hbar).tocsr() if dimensionless else D

@@ -23,7 +23,8 @@ residual ``R`` is
 where ``L`` is the dimensionless operator of
 :func:`lftomo.inverse.regularizers.prior_operator` (forward differences between
 neighbouring voxels for ``"gradient"``, ``h̄²`` × Laplacian for
-``"laplacian"``, Neumann boundaries), or for ``"tv"`` the residual of the
+``"laplacian"``, Neumann boundaries; second differences per axis without
+boundary condition for ``"curvature"``), or for ``"tv"`` the residual of the
 smoothed total variation (:func:`~lftomo.inverse.regularizers.tv_residuals`,
 smoothing ``tv_eps`` in the same dimensionless units).  λ is therefore
 dimensionless; ``χ²/m`` below always means ``‖(A I_b + bg − y)/σ‖² / m``.
@@ -1053,8 +1054,9 @@ def solve_temperature(
         (m,), grid (n voxels), wavelength (m) or None for gray, background.
     regularization : "auto" or float, keyword-only
         λ ≥ 0 (dimensionless), or ``"auto"`` to choose it by ``rule``.
-    prior : {"gradient", "laplacian", "tv"}, keyword-only
-        Smoothness prior (Neumann boundaries).
+    prior : {"gradient", "laplacian", "tv", "curvature"}, keyword-only
+        Smoothness prior (Neumann boundaries; ``"curvature"``: second
+        differences per axis, no boundary condition).
     bounds : (float, float), keyword-only
         ``(T_min, T_max)`` (K), ``0 < T_min < T_max``.
     T0 : None, float, "uniform" or array of shape grid.shape, keyword-only
@@ -1381,7 +1383,7 @@ def solve_linear_baseline(
         The data and forward operator.
     regularization : float, keyword-only
         λ ≥ 0 (dimensionless).
-    prior : {"gradient", "laplacian"}, keyword-only
+    prior : {"gradient", "laplacian", "curvature"}, keyword-only
         Quadratic prior on ``I_b`` (TV is not linear: not offered here).
     bounds : (float, float), keyword-only
         ``(T_min, T_max)`` (K), for the clip of ``T`` and for ``I_s``.
@@ -1406,7 +1408,7 @@ def solve_linear_baseline(
     """
     problem = _check_problem(problem)
     lam = _check_regularization(regularization, allow_auto=False)
-    prior = _check_choice("prior", prior, ("gradient", "laplacian"))
+    prior = _check_choice("prior", prior, ("gradient", "laplacian", "curvature"))
     method = _check_choice("method", method, ("lsqr", "bounded"))
     bounds = _check_bounds(bounds)
     atol = require_nonnegative("atol", atol)

@@ -16,6 +16,7 @@ import pytest
 import lftomo as lt
 from lftomo.inverse.problem import LinearProblem
 from lftomo.inverse.regularizers import (
+    curvature_operator,
     gradient_operator,
     jax_operator,
     laplacian_operator,
@@ -100,6 +101,26 @@ def test_laplacian_operator_properties():
     np.testing.assert_allclose(lap[1:-1], 2.0, rtol=1e-9)  # interior: exact for a quadratic
     w = np.linalg.eigvalsh(L.toarray())
     assert w.max() < 1e-9  # negative semi-definite
+
+
+def test_curvature_operator_free_faces():
+    """Second differences per axis, no boundary rows: exact on quadratics inside, linear (and multilinear)
+    fields in the null space, so a slope reaching a face is not penalised (the Neumann Laplacian penalises it)."""
+    grid = lt.Grid((5, 4, 6), (0.0, 0.0, 0.0), (0.05, 0.04, 0.06))
+    n = grid.n_voxels
+    C = curvature_operator(grid)
+    assert C.shape == (3 * n, n)
+    X, Y, Z = grid.centers_mesh()
+    cx = (C @ (X**2).ravel())[:n].reshape(grid.shape)
+    np.testing.assert_allclose(cx[1:-1], 2.0, rtol=1e-9)
+    np.testing.assert_allclose(cx[[0, -1]], 0.0, atol=1e-12)  # faces: no row across them
+    assert np.allclose(C @ (3 * X - Y + 2 * Z + X * Y).ravel(), 0.0)
+    slope = (X - X.mean()).ravel()
+    assert np.linalg.norm(C @ slope) < 1e-9 * np.linalg.norm(slope)
+    assert np.linalg.norm(laplacian_operator(grid) @ slope) > 1.0  # Neumann faces: zero flux
+    P = prior_operator(grid, "curvature")
+    hbar = float(np.prod(grid.spacing) ** (1 / 3))
+    assert abs(P - C * hbar**2).max() < 1e-12
 
 
 def test_tv_and_jax_operator():
