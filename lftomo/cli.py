@@ -122,7 +122,8 @@ def cmd_reconstruct(args) -> int:
         bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis,
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
         rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
-        min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, progress=not args.quiet)
+        min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, quadrature=args.quadrature,
+        progress=not args.quiet)
     r = m["reconstruction"]
     print(f"reconstructed {'x'.join(map(str, r['grid_shape']))} voxels from {m['measurement']['n_data']} "
           f"{r['data']} data: lambda {r['regularization']:.3g} ({r['lambda_rule']}), chi2/m {r['chi2_per_datum']:.3g}, "
@@ -286,6 +287,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="axisymmetric: fit one temperature per ring of voxels about the grid's vertical axis "
                          "(lftomo.ring_grid; for axisymmetric flames: removes the depth ambiguity of one camera); "
                          "applies to the reconstruction and to --posterior-basis field")
+    rc.add_argument("--quadrature", type=_pos_int, default=1,
+                    help="sub-voxel emission: the weights live on a grid this many times finer than the "
+                         "reconstruction grid and T is interpolated to it before Planck's law (scene mode builds "
+                         "them so; file mode reconstructs on the --weights grid coarsened this many times)")
     rc.add_argument("--posterior", action="store_true",
                     help="also compute a posterior (see --posterior-basis)")
     rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default="flame",

@@ -127,6 +127,21 @@ def test_reconstruct_axisymmetric_with_field_posterior(tmp_path, capsys):
     assert "--symmetry" in capsys.readouterr().err
 
 
+def test_reconstruct_subvoxel_quadrature(tmp_path, capsys):
+    """--quadrature 2: weights on the 8³ grid, T on 4³ interpolated to it; the field posterior follows; the
+    emcee basis posterior is refused by name."""
+    scene = _scene(tmp_path)
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(scene), "-o", str(out), "--quadrature", "2", "--symmetry", "axisymmetric",
+                 "--posterior", "--posterior-basis", "field", *FAST]) == 0
+    m = _check_outputs(out, (4, 4, 4), truth=True, posterior=True)
+    assert m["reconstruction"]["quadrature_grid"]["shape"] == [8, 8, 8]
+    assert "surrogate" in m["reconstruction"]["lambda_note"]
+    capsys.readouterr()
+    assert main(["reconstruct", str(scene), "-o", str(out), "--quadrature", "2", "--posterior", *FAST]) == 2
+    assert "--quadrature" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
     """A rendered light field (8^3 truth, seed 0) and a weight matrix on a 4^3 grid (seed 7)."""
