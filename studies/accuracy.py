@@ -6,12 +6,17 @@ renderer (``--rays`` rays/pixel); 1 % Gaussian noise (``--noise``) on every raw
 pixel; the render's Monte Carlo standard error joins the noise model (the data
 and the weight matrix are both Monte Carlo estimates, independent seeds).
 Weights: on the reconstruction grid for the known (block-mean) sigma_a,
-``--weight-rays`` rays/pixel.  Errors |ΔT|/T where the effective true T
-(sigma_a-weighted blackbody mean over each coarse voxel) exceeds 800 K.
+``--weight-rays`` rays/pixel; with ``--quadrature K`` on a grid K× finer for
+that sigma_a interpolated, the temperature interpolated likewise before
+Planck's law (sub-voxel emission, ``lt.reconstruct(grid=...)``).  Errors
+|ΔT|/T where the effective true T (sigma_a-weighted blackbody mean over each
+coarse voxel) exceeds 800 K, and (``*_point``) against the flame's temperature
+at the voxel centres, on the same voxels.
 
 Usage::
 
     python studies/accuracy.py [--n 24] [--refine 2] [--rays 64] [--weight-rays 64] [--draws 1]
+        [--symmetry axisymmetric] [--prior laplacian|curvature] [--quadrature 2] [--save fields.npz]
 """
 from __future__ import annotations
 

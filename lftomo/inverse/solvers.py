@@ -740,12 +740,19 @@ def _structured_branch(path: list) -> list:
     0.41 at the standard flame 24³, 1.5 → 0.009 in the quick demo, where the
     flat branch's χ²/m stays below the target and an L-curve over the whole
     path found its "corner" on the flat branch, λ = 3.5e6).
+
+    A drop of ‖R‖ alone is not a jump: from an under-regularised, noisy
+    solution at the smallest λ ‖R‖ also falls steeply (measured: the
+    curvature prior at 24³, ‖R‖ 3.8 → 0.91 from λ 4.4 to 44 with χ²/m 0.8033
+    → 0.8037, which took the whole path for the flat branch and λ = 4.4).  The
+    flat branch also fits worse, so χ²/m must rise by more than 1 % too.
     """
     if not path:
         return path
     r_max = max(x.reg for x in path)
     for k in range(1, len(path)):
-        if path[k].reg < 0.25 * path[k - 1].reg and path[k].reg < 0.25 * r_max:
+        drop = path[k].reg < 0.25 * path[k - 1].reg and path[k].reg < 0.25 * r_max
+        if drop and path[k].chi2 > 1.01 * path[k - 1].chi2:
             return path[:k]
     return path
 

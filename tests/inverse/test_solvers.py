@@ -238,6 +238,20 @@ class _BranchRunner:
         return default
 
 
+def test_structured_branch_needs_a_chi2_rise_not_only_a_drop_of_the_prior_norm():
+    """An under-regularised first solution (‖R‖ 3.8) followed by smooth ones (0.9 … 0.6) at the same χ²/m
+    is one branch (the curvature prior at 24³); a drop of ‖R‖ with χ²/m rising 0.80 → 1.10 is the jump."""
+    from lftomo.inverse.solvers import _Eval, _structured_branch
+
+    def ev(lam, chi2, reg):
+        return _Eval(lam, np.zeros(1), chi2, reg, 1, True, "")
+
+    smooth = [ev(4.4, 0.8033, 3.81), ev(44.0, 0.8037, 0.905), ev(445.0, 0.804, 0.743), ev(4450.0, 0.8052, 0.681)]
+    assert len(_structured_branch(smooth)) == 4
+    jump = smooth + [ev(4.4e5, 1.104, 0.0044)]
+    assert _structured_branch(jump) == jump[:4]
+
+
 def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
     from lftomo.inverse.solvers import _rule_discrepancy
 
