@@ -136,7 +136,7 @@ def test_tv_and_jax_operator():
     r = np.asarray(fn_tv(step.ravel()))
     assert np.sum(r**2) == pytest.approx(36 * (np.sqrt(1 + 1e-6) - 1e-3), rel=1e-9)
     with pytest.raises(ValueError, match="prior"):
-        jax_operator(grid, "curvature")
+        jax_operator(grid, "sobolev")
 
 
 # --------------------------------------------------------------------------- solver accuracy
@@ -406,7 +406,7 @@ def test_bounded_baseline_nonnegative(gray_noisy):
         ({"bounds": (3000.0, 300.0)}, "bounds"),
         ({"bounds": (300.0, 300.0)}, "bounds"),
         ({"bounds": (-10.0, 300.0)}, "bounds"),
-        ({"prior": "curvature"}, "prior"),
+        ({"prior": "sobolev"}, "prior"),
         ({"method": "newton"}, "method"),
         ({"rule": "guess"}, "rule"),
         ({"regularization": -1.0}, "regularization"),
