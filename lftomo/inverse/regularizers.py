@@ -95,6 +95,19 @@ def _diff_1d(n: int, h: float) -> sp.csr_matrix:
     return sp.diags([main, upper], [0, 1], shape=(n, n), format="csr")
 
 
+def _per_axis(grid: Any, op_1d: Callable[[int, float], sp.csr_matrix]) -> sp.csr_matrix:
+    """``[O_x; O_y; O_z]``: the 1-D operator ``op_1d(n, h)`` applied along each axis of the grid, stacked."""
+    shape, h = _check_grid(grid)
+    eye = [sp.identity(n, format="csr") for n in shape]
+    blocks = []
+    for a in range(3):
+        factors = [op_1d(shape[a], h[a]) if b == a else eye[b] for b in range(3)]
+        blocks.append(sp.kron(sp.kron(factors[0], factors[1]), factors[2]))
+    M = sp.vstack(blocks, format="csr")
+    M.eliminate_zeros()
+    return M.astype(np.float64)
+
+
 def gradient_operator(grid: Any) -> sp.csr_matrix:
     """Forward-difference gradient on the grid, Neumann boundaries.
 
@@ -116,14 +129,7 @@ def gradient_operator(grid: Any) -> sp.csr_matrix:
     ValueError
         If ``grid`` is not a Grid.
     """
-    (nx, ny, nz), h = _check_grid(grid)
-    ix, iy, iz = sp.identity(nx, format="csr"), sp.identity(ny, format="csr"), sp.identity(nz, format="csr")
-    dx = sp.kron(sp.kron(_diff_1d(nx, h[0]), iy), iz)
-    dy = sp.kron(sp.kron(ix, _diff_1d(ny, h[1])), iz)
-    dz = sp.kron(sp.kron(ix, iy), _diff_1d(nz, h[2]))
-    D = sp.vstack([dx, dy, dz], format="csr")
-    D.eliminate_zeros()
-    return D.astype(np.float64)
+    return _per_axis(grid, _diff_1d)
 
 
 def laplacian_operator(grid: Any) -> sp.csr_matrix:
@@ -178,14 +184,7 @@ def curvature_operator(grid: Any) -> sp.csr_matrix:
         coordinate (``a + b x + c y + d z + e xy + …``), so no temperature is
         imposed at the faces.
     """
-    (nx, ny, nz), h = _check_grid(grid)
-    ix, iy, iz = sp.identity(nx, format="csr"), sp.identity(ny, format="csr"), sp.identity(nz, format="csr")
-    cx = sp.kron(sp.kron(_second_diff_1d(nx, h[0]), iy), iz)
-    cy = sp.kron(sp.kron(ix, _second_diff_1d(ny, h[1])), iz)
-    cz = sp.kron(sp.kron(ix, iy), _second_diff_1d(nz, h[2]))
-    C = sp.vstack([cx, cy, cz], format="csr")
-    C.eliminate_zeros()
-    return C.astype(np.float64)
+    return _per_axis(grid, _second_diff_1d)
 
 
 def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.csr_matrix:
