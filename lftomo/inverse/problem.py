@@ -17,6 +17,7 @@ finer quadrature grid (:mod:`lftomo.inverse.subvoxel`)::
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -104,7 +105,15 @@ class LinearProblem:
         return T if self.interpolation is None else self.interpolation @ T
 
     def linear_operator(self) -> sp.csr_matrix:
-        """``A`` per unit I_b of the grid's voxels: ``A @ E`` with an interpolation (I_b interpolated linearly), else ``A``."""
+        """``A`` per unit I_b of the grid's voxels: ``A @ E`` with an interpolation (I_b interpolated linearly), else ``A``.
+
+        Computed once per problem (the product is seconds at 48³ quadrature, and
+        every solve's setup, the surrogate λ search included, needs it).
+        """
+        return self._linear_operator
+
+    @functools.cached_property
+    def _linear_operator(self) -> sp.csr_matrix:
         return self.A if self.interpolation is None else (self.A @ self.interpolation).tocsr()
 
     def chi2(self, T: Any) -> float:

@@ -269,5 +269,5 @@ def reconstruct(
         data_kind=measurement.kind,
         details=sol,
         symmetry=ring,
-        metadata={k: problem.metadata[k] for k in ("quadrature_grid",) if k in problem.metadata},
+        metadata={"quadrature_grid": problem.metadata["quadrature_grid"]} if problem.interpolation is not None else {},
     )

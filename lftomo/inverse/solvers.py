@@ -456,11 +456,11 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     I_scale = float(_blackbody_np(np.float64(T_ref), wl))
     T_scale = tmax - tmin
     I_reg = float(_dblackbody_np(np.float64(T_ref), wl)) * T_scale
-    A_s = (sp.diags(w[used] * I_scale) @ A[used]).tocsr()
+    scale = sp.diags(w[used] * I_scale)
+    A_s = (scale @ problem.linear_operator()[used]).tocsr()
     A_q = E = None
     if problem.interpolation is not None:
-        A_q, E = A_s, problem.interpolation
-        A_s = (A_q @ E).tocsr()
+        A_q, E = (scale @ A[used]).tocsr(), problem.interpolation
     L = prior_operator(problem.grid, prior, dimensionless=True)
     s = _Setup(
         problem=problem,
