@@ -54,6 +54,7 @@ from .solvers import (
     _nl_solver,
     planck_jax,
 )
+from .subvoxel import interpolation_matrix
 from .symmetry import resolve_symmetry
 
 #: A solve also stops when its objective changes by less than this fraction
@@ -69,7 +70,7 @@ def _rows_for(measurement, segments) -> np.ndarray:
     return lookup[measurement.raw_index]
 
 
-def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max):
+def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max, grid, E=None):
     """Starting fields ``(T, σ_ref)`` (flat, K and m⁻¹) by tomographic two-colour pyrometry.
 
     Optically thin model per channel: ``y_c ≈ P S_c`` with ``P = W(σ_a → 0)/σ_a``
@@ -80,7 +81,9 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
     by voxel (Planck ratio, tabulated over the bounds), then
     ``σ_ref = S_ref / I_b(T, λ_ref)``.  Voxels whose ``S`` is below 5 % of its
     maximum in either channel (no reliable ratio) get the lowest ``T`` of the
-    others and ``σ_ref`` = 0.1 % of ``sigma_a_max``.
+    others and ``σ_ref`` = 0.1 % of ``sigma_a_max``.  With sub-voxel emission
+    (``E``: interpolation from ``grid`` to the segments' grid) the emission
+    coefficients are solved on ``grid`` through ``P E``.
     """
     eps = 1e-9  # m⁻¹: transmittance 1 to better than 1e-9 over any chord here
     W0 = segments.weights(eps)
@@ -91,8 +94,10 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
         valid = (r >= 0).astype(np.float64)
         rr = np.maximum(r, 0)
         A = sp.diags(valid) @ P[rr]
-        problem = LinearProblem(A, np.asarray(m.y, float), np.asarray(m.sigma, float), Grid.from_dict(
-            segments.metadata["grid"]), wavelength=wl, background=bg0[rr] * valid)
+        if E is not None:
+            A = (A @ E).tocsr()
+        problem = LinearProblem(A, np.asarray(m.y, float), np.asarray(m.sigma, float), grid,
+                                wavelength=wl, background=bg0[rr] * valid)
         st = _make_setup(problem, bounds=(lo, hi), prior="gradient" if prior == "tv" else prior,
                          penalize="temperature", tv_eps=1e-3, T_ref=None)
         S.append(_baseline_start(st).I_b.ravel())
@@ -138,6 +143,7 @@ def solve_temperature_absorption(
     linear_max_steps: int = 50,
     engine: str = "host",
     symmetry: Any = None,
+    grid: Grid | None = None,
 ) -> Reconstruction:
     """Fit ``T`` and ``σ_a`` jointly (see the module docstring).
 
@@ -174,6 +180,14 @@ def solve_temperature_absorption(
         (:func:`lftomo.ring_grid` on the segments' grid), the prior the
         voxel grid's restricted to axisymmetric fields; ``T0`` and
         ``sigma_a0`` may be given on the voxel grid (their ring means are used).
+    grid : Grid, optional
+        Reconstruction grid; default the segment table's.  A coarser grid
+        (same box) turns on **sub-voxel emission**, as in :func:`lftomo.reconstruct`:
+        ``T`` and ``σ_ref`` are values at ``grid``'s voxel centres,
+        interpolated trilinearly (:func:`lftomo.interpolation_matrix`) to the
+        segment table's finer *quadrature* grid, where Planck's law, the
+        emission and the exact transmittance are evaluated.  ``T0`` and
+        ``sigma_a0`` are then given on ``grid``.
 
     Returns
     -------
@@ -206,15 +220,32 @@ def solve_temperature_absorption(
         raise ValueError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
     if not (s_scale > 0 and math.isfinite(s_scale)):
         raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
-    grid = Grid.from_dict(segments.metadata["grid"])
+    seg_grid = Grid.from_dict(segments.metadata["grid"])
+    if grid is None or grid == seg_grid:
+        grid, E = seg_grid, None
+    else:
+        if not isinstance(grid, Grid):
+            raise ValueError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
+        try:
+            E = interpolation_matrix(grid, seg_grid)
+        except ValueError as err:
+            raise ValueError(f"grid {tuple(grid.shape)} cannot use the segment table's grid "
+                             f"{tuple(seg_grid.shape)} as its quadrature grid: {err}") from None
     n = grid.n_voxels
     ring = resolve_symmetry(symmetry, grid)
     # unknowns: one per voxel, or one per ring cell (voxel values gathered from them)
     n_u = n if ring is None else ring.n_voxels
     cell = None if ring is None else jnp.asarray(ring.cell_of_voxel)
+    # unknowns -> the segment table's voxels: identity, the ring gather P, E, or E P
+    to_seg = None
+    if E is not None:
+        to_seg = (E if ring is None else E @ ring.expansion).tocsr()
+        to_seg_j = to_bcoo(to_seg)
 
     def per_unknown(M):
-        """Columns of a voxel matrix summed per unknown (``M P``; ``M`` itself without symmetry)."""
+        """Columns of a segment-voxel matrix summed per unknown (``M E P``; ``M`` itself without symmetry or ``E``)."""
+        if to_seg is not None:
+            return M @ to_seg
         return M if ring is None else M @ ring.expansion
     rows = [_rows_for(m, segments) for m in ms]
     ys = [jnp.asarray(m.y) for m in ms]
@@ -241,12 +272,17 @@ def solve_temperature_absorption(
         return lo + (hi - lo) * jax.nn.sigmoid(th), sigma_a_max * jax.nn.sigmoid(rho)
 
     def on_voxels(x):
+        """Unknowns -> the reconstruction grid's voxels."""
         return x if cell is None else x[cell]
+
+    def on_segment_voxels(x):
+        """Unknowns -> the segment table's voxels (where the physics is evaluated)."""
+        return on_voxels(x) if to_seg is None else to_seg_j @ x
 
     def residual(p, args):
         seg_, lam = args
         T, sref = unpack(p)
-        Tv, sv = on_voxels(T), on_voxels(sref)
+        Tv, sv = on_segment_voxels(T), on_segment_voxels(sref)
         out = []
         for c in range(len(ms)):
             s = model_signal(seg_, planck_jax(Tv, wls[c]), sv * factors[c])
@@ -266,7 +302,7 @@ def solve_temperature_absorption(
         if isinstance(T0, str) or isinstance(sigma_a0, str):
             raise ValueError("T0 and sigma_a0 must be arrays or None")
         t_tc = time.perf_counter()
-        T_tc, s_tc = _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max)
+        T_tc, s_tc = _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max, grid, E)
         start = f"two-colour ({time.perf_counter() - t_tc:.1f} s)"
     T_init = T_tc if T0 is None else np.asarray(T0, float).ravel()
     s_init = s_tc if sigma_a0 is None else np.asarray(sigma_a0, float).ravel()
@@ -290,14 +326,19 @@ def solve_temperature_absorption(
         sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
         T, sref = lo + (hi - lo) * sg, sigma_a_max * sr
         dT, ds = (hi - lo) * sg * (1.0 - sg), sigma_a_max * sr * (1.0 - sr)
-        Tv, sv = (T, sref) if ring is None else (ring.expand(T).ravel(), ring.expand(sref).ravel())
+        if to_seg is not None:
+            Tv, sv = to_seg @ T, to_seg @ sref
+        else:
+            Tv, sv = (T, sref) if ring is None else (ring.expand(T).ravel(), ring.expand(sref).ravel())
         c2 = np.zeros(2 * n_u)
         for c in range(len(ms)):
             sa_c = sv * factors[c]
-            Wc = per_unknown(whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]])
+            # ∂F/∂T_unknown = W(σ) diag(I_b'(T_seg)) (E) P: exact, also through the interpolation
+            Wc = per_unknown(whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]]
+                             @ sp.diags(_dblackbody_np(Tv, wls[c])))
             dF_ds = sp.csr_matrix(segments.jacobian(_blackbody_np(Tv, wls[c]), sa_c)[1])
             Jc = per_unknown(whiten[c] @ dF_ds[rows_np[c]])
-            c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * (_dblackbody_np(T, wls[c]) * dT) ** 2
+            c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * dT ** 2
             c2[n_u:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
         c2[:n_u] += lam * colsq_L * (dT / (hi - lo)) ** 2
         c2[n_u:] += lam * (colsq_L + ridge) * (ds / s_scale) ** 2
@@ -410,4 +451,5 @@ def solve_temperature_absorption(
         details={"lambda_path": path, "wavelengths": wls, "alpha": alpha, "start": start,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape)},
         symmetry=ring,
+        metadata={} if E is None else {"quadrature_grid": seg_grid.to_dict()},
     )

@@ -204,14 +204,16 @@ def reconstruct(
         voxel grid's restricted to axisymmetric fields; ``T`` is returned on the
         voxel grid.  Default None: every voxel free.
     grid : Grid, optional
-        Reconstruction grid (``"T"`` only).  Default: the weight matrix's
-        grid.  A coarser grid than the weights' (same box) turns on
+        Reconstruction grid.  Default: the weight matrix's (or, for
+        ``"T+sigma_a"``, the ray-segment table's) grid.  A coarser grid than the weights' (same box) turns on
         **sub-voxel emission**: ``T`` is the temperature at ``grid``'s voxel
         centres, interpolated trilinearly to the weights' (quadrature) voxels,
         where Planck's law is applied, so the emission follows the temperature
         gradient inside each reconstruction voxel
         (:mod:`lftomo.inverse.subvoxel`; build the weights for
-        ``lftomo.interpolate_field(sigma_a, grid, quadrature_grid)``).
+        ``lftomo.interpolate_field(sigma_a, grid, quadrature_grid)``).  For
+        ``"T+sigma_a"`` both ``T`` and ``sigma_a`` are interpolated, and the
+        segment table is built on the quadrature grid.
     **options
         Passed to :func:`lftomo.inverse.solvers.solve_temperature` (``"T"``) or
         :func:`lftomo.inverse.joint.solve_temperature_absorption`.
@@ -231,14 +233,11 @@ def reconstruct(
             raise ValueError(
                 f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}"
             )
-        if grid is not None:
-            raise ValueError("grid (sub-voxel emission) is supported for unknowns='T' only; the joint fit uses "
-                             "the ray-segment table's grid")
         from .joint import solve_temperature_absorption
 
         return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
                                             bounds=bounds, method=method, T0=T0,
-                                            symmetry=symmetry, **options)
+                                            symmetry=symmetry, grid=grid, **options)
     from .solvers import solve_temperature
 
     if isinstance(measurement, (list, tuple)):

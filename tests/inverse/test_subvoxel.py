@@ -150,3 +150,42 @@ def test_subvoxel_auto_lambda_is_searched_on_the_surrogate(subvoxel_blob):
     assert sol.chi2 == pytest.approx(noisy.chi2(sol.T), rel=1e-6)
     with pytest.raises(ValueError, match="subvoxel_search"):
         lt.solve_temperature(noisy, subvoxel_search="fast")
+
+
+@pytest.mark.parametrize("symmetry", [None, "axisymmetric"])
+def test_joint_subvoxel_noise_free_recovers_T_and_sigma_a(symmetry):
+    """T + sigma_a with sub-voxel emission: both fields on a 3³ grid, interpolated to the 6³
+    quadrature grid and rendered there at 650 and 800 nm (same rays as the segment table).  The
+    joint fit with ``grid=`` returns the coarse T to <= 0.1 % and sigma_a to <= 0.5 %, with the
+    uniform-voxel joint model on the same data misfitting by > 100x in χ²."""
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    grid = lt.Grid(shape=(3, 3, 3), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    quad = grid.refined(2)
+    rng = np.random.default_rng(0)
+    T = 1500.0 + 300.0 * rng.random(grid.shape)
+    sa = 10.0 + 20.0 * rng.random(grid.shape)
+    if symmetry is not None:
+        rg = lt.ring_grid(grid)
+        T, sa = rg.expand(rg.project(T)), rg.expand(rg.project(sa))
+    wl = (650e-9, 800e-9)
+    fine = lt.Medium(quad, sigma_a=lt.interpolate_field(sa, grid, quad), T=lt.interpolate_field(T, grid, quad),
+                     sigma_a_rule=lt.SootRule(650e-9, 1.38))
+    lf = lt.render(lt.Scene(medium=fine), cam, rays_per_pixel=8, seed=2, wavelengths=wl, progress=False)
+    sigma = 1e-3 * lf.raw + 1e-6 * lf.raw.max()
+    clean = dataclasses.replace(lf, noise_std=sigma, signal=lf.raw)
+    ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
+    kw = dict(unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0), symmetry=symmetry,
+              T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200)
+    seg_q = lt.ray_segments(cam, quad, rays_per_pixel=8, seed=2, progress=False)
+    rec = lt.reconstruct(ms, seg_q, grid=grid, **kw)
+    assert rec.T.shape == grid.shape and rec.grid == grid
+    assert rec.summary()["quadrature_grid"] == quad.to_dict()
+    assert rec.errors(T, hot=1000.0)["max_rel"] <= 1e-3
+    np.testing.assert_allclose(rec.sigma_a, sa, rtol=5e-3)
+    seg_c = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2, progress=False)
+    plain = lt.reconstruct(ms, seg_c, **kw)
+    assert plain.chi2 > 100 * max(rec.chi2, 1e-12), (plain.chi2, rec.chi2)
+    other = lt.Grid(shape=(2, 2, 2), lower=(-0.003, -0.003, 0.997), upper=(0.003, 0.003, 1.003))  # inside the box
+    with pytest.raises(ValueError, match="quadrature grid"):
+        lt.reconstruct(ms, seg_q, grid=other, **kw)
+
