@@ -149,6 +149,16 @@ def main():
         print(f"  emitting voxels ({em['n']}: emission >= 1 % of max): joint T {em['joint_T']:.1%}, sigma_a "
               f"{em['joint_sigma_a']:.1%}; start T {em['start_T']:.1%}, sigma_a {em['start_sigma_a']:.1%}; "
               f"T only {em['T_only']:.1%}")
+        bands = {}
+        for label, sel in (("T>1100K", T_true > 1100.0), ("T>1400K", T_true > 1400.0),
+                           ("emission>=1e-3", hot & (emission >= 1e-3 * emission.max()))):
+            eb = np.abs(rec.T[sel] / T_true[sel] - 1.0)
+            bands[label] = {"n": int(sel.sum()), "T_mean_rel": float(eb.mean()), "T_max_rel": float(eb.max()),
+                            "sigma_a_mean_rel": float(np.mean(np.abs(rec.sigma_a[sel] / sa_c[sel] - 1.0))),
+                            "T_only_mean_rel": float(np.mean(np.abs(only.T[sel] / T_true[sel] - 1.0)))}
+            print(f"  {label} ({bands[label]['n']} voxels): joint T {eb.mean():.2%} mean / {eb.max():.1%} max, "
+                  f"sigma_a {bands[label]['sigma_a_mean_rel']:.1%}; T only {bands[label]['T_only_mean_rel']:.2%}")
+        row["bands"] = bands
         print(json.dumps(row, default=float), flush=True)
         rows.append(row)
         if a.npz:

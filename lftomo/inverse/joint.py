@@ -20,6 +20,12 @@ optically thin limit, the per-voxel ratio of two channels giving ``T``
 (e.g. the two-colour method of soot pyrometry, Hottel & Broughton 1932, applied to
 tomographic fields) and the level giving ``σ_a``.
 
+Sub-voxel emission (``grid=`` coarser than the segment table's grid): the
+unknowns live at the centres of ``grid``'s voxels and are interpolated
+trilinearly (``E``, :func:`lftomo.interpolation_matrix`) to the table's voxels
+before Planck's law and the transmittance, ``T_q = E T``, ``σ_q = E σ_ref``
+(with symmetry ``E P``), as in the T-only solver.
+
 λ rule (``regularization="auto"``): discrepancy principle (Morozov), the largest
 λ with ``χ²/m ≤ 1``: bracketed by factors of 10 from λ = 10⁻² (each solve
 warm-started from the nearest λ solved), refined by two bisections in log λ.
