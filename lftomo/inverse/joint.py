@@ -60,7 +60,7 @@ from .solvers import (
     _nl_solver,
     planck_jax,
 )
-from .subvoxel import interpolation_matrix
+from .subvoxel import resolve_quadrature
 from .symmetry import resolve_symmetry
 
 #: A solve also stops when its objective changes by less than this fraction
@@ -227,16 +227,7 @@ def solve_temperature_absorption(
     if not (s_scale > 0 and math.isfinite(s_scale)):
         raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
     seg_grid = Grid.from_dict(segments.metadata["grid"])
-    if grid is None or grid == seg_grid:
-        grid, E = seg_grid, None
-    else:
-        if not isinstance(grid, Grid):
-            raise ValueError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
-        try:
-            E = interpolation_matrix(grid, seg_grid)
-        except ValueError as err:
-            raise ValueError(f"grid {tuple(grid.shape)} cannot use the segment table's grid "
-                             f"{tuple(seg_grid.shape)} as its quadrature grid: {err}") from None
+    grid, E = resolve_quadrature(grid, seg_grid, "segment table's")
     n = grid.n_voxels
     ring = resolve_symmetry(symmetry, grid)
     # unknowns: one per voxel, or one per ring cell (voxel values gathered from them)

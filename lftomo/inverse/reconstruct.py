@@ -143,18 +143,12 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
     """
     wgrid = _grid_of(weights)
     problem = measurement.problem(weights, wgrid)
-    if grid is None or grid == wgrid:
-        return problem, wgrid
-    if not isinstance(grid, Grid):
-        raise ValueError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
     from .problem import LinearProblem
-    from .subvoxel import interpolation_matrix
+    from .subvoxel import resolve_quadrature
 
-    try:
-        E = interpolation_matrix(grid, wgrid)
-    except ValueError as err:
-        raise ValueError(f"grid {tuple(grid.shape)} cannot use the weights' grid {tuple(wgrid.shape)} as its "
-                         f"quadrature grid: {err}") from None
+    grid, E = resolve_quadrature(grid, wgrid, "weights'")
+    if E is None:
+        return problem, wgrid
     meta = {**problem.metadata, "quadrature_grid": wgrid.to_dict()}
     return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=grid, wavelength=problem.wavelength,
                          background=problem.background, metadata=meta, interpolation=E), grid

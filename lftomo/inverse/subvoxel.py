@@ -124,3 +124,39 @@ def interpolate_field(field: Any, grid: Grid, quadrature: Grid) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError("field must be finite, got NaN or inf")
     return (interpolation_matrix(grid, quadrature) @ arr.ravel()).reshape(quadrature.shape)
+
+
+def resolve_quadrature(grid: Any, model_grid: Grid, model: str) -> tuple[Grid, sp.csr_matrix | None]:
+    """The reconstruction grid and its interpolation to the forward model's grid.
+
+    Parameters
+    ----------
+    grid : Grid or None
+        Requested reconstruction grid; None or ``model_grid`` itself: no
+        interpolation.
+    model_grid : Grid
+        Grid of the forward model (weights or segment table).
+    model : str
+        What the forward model is, for the error message ("weights'", "segment table's").
+
+    Returns
+    -------
+    (Grid, scipy.sparse.csr_matrix or None)
+        ``grid`` (or ``model_grid``) and ``E`` of shape
+        (model_grid.n_voxels, grid.n_voxels), None without interpolation.
+
+    Raises
+    ------
+    ValueError
+        When ``grid`` is not a Grid or cannot use ``model_grid`` as its quadrature grid.
+    """
+    if grid is None or grid == model_grid:
+        return model_grid, None
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
+    try:
+        E = interpolation_matrix(grid, model_grid)
+    except ValueError as err:
+        raise ValueError(f"grid {tuple(grid.shape)} cannot use the {model} grid {tuple(model_grid.shape)} as its "
+                         f"quadrature grid: {err}") from None
+    return grid, E
