@@ -233,17 +233,15 @@ def solve_temperature_absorption(
     # unknowns: one per voxel, or one per ring cell (voxel values gathered from them)
     n_u = n if ring is None else ring.n_voxels
     cell = None if ring is None else jnp.asarray(ring.cell_of_voxel)
-    # unknowns -> the segment table's voxels: identity, the ring gather P, E, or E P
-    to_seg = None
-    if E is not None:
-        to_seg = (E if ring is None else E @ ring.expansion).tocsr()
-        to_seg_j = to_bcoo(to_seg)
+    # unknowns -> the segment table's voxels: None (identity), the ring expansion P, E, or E P
+    to_seg = ring.expansion if E is None and ring is not None else E
+    if E is not None and ring is not None:
+        to_seg = (E @ ring.expansion).tocsr()
+    to_seg_j = None if to_seg is None else to_bcoo(to_seg)
 
     def per_unknown(M):
         """Columns of a segment-voxel matrix summed per unknown (``M E P``; ``M`` itself without symmetry or ``E``)."""
-        if to_seg is not None:
-            return M @ to_seg
-        return M if ring is None else M @ ring.expansion
+        return M if to_seg is None else M @ to_seg
     rows = [_rows_for(m, segments) for m in ms]
     ys = [jnp.asarray(m.y) for m in ms]
     inv_s = [jnp.asarray(1.0 / m.sigma) for m in ms]
@@ -274,7 +272,7 @@ def solve_temperature_absorption(
 
     def on_segment_voxels(x):
         """Unknowns -> the segment table's voxels (where the physics is evaluated)."""
-        return on_voxels(x) if to_seg is None else to_seg_j @ x
+        return x if to_seg_j is None else to_seg_j @ x
 
     def residual(p, args):
         seg_, lam = args
@@ -323,10 +321,7 @@ def solve_temperature_absorption(
         sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
         T, sref = lo + (hi - lo) * sg, sigma_a_max * sr
         dT, ds = (hi - lo) * sg * (1.0 - sg), sigma_a_max * sr * (1.0 - sr)
-        if to_seg is not None:
-            Tv, sv = to_seg @ T, to_seg @ sref
-        else:
-            Tv, sv = (T, sref) if ring is None else (ring.expand(T).ravel(), ring.expand(sref).ravel())
+        Tv, sv = (T, sref) if to_seg is None else (to_seg @ T, to_seg @ sref)
         c2 = np.zeros(2 * n_u)
         for c in range(len(ms)):
             sa_c = sv * factors[c]
