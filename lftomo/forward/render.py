@@ -122,13 +122,17 @@ class _NoBar:
     def update(self, n):
         pass
 
+    def set_postfix_str(self, s):
+        pass
+
     def close(self):
         pass
 
 
-def _progress(total: int, show: bool, desc: str):
+def _progress(total: int | None, show: bool, desc: str, unit: str = "px"):
+    """A tqdm bar (stderr; ``total`` None: a counter without an end), or a silent stand-in."""
     if not show:
         return _NoBar()
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit="px", unit_scale=True, leave=False)
+    return tqdm(total=total, desc=desc, unit=unit, unit_scale=unit == "px", leave=False)

@@ -43,7 +43,19 @@ def test_reconstruct_refuses_bad_input(setup):
         rec_like.errors(np.zeros((3, 3, 3)))
 
 
-def test_joint_temperature_and_absorption_from_two_wavelengths():
+def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
+    """progress=True draws a bar on stderr (steps, λ, χ²/m); the default for a small problem is silent."""
+    cam, grid, flame, lf, W = setup
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="subaperture")
+    reconstruct(m, W, regularization=1e-3, bounds=(500.0, 2500.0), max_steps=20)
+    assert capsys.readouterr().err == ""
+    rec = reconstruct(m, W, regularization=1e-3, bounds=(500.0, 2500.0), max_steps=20, progress=True)
+    err = capsys.readouterr().err
+    assert "reconstruct T" in err and "λ=0.001" in err and "χ²/m=" in err, err
+    assert f"{rec.iterations}" in err
+
+
+def test_joint_temperature_and_absorption_from_two_wavelengths(capsys):
     """Noise-free on-grid data at 650 and 800 nm (same rays; a solver check):
     T and sigma_a are recovered where the flame is hot and absorbing."""
     cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
@@ -61,7 +73,10 @@ def test_joint_temperature_and_absorption_from_two_wavelengths():
     ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2)
     rec = reconstruct(ms, seg, unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0),
-                      T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200)
+                      T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200,
+                      progress=True)
+    bar = capsys.readouterr().err
+    assert "reconstruct T+σa" in bar and "λ=1e-10" in bar and "χ²/m=" in bar, bar
     assert rec.errors(T, hot=1000.0)["max_rel"] < 0.01
     rel = np.abs(rec.sigma_a - sa) / sa
     # sigma_a of voxels seen only through others is the least determined and
