@@ -55,7 +55,9 @@ from .regularizers import prior_operator, to_bcoo
 from .solvers import (
     _baseline_start,
     _blackbody_np,
+    _branch_corner,
     _dblackbody_np,
+    _Eval,
     _jacobi_scale,
     _make_setup,
     _nl_solver,
@@ -208,7 +210,11 @@ def solve_temperature_absorption(
     Returns
     -------
     Reconstruction
-        ``sigma_a`` is the field at the first wavelength.
+        ``sigma_a`` is the field at the first wavelength.  With
+        ``regularization="auto"``, ``details["lambda_path"]`` lists
+        ``(λ, χ²/m, ‖R‖)`` of every solve of the search (in the order solved),
+        and ``details["lambda_path_T"]`` / ``["lambda_path_sigma_a"]`` their
+        fields on ``grid`` (for an L-curve, or to pick another λ).
     """
     t_start = time.perf_counter()
     ms = list(measurements)
@@ -350,6 +356,12 @@ def solve_temperature_absorption(
         seg_, lam, pc, D = args
         return residual(pc + D * psi, (seg_, lam))
 
+    def penalty_norm(pv):
+        """‖R‖ of the prior (the norm λ weighs): T and σ smoothness and the σ ridge."""
+        T, sref = unpack(jnp.asarray(pv))
+        a, b = L @ ((T - lo) / (hi - lo)), L @ (sref / s_scale)
+        return float(jnp.sqrt(jnp.sum(a * a) + jnp.sum(b * b) + ridge * jnp.sum((sref / s_scale) ** 2)))
+
     def objective(pv, lam):
         """The minimised objective at ``pv`` and its data part ‖r‖² (one residual evaluation)."""
         r = residual(jnp.asarray(pv), (seg, lam))
@@ -390,18 +402,25 @@ def solve_temperature_absorption(
     show = progress if progress is not None else n_seg > PROGRESS_MIN_SEGMENTS
     bar = _progress(None, bool(show), "reconstruct T+σa", unit="step")
     try:
-        path = []
+        path, path_fields = [], []
         if regularization == "auto":
             # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10 from
             # λ = 1e-2 (warm starts from the nearest λ solved), then two bisections
             # in log λ.
             sols = {}
+            evals = []
 
             def at(lam):
                 near = min(sols, key=lambda q: abs(math.log(q / lam))) if sols else None
                 sol, chi2 = solve(p if near is None else sols[near][0].value, lam)
                 sols[lam] = (sol, chi2)
-                path.append((lam, chi2))
+                reg = penalty_norm(sol.value)
+                path.append((lam, chi2, reg))
+                Tk, sk = unpack(sol.value)
+                path_fields.append((np.asarray(on_voxels(Tk)).reshape(grid.shape),
+                                    np.asarray(on_voxels(sk)).reshape(grid.shape)))
+                evals.append(_Eval(lam, np.asarray(sol.value), chi2, reg, sol.stats["num_steps"],
+                                   bool(sol.result == optx.RESULTS.successful), ""))
                 return chi2
 
             lam = 1e-2
@@ -424,8 +443,15 @@ def solve_temperature_absorption(
                 lam = lo_l
                 rule = "discrepancy (largest λ with chi²/m ≤ 1: factor-10 bracket, 2 bisections in log λ)"
             elif ok:
-                lam = ok[-1]
-                rule = "discrepancy: chi²/m ≤ 1 up to the largest λ tried"
+                # χ²/m ≤ 1 at every λ up to the cap: σ is overestimated (e.g. a
+                # conservative Monte Carlo error), and Morozov's λ would be the
+                # cap itself.  As in the T-only rule: the L-curve corner of the
+                # structured branch of the solutions computed (factors of 10),
+                # or the cap when the branch has too few points for a curvature.
+                found = _branch_corner(evals, math.inf, 1.0)
+                lam = ok[-1] if found is None else found[0].lam
+                how = "largest λ used" if found is None else found[1]
+                rule = f"discrepancy: chi²/m ≤ 1 up to the largest λ tried, {ok[-1]:.3g} (σ overestimated?): {how}"
             else:
                 lam = bad[0]
                 rule = "discrepancy: chi²/m > 1 down to the smallest λ tried"
@@ -458,7 +484,8 @@ def solve_temperature_absorption(
         timing={"total": time.perf_counter() - t_start},
         unknowns="T+sigma_a",
         data_kind="subaperture",
-        details={"lambda_path": path, "wavelengths": wls, "alpha": alpha, "start": start,
+        details={"lambda_path": path, "lambda_path_T": [f[0] for f in path_fields],
+                 "lambda_path_sigma_a": [f[1] for f in path_fields], "wavelengths": wls, "alpha": alpha, "start": start,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape)},
         symmetry=ring,
         metadata={} if E is None else {"quadrature_grid": seg_grid.to_dict()},

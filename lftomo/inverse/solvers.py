@@ -766,14 +766,14 @@ def _structured_branch(path: list) -> list:
     return path
 
 
-def _branch_corner(run: _Runner, lam_max: float, target: float):
+def _branch_corner(evals: list, lam_max: float, target: float):
     """The λ to use when the discrepancy equation has no solution on the
     structured branch of solutions (:func:`_structured_branch` of those
     computed at λ ≤ ``lam_max``): the L-curve corner of that branch, or with too few points for a curvature
     Morozov's largest λ with χ²/m ≤ target.  Returns ``(eval, how)`` or None."""
-    path = _structured_branch(sorted((x for x in run.evals if x.lam <= lam_max * (1 + 1e-12)),
+    path = _structured_branch(sorted((x for x in evals if x.lam <= lam_max * (1 + 1e-12)),
                                      key=lambda x: x.lam))
-    kappa = _lcurve_curvature(run, path) if len(path) >= 4 else np.array([np.nan])
+    kappa = _lcurve_curvature(path) if len(path) >= 4 else np.array([np.nan])
     if np.any(np.isfinite(kappa)):
         best = path[int(np.nanargmax(kappa))]
         return best, f"L-curve corner of the {len(path)} structured solutions, λ = {best.lam:.3g}"
@@ -818,7 +818,7 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
             # featureless field.  Fall back on the corner of the L-curve of the
             # structured branch of the solutions already computed (λ_ref·1e-2 …
             # λ_ref·1e4, factors of 10).
-            found = _branch_corner(run, math.inf, target)
+            found = _branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
                 return found[0], target, note
@@ -876,7 +876,7 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
         lo_lam = math.exp(xlo)
         jump = (f"chi²/m jumps across the target between λ = {lo_lam:.3g} and {math.exp(xhi):.3g} "
                 f"(no λ attains it within {_DISCREPANCY_JUMP:.0%}; σ misestimated?)")
-        found = _branch_corner(run, lo_lam, target)
+        found = _branch_corner(run.evals, lo_lam, target)
         if found is not None:
             return found[0], target, f"{jump}: {found[1]}"
     note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
@@ -962,16 +962,17 @@ def _rule_lcurve(run: _Runner, theta0, lam_ref, lambda_range, n_lambda):
         e = run.solve(lam, theta)
         theta = e.theta
         evals.append(e)
-    kappa = _lcurve_curvature(run, evals)
+    kappa = _lcurve_curvature(evals)
     k = int(np.nanargmax(kappa)) if np.any(np.isfinite(kappa)) else n_lambda // 2
     return evals[k], grid, np.array([e.chi2 for e in evals]), np.array([e.reg for e in evals]), kappa
 
 
-def _lcurve_curvature(run: _Runner, evals: list) -> np.ndarray:
+def _lcurve_curvature(evals: list) -> np.ndarray:
     """Curvature of ``(log ‖r‖, log ‖R‖)`` (axes normalised to [0, 1]) against ``log λ``; NaN at the ends
-    and on plateaus.  ``evals`` sorted by λ (either direction)."""
+    and on plateaus.  ``evals`` (with ``lam``, ``chi2`` = χ²/m and ``reg`` = ‖R‖) sorted by λ (either
+    direction); ``log ‖r‖ = ½ log(χ²/m) + const``, and the constant goes with the normalisation."""
     t = np.log([e.lam for e in evals])
-    x = np.log(np.sqrt(np.maximum([e.chi2 * run.s.m_total for e in evals], 1e-300)))
+    x = 0.5 * np.log(np.maximum([e.chi2 for e in evals], 1e-300))
     y = np.log(np.maximum([e.reg for e in evals], 1e-300))
     xn = (x - x.min()) / max(x.max() - x.min(), 1e-300)
     yn = (y - y.min()) / max(y.max() - y.min(), 1e-300)
@@ -1018,7 +1019,7 @@ def _discrepancy_local_minimum(run: _Runner, e: _Eval, e2: _Eval, choice: Lambda
     if t is None or not (_objective(run, e2) < _objective(run, e) and e2.chi2 > t * (1 + _DISCREPANCY_JUMP)
                          and e.chi2 <= t * (1 + _DISCREPANCY_JUMP)):
         return e, e2, choice
-    found = _branch_corner(run, e.lam / (1 + 1e-9), t)
+    found = _branch_corner(run.evals, e.lam / (1 + 1e-9), t)
     if found is None:
         return e, e2, choice
     lam_local = e.lam
