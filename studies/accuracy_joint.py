@@ -159,6 +159,14 @@ def main():
             print(f"  {label} ({bands[label]['n']} voxels): joint T {eb.mean():.2%} mean / {eb.max():.1%} max, "
                   f"sigma_a {bands[label]['sigma_a_mean_rel']:.1%}; T only {bands[label]['T_only_mean_rel']:.2%}")
         row["bands"] = bands
+        path = []
+        for (lam_k, chi2_k, reg_k), T_k in zip(rec.details.get("lambda_path", []), rec.details.get("lambda_path_T", [])):
+            e_k = np.abs(T_k / T_true - 1.0)
+            path.append({"lambda": lam_k, "chi2": chi2_k, "reg": reg_k, "T_mean_rel": float(e_k[hot].mean()),
+                         "T_max_rel": float(e_k[hot].max()), "emitting_T": float(e_k[emitting].mean())})
+            print(f"  λ {lam_k:9.3g}: chi2/m {chi2_k:.4f}, ‖R‖ {reg_k:.4g}; T > 800 K {e_k[hot].mean():.2%} / "
+                  f"{e_k[hot].max():.1%}, emitting {e_k[emitting].mean():.2%}")
+        row["lambda_path_errors"] = path
         print(json.dumps(row, default=float), flush=True)
         rows.append(row)
         if a.npz:
