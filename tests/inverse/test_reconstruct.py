@@ -82,3 +82,32 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys):
     # sigma_a of voxels seen only through others is the least determined and
     # converges slowest (ill-conditioned): mean <= 2 %, worst voxel <= 10 %
     assert rel.mean() < 0.02 and rel.max() < 0.10, (rel.mean(), rel.max())
+
+
+def test_joint_lambda_rule_takes_the_lcurve_corner_when_sigma_is_overestimated():
+    """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ, so Morozov's
+    "largest λ with χ²/m ≤ 1" would be the search's cap (1e4, the most smoothed field).  The rule
+    takes the L-curve corner of the path instead: a smaller λ, with a smaller T error than the
+    cap's.  The path records (λ, χ²/m, ‖R‖) and the fields of every solve."""
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.005, T_peak=1900.0,
+                                      T_ambient=1000.0, sigma_a_peak=30.0)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=8, seed=2, wavelengths=(650e-9, 800e-9),
+                   progress=False)
+    std = 0.01 * lf.raw + 1e-4 * lf.raw.max()
+    raw = lf.raw + std * np.random.default_rng(3).standard_normal(lf.raw.shape)
+    claimed = dataclasses.replace(lf, raw=raw, noise_std=3.0 * std, signal=lf.raw)
+    ms = [lt.Measurement.from_lightfield(claimed, data="subaperture", channel=c) for c in range(2)]
+    seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2, progress=False)
+    rec = reconstruct(ms, seg, unknowns="T+sigma_a", bounds=(500.0, 2500.0), symmetry="axisymmetric",
+                      prior="curvature")
+    path = rec.details["lambda_path"]
+    lams = [p[0] for p in path]
+    assert max(lams) == 1e4 and all(c < 0.5 for _, c, _ in path), path
+    assert "L-curve corner" in rec.lambda_rule and rec.regularization < 1e4, rec.lambda_rule
+    k = lams.index(rec.regularization)
+    np.testing.assert_allclose(rec.details["lambda_path_T"][k], rec.T)
+    hot = flame.T > 800.0
+    err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in rec.details["lambda_path_T"]]
+    assert err[k] < err[lams.index(1e4)], err
