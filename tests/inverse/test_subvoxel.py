@@ -138,8 +138,10 @@ def test_subvoxel_auto_lambda_is_searched_on_the_surrogate(subvoxel_blob):
     cam, grid, quad, flame, m, W_q = subvoxel_blob
     problem, _ = problem_on_grid(m, W_q, grid)
     rng = np.random.default_rng(5)
-    y = problem.y + 0.01 * problem.y * rng.standard_normal(problem.y.size)
-    sigma = 0.01 * np.abs(problem.y) + 1e-6 * np.abs(problem.y).max()
+    # 3 % noise: above the surrogate's own model error (at 1 % its χ²/m stays above 1 at every λ, the
+    # case of the next test)
+    y = problem.y + 0.03 * problem.y * rng.standard_normal(problem.y.size)
+    sigma = 0.03 * np.abs(problem.y) + 1e-6 * np.abs(problem.y).max()
     noisy = dataclasses.replace(problem, y=y, sigma=sigma)
     sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient")
     assert "surrogate" in sol.lambda_choice.note
@@ -189,3 +191,23 @@ def test_joint_subvoxel_noise_free_recovers_T_and_sigma_a(symmetry):
     with pytest.raises(ValueError, match="quadrature grid"):
         lt.reconstruct(ms, seg_q, grid=other, **kw)
 
+
+
+def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_misfits(subvoxel_blob):
+    """With 0.01 % noise the surrogate A E (I_b interpolated linearly) misfits by its own model
+    error: χ²/m above the target at every λ, so its discrepancy λ is just the smallest tried.  The
+    rule then runs on the sub-voxel model, which fits these data exactly: the λ is the full
+    search's, and χ²/m reaches the target."""
+    cam, grid, quad, flame, m, W_q = subvoxel_blob
+    problem, _ = problem_on_grid(m, W_q, grid)
+    rng = np.random.default_rng(6)
+    sigma = 1e-4 * np.abs(problem.y) + 1e-8 * np.abs(problem.y).max()
+    noisy = dataclasses.replace(problem, y=problem.y + sigma * rng.standard_normal(problem.y.size), sigma=sigma)
+    surrogate = lt.LinearProblem(A=problem.linear_operator(), y=noisy.y, sigma=sigma, grid=grid, wavelength=None)
+    sur = lt.solve_temperature(surrogate, bounds=(500.0, 2500.0), prior="gradient")
+    assert sur.chi2 > 1.1 and "stays above the target" in sur.lambda_choice.note, (sur.chi2, sur.lambda_choice.note)
+    sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient")
+    assert "surrogate A E misfits" in sol.lambda_choice.note, sol.lambda_choice.note
+    assert abs(sol.chi2 - 1.0) < 0.05 and sol.regularization > 1e3 * sur.regularization, (sol.chi2, sol.regularization)
+    hot = flame.T > 800.0
+    assert np.max(np.abs(sol.T[hot] / flame.T[hot] - 1.0)) < 0.01
