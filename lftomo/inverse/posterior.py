@@ -348,6 +348,21 @@ class LogPosterior:
     def n_params(self) -> int:
         return self.basis.n_params
 
+    def smoothness_in_coefficients(self, B: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+        """The smoothness term ``-½ w ‖L T − L T_ref‖²`` for ``T = B c``, as ``(w, L B, L T_ref)``.
+
+        ``B`` (n_voxels, K) is a linear basis matrix (or a linearisation of a
+        nonlinear one); None when the term is off (no ``L`` or λ = 0).
+        """
+        if self._reg == 0.0:
+            return None
+        LB = self._LB if self._LB is not None else np.asarray(self.L @ B)
+        return self._reg, LB, self._Lref
+
+    def coefficient_prior(self, C: np.ndarray) -> np.ndarray:
+        """Log of the coefficient prior (Gaussian and/or user ``log_prior``) of (W, K) rows, shape (W,)."""
+        return self._prior_term(np.atleast_2d(np.asarray(C, dtype=np.float64)))
+
     # -------------------------------------------------------------- evaluation
     def feasible_T(self, T: np.ndarray) -> np.ndarray:
         lo, hi = self.T_bounds

@@ -126,12 +126,13 @@ class TaylorLogPosterior:
         self._T_lo, self._T_hi = lo, hi
         self._B_bound = B[rows] if len(rows) else None
         # regularization: exact quadratic in c
-        self._reg = logpost._reg
-        if self._reg > 0:
-            LB = logpost._LB if logpost._LB is not None else np.asarray(logpost.L @ B)
+        smooth = logpost.smoothness_in_coefficients(B)
+        self._reg = 0.0
+        if smooth is not None:
+            self._reg, LB, Lref = smooth
             self._RtR = LB.T @ LB
-            self._Rtl = LB.T @ logpost._Lref
-            self._ltl = float(logpost._Lref @ logpost._Lref)
+            self._Rtl = LB.T @ Lref
+            self._ltl = float(Lref @ Lref)
 
     @property
     def n_params(self) -> int:
@@ -162,6 +163,6 @@ class TaylorLogPosterior:
                 val -= 0.5 * self._reg * (
                     np.einsum("wk,wk->w", Ci @ self._RtR, Ci) - 2.0 * (Ci @ self._Rtl) + self._ltl
                 )
-            val += self.logpost._prior_term(Ci)
+            val += self.logpost.coefficient_prior(Ci)
             out[ok] = np.where(np.isnan(val), -np.inf, val)
         return float(out[0]) if C_arr.ndim == 1 else out
