@@ -187,6 +187,7 @@ def reconstruct(
         Temperature bounds (K), enforced by parameterisation.
     method : {"levenberg-marquardt", "gauss-newton"}
     rule : {"discrepancy", "gcv", "lcurve"}
+        (``"T+sigma_a"``: "discrepancy" or "lcurve".)
     T0 : ndarray, optional
         Initial temperature field (default: from the linear baseline).
     symmetry : None, "axisymmetric" or RingGrid
@@ -230,7 +231,7 @@ def reconstruct(
         from .joint import solve_temperature_absorption
 
         return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
-                                            bounds=bounds, method=method, T0=T0,
+                                            bounds=bounds, method=method, rule=rule, T0=T0,
                                             symmetry=symmetry, grid=grid, **options)
     from .solvers import solve_temperature
 

@@ -84,11 +84,11 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys):
     assert rel.mean() < 0.02 and rel.max() < 0.10, (rel.mean(), rel.max())
 
 
-def test_joint_lambda_rule_takes_the_lcurve_corner_when_sigma_is_overestimated():
-    """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ, so Morozov's
-    "largest λ with χ²/m ≤ 1" would be the search's cap (1e4, the most smoothed field).  The rule
-    takes the L-curve corner of the path instead: a smaller λ, with a smaller T error than the
-    cap's.  The path records (λ, χ²/m, ‖R‖) and the fields of every solve."""
+def test_joint_lambda_rules_when_sigma_is_overestimated():
+    """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ.  The discrepancy
+    rule then takes its largest λ, 1e4 (the most smoothed field), and says so; rule="lcurve" takes
+    the corner of the L-curve of the same path, a smaller λ with a smaller T error here.  The path
+    records (λ, χ²/m, ‖R‖) and the fields of every solve."""
     cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
     grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
     flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.005, T_peak=1900.0,
@@ -100,14 +100,19 @@ def test_joint_lambda_rule_takes_the_lcurve_corner_when_sigma_is_overestimated()
     claimed = dataclasses.replace(lf, raw=raw, noise_std=3.0 * std, signal=lf.raw)
     ms = [lt.Measurement.from_lightfield(claimed, data="subaperture", channel=c) for c in range(2)]
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2, progress=False)
-    rec = reconstruct(ms, seg, unknowns="T+sigma_a", bounds=(500.0, 2500.0), symmetry="axisymmetric",
-                      prior="curvature")
-    path = rec.details["lambda_path"]
-    lams = [p[0] for p in path]
-    assert max(lams) == 1e4 and all(c < 0.5 for _, c, _ in path), path
-    assert "L-curve corner" in rec.lambda_rule and rec.regularization < 1e4, rec.lambda_rule
-    k = lams.index(rec.regularization)
-    np.testing.assert_allclose(rec.details["lambda_path_T"][k], rec.T)
+    kw = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), symmetry="axisymmetric", prior="curvature")
     hot = flame.T > 800.0
-    err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in rec.details["lambda_path_T"]]
-    assert err[k] < err[lams.index(1e4)], err
+    rec = reconstruct(ms, seg, **kw)
+    path = rec.details["lambda_path"]
+    assert [p[0] for p in path] == [10.0 ** k for k in range(-2, 5)] and all(c < 0.5 for _, c, _ in path), path
+    assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_rule
+    np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
+    lc = reconstruct(ms, seg, rule="lcurve", **kw)
+    assert lc.lambda_rule.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_rule
+    lams = [p[0] for p in lc.details["lambda_path"]]
+    k = lams.index(lc.regularization)
+    np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
+    err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in lc.details["lambda_path_T"]]
+    assert err[k] < err[-1], (lc.lambda_rule, err)
+    with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
+        reconstruct(ms, seg, rule="gcv", **kw)
