@@ -1326,8 +1326,8 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
         # (I_b interpolated linearly instead of Planck of the interpolated T)
         # exceeds the noise, so its "smallest λ" says nothing about the noise
         # (measured: standard flame 6³ / 12³, axisymmetric, curvature: the
-        # surrogate's χ²/m floor 1.081, λ 1.3e-6 and a 26 % error; the rule on
-        # the sub-voxel model: λ 1.3e3, 8.9 %).  Run the rule on the sub-voxel
+        # surrogate's χ²/m floor 1.081, λ 1.3e-6 and a 26 % error; with this
+        # fallback: λ 1.7e3, 8.7 %).  Run the rule on the sub-voxel
         # model itself, from the surrogate's solution.
         full = solve_temperature(problem, regularization="auto", T0=sur.T, subvoxel_search="full", **options)
         note = (f"{full.lambda_choice.note}; the rule ran on the sub-voxel model (from the surrogate's solution) "
