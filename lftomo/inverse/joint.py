@@ -391,8 +391,9 @@ def solve_temperature_absorption(
             D = column_scale(pv, lam)
             sol = optx.least_squares(scaled_residual, solver, zeros, args=(seg, lam, jnp.asarray(pv), jnp.asarray(D)),
                                      max_steps=k, throw=False)
-            steps += int(sol.stats["num_steps"])
-            bar.update(int(sol.stats["num_steps"]))
+            n_steps = int(sol.stats["num_steps"])
+            steps += n_steps
+            bar.update(n_steps)
             new = pv + D * np.asarray(sol.value)
             if not np.all(np.isfinite(new)):
                 break
@@ -412,24 +413,18 @@ def solve_temperature_absorption(
     show = progress if progress is not None else n_seg > PROGRESS_MIN_SEGMENTS
     bar = _progress(None, bool(show), "reconstruct T+σa", unit="step")
     try:
-        path, path_fields = [], []
+        evals = []  # every solve of the λ search, in the order solved
         if regularization == "auto":
             # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10 from
             # λ = 1e-2 (warm starts from the nearest λ solved), then two bisections
             # in log λ.
             sols = {}
-            evals = []
 
             def at(lam):
                 near = min(sols, key=lambda q: abs(math.log(q / lam))) if sols else None
                 sol, chi2 = solve(p if near is None else sols[near][0].value, lam)
                 sols[lam] = (sol, chi2)
-                reg = penalty_norm(sol.value)
-                path.append((lam, chi2, reg))
-                Tk, sk = unpack(sol.value)
-                path_fields.append((np.asarray(on_voxels(Tk)).reshape(grid.shape),
-                                    np.asarray(on_voxels(sk)).reshape(grid.shape)))
-                evals.append(_Eval(lam, np.asarray(sol.value), chi2, reg, sol.stats["num_steps"],
+                evals.append(_Eval(lam, np.asarray(sol.value), chi2, penalty_norm(sol.value), sol.stats["num_steps"],
                                    bool(sol.result == optx.RESULTS.successful), ""))
                 return chi2
 
@@ -487,6 +482,7 @@ def solve_temperature_absorption(
             rule = "fixed"
     finally:
         bar.close()
+    path_fields = [tuple(np.asarray(on_voxels(x)).reshape(grid.shape) for x in unpack(e.theta)) for e in evals]
     T, sref = unpack(sol.value)
     reg_norm = float(np.linalg.norm(np.asarray(L @ ((T - lo) / (hi - lo)))))
     T, sref = np.asarray(on_voxels(T)), np.asarray(on_voxels(sref))
@@ -507,7 +503,7 @@ def solve_temperature_absorption(
         timing={"total": time.perf_counter() - t_start},
         unknowns="T+sigma_a",
         data_kind="subaperture",
-        details={"lambda_path": path, "lambda_path_T": [f[0] for f in path_fields],
+        details={"lambda_path": [(e.lam, e.chi2, e.reg) for e in evals], "lambda_path_T": [f[0] for f in path_fields],
                  "lambda_path_sigma_a": [f[1] for f in path_fields], "wavelengths": wls, "alpha": alpha, "start": start,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape)},
         symmetry=ring,

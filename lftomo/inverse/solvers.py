@@ -1329,23 +1329,21 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
         # surrogate's χ²/m floor 1.081, λ 1.3e-6 and a 26 % error; with this
         # fallback: λ 1.7e3, 8.7 %).  Run the rule on the sub-voxel
         # model itself, from the surrogate's solution.
-        full = solve_temperature(problem, regularization="auto", T0=sur.T, subvoxel_search="full", **options)
-        note = (f"{full.lambda_choice.note}; the rule ran on the sub-voxel model (from the surrogate's solution) "
+        sol = solve_temperature(problem, regularization="auto", T0=sur.T, subvoxel_search="full", **options)
+        note = (f"{sol.lambda_choice.note}; the rule ran on the sub-voxel model (from the surrogate's solution) "
                 f"because the surrogate A E misfits by itself (χ²/m {sur.chi2:.4g} above the target "
                 f"{ch.target:.4g} at every λ)")
-        timing = {"surrogate": sur.timing["total"], "subvoxel": full.timing["total"],
-                  "total": time.perf_counter() - t0, "T0": sur.timing.get("T0")}
-        return dataclasses.replace(full, lambda_choice=dataclasses.replace(full.lambda_choice, note=note),
-                                   total_iterations=sur.total_iterations + full.total_iterations,
-                                   n_solves=sur.n_solves + full.n_solves, timing=timing)
-    fit_options = {k: v for k, v in options.items() if k != "rule"}
-    sol = solve_temperature(problem, regularization=sur.regularization, T0=sur.T, **fit_options)
-    note = (f"{sur.lambda_choice.note}; λ chosen on the surrogate A E (I_b interpolated linearly, χ²/m "
-            f"{sur.chi2:.4g}), then the sub-voxel model solved at that λ from its solution (χ²/m {sol.chi2:.4g})")
-    choice = dataclasses.replace(sur.lambda_choice, note=note)
+        choice = sol.lambda_choice
+    else:
+        fit_options = {k: v for k, v in options.items() if k != "rule"}
+        sol = solve_temperature(problem, regularization=sur.regularization, T0=sur.T, **fit_options)
+        note = (f"{ch.note}; λ chosen on the surrogate A E (I_b interpolated linearly, χ²/m "
+                f"{sur.chi2:.4g}), then the sub-voxel model solved at that λ from its solution (χ²/m {sol.chi2:.4g})")
+        choice = ch
     timing = {"surrogate": sur.timing["total"], "subvoxel": sol.timing["total"],
               "total": time.perf_counter() - t0, "T0": sur.timing.get("T0")}
-    return dataclasses.replace(sol, lambda_choice=choice, total_iterations=sur.total_iterations + sol.total_iterations,
+    return dataclasses.replace(sol, lambda_choice=dataclasses.replace(choice, note=note),
+                               total_iterations=sur.total_iterations + sol.total_iterations,
                                n_solves=sur.n_solves + sol.n_solves, timing=timing)
 
 
