@@ -484,7 +484,7 @@ def solve_temperature_absorption(
         bar.close()
     path_fields = [tuple(np.asarray(on_voxels(x)).reshape(grid.shape) for x in unpack(e.theta)) for e in evals]
     T, sref = unpack(sol.value)
-    reg_norm = float(np.linalg.norm(np.asarray(L @ ((T - lo) / (hi - lo)))))
+    reg_norm = penalty_norm(sol.value)  # the same ‖R‖ as lambda_path's: T and σ terms and the ridge
     T, sref = np.asarray(on_voxels(T)), np.asarray(on_voxels(sref))
     if ring is not None:
         T_init, s_init = ring.expand(T_init), ring.expand(s_init)

@@ -39,6 +39,9 @@ class Reconstruction:
     chi2 : float
         Whitened ``χ²/m`` at the solution.
     residual_norm, regularization_norm : float
+        ``‖r‖`` of the whitened data and ``‖R‖`` of the prior, the norm that λ
+        weighs (the objective is ``‖r‖² + λ ‖R‖²``); for ``"T+sigma_a"`` ``R``
+        holds the ``T`` and ``σ_a`` terms (and the ridge).
     iterations : int
     converged : bool
     timing : dict

@@ -1,6 +1,7 @@
 """reconstruct(): measurement + weight matrix -> temperature field."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -107,6 +108,14 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     assert [p[0] for p in path] == [10.0 ** k for k in range(-2, 5)] and all(c < 0.5 for _, c, _ in path), path
     assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_rule
     np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
+    # ‖R‖ is the norm λ weighs, T and σ_a terms (here on the ring cells), as in the path
+    from lftomo.inverse.regularizers import prior_operator
+
+    L = prior_operator(rec.symmetry, "curvature")
+    R_T = L @ ((rec.symmetry.project(rec.T).ravel() - 500.0) / 2000.0)
+    R_s = L @ (rec.symmetry.project(rec.sigma_a).ravel() / 200.0)  # σ_a scale: the default sigma_a_max
+    assert rec.regularization_norm == pytest.approx(math.hypot(np.linalg.norm(R_T), np.linalg.norm(R_s)), rel=1e-9)
+    assert rec.regularization_norm == path[-1][2]
     lc = reconstruct(ms, seg, rule="lcurve", **kw)
     assert lc.lambda_rule.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_rule
     lams = [p[0] for p in lc.details["lambda_path"]]
