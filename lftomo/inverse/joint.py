@@ -28,9 +28,10 @@ before Planck's law and the transmittance, ``T_q = E T``, ``σ_q = E σ_ref``
 
 λ rule (``regularization="auto"``): ``rule="discrepancy"`` (default), the
 discrepancy principle (Morozov), the largest λ with ``χ²/m ≤ 1``: bracketed by
-factors of 10 from λ = 10⁻² up to 10⁴ (each solve warm-started from the
-nearest λ solved), refined by two bisections in log λ.  ``rule="lcurve"``:
-the corner (largest curvature) of the L-curve of the solves at λ = 10⁻² … 10⁴.
+factors of 10 down from λ = 10⁴ (a continuation: each solve warm-started from
+the nearest λ solved, the first, most regularised one from the start),
+refined by two bisections in log λ.  ``rule="lcurve"``: the corner (largest
+curvature) of the L-curve of the solves at λ = 10⁴ … 10⁻².
 """
 
 from __future__ import annotations
@@ -71,6 +72,10 @@ from .symmetry import resolve_symmetry
 #: A solve also stops when its objective changes by less than this fraction
 #: over a chunk of 10 steps (or ``rtol`` if larger).
 _OBJECTIVE_RTOL = 1e-4
+
+#: The λ search of ``regularization="auto"`` runs down from ``_LAMBDA_MAX``
+#: by factors of 10, at most to ``_LAMBDA_MIN``.
+_LAMBDA_MAX, _LAMBDA_MIN = 1e4, 1e-8
 
 #: ``progress=None`` shows a progress bar for segment tables larger than this
 #: (the 16³ standard flame with quadrature 2: 12 M segments, about 30 min on 2 cores).
@@ -186,9 +191,8 @@ def solve_temperature_absorption(
 
     rule : {"discrepancy", "lcurve"}
         How ``regularization="auto"`` chooses λ (module docstring).  When the
-        noise σ is overestimated, χ²/m stays below 1 at every λ and the
-        discrepancy rule takes its largest λ, 10⁴; ``details["lambda_path"]``
-        then shows it.
+        noise σ is overestimated, χ²/m is below 1 already at the largest λ,
+        10⁴, and the discrepancy rule stops there (its ``lambda_rule`` says so).
     engine : {"host", "jax"}
         How the forward model and its exact derivatives are evaluated:
         ``"host"`` (default) builds the sparse Jacobians ``W(σ_a)`` and
@@ -415,9 +419,9 @@ def solve_temperature_absorption(
     try:
         evals = []  # every solve of the λ search, in the order solved
         if regularization == "auto":
-            # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10 from
-            # λ = 1e-2 (warm starts from the nearest λ solved), then two bisections
-            # in log λ.
+            # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10 down
+            # from λ = 1e4 (warm starts from the nearest λ solved), then two
+            # bisections in log λ.
             sols = {}
 
             def at(lam):
@@ -428,15 +432,15 @@ def solve_temperature_absorption(
                                    bool(sol.result == optx.RESULTS.successful), ""))
                 return chi2
 
-            lam = 1e-2
+            # Continuation from the top: the most regularised solve is the best
+            # conditioned one from the (rough) start, and each smaller λ is
+            # warm-started from the smoother solution above it.
+            lam = _LAMBDA_MAX
             if rule == "lcurve":
-                for k in range(7):  # λ = 1e-2 … 1e4, each warm-started from the previous
-                    at(10.0 ** (k - 2))
-            elif at(lam) <= 1.0:
-                while lam < 1e4 and at(lam * 10.0) <= 1.0:
-                    lam *= 10.0
-            else:
-                while lam > 1e-8 and at(lam / 10.0) > 1.0:
+                for k in range(7):  # λ = 1e4 … 1e-2
+                    at(_LAMBDA_MAX / 10.0 ** k)
+            elif at(lam) > 1.0:
+                while lam > _LAMBDA_MIN and at(lam / 10.0) > 1.0:
                     lam /= 10.0
             ok = sorted(q for q, (_, c) in sols.items() if c <= 1.0)
             bad = sorted(q for q, (_, c) in sols.items() if c > 1.0)
@@ -450,7 +454,7 @@ def solve_temperature_absorption(
                 lam = (ok[-1] if ok else bad[0]) if found is None else found[0].lam
                 rule = ("lcurve: " + (found[1] if found is not None else "too few solutions on the L-curve "
                                       "for a curvature: discrepancy") + f" ({len(front)} of {len(evals)} solves "
-                        "on the L-curve, λ = 1e-2 … 1e4)")
+                        "on the L-curve, λ = 1e4 … 1e-2)")
             elif ok and bad and bad[-1] > ok[-1]:
                 lo_l, hi_l = ok[-1], min(q for q in bad if q > ok[-1])
                 for _ in range(2):
@@ -460,16 +464,17 @@ def solve_temperature_absorption(
                     else:
                         hi_l = mid
                 lam = lo_l
-                rule = "discrepancy (largest λ with chi²/m ≤ 1: factor-10 bracket, 2 bisections in log λ)"
+                rule = "discrepancy (largest λ with chi²/m ≤ 1: factor-10 bracket down from 1e4, 2 bisections in log λ)"
             elif ok:
-                # χ²/m ≤ 1 at every λ up to the cap: σ is overestimated (e.g. a
+                # χ²/m ≤ 1 already at the cap: σ is overestimated (e.g. a
                 # conservative Monte Carlo error) and the cap is used.  The
-                # L-curve corner (rule="lcurve") was measured as the fallback:
-                # better at 8³ with uniform voxels (11.9 % against 22.3 %),
-                # worse at 24³ with sub-voxel emission (21-23 % against 15.2 %),
-                # where no solve of the path had converged in 100 steps.
+                # L-curve corner (rule="lcurve") was measured as the fallback
+                # (on the path solved upwards from λ = 1e-2): better at 8³ with
+                # uniform voxels (11.9 % against 22.3 %), worse at 24³ with
+                # sub-voxel emission (21-23 % against 15.2 %), where no solve
+                # of the path had converged in 100 steps.
                 lam = ok[-1]
-                rule = f"discrepancy: chi²/m ≤ 1 up to the largest λ tried, {lam:.3g} (σ overestimated?)"
+                rule = f"discrepancy: chi²/m ≤ 1 already at the largest λ, {lam:.3g} (σ overestimated?)"
             else:
                 lam = bad[0]
                 rule = "discrepancy: chi²/m > 1 down to the smallest λ tried"

@@ -85,11 +85,8 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys):
     assert rel.mean() < 0.02 and rel.max() < 0.10, (rel.mean(), rel.max())
 
 
-def test_joint_lambda_rules_when_sigma_is_overestimated():
-    """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ.  The discrepancy
-    rule then takes its largest λ, 1e4 (the most smoothed field), and says so; rule="lcurve" takes
-    the corner of the L-curve of the same path, a smaller λ with a smaller T error here.  The path
-    records (λ, χ²/m, ‖R‖) and the fields of every solve."""
+def _blob_two_colour(claimed_std_factor):
+    """Two-colour data of a 4³ Gaussian blob (1 % noise), σ claimed at ``factor`` × the true std."""
     cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
     grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
     flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.005, T_peak=1900.0,
@@ -98,14 +95,40 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
                    progress=False)
     std = 0.01 * lf.raw + 1e-4 * lf.raw.max()
     raw = lf.raw + std * np.random.default_rng(3).standard_normal(lf.raw.shape)
-    claimed = dataclasses.replace(lf, raw=raw, noise_std=3.0 * std, signal=lf.raw)
+    claimed = dataclasses.replace(lf, raw=raw, noise_std=claimed_std_factor * std, signal=lf.raw)
     ms = [lt.Measurement.from_lightfield(claimed, data="subaperture", channel=c) for c in range(2)]
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2, progress=False)
     kw = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), symmetry="axisymmetric", prior="curvature")
+    return flame, ms, seg, kw
+
+
+def test_joint_discrepancy_rule_brackets_down_from_the_cap_and_bisects():
+    """σ claimed at 1.15 × the true noise (the render's own Monte Carlo error is not in it): χ²/m
+    crosses 1 between λ = 1e3 and 1e4.  The search solves 1e4 (χ²/m > 1), 1e3 (≤ 1), then bisects
+    twice in log λ and returns the largest λ solved with χ²/m ≤ 1."""
+    flame, ms, seg, kw = _blob_two_colour(1.15)
+    rec = reconstruct(ms, seg, **kw)
+    path = rec.details["lambda_path"]
+    np.testing.assert_allclose([p[0] for p in path], [1e4, 1e3, 10.0 ** 3.5, 10.0 ** 3.25], rtol=1e-12)
+    chi2 = {lam: c for lam, c, _ in path}
+    assert chi2[1e4] > 1.0 and chi2[1e3] <= 1.0, path
+    ok = [lam for lam, c in chi2.items() if c <= 1.0]
+    assert rec.regularization == max(ok) and rec.chi2 == chi2[rec.regularization], (rec.regularization, path)
+    assert all(c > 1.0 for lam, c in chi2.items() if lam > rec.regularization), path
+    assert rec.lambda_rule.startswith("discrepancy (largest λ with chi²/m ≤ 1"), rec.lambda_rule
+
+
+def test_joint_lambda_rules_when_sigma_is_overestimated():
+    """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ.  The discrepancy
+    rule then stops at its largest λ, 1e4 (the most smoothed field), and says so; rule="lcurve" takes
+    the corner of the L-curve of its path, a smaller λ with a smaller T error here.  The path
+    records (λ, χ²/m, ‖R‖) and the fields of every solve."""
+    flame, ms, seg, kw = _blob_two_colour(3.0)
     hot = flame.T > 800.0
     rec = reconstruct(ms, seg, **kw)
     path = rec.details["lambda_path"]
-    assert [p[0] for p in path] == [10.0 ** k for k in range(-2, 5)] and all(c < 0.5 for _, c, _ in path), path
+    # the search runs down from the cap, where χ²/m ≤ 1 already: one solve
+    assert [p[0] for p in path] == [1e4] and path[0][1] < 0.5, path
     assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_rule
     np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
     # ‖R‖ is the norm λ weighs, T and σ_a terms (here on the ring cells), as in the path
@@ -119,9 +142,10 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     lc = reconstruct(ms, seg, rule="lcurve", **kw)
     assert lc.lambda_rule.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_rule
     lams = [p[0] for p in lc.details["lambda_path"]]
+    assert lams == [10.0 ** k for k in range(4, -3, -1)] and all(c < 0.5 for _, c, _ in lc.details["lambda_path"])
     k = lams.index(lc.regularization)
     np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
     err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in lc.details["lambda_path_T"]]
-    assert err[k] < err[-1], (lc.lambda_rule, err)
+    assert err[k] < err[0], (lc.lambda_rule, err)  # the corner beats the cap
     with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
         reconstruct(ms, seg, rule="gcv", **kw)
