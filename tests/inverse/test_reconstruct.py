@@ -104,14 +104,16 @@ def _blob_two_colour(claimed_std_factor):
 
 def test_joint_discrepancy_rule_brackets_down_from_the_cap_and_bisects():
     """σ claimed at 1.15 × the true noise (the render's own Monte Carlo error is not in it): χ²/m
-    crosses 1 between λ = 1e3 and 1e4.  The search solves 1e4 (χ²/m > 1), 1e3 (≤ 1), then bisects
-    twice in log λ and returns the largest λ solved with χ²/m ≤ 1."""
+    crosses 1 between λ = 1e3 and 1e4.  The search solves 1e-2 (χ²/m ≤ 1), probes the cap 1e4
+    (> 1), climbs by factors of 10 to 1e3 (the cap is not solved twice), then bisects twice in
+    log λ and returns the largest λ solved with χ²/m ≤ 1."""
     flame, ms, seg, kw = _blob_two_colour(1.15)
     rec = reconstruct(ms, seg, **kw)
     path = rec.details["lambda_path"]
-    np.testing.assert_allclose([p[0] for p in path], [1e4, 1e3, 10.0 ** 3.5, 10.0 ** 3.25], rtol=1e-12)
+    np.testing.assert_allclose([p[0] for p in path], [1e-2, 1e4, 0.1, 1.0, 10.0, 100.0, 1e3, 10.0 ** 3.5,
+                                                      10.0 ** 3.25], rtol=1e-12)
     chi2 = {lam: c for lam, c, _ in path}
-    assert chi2[1e4] > 1.0 and chi2[1e3] <= 1.0, path
+    assert chi2[path[0][0]] <= 1.0 and chi2[1e4] > 1.0 and chi2[path[6][0]] <= 1.0, path
     ok = [lam for lam, c in chi2.items() if c <= 1.0]
     assert rec.regularization == max(ok) and rec.chi2 == chi2[rec.regularization], (rec.regularization, path)
     assert all(c > 1.0 for lam, c in chi2.items() if lam > rec.regularization), path
@@ -127,8 +129,8 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     hot = flame.T > 800.0
     rec = reconstruct(ms, seg, **kw)
     path = rec.details["lambda_path"]
-    # the search runs down from the cap, where χ²/m ≤ 1 already: one solve
-    assert [p[0] for p in path] == [1e4] and path[0][1] < 0.5, path
+    # χ²/m ≤ 1 at the first λ and at the cap: two solves
+    assert [p[0] for p in path] == [1e-2, 1e4] and all(c < 0.5 for _, c, _ in path), path
     assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_rule
     np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
     # ‖R‖ is the norm λ weighs, T and σ_a terms (here on the ring cells), as in the path
@@ -142,10 +144,11 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     lc = reconstruct(ms, seg, rule="lcurve", **kw)
     assert lc.lambda_rule.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_rule
     lams = [p[0] for p in lc.details["lambda_path"]]
-    assert lams == [10.0 ** k for k in range(4, -3, -1)] and all(c < 0.5 for _, c, _ in lc.details["lambda_path"])
+    assert np.allclose(lams, [10.0 ** k for k in range(-2, 5)], rtol=1e-12, atol=0)
+    assert all(c < 0.5 for _, c, _ in lc.details["lambda_path"])
     k = lams.index(lc.regularization)
     np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
     err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in lc.details["lambda_path_T"]]
-    assert err[k] < err[0], (lc.lambda_rule, err)  # the corner beats the cap
+    assert err[k] < err[-1], (lc.lambda_rule, err)  # the corner beats the cap
     with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
         reconstruct(ms, seg, rule="gcv", **kw)
