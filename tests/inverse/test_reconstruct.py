@@ -102,7 +102,7 @@ def _blob_two_colour(claimed_std_factor):
     return flame, ms, seg, kw
 
 
-def test_joint_discrepancy_rule_brackets_down_from_the_cap_and_bisects():
+def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
     """σ claimed at 1.15 × the true noise (the render's own Monte Carlo error is not in it): χ²/m
     crosses 1 between λ = 1e3 and 1e4.  The search climbs from 1e-2 by factors of 10 to 1e4, the
     first λ with χ²/m > 1, then bisects twice in log λ and returns the largest λ solved with
