@@ -442,7 +442,7 @@ def solve_temperature_absorption(
             # end of the path).
             lam = _LAMBDA_START
             if rule == "lcurve":
-                for k in range(7):  # λ = 1e-2 … 1e4
+                for k in range(round(math.log10(_LAMBDA_MAX / _LAMBDA_START)) + 1):  # λ = 1e-2 … 1e4
                     at(_LAMBDA_START * 10.0 ** k)
             elif at(lam) <= 1.0:
                 while lam < _LAMBDA_MAX and at(lam * 10.0) <= 1.0:

@@ -8,6 +8,7 @@ import pytest
 
 import lftomo as lt
 from lftomo.inverse.reconstruct import reconstruct
+from lftomo.inverse.regularizers import prior_operator
 
 
 @pytest.fixture(scope="module")
@@ -134,8 +135,6 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_rule
     np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
     # ‖R‖ is the norm λ weighs, T and σ_a terms (here on the ring cells), as in the path
-    from lftomo.inverse.regularizers import prior_operator
-
     L = prior_operator(rec.symmetry, "curvature")
     R_T = L @ ((rec.symmetry.project(rec.T).ravel() - 500.0) / 2000.0)
     R_s = L @ (rec.symmetry.project(rec.sigma_a).ravel() / 200.0)  # σ_a scale: the default sigma_a_max
