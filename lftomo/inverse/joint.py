@@ -381,11 +381,8 @@ def solve_temperature_absorption(
         r = residual(jnp.asarray(pv), (seg, lam))
         return float(jnp.sum(r * r)), float(jnp.sum(r[:m_total] ** 2))
 
-    class _Sol:  # what the callers read of a solve
-        def __init__(self, value, steps, result):
-            self.value, self.stats, self.result = value, {"num_steps": steps}, result
-
-    def solve(p0, lam):
+    def solve(p0, lam) -> _Eval:
+        """One solve at ``λ`` from ``p0``: chunks of Jacobi-scaled optimistix steps."""
         pv = np.asarray(p0, dtype=np.float64)
         steps, result = 0, optx.RESULTS.nonlinear_max_steps_reached
         obj_prev, data_sq = objective(pv, lam)
@@ -411,7 +408,7 @@ def solve_temperature_absorption(
                 result = sol.result
                 break
             obj_prev = obj
-        return _Sol(jnp.asarray(pv), steps, result), data_sq / m_total
+        return _Eval(lam, pv, data_sq / m_total, penalty_norm(pv), steps, bool(result == optx.RESULTS.successful), "")
 
     n_seg = segments.n_segments
     show = progress if progress is not None else n_seg > PROGRESS_MIN_SEGMENTS
@@ -422,15 +419,10 @@ def solve_temperature_absorption(
             # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10
             # from λ = 1e-2 (warm starts from the nearest λ solved), then two
             # bisections in log λ.
-            sols = {}
-
             def at(lam):
-                near = min(sols, key=lambda q: abs(math.log(q / lam))) if sols else None
-                sol, chi2 = solve(p if near is None else sols[near][0].value, lam)
-                sols[lam] = (sol, chi2)
-                evals.append(_Eval(lam, np.asarray(sol.value), chi2, penalty_norm(sol.value), sol.stats["num_steps"],
-                                   bool(sol.result == optx.RESULTS.successful), ""))
-                return chi2
+                near = min(evals, key=lambda e: abs(math.log(e.lam / lam)), default=None)
+                evals.append(solve(p if near is None else near.theta, lam))
+                return evals[-1].chi2
 
             # The first solve is at a small λ, where the data move the fit
             # away from the (rough) start fastest; each larger λ is
@@ -450,8 +442,8 @@ def solve_temperature_absorption(
             else:
                 while lam > _LAMBDA_MIN and at(lam / 10.0) > 1.0:
                     lam /= 10.0
-            ok = sorted(q for q, (_, c) in sols.items() if c <= 1.0)
-            bad = sorted(q for q, (_, c) in sols.items() if c > 1.0)
+            ok = sorted(e.lam for e in evals if e.chi2 <= 1.0)
+            bad = sorted(e.lam for e in evals if e.chi2 > 1.0)
             if rule == "lcurve":
                 # Only solutions on the L-curve count: one with both a larger
                 # χ² and a larger ‖R‖ than another solve is not a minimiser of
@@ -485,33 +477,31 @@ def solve_temperature_absorption(
             else:
                 lam = bad[0]
                 rule = "discrepancy: chi²/m > 1 down to the smallest λ tried"
-            sol, chi2 = sols[lam]
+            best = next(e for e in evals if e.lam == lam)
         else:
             lam = float(regularization)
             if not (lam >= 0):
                 raise ValueError(f"regularization must be 'auto' or a number >= 0, got {regularization!r}")
-            sol, chi2 = solve(p, lam)
+            best = solve(p, lam)
             rule = "fixed"
     finally:
         bar.close()
     path_fields = [tuple(np.asarray(on_voxels(x)).reshape(grid.shape) for x in unpack(e.theta)) for e in evals]
-    T, sref = unpack(sol.value)
-    reg_norm = penalty_norm(sol.value)  # the same ‖R‖ as lambda_path's: T and σ terms and the ridge
+    T, sref = unpack(jnp.asarray(best.theta))
     T, sref = np.asarray(on_voxels(T)), np.asarray(on_voxels(sref))
     if ring is not None:
         T_init, s_init = ring.expand(T_init), ring.expand(s_init)
-    steps = int(sol.stats.get("num_steps", -1)) if hasattr(sol, "stats") else -1
     return Reconstruction(
         T=T.reshape(grid.shape),
         sigma_a=sref.reshape(grid.shape),
         grid=grid,
         regularization=lam,
         lambda_rule=rule,
-        chi2=chi2,
-        residual_norm=float(np.sqrt(chi2 * m_total)),
-        regularization_norm=reg_norm,
-        iterations=steps,
-        converged=bool(sol.result == optx.RESULTS.successful),
+        chi2=best.chi2,
+        residual_norm=float(np.sqrt(best.chi2 * m_total)),
+        regularization_norm=best.reg,  # the same ‖R‖ as lambda_path's: T and σ terms and the ridge
+        iterations=best.steps,
+        converged=best.converged,
         timing={"total": time.perf_counter() - t_start},
         unknowns="T+sigma_a",
         data_kind="subaperture",
