@@ -315,8 +315,8 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
 
     * ``relative_std`` — additive Gaussian noise with per-pixel standard
       deviation ``σ = relative_std × max(signal, floor)``, where the floor is
-      ``floor = relative_std × max(signal of the channel) × 1e-3``
-      (:data:`RELATIVE_FLOOR`): unlit or dark pixels get a small positive σ
+      ``floor = 1e-3 × max(signal of the channel)`` (:data:`RELATIVE_FLOOR`;
+      σ is at least 1e-3 of the peak's σ): unlit or dark pixels get a small positive σ
       instead of zero, so every pixel has a valid noise model.  The floor is
       applied per channel.  Negative noisy values are kept (no clipping).
     * ``sensor`` — a :class:`SensorModel` (or one per channel): counts with
