@@ -63,6 +63,7 @@ from .solvers import (
     _jacobi_scale,
     _make_setup,
     _nl_solver,
+    _scaled_chunks,
     planck_jax,
 )
 from .subvoxel import resolve_quadrature
@@ -367,8 +368,7 @@ def solve_temperature_absorption(
         return _jacobi_scale(c2)
 
     def scaled_residual(psi, args):
-        seg_, lam, pc, D = args
-        return residual(pc + D * psi, (seg_, lam))
+        return residual(args["theta_c"] + args["D"] * psi, (args["seg"], args["lam"]))
 
     def penalty_norm(pv):
         """‖R‖ of the prior (the norm λ weighs): T and σ smoothness and the σ ridge."""
@@ -382,30 +382,24 @@ def solve_temperature_absorption(
         return float(jnp.sum(r * r)), float(jnp.sum(r[:m_total] ** 2))
 
     def solve(p0, lam) -> _Eval:
-        """One solve at ``λ`` from ``p0``: chunks of Jacobi-scaled optimistix steps."""
+        """One solve at ``λ`` from ``p0``: chunks of Jacobi-scaled optimistix steps (``_scaled_chunks``)."""
         pv = np.asarray(p0, dtype=np.float64)
         steps, result = 0, optx.RESULTS.nonlinear_max_steps_reached
         obj_prev, data_sq = objective(pv, lam)
-        zeros = jnp.zeros(2 * n_u)
-        while steps < max_steps:
-            k = min(10, max_steps - steps)
-            D = column_scale(pv, lam)
-            sol = optx.least_squares(scaled_residual, solver, zeros, args=(seg, lam, jnp.asarray(pv), jnp.asarray(D)),
-                                     max_steps=k, throw=False)
-            n_steps = int(sol.stats["num_steps"])
-            steps += n_steps
-            bar.update(n_steps)
-            new = pv + D * np.asarray(sol.value)
-            if not np.all(np.isfinite(new)):
+        chunks = _scaled_chunks(scaled_residual, solver, {"seg": seg, "lam": lam}, lambda th: column_scale(th, lam), pv,
+                                max_steps, bar)
+        for new, n, res in chunks:
+            steps += n
+            if new is None:
                 break
             pv = new
             obj, data_sq = objective(pv, lam)
             bar.set_postfix_str(f"λ={lam:.3g} χ²/m={data_sq / m_total:.4g}")
-            if sol.result == optx.RESULTS.successful or abs(obj_prev - obj) <= max(rtol, _OBJECTIVE_RTOL) * obj:
+            if res == optx.RESULTS.successful or abs(obj_prev - obj) <= max(rtol, _OBJECTIVE_RTOL) * obj:
                 result = optx.RESULTS.successful
                 break
-            if sol.result != optx.RESULTS.nonlinear_max_steps_reached:
-                result = sol.result
+            if res != optx.RESULTS.nonlinear_max_steps_reached:
+                result = res
                 break
             obj_prev = obj
         return _Eval(lam, pv, data_sq / m_total, penalty_norm(pv), steps, bool(result == optx.RESULTS.successful), "")

@@ -598,6 +598,38 @@ def _jacobi_scale(c2: np.ndarray) -> np.ndarray:
     return 1.0 / np.maximum(c, 1e-3 * rms)
 
 
+def _scaled_chunks(residual, solver, args: dict, column_scale, theta, max_steps: int, bar, chunk: int = _CHUNK):
+    """Chunks of Jacobi-scaled optimistix steps from ``theta`` (the T-only and joint solves).
+
+    Each chunk rescales the unknowns about the current point, ``θ = θ_c + D ψ``
+    with ``D = column_scale(θ_c)``, and runs up to ``chunk`` steps of ``solver``
+    on ``residual(ψ, args)`` from ``ψ = 0`` (``args["theta_c"]``, ``args["D"]``
+    set here), so that the damping sees unknowns of comparable scale.  Yields
+    ``(θ, n_steps, result)`` after every chunk until ``max_steps`` steps are
+    spent; the caller decides when to stop.  A chunk that ends in a
+    non-finite iterate yields ``θ = None``.
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    zeros = jnp.zeros(theta.shape)
+    steps = 0
+    while steps < max_steps:
+        D = column_scale(theta)
+        args["theta_c"], args["D"] = jnp.asarray(theta), jnp.asarray(D)
+        sol = optx.least_squares(residual, solver, zeros, args=args, max_steps=min(chunk, max_steps - steps),
+                                 throw=False)
+        n = int(sol.stats["num_steps"])
+        steps += n
+        bar.update(n)
+        theta_new = theta + D * np.asarray(sol.value)
+        if not np.all(np.isfinite(theta_new)):
+            yield None, n, sol.result
+            return
+        theta = theta_new
+        yield theta, n, sol.result
+        if n == 0:
+            return
+
+
 class _Runner:
     """Nonlinear solves at given λ with warm starts; keeps every evaluation."""
 
@@ -659,28 +691,19 @@ class _Runner:
         # already at the solution stops after one chunk instead of two.
         c0, r0 = self.terms(theta, lam)
         obj_prev = c0 * self.s.m_total + lam * r0 * r0
-        zeros = jnp.zeros(theta.shape)
-        while steps < max_steps:
-            chunk = min(_CHUNK, max_steps - steps)
-            D = self.column_scale(theta, lam)
-            args["theta_c"] = jnp.asarray(theta)
-            args["D"] = jnp.asarray(D)
-            sol = optx.least_squares(
-                self.f["residual"], self.solver, zeros, args=args, max_steps=chunk, throw=False
-            )
-            n = int(sol.stats["num_steps"])
+        chunks = _scaled_chunks(self.f["residual"], self.solver, args, lambda th: self.column_scale(th, lam), theta,
+                                max_steps, self.bar)
+        for theta_new, n, result in chunks:
             steps += n
-            self.bar.update(n)
-            theta_new = theta + D * np.asarray(sol.value)
-            if not np.all(np.isfinite(theta_new)):
+            if theta_new is None:
                 message = "non-finite iterate"
                 break
             theta = theta_new
-            if sol.result == optx.RESULTS.successful:
+            if result == optx.RESULTS.successful:
                 converged, message = True, "converged (optimistix Cauchy criterion)"
                 break
-            if sol.result != optx.RESULTS.nonlinear_max_steps_reached:
-                message = str(sol.result)
+            if result != optx.RESULTS.nonlinear_max_steps_reached:
+                message = str(result)
                 break
             T_new = self.T_of(theta)
             c, r = self.terms(theta, lam)
@@ -695,8 +718,6 @@ class _Runner:
                 converged, message = True, f"converged to the search tolerance (objective change ≤ {objective_rtol:g})"
                 break
             T_prev, obj_prev = T_new, obj
-            if n == 0:
-                break
         self.total_steps += steps
         chi2, reg = self.terms(theta, lam)
         self.bar.set_postfix_str(f"λ={lam:.3g} χ²/m={chi2:.4g} ({len(self.evals) + 1} solves)")
