@@ -23,11 +23,18 @@ grid ``K`` times finer than the reconstruction grid, and ``T`` and ``σ_a`` are
 interpolated trilinearly to it (``lt.reconstruct(..., grid=coarse)``); the
 T-only reference then uses the known σ_a interpolated likewise.
 
+``--coarse-start NC`` first fits the same data on an ``NC``-per-axis grid
+(its own segment table, same quadrature factor) and starts the fine fit from
+it (``lt.reconstruct(..., start=coarse_fit)``: interpolated fields, λ search
+from the coarse fit's λ).  ``--start-npz`` continues from an earlier run's
+``--npz`` fields.
+
 Usage::
 
     python studies/accuracy_joint.py [--n 8] [--refine 2] [--rays 32] [--segment-rays 16]
                                      [--quadrature 1] [--regularization auto|<float>[,<float>...]]
-                                     [--json out.json]
+                                     [--coarse-start NC | --start-npz file.npz] [--max-steps 100]
+                                     [--json out.json] [--npz out.npz]
 """
 from __future__ import annotations
 
@@ -64,6 +71,13 @@ def main():
     ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian", "curvature"])
     ap.add_argument("--quadrature", type=int, default=1,
                     help="segment table on a grid this many times finer (sub-voxel emission); 1: off")
+    ap.add_argument("--coarse-start", type=int, default=0,
+                    help="start from a joint fit on a grid with this many voxels per axis (its own segment table, "
+                         "same data and quadrature): lt.reconstruct(..., start=coarse_fit), whose lambda search "
+                         "begins at the coarse fit's lambda; 0: off")
+    ap.add_argument("--start-npz", default="",
+                    help="start from the fitted fields T, sigma_a of an earlier run's --npz file (same --n), "
+                         "e.g. to continue a solve stopped by --max-steps")
     ap.add_argument("--json", default="")
     ap.add_argument("--npz", default="", help="save truth, start and fitted fields of the last λ here")
     a = ap.parse_args()
@@ -111,6 +125,34 @@ def main():
         return float(np.mean(np.abs(x[emitting] / ref[emitting] - 1.0)))
     print(f"T only (sigma_a known), channel 1: T {eO.mean():.2%} mean / {eO.max():.1%} max, "
           f"lambda {only.regularization:.3g}, {t_only:.0f} s", flush=True)
+    start_opts, coarse_info = {}, None
+    if a.coarse_start:
+        if a.coarse_start >= a.n:
+            ap.error(f"--coarse-start must be smaller than --n, got {a.coarse_start}")
+        t = time.perf_counter()
+        grid_c = lt.phantoms.default_flame_grid((a.coarse_start,) * 3)
+        quad_c = grid_c.refined(a.quadrature)
+        seg_c = lt.ray_segments(cam, quad_c, rays_per_pixel=a.segment_rays, seed=12, views=views, progress=False)
+        rec_c = lt.reconstruct(ms, seg_c, unknowns="T+sigma_a", max_steps=a.max_steps, symmetry=sym, prior=a.prior,
+                               **({"grid": grid_c} if a.quadrature > 1 else {}))
+        start_opts = {"start": rec_c}  # the fine fit starts from it, and its λ search at its λ
+        T_c = lt.interpolate_field(rec_c.T, grid_c, coarse)
+        e_c = rel(T_c, T_true)
+        coarse_info = {"n": a.coarse_start, "lambda": rec_c.regularization, "chi2": rec_c.chi2,
+                       "seconds": time.perf_counter() - t, "T_mean_rel": float(e_c.mean()),
+                       "emitting_T": rel_e(T_c, T_true)}
+        print(f"coarse start {grid_c.shape}: lambda {rec_c.regularization:.3g} ({rec_c.lambda_rule}), "
+              f"chi2/m {rec_c.chi2:.3f}; interpolated T {e_c.mean():.2%} mean, emitting "
+              f"{coarse_info['emitting_T']:.2%}; {coarse_info['seconds']:.0f} s", flush=True)
+    if a.start_npz and a.coarse_start:
+        ap.error("give --start-npz or --coarse-start, not both")
+    if a.start_npz:
+        with np.load(a.start_npz, allow_pickle=False) as f:
+            start_opts = {"T0": np.array(f["T"], dtype=np.float64), "sigma_a0": np.array(f["sigma_a"], dtype=np.float64)}
+        for key, v in start_opts.items():
+            if v.shape != coarse.shape or not np.all(np.isfinite(v)) or v.min() < 0:
+                ap.error(f"--start-npz: {key} must be finite, >= 0 and of shape {coarse.shape}, got {v.shape}")
+        print(f"start from {a.start_npz}: T {rel(start_opts['T0'], T_true).mean():.2%} mean", flush=True)
     rows = []
     regs = ["auto"] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for reg in regs:
@@ -118,7 +160,7 @@ def main():
         opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
         opts["sigma_a_ridge"] = a.sigma_a_ridge
         rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps,
-                             symmetry=sym, prior=a.prior, **opts, **sub)
+                             symmetry=sym, prior=a.prior, **opts, **sub, **start_opts)
         t_joint = time.perf_counter() - t
         eT, es = rel(rec.T, T_true), rel(rec.sigma_a, sa_c)
         # σ_a relative to the field's own scale (the per-voxel ratio explodes where the truth is ~0)
@@ -133,6 +175,7 @@ def main():
                       "lambda": rec.regularization, "rule": rec.lambda_rule, "chi2": rec.chi2,
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"]},
+            "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
             "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),
                                      "lambda": only.regularization, "seconds": t_only},

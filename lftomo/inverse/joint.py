@@ -459,11 +459,11 @@ def solve_temperature_absorption(
                 for k in range(round(math.log10(_LAMBDA_MAX / _LAMBDA_START)) + 1):  # λ = 1e-2 … 1e4
                     at(_LAMBDA_START * 10.0 ** k)
             elif at(lam) <= 1.0:
-                while lam < _LAMBDA_MAX and at(lam * 10.0) <= 1.0:
-                    lam *= 10.0
+                while lam < _LAMBDA_MAX and at(min(lam * 10.0, _LAMBDA_MAX)) <= 1.0:
+                    lam = min(lam * 10.0, _LAMBDA_MAX)  # a start's λ need not be a power of ten
             else:
-                while lam > _LAMBDA_MIN and at(lam / 10.0) > 1.0:
-                    lam /= 10.0
+                while lam > _LAMBDA_MIN and at(max(lam / 10.0, _LAMBDA_MIN)) > 1.0:
+                    lam = max(lam / 10.0, _LAMBDA_MIN)
             ok = sorted(e.lam for e in evals if e.chi2 <= 1.0)
             bad = sorted(e.lam for e in evals if e.chi2 > 1.0)
             if rule == "lcurve":
