@@ -162,15 +162,16 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     assert err[k] < err[-1], (lc.lambda_rule, err)  # the corner beats the cap
     with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
         reconstruct(ms, seg, rule="gcv", **kw)
-    # coarse-to-fine: a fit on 2³ (its own segment table, fixed λ 1e4) starts the 4³ search at its λ,
-    # here the cap: one solve, warm from the interpolated fields, reaching the path's own minimum
+    # coarse-to-fine: a fit on 2³ (its own segment table, fixed λ 3e3) starts the 4³ search at its λ,
+    # warm from the interpolated fields; the factor-10 step stops at the cap, and the cap's solve
+    # reaches the full path's minimum
     grid = lt.Grid.from_dict(seg.metadata["grid"])
     coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
     seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
-    rec_c = reconstruct(ms, seg_c, regularization=1e4, **kw)
+    rec_c = reconstruct(ms, seg_c, regularization=3e3, **kw)
     rec_s = reconstruct(ms, seg, start=rec_c, **kw)
-    assert [p[0] for p in rec_s.details["lambda_path"]] == [1e4] and rec_s.regularization == 1e4
-    assert rec_s.details["start"].startswith("interpolated from a fit on (2, 2, 2)"), rec_s.details["start"]
+    assert [p[0] for p in rec_s.details["lambda_path"]] == [3e3, 1e4] and rec_s.regularization == 1e4
+    assert rec_s.details["start"].startswith("interpolated from a fit on (2, 2, 2) (λ 3e+03)"), rec_s.details["start"]
     np.testing.assert_allclose(rec_s.details["T_start"], lt.interpolate_field(rec_c.T, coarse, grid))
     objective = [r.chi2 * sum(m.size for m in ms) + 1e4 * r.regularization_norm ** 2 for r in (rec_s, rec)]
     assert objective[0] == pytest.approx(objective[1], rel=1e-3), objective
