@@ -34,8 +34,11 @@ above 1400 K): the cool fringe is dark at visible wavelengths.
 (``--wavelengths``, soot law ``σ_a ∝ λ^-1.38``): the unknowns are T and σ_a of
 every hot voxel (or ring cell), the Jacobian the exact one of the ray-segment
 table (``W(σ_a) diag(∂I_b/∂T)`` and ``∂F/∂σ_a``, :meth:`lftomo.RaySegments.jacobian`,
-``--rays`` rays per pixel) at the true fields, all views, both channels'
-data.  The bound on T then includes what the unknown σ_a costs.
+``--rays`` rays per pixel) at the true fields, the data of both channels in
+the joint study's best-lit views (``--view-etendue``).  The bound on T then
+includes what the unknown σ_a costs.  Its Fisher matrix is ill-conditioned
+(condition number ~1e15 at 24³, near double precision's limit), so bounds of
+order 100 % are orders of magnitude, not precise values.
 """
 from __future__ import annotations
 
