@@ -81,6 +81,11 @@ def main():
     ap.add_argument("--json", default="")
     ap.add_argument("--npz", default="", help="save truth, start and fitted fields of the last λ here")
     a = ap.parse_args()
+    # option conflicts first, before the renders and fits
+    if a.start_npz and a.coarse_start:
+        ap.error("give --start-npz or --coarse-start, not both")
+    if a.coarse_start and a.coarse_start >= a.n:
+        ap.error(f"--coarse-start must be smaller than --n, got {a.coarse_start}")
     t0 = time.perf_counter()
     wls = tuple(float(w) for w in a.wavelengths.split(","))
     cam = lt.Camera.seed(1.0)
@@ -127,8 +132,6 @@ def main():
           f"lambda {only.regularization:.3g}, {t_only:.0f} s", flush=True)
     start_opts, coarse_info = {}, None
     if a.coarse_start:
-        if a.coarse_start >= a.n:
-            ap.error(f"--coarse-start must be smaller than --n, got {a.coarse_start}")
         t = time.perf_counter()
         grid_c = lt.phantoms.default_flame_grid((a.coarse_start,) * 3)
         quad_c = grid_c.refined(a.quadrature)
@@ -144,8 +147,6 @@ def main():
         print(f"coarse start {grid_c.shape}: lambda {rec_c.regularization:.3g} ({rec_c.lambda_rule}), "
               f"chi2/m {rec_c.chi2:.3f}; interpolated T {e_c.mean():.2%} mean, emitting "
               f"{coarse_info['emitting_T']:.2%}; {coarse_info['seconds']:.0f} s", flush=True)
-    if a.start_npz and a.coarse_start:
-        ap.error("give --start-npz or --coarse-start, not both")
     if a.start_npz:
         with np.load(a.start_npz, allow_pickle=False) as f:
             start_opts = {"T0": np.array(f["T"], dtype=np.float64), "sigma_a0": np.array(f["sigma_a"], dtype=np.float64)}

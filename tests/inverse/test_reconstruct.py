@@ -121,13 +121,14 @@ def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
     assert rec.lambda_rule.startswith("discrepancy (largest λ with chi²/m ≤ 1"), rec.lambda_rule
     # the χ² the rule compared, recomputed from the path's fields through each measurement's own
     # linear model W(σ_a) I_b(T) (weights of the segment table, the soot law σ_a ∝ λ^-1.38)
+    grid = lt.Grid.from_dict(seg.metadata["grid"])
     for k in range(len(path)):
         T_k, s_k = rec.details["lambda_path_T"][k], rec.details["lambda_path_sigma_a"][k]
         chi2_sq = 0.0
         for m in ms:
             W = seg.weights(s_k * (650e-9 / m.wavelength) ** 1.38)
             W = dataclasses.replace(W, metadata={**W.metadata, "wavelength": m.wavelength})  # the table says 650 nm
-            model = m.problem(W, lt.Grid.from_dict(seg.metadata["grid"])).A @ lt.planck(T_k, m.wavelength).ravel()
+            model = m.problem(W, grid).A @ lt.planck(T_k, m.wavelength).ravel()
             chi2_sq += float(np.sum(((model - m.y) / m.sigma) ** 2))
         assert chi2_sq / sum(m.size for m in ms) == pytest.approx(path[k][1], rel=1e-9), (k, path[k])
 
