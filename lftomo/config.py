@@ -27,30 +27,46 @@ Format (lengths in m, temperatures in K, radiance in W m^-2 sr^-1 [m^-1])::
     squares = 8                # checkerboard squares per side
     path = "texture.npy"       # texture = "file": a 2-D .npy (no pickle)
     temperature = 1500.0       # instead of radiance: a blackbody surface
+    emissivity = 1.0           #   of that blackbody surface, in (0, 1]
     normal = [0, 0, -1]        # facing the camera (default)
+    up = [0, 1, 0]             # direction of the texture's row 0
 
     [medium]                   # optional participating medium (see README)
+
+Every value is checked when the file is loaded, before any rendering: a bad
+value raises ``ValueError`` naming the table and key (``[render]
+rays_per_pixel``, ``[[surface]] #2 size``; surfaces count from 1), the value
+given and what is allowed.  Unknown keys, and keys that would be ignored (e.g.
+``squares`` without ``texture = "checkerboard"``), are errors too.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from .forward.camera import Camera
+from ._validate import toml_int, toml_number, toml_numbers
+from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
 from .forward.scene import PlanarEmitter, Scene, checkerboard
 
 DEFAULT_SCENE = Path(__file__).parent / "data" / "targets.toml"
 
 _TOP = {"camera", "render", "output", "surface", "medium"}
 _CAMERA = {"preset", "focus_distance", "main_lens", "mla", "sensor"}
+_CAMERA_PARTS = {"main_lens": MainLens, "mla": MicrolensArray, "sensor": Sensor}
 _RENDER = {"rays_per_pixel", "seed", "wavelength_nm"}
 _OUTPUT = {"focal_stack_depths"}
 _SURFACE = {"center", "size", "texture", "radiance", "low", "squares", "path", "temperature", "emissivity", "normal", "up"}
+_TEXTURES = ("uniform", "checkerboard", "file")
+# keys that only mean something for one texture
+_TEXTURE_ONLY = {"low": "checkerboard", "squares": "checkerboard", "path": "file"}
+_RADIANCE_UNIT = "W m^-2 sr^-1 [m^-1]"
 
 
 @dataclass(frozen=True)
@@ -67,82 +83,188 @@ class SceneConfig:
     raw: dict = field(default_factory=dict)
 
 
-def _check_keys(section: str, table: Mapping[str, Any], allowed: set[str]) -> None:
+def _check_keys(label: str, table: Any, allowed: set[str]) -> None:
+    """Raise unless ``table`` is a mapping whose keys are all in ``allowed``.
+
+    ``label`` names the table as written in the file, e.g. ``"[camera]"``.
+    """
     if not isinstance(table, Mapping):
-        raise ValueError(f"[{section}] must be a table, got {type(table).__name__}")
+        raise ValueError(f"{label} must be a table, got {type(table).__name__} {table!r}")
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise ValueError(f"unknown key(s) {unknown} in [{section}]; allowed: {sorted(allowed)}")
+        raise ValueError(f"unknown key(s) {unknown} in {label}; allowed: {sorted(allowed)}")
 
 
 def _wavelengths(value: Any) -> Any:
+    where = "[render] wavelength_nm"
     if isinstance(value, str):
         if value.lower() != "gray":
-            raise ValueError(f"render.wavelength_nm must be a number, a list of numbers or 'gray', got {value!r}")
+            raise ValueError(f"{where} must be a number, a list of numbers or 'gray', got {value!r}")
         return None
-    arr = np.atleast_1d(np.asarray(value, dtype=float))
-    if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ValueError(f"render.wavelength_nm must be positive numbers (nm), got {value!r}")
-    if np.any(arr < 100) or np.any(arr > 100000):
-        raise ValueError(f"render.wavelength_nm = {value!r} is outside 100-100000 nm; give nanometres")
-    return tuple(float(a) * 1e-9 for a in arr)
+    if isinstance(value, list):
+        if not value:
+            raise ValueError(f"{where} must be a number, a non-empty list of numbers or 'gray', got []")
+        nm = toml_numbers(where, value, gt=0, unit="nm")
+    else:
+        nm = (toml_number(where, value, gt=0, unit="nm"),)
+    if any(a < 100 or a > 100000 for a in nm):
+        raise ValueError(f"{where} = {value!r} is outside 100-100000 nm; give nanometres")
+    return tuple(a * 1e-9 for a in nm)
 
 
-def _surface(k: int, s: Mapping[str, Any], base: Path) -> PlanarEmitter:
-    _check_keys(f"surface {k}", s, _SURFACE)
+def _texture_file(tab: str, path: Any, base: Path) -> np.ndarray:
+    """Read the 2-D (or 3-D) ``.npy`` texture of a ``texture = "file"`` surface, without pickle."""
+    if not isinstance(path, str):
+        raise ValueError(f"{tab} path must be a file name (a string), got {path!r}")
+    p = (base / path).resolve()
+    if not p.is_file():
+        raise ValueError(f"{tab}: texture file {str(p)!r} does not exist")
+    if zipfile.is_zipfile(p):
+        raise ValueError(f"{tab} path: {str(p)!r} is an .npz archive; texture = 'file' needs one array in an "
+                         ".npy file (numpy.save)")
+    with open(p, "rb") as fh:
+        magic = fh.read(6)
+    if magic != b"\x93NUMPY":
+        raise ValueError(f"{tab} path: {str(p)!r} is not an .npy file; texture = 'file' needs a 2-D array "
+                         "saved with numpy.save")
+    try:
+        tex = np.load(p, allow_pickle=False)
+    except ValueError as exc:
+        raise ValueError(f"{tab}: cannot read {str(p)!r} without pickle: {exc}") from None
+    if tex.dtype.kind not in "fiu":
+        raise ValueError(f"{tab}: texture dtype {tex.dtype} in {str(p)!r} is not numeric")
+    if tex.ndim not in (2, 3) or 0 in tex.shape:
+        raise ValueError(f"{tab}: texture in {str(p)!r} must be a 2-D array (rows, cols) or a 3-D array "
+                         f"(n_wavelengths, rows, cols), got shape {tex.shape}")
+    return np.asarray(tex, float)
+
+
+def _squares(tab: str, value: Any) -> int | tuple[int, int]:
+    where = f"{tab} squares"
+    if isinstance(value, list):
+        if len(value) != 2:
+            raise ValueError(f"{where} must be an integer >= 1 or a list of 2 integers >= 1 [rows, cols], got {value!r}")
+        return (toml_int(f"{where}[0]", value[0], minimum=1), toml_int(f"{where}[1]", value[1], minimum=1))
+    return toml_int(where, value, minimum=1)
+
+
+def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
+    """Build the ``k``-th (0-based) ``[[surface]]``; messages count surfaces from 1."""
+    tab = f"[[surface]] #{k + 1}"
+    _check_keys(tab, s, _SURFACE)
     for key in ("center", "size"):
         if key not in s:
-            raise ValueError(f"[[surface]] {k} needs '{key}'")
-    kind = s.get("texture", "uniform")
-    kw: dict[str, Any] = dict(center=s["center"], size=s["size"])
+            raise ValueError(f"{tab} needs '{key}'")
+    kw: dict[str, Any] = dict(
+        center=toml_numbers(f"{tab} center", s["center"], length=3, hint="[x, y, z]", unit="m"),
+        size=toml_numbers(f"{tab} size", s["size"], length=2, gt=0, hint="[width, height]", unit="m"),
+    )
     for key in ("normal", "up"):
         if key in s:
-            kw[key] = s[key]
+            kw[key] = toml_numbers(f"{tab} {key}", s[key], length=3, hint="[x, y, z]")
+    kind = s.get("texture", "uniform")
+    if not isinstance(kind, str) or kind not in _TEXTURES:
+        raise ValueError(f"{tab} texture must be one of {list(_TEXTURES)}, got {kind!r}")
     if "temperature" in s:
         if "radiance" in s:
-            raise ValueError(f"[[surface]] {k}: give radiance or temperature, not both")
-        return PlanarEmitter(temperature=s["temperature"], emissivity=s.get("emissivity", 1.0), **kw)
-    value = s.get("radiance", 1.0)
-    if kind == "uniform":
-        radiance = value
-    elif kind == "checkerboard":
-        radiance = checkerboard(s.get("squares", 8), low=s.get("low", 0.0), high=value)
-    elif kind == "file":
-        if "path" not in s:
-            raise ValueError(f"[[surface]] {k}: texture = 'file' needs 'path'")
-        p = (base / str(s["path"])).resolve()
-        if not p.is_file():
-            raise ValueError(f"[[surface]] {k}: texture file {str(p)!r} does not exist")
-        try:
-            tex = np.load(p, allow_pickle=False)
-        except ValueError as exc:
-            raise ValueError(f"[[surface]] {k}: cannot read {str(p)!r} without pickle: {exc}") from None
-        if tex.dtype.kind not in "fiu":
-            raise ValueError(f"[[surface]] {k}: texture dtype {tex.dtype} is not numeric")
-        radiance = np.asarray(tex, float) * float(value)
+            raise ValueError(f"{tab}: give radiance or temperature, not both")
+        unused = sorted(set(s) & set(_TEXTURE_ONLY)) + ([f"texture = {kind!r}"] if kind != "uniform" else [])
+        if unused:
+            raise ValueError(f"{tab}: {', '.join(unused)} not used with temperature (a uniform blackbody "
+                             "surface); remove it or give radiance instead of temperature")
+        emitter = dict(
+            temperature=toml_number(f"{tab} temperature", s["temperature"], gt=0, unit="K"),
+            emissivity=toml_number(f"{tab} emissivity", s.get("emissivity", 1.0), gt=0, le=1),
+        )
     else:
-        raise ValueError(f"[[surface]] {k}: texture must be 'uniform', 'checkerboard' or 'file', got {kind!r}")
-    return PlanarEmitter(radiance=radiance, **kw)
+        if "emissivity" in s:
+            raise ValueError(f"{tab} emissivity is only used with temperature (a blackbody surface); "
+                             "remove it or give temperature")
+        for key in sorted(set(s) & set(_TEXTURE_ONLY)):
+            if _TEXTURE_ONLY[key] != kind:
+                raise ValueError(f"{tab} {key} is only used with texture = {_TEXTURE_ONLY[key]!r}, but this surface "
+                                 f"has texture = {kind!r}; remove {key} or set texture = {_TEXTURE_ONLY[key]!r}")
+        value = toml_number(f"{tab} radiance", s.get("radiance", 1.0), ge=0, unit=_RADIANCE_UNIT)
+        if kind == "uniform":
+            radiance: Any = value
+        elif kind == "checkerboard":
+            low = toml_number(f"{tab} low", s.get("low", 0.0), ge=0, unit=_RADIANCE_UNIT)
+            radiance = checkerboard(_squares(tab, s.get("squares", 8)), low=low, high=value)
+        else:
+            if "path" not in s:
+                raise ValueError(f"{tab}: texture = 'file' needs 'path' (a 2-D .npy array)")
+            radiance = _texture_file(tab, s["path"], base) * value
+        emitter = dict(radiance=radiance)
+    try:
+        return PlanarEmitter(**emitter, **kw)
+    except ValueError as exc:
+        raise ValueError(f"{tab}: {exc}") from None
+
+
+def _camera_part(part: str, t: Any) -> dict[str, Any]:
+    """Check the types of a ``[camera.<part>]`` table; the dataclass checks the values."""
+    kind = _CAMERA_PARTS[part]
+    tab = f"[camera.{part}]"
+    defaults = {f.name: f.default for f in dataclasses.fields(kind)}
+    if not isinstance(t, Mapping):
+        raise ValueError(f"[camera] {part} must be a table ({tab} with keys {sorted(defaults)}), got {t!r}")
+    _check_keys(tab, t, set(defaults))
+    out: dict[str, Any] = {}
+    for key, v in t.items():
+        where = f"{tab} {key}"
+        default = defaults[key]
+        if isinstance(default, bool):
+            if not isinstance(v, bool):
+                raise ValueError(f"{where} must be true or false, got {v!r}")
+            out[key] = v
+        elif isinstance(default, tuple):
+            if not isinstance(v, list) or len(v) != len(default):
+                raise ValueError(f"{where} must be a list of {len(default)} integers >= 1, got {v!r}")
+            out[key] = tuple(toml_int(f"{where}[{i}]", x, minimum=1) for i, x in enumerate(v))
+        else:  # lengths and indices; radii may be inf (a plane)
+            out[key] = toml_number(where, v, allow_inf=key in ("r1", "r2"), unit=None if key == "index" else "m")
+    return out
 
 
 def camera_from_table(cam: Mapping[str, Any]) -> Camera:
-    """Build a Camera from a ``[camera]`` table."""
-    _check_keys("camera", cam, _CAMERA)
+    """Build a Camera from a ``[camera]`` table.
+
+    Raises
+    ------
+    ValueError
+        For unknown keys, values of the wrong type or out of range, naming the
+        table and key (``[camera.main_lens] stop_diameter``).
+    """
+    _check_keys("[camera]", cam, _CAMERA)
     preset = cam.get("preset", "seed")
     if preset != "seed":
-        raise ValueError(f"camera.preset must be 'seed', got {preset!r}")
-    overrides = {}
-    for part in ("main_lens", "mla", "sensor"):
-        if part in cam:
-            t = dict(cam[part])
-            if part == "mla" and "count" in t:
-                t["count"] = tuple(t["count"])
-            overrides[part] = t
-    return Camera.seed(cam.get("focus_distance", 1.0), **overrides)
+        raise ValueError(f"[camera] preset must be 'seed' (the only preset), got {preset!r}")
+    fd = toml_number("[camera] focus_distance", cam.get("focus_distance", 1.0), gt=0, unit="m")
+    overrides = {part: _camera_part(part, cam[part]) for part in _CAMERA_PARTS if part in cam}
+    try:
+        return Camera.seed(fd, **overrides)
+    except ValueError as exc:
+        raise ValueError(f"[camera]: {exc}") from None
 
 
 def load_scene_file(path: str | Path | None = None) -> SceneConfig:
-    """Read and validate a TOML scene file (default: the built-in target scene)."""
+    """Read and validate a TOML scene file (default: the built-in target scene).
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        The ``.toml`` file; relative paths inside it are relative to its folder.
+
+    Returns
+    -------
+    SceneConfig
+
+    Raises
+    ------
+    ValueError
+        If the file is missing, not TOML, or any value is invalid; the message
+        names the table and key, the value given and what is allowed.
+    """
     p = Path(path) if path is not None else DEFAULT_SCENE
     if not p.is_file():
         raise ValueError(f"scene file {str(p)!r} does not exist")
@@ -150,17 +272,32 @@ def load_scene_file(path: str | Path | None = None) -> SceneConfig:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"scene file {str(p)!r} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"scene file {str(p)!r} is not a text (UTF-8 TOML) file") from None
     return scene_from_dict(data, base=p.parent, source=str(p))
 
 
 def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: str = "<dict>") -> SceneConfig:
-    """Validate a parsed scene mapping and build the objects."""
-    _check_keys("top level", data, _TOP)
+    """Validate a parsed scene mapping and build the objects.
+
+    The cheap tables (``[camera]``, ``[render]``, ``[output]``) are checked
+    before the surfaces and the medium are built.
+    """
+    _check_keys("the top level", data, _TOP)
     camera = camera_from_table(data.get("camera", {}))
     r = data.get("render", {})
-    _check_keys("render", r, _RENDER)
+    _check_keys("[render]", r, _RENDER)
+    rays_per_pixel = toml_int("[render] rays_per_pixel", r.get("rays_per_pixel", 16), minimum=1)
+    seed = toml_int("[render] seed", r.get("seed", 0), minimum=0)
+    wavelengths = _wavelengths(r.get("wavelength_nm", 650))
     out = data.get("output", {})
-    _check_keys("output", out, _OUTPUT)
+    _check_keys("[output]", out, _OUTPUT)
+    depths_t = out.get("focal_stack_depths", [])
+    if not isinstance(depths_t, list):
+        raise ValueError(
+            f"[output] focal_stack_depths must be a list of numbers > 0 (m), e.g. [0.95, 1.0, 1.05], got {depths_t!r}"
+        )
+    depths = tuple(toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m") for i, d in enumerate(depths_t))
     surfaces_t = data.get("surface", [])
     if not isinstance(surfaces_t, list):
         raise ValueError("surfaces must be given as [[surface]] tables")
@@ -173,16 +310,12 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     scene = Scene(surfaces=surfaces, medium=medium)
     if not surfaces and medium is None:
         raise ValueError(f"scene file {source!r} defines no [[surface]] and no [medium]: nothing to see")
-    depths = tuple(float(d) for d in out.get("focal_stack_depths", ()))
-    for d in depths:
-        if not np.isfinite(d) or d <= 0:
-            raise ValueError(f"output.focal_stack_depths must be positive depths in m, got {d!r}")
     return SceneConfig(
         camera=camera,
         scene=scene,
-        rays_per_pixel=int(r.get("rays_per_pixel", 16)),
-        seed=int(r.get("seed", 0)),
-        wavelengths=_wavelengths(r.get("wavelength_nm", 650)),
+        rays_per_pixel=rays_per_pixel,
+        seed=seed,
+        wavelengths=wavelengths,
         focal_stack_depths=depths,
         source=source,
         raw=dict(data),

@@ -34,6 +34,7 @@ the views that contribute to it.  It is linear in ``raw``:
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -461,10 +462,15 @@ class LightField:
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"light-field file {str(path)!r} does not exist")
+        if not zipfile.is_zipfile(path):
+            raise ValueError(
+                f"{str(path)!r} is not an .npz archive; expected a light field written by "
+                "LightField.save or `lftomo render` (lightfield.npz)"
+            )
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}
-        except (ValueError, OSError) as exc:
+        except (ValueError, OSError, zipfile.BadZipFile) as exc:
             raise ValueError(f"{str(path)!r} is not a readable lftomo light-field .npz: {exc}") from None
         if "meta" not in data or data["meta"].dtype.kind != "U":
             raise ValueError(f"{str(path)!r} has no lftomo metadata")

@@ -4,20 +4,31 @@
 
     [medium]
     phantom = "axisymmetric_flame"   # see PHANTOMS below, or "file"
-    shape = [32, 32, 32]             # voxels (nx, ny, nz)
+    shape = [32, 32, 32]             # voxels (nx, ny, nz); default [32, 32, 32]
     lower = [-0.025, -0.03, 0.975]   # box corners (m); default: the flame box
     upper = [0.025, 0.03, 1.025]     #   in front of the camera (default_flame_grid)
+    focus_distance = 1.0             # without lower/upper: z of the default box centre (m)
     path = "medium.npz"              # phantom = "file": keys sigma_a, T [, sigma_s, g]
     [medium.params]                  # keyword arguments of the phantom function
     T_peak = 1900.0
+
+Keys that would be ignored are errors: ``path`` needs ``phantom = "file"``,
+``[medium.params]`` a phantom function, ``focus_distance`` the default box (no
+``lower``/``upper``).  Parameters without a default in the phantom function's
+signature (e.g. ``T`` and ``sigma_a`` of ``uniform_box``) are required.
 """
 
 from __future__ import annotations
 
 import inspect
+import numbers
+import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
+
+from .._validate import toml_int, toml_number, toml_numbers
 from . import phantoms
 from .grid import Grid
 from .medium import Medium
@@ -35,36 +46,154 @@ PHANTOMS = {
     )
 }
 _KEYS = {"phantom", "shape", "lower", "upper", "path", "params", "focus_distance"}
+DEFAULT_SHAPE = (32, 32, 32)
+_FILE_ARRAYS = ("sigma_a", "T")
+
+
+def _shape(t: Mapping[str, Any]) -> tuple[int, int, int]:
+    if "shape" not in t:
+        return DEFAULT_SHAPE
+    v = t["shape"]
+    if not isinstance(v, list) or len(v) != 3:
+        raise ValueError(f"[medium] shape must be a list of 3 integers >= 1 [nx, ny, nz], got {v!r}")
+    return tuple(toml_int(f"[medium] shape[{i}]", n, minimum=1) for i, n in enumerate(v))  # type: ignore[return-value]
+
+
+def _grid(t: Mapping[str, Any], shape: tuple[int, int, int]) -> Grid:
+    try:
+        if "lower" in t or "upper" in t:
+            if not ("lower" in t and "upper" in t):
+                raise ValueError("[medium] needs both 'lower' and 'upper' (m) or neither")
+            if "focus_distance" in t:
+                raise ValueError(
+                    "[medium] focus_distance only places the default box and is not used with lower/upper; remove it"
+                )
+            lower = toml_numbers("[medium] lower", t["lower"], length=3, hint="[x, y, z]", unit="m")
+            upper = toml_numbers("[medium] upper", t["upper"], length=3, hint="[x, y, z]", unit="m")
+            return Grid(shape=shape, lower=lower, upper=upper)
+        fd = toml_number("[medium] focus_distance", t.get("focus_distance", 1.0), gt=0.025, unit="m")
+        return phantoms.default_flame_grid(shape, fd)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith("[medium]") else f"[medium]: {msg}") from None
+
+
+def _param_value(where: str, v: Any) -> None:
+    """A phantom parameter from TOML: a number or a (nested) list of numbers."""
+    ok = True
+    stack = [v]
+    while stack and ok:
+        x = stack.pop()
+        if isinstance(x, list):
+            stack.extend(x)
+        else:
+            ok = not isinstance(x, (bool, np.bool_)) and isinstance(x, (numbers.Real, np.integer, np.floating))
+    if not ok or isinstance(v, list) and not v:
+        raise ValueError(f"{where} must be a number or a list of numbers, got {v!r}")
+
+
+def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
+    path = t["path"]
+    if not isinstance(path, str):
+        raise ValueError(f"[medium] path must be a file name (a string), got {path!r}")
+    p = (base / path).resolve()
+    if not p.is_file():
+        raise ValueError(f"[medium] path: medium file {str(p)!r} does not exist")
+    if not zipfile.is_zipfile(p):
+        raise ValueError(
+            f"[medium] path: {str(p)!r} is not an .npz archive; phantom = 'file' needs an .npz "
+            "(numpy.savez) with arrays sigma_a and T [, sigma_s, g]"
+        )
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            files = sorted(z.files)
+            missing = [n for n in _FILE_ARRAYS if n not in files]
+            if missing:
+                raise ValueError(f"[medium] path: {str(p)!r} has no array(s) {missing}; it holds {files}; "
+                                 "phantom = 'file' needs sigma_a and T [, sigma_s, g]")
+            shapes = {n: z[n].shape for n in _FILE_ARRAYS}
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"[medium] path: cannot read {str(p)!r}: {exc}") from None
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith("[medium]") else
+                         f"[medium] path: cannot read {str(p)!r} without pickle: {msg}") from None
+    for name, shp in shapes.items():
+        if shp == grid.shape:
+            continue
+        if len(shp) != 3:
+            raise ValueError(f"[medium] path: {name} in {str(p)!r} must be a 3-D array (nx, ny, nz), got shape {shp}")
+        if "shape" in t:
+            raise ValueError(f"[medium] shape = {list(grid.shape)} does not match the shape {shp} of {name} in "
+                             f"{str(p)!r}; set shape = {list(shp)}")
+        raise ValueError(f"[medium] path: shape of {name} {shp} in {str(p)!r} does not match the default [medium] shape "
+                         f"{grid.shape}; add shape = {list(shp)} to [medium]")
+    try:
+        return Medium.from_npz(p, grid)
+    except ValueError as exc:
+        raise ValueError(f"[medium] path: {exc}") from None
 
 
 def medium_from_table(t: Mapping[str, Any], *, base: Path = Path(".")) -> Medium:
-    """Build a :class:`Medium` from a validated ``[medium]`` table."""
+    """Build a :class:`Medium` from a ``[medium]`` table of a scene file.
+
+    Parameters
+    ----------
+    t : mapping
+        The parsed ``[medium]`` table (see the module docstring).
+    base : Path
+        Folder that a relative ``path`` is resolved against (the scene file's).
+
+    Returns
+    -------
+    Medium
+
+    Raises
+    ------
+    ValueError
+        For unknown or unused keys, a missing or unreadable medium file, missing
+        required ``[medium.params]`` or any invalid value; the message names the
+        key (``[medium] path``, ``[medium.params] T``), the value and what is allowed.
+    """
     if not isinstance(t, Mapping):
         raise ValueError(f"[medium] must be a table, got {type(t).__name__}")
     unknown = sorted(set(t) - _KEYS)
     if unknown:
         raise ValueError(f"unknown key(s) {unknown} in [medium]; allowed: {sorted(_KEYS)}")
-    shape = tuple(t.get("shape", (32, 32, 32)))
-    if "lower" in t or "upper" in t:
-        if not ("lower" in t and "upper" in t):
-            raise ValueError("[medium] needs both 'lower' and 'upper' (m) or neither")
-        grid = Grid(shape=shape, lower=tuple(t["lower"]), upper=tuple(t["upper"]))
-    else:
-        grid = phantoms.default_flame_grid(shape, float(t.get("focus_distance", 1.0)))
     kind = t.get("phantom", "axisymmetric_flame")
+    if not isinstance(kind, str) or (kind not in PHANTOMS and kind != "file"):
+        raise ValueError(f"[medium] phantom must be one of {sorted(PHANTOMS) + ['file']}, got {kind!r}")
+    if kind != "file" and "path" in t:
+        raise ValueError(f"[medium] path = {t['path']!r} is only used with phantom = 'file', but phantom = {kind!r}; "
+                         "remove path or set phantom = 'file'")
+    if "params" in t and not isinstance(t["params"], Mapping):
+        raise ValueError(f"[medium] params must be a table ([medium.params]), got {t['params']!r}")
     params = dict(t.get("params", {}))
     if kind == "file":
         if "path" not in t:
             raise ValueError("[medium] phantom = 'file' needs 'path' (an .npz with sigma_a, T [, sigma_s, g])")
-        p = (base / str(t["path"])).resolve()
         if params:
             raise ValueError("[medium.params] is not used with phantom = 'file'")
-        return Medium.from_npz(p, grid)
-    if kind not in PHANTOMS:
-        raise ValueError(f"[medium] phantom must be one of {sorted(PHANTOMS) + ['file']}, got {kind!r}")
+    grid = _grid(t, _shape(t))
+    if kind == "file":
+        return _from_file(t, grid, base)
     func = PHANTOMS[kind]
-    allowed = [n for n, prm in inspect.signature(func).parameters.items() if prm.kind == prm.KEYWORD_ONLY]
+    sig = inspect.signature(func).parameters
+    allowed = [n for n, prm in sig.items() if prm.kind == prm.KEYWORD_ONLY]
     bad = sorted(set(params) - set(allowed))
     if bad:
         raise ValueError(f"unknown [medium.params] {bad} for phantom {kind!r}; allowed: {allowed}")
-    return func(grid, **params)
+    required = [n for n in allowed if sig[n].default is inspect.Parameter.empty]
+    missing = [n for n in required if n not in params]
+    if missing:
+        optional = [n for n in allowed if n not in required]
+        raise ValueError(
+            f"[medium] phantom = {kind!r} needs [medium.params] {', '.join(missing)}: missing required "
+            f"parameter(s) {missing} of lftomo.phantoms.{kind} (required: {required}; optional: {optional})"
+        )
+    for name, v in params.items():
+        _param_value(f"[medium.params] {name}", v)
+    try:
+        return func(grid, **params)
+    except ValueError as exc:
+        raise ValueError(f"[medium.params] of phantom {kind!r}: {exc}") from None
