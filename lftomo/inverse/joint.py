@@ -51,6 +51,7 @@ import scipy.sparse as sp
 
 from ..forward.grid import Grid
 from ..forward.render import _progress
+from ..forward.weights import RaySegments
 from .problem import LinearProblem
 from .reconstruct import Reconstruction
 from .regularizers import prior_operator, to_bcoo
@@ -63,6 +64,7 @@ from .solvers import (
     _jacobi_scale,
     _make_setup,
     _nl_solver,
+    _on_lcurve,
     _scaled_chunks,
     planck_jax,
 )
@@ -242,6 +244,10 @@ def solve_temperature_absorption(
         fields on ``grid`` (for an L-curve, or to pick another λ).
     """
     t_start = time.perf_counter()
+    if not isinstance(segments, RaySegments):
+        raise ValueError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, ...)) "
+                         f"as its forward model, got {type(segments).__name__}: a weight matrix is built for one "
+                         "known sigma_a")
     ms = list(measurements)
     if len(ms) < 2:
         raise ValueError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got {len(ms)}")
@@ -467,12 +473,10 @@ def solve_temperature_absorption(
             ok = sorted(e.lam for e in evals if e.chi2 <= 1.0)
             bad = sorted(e.lam for e in evals if e.chi2 > 1.0)
             if rule == "lcurve":
-                # Only solutions on the L-curve count: one with both a larger
-                # χ² and a larger ‖R‖ than another solve is not a minimiser of
-                # its own objective (a solve stopped at max_steps).
-                front = [e for e in evals
-                         if not any(o is not e and o.chi2 <= e.chi2 and o.reg <= e.reg for o in evals)]
-                found = _branch_corner(front, math.inf, 1.0)
+                # Only solutions on the L-curve count (_branch_corner keeps
+                # them): a solve stopped at max_steps can be dominated.
+                front = _on_lcurve(evals)
+                found = _branch_corner(evals, math.inf, 1.0)
                 lam = (ok[-1] if ok else bad[0]) if found is None else found[0].lam
                 rule = ("lcurve: " + (found[1] if found is not None else "too few solutions on the L-curve "
                                       "for a curvature: discrepancy") + f" ({len(front)} of {len(evals)} solves "

@@ -68,8 +68,8 @@ Candidate λ are multiples of it.
   ``|χ²/m − target| ≤ tol · target`` with ``tol = √(2/m)`` (the standard
   deviation of χ²/m of the noise itself: the target is not defined more
   precisely) clipped to [1e-3, 1e-2], or when the bracket is narrower than a
-  factor 1.1.  If even the smallest λ (``λ_ref · 1e-10``) cannot reach the target,
-  that end is used and the note says so; if the largest (``λ_ref · 1e4``)
+  factor 1.1.  If even the smallest λ (``λ_ref · 1e-10``) cannot reach the target
+  (σ underestimated, or a model error), or the largest (``λ_ref · 1e4``)
   stays below it (σ overestimated), the L-curve corner of the solutions
   computed on the way (factors of 10) is used instead, and the note says so;
   only the structured branch counts (the solutions before ‖R‖ collapses by a
@@ -131,7 +131,12 @@ from scipy import constants as _c  # noqa: E402
 from scipy.optimize import lsq_linear  # noqa: E402
 
 from .. import radiation as _rad  # noqa: E402
-from .._validate import require_finite_scalar, require_int, require_nonnegative, require_positive  # noqa: E402
+from .._validate import (  # noqa: E402
+    require_finite_scalar,
+    require_int,
+    require_nonnegative,
+    require_positive,
+)
 from ..forward.render import _NoBar, _progress  # noqa: E402
 from .hostsparse import host_csr  # noqa: E402
 from .problem import LinearProblem  # noqa: E402
@@ -787,12 +792,25 @@ def _structured_branch(path: list) -> list:
     return path
 
 
+def _on_lcurve(evals: list) -> list:
+    """The solves that lie on the L-curve: those not dominated by another.
+
+    A solve with both a larger χ² and a larger ‖R‖ than another one is not a
+    minimiser of its own objective χ² + λ‖R‖² (it stopped at its step budget
+    or in a worse local minimum), so it is no point of the L-curve.
+    """
+    return [e for e in evals
+            if not any(o is not e and o.chi2 <= e.chi2 and o.reg <= e.reg
+                       and (o.chi2 < e.chi2 or o.reg < e.reg) for o in evals)]
+
+
 def _branch_corner(evals: list, lam_max: float, target: float):
     """The λ to use when the discrepancy equation has no solution on the
     structured branch of solutions (:func:`_structured_branch` of those
-    computed at λ ≤ ``lam_max``): the L-curve corner of that branch, or with too few points for a curvature
+    computed at λ ≤ ``lam_max`` that lie on the L-curve, :func:`_on_lcurve`):
+    the L-curve corner of that branch, or with too few points for a curvature
     Morozov's largest λ with χ²/m ≤ target.  Returns ``(eval, how)`` or None."""
-    path = _structured_branch(sorted((x for x in evals if x.lam <= lam_max * (1 + 1e-12)),
+    path = _structured_branch(sorted(_on_lcurve([x for x in evals if x.lam <= lam_max * (1 + 1e-12)]),
                                      key=lambda x: x.lam))
     kappa = _lcurve_curvature(path) if len(path) >= 4 else np.array([np.nan])
     if np.any(np.isfinite(kappa)):
@@ -856,6 +874,16 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
                 break
             hi = e
         if lo is None:
+            # χ² above the target everywhere: σ underestimated or a model error
+            # (a coarse grid, Monte Carlo data without their error in σ).  The
+            # smallest λ would give an unregularized field at the bounds
+            # (measured: 4³ from an 8³ flame, 74.7 % gray, 33.5 % at 650 nm);
+            # take the L-curve corner of the solutions computed on the way down.
+            found = _branch_corner(run.evals, math.inf, target)
+            if found is not None:
+                note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
+                        f"model error?): {found[1]}")
+                return found[0], target, note
             note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
             return hi, target, note
     # Illinois regula falsi in log λ on g (increasing), to the precision of the

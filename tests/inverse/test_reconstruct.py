@@ -40,6 +40,8 @@ def test_reconstruct_refuses_bad_input(setup):
         reconstruct(m, W, bounds=(2000.0, 1000.0))
     with pytest.raises(ValueError, match="2 or more wavelengths"):
         reconstruct(m, W, unknowns="T+sigma_a")
+    with pytest.raises(ValueError, match="needs the ray-segment table"):  # a WeightMatrix is for one known sigma_a
+        reconstruct([m, m], W, unknowns="T+sigma_a")
     rec_like = reconstruct(m, W, regularization=1e-3, bounds=(500.0, 2500.0), max_steps=5)
     with pytest.raises(ValueError, match="does not match"):
         rec_like.errors(np.zeros((3, 3, 3)))

@@ -10,6 +10,8 @@ shapes reuse the compiled JAX code.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -252,6 +254,31 @@ def test_structured_branch_needs_a_chi2_rise_not_only_a_drop_of_the_prior_norm()
     assert _structured_branch(jump) == jump[:4]
 
 
+def test_branch_corner_ignores_a_solve_dominated_on_the_lcurve():
+    """A solve stopped early (larger χ² *and* larger ‖R‖ than its neighbour) is no point of the L-curve:
+    on this path it would move the curvature maximum from λ 1e3 to 1e4; both rules drop it."""
+    from lftomo.inverse.solvers import (
+        _branch_corner,
+        _Eval,
+        _lcurve_curvature,
+        _on_lcurve,
+    )
+
+    def ev(lam, chi2, reg):
+        return _Eval(lam, np.zeros(1), chi2, reg, 1, True, "")
+
+    chi2 = [0.800, 0.801, 0.803, 0.810, 0.86, 1.0, 1.3]
+    reg = [3.0, 1.2, 0.7, 0.55, 0.5, 0.48, 0.47]
+    clean = [ev(10.0**k, c, r) for k, (c, r) in enumerate(zip(chi2, reg))]
+    stopped = ev(300.0, 0.83, 0.9)  # worse in both than λ = 100
+    path = sorted(clean + [stopped], key=lambda e: e.lam)
+    assert _on_lcurve(path) == clean
+    kappa = _lcurve_curvature(path)
+    assert path[int(np.nanargmax(kappa))].lam == 1e4  # the unfiltered corner (what the filter prevents)
+    assert _branch_corner(clean, np.inf, 0.5)[0].lam == 1e3
+    assert _branch_corner(path, np.inf, 0.5)[0].lam == 1e3
+
+
 def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
     from lftomo.inverse.solvers import _rule_discrepancy
 
@@ -260,6 +287,28 @@ def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
     assert "jumps across the target" in note and "L-curve corner" in note, note
     assert e.lam < 5e3 and e.chi2 < target  # on the structured branch
     assert 100.0 <= e.lam <= 2000.0, e.lam  # near the corner, not at the jump
+
+
+class _AboveRunner(_BranchRunner):
+    """χ²/m above the target at every λ (σ underestimated 2×): the same L-shaped branch, χ² × 4."""
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        e = super().solve(lam, start, max_steps, objective_rtol)
+        e = dataclasses.replace(e, chi2=4.0 * e.chi2)
+        self.evals[-1] = e
+        return e
+
+
+def test_discrepancy_takes_lcurve_corner_when_chi2_stays_above_target():
+    """No λ reaches the target from above: the smallest λ (an unregularized field) is not the answer;
+    the corner of the path computed on the way down is."""
+    from lftomo.inverse.solvers import _rule_discrepancy
+
+    run = _AboveRunner()
+    e, target, note = _rule_discrepancy(run, np.zeros(1), 4e5, 0.0, None, 1e-3)  # path 4000, 400, 40, ...
+    assert "stays above the target" in note and "L-curve corner" in note, note
+    assert min(x.lam for x in run.evals) < 1e-3 and max(x.lam for x in run.evals) == 4000.0  # down to its end
+    assert 40.0 <= e.lam <= 2000.0, e.lam  # near the corner (≈ 400), far from the smallest λ
 
 
 class _LocalMinimumRunner(_BranchRunner):

@@ -1,6 +1,7 @@
 """Sub-voxel emission: T on the reconstruction grid, interpolated to a quadrature grid before Planck's law."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -195,9 +196,9 @@ def test_joint_subvoxel_noise_free_recovers_T_and_sigma_a(symmetry):
 
 def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_misfits(subvoxel_blob):
     """With 0.01 % noise the surrogate A E (I_b interpolated linearly) misfits by its own model
-    error: χ²/m above the target at every λ, so its discrepancy λ is just the smallest tried.  The
-    rule then runs on the sub-voxel model, which fits these data exactly: the λ is the full
-    search's, and χ²/m reaches the target."""
+    error: χ²/m above the target at every λ, so its discrepancy λ (the L-curve corner of its path)
+    says nothing about the noise.  The rule then runs on the sub-voxel model, which fits these data
+    exactly: the λ is the full search's, and χ²/m reaches the target."""
     cam, grid, quad, flame, m, W_q = subvoxel_blob
     problem, _ = problem_on_grid(m, W_q, grid)
     rng = np.random.default_rng(6)
@@ -208,6 +209,8 @@ def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_mi
     assert sur.chi2 > 1.1 and "stays above the target" in sur.lambda_choice.note, (sur.chi2, sur.lambda_choice.note)
     sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient")
     assert "surrogate A E misfits" in sol.lambda_choice.note, sol.lambda_choice.note
-    assert abs(sol.chi2 - 1.0) < 0.05 and sol.regularization > 1e3 * sur.regularization, (sol.chi2, sol.regularization)
+    assert abs(sol.chi2 - 1.0) < 0.05, (sol.chi2, sol.regularization)
+    assert abs(math.log(sol.regularization / sur.regularization)) > math.log(2.0), (sol.regularization,
+                                                                                 sur.regularization)
     hot = flame.T > 800.0
     assert np.max(np.abs(sol.T[hot] / flame.T[hot] - 1.0)) < 0.01
