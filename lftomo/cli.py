@@ -46,7 +46,7 @@ def cmd_render(args) -> int:
     cfg = _load(args.scene)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    rpp = args.rays_per_pixel or cfg.rays_per_pixel
+    rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     t0 = time.perf_counter()
     print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel, seed {seed})", file=sys.stderr)
@@ -79,12 +79,14 @@ def cmd_weights(args) -> int:
     medium = cfg.scene.medium
     if medium is None:
         raise ValueError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
-    rpp = args.rays_per_pixel or cfg.rays_per_pixel
+    rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
     out = Path(args.output)
     if out.suffix != ".npz":
         out = out.with_suffix(".npz")
+    if not out.parent.is_dir():  # before the build, not after it
+        raise ValueError(f"-o/--output: directory {str(out.parent)!r} does not exist")
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
     for wl in channels:
         path = out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz")
@@ -114,12 +116,20 @@ def cmd_demo(args) -> int:
 def cmd_reconstruct(args) -> int:
     from .demo import run_reconstruct
 
-    if args.posterior_steps is not None and not args.posterior:
-        raise ValueError("--posterior-steps is only used with --posterior")
+    if not args.posterior:
+        given = [f"--{k.replace('_', '-')}" for k in ("posterior_steps", "posterior_basis")
+                 if getattr(args, k) is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} with --posterior")
+    if args.scene is None:
+        given = [f"--{k.replace('_', '-')}" for k in ("recon_shape", "rays_per_pixel") if getattr(args, k) is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to scene mode (a TOML scene file); with "
+                             "--lightfield and --weights the grid and rays are those of the files")
     m = run_reconstruct(
         args.output, scene=args.scene, lightfield=args.lightfield, weights=args.weights, noise=args.noise,
         data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule, prior=args.prior,
-        bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis,
+        bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis or "flame",
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
         rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
         min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, quadrature=args.quadrature,
@@ -128,6 +138,8 @@ def cmd_reconstruct(args) -> int:
     print(f"reconstructed {'x'.join(map(str, r['grid_shape']))} voxels from {m['measurement']['n_data']} "
           f"{r['data']} data: lambda {r['regularization']:.3g} ({r['lambda_rule']}), chi2/m {r['chi2_per_datum']:.3g}, "
           f"{m['timings_s']['total']:.1f} s")
+    if r.get("lambda_note"):  # the rule's fallback (no λ attains the target, ...): say so, not only in the JSON
+        print(f"  lambda rule: {r['lambda_note']}")
     for key in ("errors_T_gt_800K", "errors_T_gt_1400K"):
         e = r.get(key)
         if e:
@@ -239,16 +251,16 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render the raw light field, views and a focal stack")
     r.add_argument("scene", nargs="?", default=None, help="TOML scene file (default: built-in target scene)")
     r.add_argument("-o", "--output", default="lftomo-render", help="output directory")
-    r.add_argument("--rays-per-pixel", type=int, default=None, help="override render.rays_per_pixel")
-    r.add_argument("--seed", type=int, default=None, help="override render.seed")
+    r.add_argument("--rays-per-pixel", type=_pos_int, default=None, help="override render.rays_per_pixel")
+    r.add_argument("--seed", type=_nonneg_int, default=None, help="override render.seed")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_render)
     w = sub.add_parser("weights", help="build the ray-voxel weight matrix of the scene's medium grid (.npz)")
     w.add_argument("scene", help="TOML scene file with a [medium]")
     w.add_argument("-o", "--output", default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
-    w.add_argument("--rays-per-pixel", type=int, default=None, help="override render.rays_per_pixel")
-    w.add_argument("--seed", type=int, default=None, help="override render.seed")
-    w.add_argument("--memory-limit-gb", type=float, default=None,
+    w.add_argument("--rays-per-pixel", type=_pos_int, default=None, help="override render.rays_per_pixel")
+    w.add_argument("--seed", type=_nonneg_int, default=None, help="override render.seed")
+    w.add_argument("--memory-limit-gb", type=_pos_float, default=None,
                    help="refuse a build estimated above this size (default: half the machine's memory)")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
     w.set_defaults(func=cmd_weights)
@@ -293,8 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "them so; file mode reconstructs on the --weights grid coarsened this many times)")
     rc.add_argument("--posterior", action="store_true",
                     help="also compute a posterior (see --posterior-basis)")
-    rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default="flame",
-                    help="emcee on the 6-parameter flame or 12 DCT modes, or 'field': the full-grid Laplace "
+    rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default=None,
+                    help="with --posterior: emcee on the 6-parameter flame (default) or 12 DCT modes, or 'field': "
+                         "the full-grid Laplace "
                          "posterior with lambda by empirical Bayes (lftomo.laplace_posterior)")
     rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,
@@ -316,6 +329,10 @@ def main(argv=None) -> int:
         return args.func(args)
     except ValueError as exc:
         print(f"lftomo: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file that cannot be read or written: not a bug of lftomo
+        print(f"lftomo: error: {exc.strerror or exc}" + (f": {exc.filename!r}" if exc.filename else ""),
+              file=sys.stderr)
         return 2
 
 

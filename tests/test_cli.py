@@ -72,6 +72,30 @@ def test_cli_reports_errors_without_traceback(tmp_path, capsys):
     assert "nothing to see" in capsys.readouterr().err
 
 
+def test_cli_option_and_file_errors_are_clean(tmp_path, capsys):
+    """Option values are checked by argparse; unwritable outputs give `lftomo: error`, not a traceback."""
+    for cmd in ("render", "weights"):
+        for bad in ("0", "-3", "2.5"):
+            with pytest.raises(SystemExit) as exc:
+                main([cmd, "scene.toml", "--rays-per-pixel", bad])
+            assert exc.value.code == 2
+            assert "argument --rays-per-pixel" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["weights", "scene.toml", "--memory-limit-gb", "-1"])
+    assert "argument --memory-limit-gb" in capsys.readouterr().err
+    scene = tmp_path / "m.toml"
+    scene.write_text("[camera]\nfocus_distance = 1.0\n[camera.mla]\ncount = [10, 10]\n[render]\nrays_per_pixel = 2\n"
+                     "[medium]\nphantom = \"uniform_box\"\nshape = [2, 2, 2]\n"
+                     "[medium.params]\nT = 1500.0\nsigma_a = 5.0\n")
+    assert main(["weights", str(scene), "-o", str(tmp_path / "nodir" / "W.npz"), "--quiet"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    assert main(["render", str(scene), "-o", str(blocker / "out"), "--quiet"]) == 2  # a directory under a file
+    err = capsys.readouterr().err
+    assert err.startswith("lftomo: error:") and "Traceback" not in err, err
+
+
 def test_texture_file_is_loaded_without_pickle(tmp_path):
     np.save(tmp_path / "t.npy", np.eye(3))
     cfg = scene_from_dict(

@@ -208,6 +208,10 @@ def test_bad_inputs_name_the_argument(saved, tmp_path, capsys):
         (["--lightfield", lf, "--weights", W, "--channel", "1"], "--channel"),
         (["--lightfield", lf, "--weights", W, "--posterior-steps", "10"], "--posterior-steps"),
         ([scene, "--recon-shape", "3,3,3"], "--recon-shape"),
+        ([scene, "--rays-per-pixel", "1"], "one ray per pixel"),
+        (["--lightfield", lf, "--weights", W, "--recon-shape", "4,4,4"], "--recon-shape only applies to scene mode"),
+        (["--lightfield", lf, "--weights", W, "--rays-per-pixel", "4"], "--rays-per-pixel only applies to scene"),
+        (["--lightfield", lf, "--weights", W, "--posterior-basis", "dct"], "--posterior-basis only applies with"),
         ([str(tmp_path / "missing.toml")], "does not exist"),
     ]
     for argv, match in cases:
