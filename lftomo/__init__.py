@@ -25,6 +25,8 @@ from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 from .inverse.subvoxel import interpolate_field, interpolation_matrix
 from .inverse.symmetry import RingGrid, ring_grid
+from .inverse.compare import (Comparison, compare_refocus_subaperture, effective_truth, monte_carlo_std,
+                              with_monte_carlo_noise)
 
 __all__ = [
     "__version__",
@@ -86,4 +88,9 @@ __all__ = [
     "ring_grid",
     "interpolation_matrix",
     "interpolate_field",
+    "Comparison",
+    "compare_refocus_subaperture",
+    "effective_truth",
+    "monte_carlo_std",
+    "with_monte_carlo_noise",
 ]

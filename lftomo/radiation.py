@@ -55,7 +55,11 @@ def _temperature(T: Any) -> np.ndarray:
 
 
 def _wavelength(wavelength: Any) -> np.ndarray:
-    return require_array("wavelength", wavelength, strictly_positive=True)
+    lam = require_array("wavelength", wavelength, strictly_positive=True)
+    if np.any(lam > 1.0):  # 650 for 650 nm: a unit slip, not a radio wave
+        raise ValueError(f"wavelength must be in m, at most 1 m (e.g. 650e-9 for 650 nm), got maximum "
+                         f"{float(np.max(lam))!r}")
+    return lam
 
 
 def planck(T: Any, wavelength: Any) -> Any:

@@ -132,6 +132,7 @@ def test_blackbody_intensity_shapes():
         (1000.0, 0.0, "wavelength must be > 0"),
         (1000.0, -1e-7, "wavelength must be > 0"),
         ("hot", 650e-9, "T must be numeric"),
+        (1000.0, 650.0, "wavelength must be in m"),  # nanometres by mistake
     ],
 )
 def test_bad_input_raises(T, lam, match):

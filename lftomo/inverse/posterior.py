@@ -940,6 +940,14 @@ class Posterior:
     importance_ess: float | None = None
     likelihood_note: str = ""
 
+    def __repr__(self) -> str:  # the default would print every chain
+        tau = np.asarray(self.tau, dtype=float)
+        tau_max = f"{np.nanmax(tau):.3g}" if tau.size and np.any(np.isfinite(tau)) else "nan"
+        return (f"Posterior(K={len(self.names)}, grid={tuple(self.basis.grid.shape)}, walkers={self.n_walkers}, "
+                f"steps={self.n_steps}, burn={self.burn}, thin={self.thin}, samples={len(self.samples)}, "
+                f"acceptance={float(np.mean(self.acceptance_fraction)):.2f}, tau_max={tau_max}, "
+                f"converged={self.converged}, likelihood={self.likelihood!r})")
+
     @property
     def grid(self) -> Any:
         return self.basis.grid

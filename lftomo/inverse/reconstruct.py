@@ -72,6 +72,12 @@ class Reconstruction:
     metadata: dict = field(default_factory=dict)
     symmetry: Any = None
 
+    def __repr__(self) -> str:  # the default would print the fields and the solver's whole result
+        return (f"Reconstruction(unknowns={self.unknowns!r}, data={self.data_kind!r}, grid={tuple(self.grid.shape)}, "
+                f"T={float(np.min(self.T)):.0f}..{float(np.max(self.T)):.0f} K, lambda={self.regularization:.3g} "
+                f"({self.lambda_rule}), chi2/m={self.chi2:.4g}, iterations={self.iterations}, "
+                f"converged={self.converged}, symmetry={'axisymmetric' if self.symmetry is not None else None})")
+
     def errors(self, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
         """Relative temperature errors against ``T_true`` (same grid) where ``T_true > hot`` (K).
 
