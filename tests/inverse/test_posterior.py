@@ -92,6 +92,7 @@ def test_mcmc_matches_closed_form_linear_gaussian(linear_case):
     assert post.samples.shape == (32 * 3000, 8) and post.chain.shape == (4000, 32, 8)
     assert post.log_prob_trace.shape == (4000, 32)
     assert 0.15 < np.mean(post.acceptance_fraction) < 0.7
+    assert repr(post).startswith("Posterior(K=8") and "converged=True" in repr(post) and len(repr(post)) < 400
     # means within 5 MC standard errors
     z = (post.coeff_mean - mean) / post.coeff_mean_stderr
     assert np.all(np.abs(z) < 5.0), z
