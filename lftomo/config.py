@@ -306,7 +306,7 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     if "medium" in data:
         from .forward.media_config import medium_from_table
 
-        medium = medium_from_table(data["medium"], base=base)
+        medium = medium_from_table(data["medium"], base=base, focus_distance=camera.focus_distance)
     scene = Scene(surfaces=surfaces, medium=medium)
     if not surfaces and medium is None:
         raise ValueError(f"scene file {source!r} defines no [[surface]] and no [medium]: nothing to see")

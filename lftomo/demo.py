@@ -879,8 +879,10 @@ def run_reconstruct(
             fine = medium.grid
             shape = tuple(recon_shape) if recon_shape else tuple(n // 2 for n in fine.shape)
             if any(n < 1 or f % n for n, f in zip(shape, fine.shape)) or len(shape) != 3:
-                raise ValueError(f"--recon-shape {list(shape)} must divide the [medium] shape {list(fine.shape)} "
-                                 "(the truth grid must be an integer refinement of the reconstruction grid)")
+                given = (f"--recon-shape {list(shape)}" if recon_shape else
+                         f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
+                raise ValueError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
+                                 "an integer refinement of the reconstruction grid); give --recon-shape")
             grid = lt.Grid(shape, fine.lower, fine.upper)
             wls = cfg.wavelengths
             ch = 0 if channel is None else int(channel)

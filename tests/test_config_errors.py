@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import lftomo as lt
-from lftomo.config import load_scene_file
+from lftomo.config import load_scene_file, scene_from_dict
 from lftomo.forward.scene import PlanarEmitter
 
 SURFACE = '[[surface]]\ncenter = [0, 0, 1]\nsize = [0.01, 0.01]\n'
@@ -255,3 +255,12 @@ def test_valid_scene_still_loads(tmp_path):
     assert cfg.scene.surfaces[0].radiance.shape == (2, 3)
     assert cfg.scene.surfaces[1].radiance.max() == 3.0
     assert cfg.scene.medium.grid.shape == (4, 4, 4)
+
+
+def test_default_medium_box_follows_the_camera_focus():
+    """Without lower/upper the flame box is centred where the camera is focused (it was at 1 m whatever the focus)."""
+    c = scene_from_dict({"camera": {"focus_distance": 0.8}, "medium": {"shape": [4, 4, 4]}})
+    g = c.scene.medium.grid
+    assert 0.5 * (g.lower[2] + g.upper[2]) == pytest.approx(0.8, abs=1e-12)
+    c = scene_from_dict({"camera": {"focus_distance": 0.8}, "medium": {"shape": [4, 4, 4], "focus_distance": 1.0}})
+    assert 0.5 * (c.scene.medium.grid.lower[2] + c.scene.medium.grid.upper[2]) == pytest.approx(1.0, abs=1e-12)

@@ -7,7 +7,8 @@
     shape = [32, 32, 32]             # voxels (nx, ny, nz); default [32, 32, 32]
     lower = [-0.025, -0.03, 0.975]   # box corners (m); default: the flame box
     upper = [0.025, 0.03, 1.025]     #   in front of the camera (default_flame_grid)
-    focus_distance = 1.0             # without lower/upper: z of the default box centre (m)
+    focus_distance = 1.0             # without lower/upper: z of the default box centre (m);
+                                     #   default: the [camera]'s focus distance
     path = "medium.npz"              # phantom = "file": keys sigma_a, T [, sigma_s, g]
     [medium.params]                  # keyword arguments of the phantom function
     T_peak = 1900.0
@@ -59,7 +60,7 @@ def _shape(t: Mapping[str, Any]) -> tuple[int, int, int]:
     return tuple(toml_int(f"[medium] shape[{i}]", n, minimum=1) for i, n in enumerate(v))  # type: ignore[return-value]
 
 
-def _grid(t: Mapping[str, Any], shape: tuple[int, int, int]) -> Grid:
+def _grid(t: Mapping[str, Any], shape: tuple[int, int, int], focus_distance: float = 1.0) -> Grid:
     try:
         if "lower" in t or "upper" in t:
             if not ("lower" in t and "upper" in t):
@@ -71,7 +72,7 @@ def _grid(t: Mapping[str, Any], shape: tuple[int, int, int]) -> Grid:
             lower = toml_numbers("[medium] lower", t["lower"], length=3, hint="[x, y, z]", unit="m")
             upper = toml_numbers("[medium] upper", t["upper"], length=3, hint="[x, y, z]", unit="m")
             return Grid(shape=shape, lower=lower, upper=upper)
-        fd = toml_number("[medium] focus_distance", t.get("focus_distance", 1.0), gt=0.025, unit="m")
+        fd = toml_number("[medium] focus_distance", t.get("focus_distance", focus_distance), gt=0.025, unit="m")
         return phantoms.default_flame_grid(shape, fd)
     except ValueError as exc:
         msg = str(exc)
@@ -134,7 +135,7 @@ def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
         raise ValueError(f"[medium] path: {exc}") from None
 
 
-def medium_from_table(t: Mapping[str, Any], *, base: Path = Path(".")) -> Medium:
+def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_distance: float = 1.0) -> Medium:
     """Build a :class:`Medium` from a ``[medium]`` table of a scene file.
 
     Parameters
@@ -143,6 +144,9 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path(".")) -> Medium
         The parsed ``[medium]`` table (see the module docstring).
     base : Path
         Folder that a relative ``path`` is resolved against (the scene file's).
+    focus_distance : float
+        Centre z (m) of the default box when the table gives neither
+        ``lower``/``upper`` nor ``focus_distance`` (scene files: the camera's).
 
     Returns
     -------
@@ -174,7 +178,7 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path(".")) -> Medium
             raise ValueError("[medium] phantom = 'file' needs 'path' (an .npz with sigma_a, T [, sigma_s, g])")
         if params:
             raise ValueError("[medium.params] is not used with phantom = 'file'")
-    grid = _grid(t, _shape(t))
+    grid = _grid(t, _shape(t), focus_distance)
     if kind == "file":
         return _from_file(t, grid, base)
     func = PHANTOMS[kind]
