@@ -68,7 +68,7 @@ from .solvers import (
     _scaled_chunks,
     planck_jax,
 )
-from .subvoxel import interpolate_field, resolve_quadrature
+from .subvoxel import _m, interpolate_field, resolve_quadrature
 from .symmetry import resolve_symmetry
 
 #: A solve also stops when its objective changes by less than this fraction
@@ -351,8 +351,8 @@ def solve_temperature_absorption(
                              f"{type(start).__name__} with unknowns={getattr(start, 'unknowns', None)!r}")
         if not (np.allclose(start.grid.lower, grid.lower, rtol=0, atol=1e-9 * min(grid.spacing))
                 and np.allclose(start.grid.upper, grid.upper, rtol=0, atol=1e-9 * min(grid.spacing))):
-            raise ValueError(f"start's grid box {tuple(start.grid.lower)}..{tuple(start.grid.upper)} m must be the "
-                             f"reconstruction grid's {tuple(grid.lower)}..{tuple(grid.upper)} m")
+            raise ValueError(f"start's grid box {_m(start.grid.lower)}..{_m(start.grid.upper)} m must be the "
+                             f"reconstruction grid's {_m(grid.lower)}..{_m(grid.upper)} m")
         T0 = interpolate_field(start.T, start.grid, grid)  # raises if start's grid is finer than grid
         sigma_a0 = interpolate_field(start.sigma_a, start.grid, grid)
         if start.regularization > 0:

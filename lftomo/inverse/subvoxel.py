@@ -33,6 +33,10 @@ import scipy.sparse as sp
 from ..forward.grid import Grid
 
 
+def _m(v) -> str:
+    """A 3-vector for messages: ``(0.025, -0.03, 0.975)``, not ``np.float64(...)`` reprs."""
+    return "(" + ", ".join(f"{float(x):.6g}" for x in np.ravel(v)) + ")"
+
 def _axis_weights(n_coarse: int, lower: float, h: float, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Two-point linear weights of coarse centres at coordinates ``x`` (clamped at the ends)."""
     u = (x - lower) / h - 0.5  # continuous index of the coarse centres
@@ -80,13 +84,13 @@ def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
     tol = 1e-9 * h
     if np.any(qlo < lo - tol) or np.any(qhi > hi + tol):
         raise ValueError(
-            f"the quadrature grid's box {tuple(qlo)}..{tuple(qhi)} m must lie inside the grid's box "
-            f"{tuple(lo)}..{tuple(hi)} m"
+            f"the quadrature grid's box {_m(qlo)}..{_m(qhi)} m must lie inside the grid's box "
+            f"{_m(lo)}..{_m(hi)} m"
         )
     if np.any(np.asarray(quadrature.spacing) > h * (1 + 1e-9)):
         raise ValueError(
-            f"the quadrature grid (spacing {tuple(np.asarray(quadrature.spacing))} m) must be at least as fine "
-            f"as the grid (spacing {tuple(h)} m) on every axis"
+            f"the quadrature grid (spacing {_m(quadrature.spacing)} m) must be at least as fine "
+            f"as the grid (spacing {_m(h)} m) on every axis"
         )
     centres = quadrature.centers
     per_axis = [_axis_weights(int(grid.shape[a]), lo[a], h[a], np.asarray(centres[a], float)) for a in range(3)]
