@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numbers
+import zipfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -245,3 +247,18 @@ def toml_numbers(
     if not ok:
         raise ValueError(f"{where} must be {allowed}, got {_fmt(value)}")
     return tuple(float(x) for x in value)
+
+
+def require_npz_file(path: Any, *, what: str, needs: str, prefix: str = "") -> Path:
+    """``path`` as a Path if it is an existing ``.npz`` (zip) archive, before ``np.load``.
+
+    Checked first so that a text or ``.npy`` file is reported as such rather
+    than as numpy's "pickled data" error.  Messages: ``"{prefix}{what} '<path>'
+    does not exist"`` and ``"{prefix}'<path>' is not an .npz archive; {needs}"``.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{prefix}{what} {str(p)!r} does not exist")
+    if not zipfile.is_zipfile(p):
+        raise ValueError(f"{prefix}{str(p)!r} is not an .npz archive; {needs}")
+    return p

@@ -113,19 +113,21 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _refuse_given(args, names: tuple[str, ...], where: str) -> None:
+    """ValueError if any option ``names`` (argparse dests) was given: it would be ignored here."""
+    given = [f"--{k.replace('_', '-')}" for k in names if getattr(args, k) is not None]
+    if given:
+        raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} {where}")
+
+
 def cmd_reconstruct(args) -> int:
     from .demo import run_reconstruct
 
     if not args.posterior:
-        given = [f"--{k.replace('_', '-')}" for k in ("posterior_steps", "posterior_basis")
-                 if getattr(args, k) is not None]
-        if given:
-            raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} with --posterior")
+        _refuse_given(args, ("posterior_steps", "posterior_basis"), "with --posterior")
     if args.scene is None:
-        given = [f"--{k.replace('_', '-')}" for k in ("recon_shape", "rays_per_pixel") if getattr(args, k) is not None]
-        if given:
-            raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to scene mode (a TOML scene file); with "
-                             "--lightfield and --weights the grid and rays are those of the files")
+        _refuse_given(args, ("recon_shape", "rays_per_pixel"), "to scene mode (a TOML scene file); with --lightfield "
+                      "and --weights the grid and rays are those of the files")
     m = run_reconstruct(
         args.output, scene=args.scene, lightfield=args.lightfield, weights=args.weights, noise=args.noise,
         data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule, prior=args.prior,

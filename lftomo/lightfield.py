@@ -45,7 +45,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from . import __version__
-from ._validate import require_array
+from ._validate import require_array, require_npz_file
 from .forward.camera import Camera, _best_focus_z, trace_axial_point
 
 FORMAT = "lftomo-lightfield-1"
@@ -459,14 +459,8 @@ class LightField:
     @classmethod
     def load(cls, path: str | Path) -> "LightField":
         """Read a light field written by :meth:`save`; validates every array."""
-        path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"light-field file {str(path)!r} does not exist")
-        if not zipfile.is_zipfile(path):
-            raise ValueError(
-                f"{str(path)!r} is not an .npz archive; expected a light field written by "
-                "LightField.save or `lftomo render` (lightfield.npz)"
-            )
+        path = require_npz_file(path, what="light-field file", needs="expected a light field written by "
+                                "LightField.save or `lftomo render` (lightfield.npz)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}

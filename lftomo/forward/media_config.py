@@ -29,7 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .._validate import toml_int, toml_number, toml_numbers
+from .._validate import require_npz_file, toml_int, toml_number, toml_numbers
 from . import phantoms
 from .grid import Grid
 from .medium import Medium
@@ -97,14 +97,8 @@ def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
     path = t["path"]
     if not isinstance(path, str):
         raise ValueError(f"[medium] path must be a file name (a string), got {path!r}")
-    p = (base / path).resolve()
-    if not p.is_file():
-        raise ValueError(f"[medium] path: medium file {str(p)!r} does not exist")
-    if not zipfile.is_zipfile(p):
-        raise ValueError(
-            f"[medium] path: {str(p)!r} is not an .npz archive; phantom = 'file' needs an .npz "
-            "(numpy.savez) with arrays sigma_a and T [, sigma_s, g]"
-        )
+    p = require_npz_file((base / path).resolve(), prefix="[medium] path: ", what="medium file",
+                         needs="phantom = 'file' needs an .npz (numpy.savez) with arrays sigma_a and T [, sigma_s, g]")
     try:
         with np.load(p, allow_pickle=False) as z:
             files = sorted(z.files)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import require_finite_scalar, require_positive
+from .._validate import require_finite_scalar, require_npz_file, require_positive
 from ..radiation import blackbody_intensity
 from .grid import Grid
 
@@ -323,6 +323,7 @@ class Medium:
         arrays of ``grid.shape``); ``soot_reference_wavelength`` (m) and
         ``soot_alpha`` (optional, together: a :class:`SootRule`).
         """
+        path = require_npz_file(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)")
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)
         kw: dict[str, Any] = {}

@@ -99,7 +99,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit, prange
 
-from .._validate import require_int
+from .._validate import require_int, require_npz_file
 from . import optics as _o
 from .dda import max_segments, ray_box, traverse
 from .rng import rng_init, rng_uniform, rng_uniform_open
@@ -1106,9 +1106,8 @@ class WeightMatrix:
             Unreadable file, wrong format, or a camera/grid/wavelength mismatch
             (the message lists the differing parameters).
         """
-        path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"weight-matrix file {str(path)!r} does not exist")
+        path = require_npz_file(path, what="weight-matrix file",
+                                needs="expected a weight matrix written by WeightMatrix.save or `lftomo weights`")
         try:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
