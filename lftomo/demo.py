@@ -160,8 +160,9 @@ def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
     the same pixel integrals.  With :func:`lftomo.inverse.compare.monte_carlo_std`
     (the rule :func:`~lftomo.inverse.compare.compare_refocus_subaperture` uses,
     so stage 5 and stage 7 see the same noise model) the render's standard
-    error is floored per view where all its rays missed the flame and scaled
-    by ``sqrt(1 + n_data / n_weights)``.
+    error is combined with a per-view floor, a prior worth one ray (pixels
+    whose rays all missed the flame report 0), and scaled by
+    ``sqrt(1 + n_data / n_weights)``.
 
     ``min_etendue_fraction`` (if given) replaces the decode's threshold on
     both light fields first: the rim pixels it drops are not data.
@@ -184,7 +185,7 @@ def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=n_data, weights_rays_per_pixel=n_weights,
                                    min_etendue_fraction=min_etendue_fraction)
     rule = (f"sigma^2 = noise^2 + mc^2, mc = lftomo.inverse.compare.monte_carlo_std "
-            f"(render MC standard error floored per view, x sqrt(1 + {n_data}/{n_weights}))")
+            f"(render MC standard error with a one-ray per-view floor prior, x sqrt(1 + {n_data}/{n_weights}))")
     return noisy, rule
 
 

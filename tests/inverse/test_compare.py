@@ -64,5 +64,10 @@ def test_monte_carlo_std_explains_the_difference_of_two_renders():
     assert m > 200
     # the model may overestimate sigma (floor at sharp edges) but must not underestimate it
     assert chi2 < 1.0 + 5 * np.sqrt(2.0 / m), chi2
+    # nor overestimate the total variance grossly: the floor is a prior worth one ray, not a lower
+    # bound (measured on this scene, 3 seed pairs: sum ratio 0.54-0.59 with the prior, 0.072-0.075
+    # with max(se, floor), which over-smoothed every discrepancy fit)
+    ratio = float(np.sum(diff[covered] ** 2) / np.sum(sd[covered] ** 2))
+    assert ratio > 0.4, ratio
     with pytest.raises(ValueError, match="rays per pixel"):
         monte_carlo_std(a, weights_rays_per_pixel=0, rays_per_pixel=16)
