@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import zipfile
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -371,6 +372,12 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
         shape, or non-finite values.
     """
     p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise ValueError(f"{name} file {p!r} does not exist")
+    with open(p, "rb") as f:
+        magic = f.read(6)
+    if magic != b"\x93NUMPY" and not zipfile.is_zipfile(p):  # else numpy reports a text file as pickled data
+        raise ValueError(f"{name} file {p!r} is neither an .npy array nor an .npz archive")
     try:
         data = np.load(p, allow_pickle=False)
     except ValueError as e:  # object arrays refuse to load without pickle

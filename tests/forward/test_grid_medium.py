@@ -289,3 +289,13 @@ def test_load_field_rejects_wrong_shape_nan_dtype_missing(grid, tmp_path):
     pn = tmp_path / "T.npy"
     np.save(pn, np.full(grid.shape, 900.0))
     assert load_field(pn, name="T", shape=grid.shape).dtype == np.float64
+
+
+def test_load_field_names_a_text_or_missing_file(tmp_path):
+    """A text file is reported as such (numpy's own message speaks of pickled data)."""
+    txt = tmp_path / "T.npy"
+    txt.write_text("800 900 1000\n")
+    with pytest.raises(ValueError, match=r"T file .*T\.npy' is neither an \.npy array nor an \.npz archive"):
+        load_field(txt, name="T")
+    with pytest.raises(ValueError, match=r"sigma_a file .*absent\.npz' does not exist"):
+        load_field(tmp_path / "absent.npz", name="sigma_a")
