@@ -42,6 +42,8 @@ def main():
     ap.add_argument("--draws", type=int, default=1)
     ap.add_argument("--rule", default="discrepancy")
     ap.add_argument("--prior", default="gradient")
+    ap.add_argument("--noise-scale", default="given", choices=["given", "estimated"],
+                    help="discrepancy rule: sigma as given, or its scale estimated from the residual")
     ap.add_argument("--regularization", default="auto")
     ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
     ap.add_argument("--flame", default="axisymmetric", choices=["axisymmetric", "two_lobed"])
@@ -98,6 +100,8 @@ def main():
         m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
         t = time.perf_counter()
         opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}
+        if a.rule == "discrepancy":
+            opts["noise_scale"] = a.noise_scale
         sym = None if a.symmetry == "none" else a.symmetry
         rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, symmetry=sym, grid=coarse,
                              **opts)

@@ -163,6 +163,7 @@ METHODS = ("levenberg-marquardt", "gauss-newton")
 RULES = ("discrepancy", "gcv", "lcurve")
 #: What the prior acts on.
 PENALIZE = ("temperature", "intensity")
+NOISE_SCALES = ("given", "estimated")
 
 _C1 = 2.0 * _c.h * _c.c**2  # W m² sr⁻¹
 _C2 = _c.h * _c.c / _c.k  # m K
@@ -824,9 +825,13 @@ def _branch_corner(evals: list, lam_max: float, target: float):
 
 
 def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, search_steps: int | None,
-                      search_rtol: float):
+                      search_rtol: float, *, estimate_scale: bool = False):
     target = 1.0 + safety
     lo_lim, hi_lim = lam_ref * 1e-10, lam_ref * 1e4
+    m = run.s.m_total
+    # Illinois regula falsi in log λ on g (increasing), to the precision of the
+    # target itself: χ²/m of the noise has standard deviation √(2/m).
+    tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
 
     def g(e: _Eval) -> float:
         return math.log(max(e.chi2, 1e-300) / target)
@@ -841,6 +846,22 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
     lam = lam_ref * 1e-2
     e = solve(lam, theta0)
     note = ""
+    scale_note = ""
+    if estimate_scale:
+        # σ known up to a factor: estimate it from this least-regularized fit
+        # (s² = χ²_s/(m − n), n unknowns ≥ the fit's degrees of freedom).  The
+        # target then sits n/(m − n) above χ²_s; what fixes λ is the rise of
+        # χ² above that fit, whose own spread for a field as far from the data
+        # as the truth is √(2n) in total: the tolerance.
+        n_unknowns = run.s.A_s.shape[1]
+        if m - n_unknowns < 1:
+            raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
+                             f"{n_unknowns} unknowns")
+        s2 = e.chi2 * m / (m - n_unknowns)
+        target = (1.0 + safety) * s2
+        tol = min(tol, max(math.sqrt(2.0 * n_unknowns) / (m - n_unknowns), 1e-6))
+        scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − n) = {s2:.4g} (m = {m}, "
+                      f"n = {n_unknowns}), target chi²/m = {target:.5g}; ")
     if g(e) < 0:  # too little misfit: increase λ
         lo = e
         hi = None
@@ -860,9 +881,9 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
             found = _branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
-                return found[0], target, note
+                return found[0], target, scale_note + note
             note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
-            return lo, target, note
+            return lo, target, scale_note + note
     else:
         hi = e
         lo = None
@@ -883,12 +904,9 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
             if found is not None:
                 note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
                         f"model error?): {found[1]}")
-                return found[0], target, note
+                return found[0], target, scale_note + note
             note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
-            return hi, target, note
-    # Illinois regula falsi in log λ on g (increasing), to the precision of the
-    # target itself: χ²/m of the noise has standard deviation √(2/m).
-    tol = min(max(math.sqrt(2.0 / run.s.m_total), 1e-3), 1e-2)
+            return hi, target, scale_note + note
     glo, ghi = g(lo), g(hi)
     xlo, xhi = math.log(lo.lam), math.log(hi.lam)
     best = lo if abs(glo) < abs(ghi) else hi
@@ -927,9 +945,9 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
                 f"(no λ attains it within {_DISCREPANCY_JUMP:.0%}; σ misestimated?)")
         found = _branch_corner(run.evals, lo_lam, target)
         if found is not None:
-            return found[0], target, f"{jump}: {found[1]}"
+            return found[0], target, scale_note + f"{jump}: {found[1]}"
     note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
-    return best, target, note
+    return best, target, scale_note + note
 
 
 @functools.lru_cache(maxsize=None)
@@ -1105,6 +1123,7 @@ def solve_temperature(
     search_steps: int | None = None,
     search_rtol: float = 1e-3,
     subvoxel_search: str = "surrogate",
+    noise_scale: str = "given",
     progress: bool | None = None,
 ) -> TemperatureSolution:
     """Reconstruct the temperature field by regularized nonlinear least squares.
@@ -1187,6 +1206,16 @@ def solve_temperature(
         When the surrogate misses the discrepancy target at every λ (its own
         model error exceeds the noise: coarse grids, small noise), the rule
         runs on the sub-voxel model instead, as with ``"full"``.
+    noise_scale : {"given", "estimated"}, keyword-only
+        Discrepancy rule only.  ``"given"``: ``sigma`` is the noise standard
+        deviation, target ``χ²/m = 1 + discrepancy_safety``.
+        ``"estimated"``: ``sigma`` is right up to a common factor (Monte Carlo
+        data, whose error model is approximate; a model error), and the
+        factor is estimated from the residual of the least-regularized fit of
+        the search (``λ_ref · 1e-2``), as in regression: ``s² = χ²_s / (m − n)``
+        (``χ²_s`` the total at that λ, ``n`` the unknowns, an upper bound of the
+        fit's degrees of freedom); target ``χ²/m = (1 + discrepancy_safety) ·
+        s²``.  See the module docstring.
     progress : bool, optional, keyword-only
         A tqdm bar on stderr counting the nonlinear steps of every solve, with
         the current λ and χ²/m.  Default: shown when ``A`` has more than
@@ -1215,7 +1244,7 @@ def solve_temperature(
             atol=atol, penalize=penalize, T_ref=T_ref, tv_eps=tv_eps, discrepancy_safety=discrepancy_safety,
             lambda_range=lambda_range, n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed,
             linear_rtol=linear_rtol, linear_max_steps=linear_max_steps, search_steps=search_steps,
-            search_rtol=search_rtol, progress=progress,
+            search_rtol=search_rtol, noise_scale=noise_scale, progress=progress,
         )
     bounds = _check_bounds(bounds)
     prior = _check_choice("prior", prior, PRIORS)
@@ -1223,6 +1252,9 @@ def solve_temperature(
     rule = _check_choice("rule", rule, RULES)
     penalize = _check_choice("penalize", penalize, PENALIZE)
     lam_fixed = _check_regularization(regularization, allow_auto=True)
+    noise_scale = _check_choice("noise_scale", noise_scale, NOISE_SCALES)
+    if noise_scale == "estimated" and rule != "discrepancy":
+        raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
     max_steps = require_int("max_steps", max_steps, minimum=1)
     rtol = require_nonnegative("rtol", rtol)
     atol = require_nonnegative("atol", atol)
@@ -1277,6 +1309,7 @@ def solve_temperature(
     try:
         return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
                            safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
+                           estimate_scale=noise_scale == "estimated",
                            n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, method=method, prior=prior,
                            penalize=penalize, t_start=t_start)
     finally:
@@ -1285,7 +1318,7 @@ def solve_temperature(
 
 def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule, *, T0_arr, T0_mode, bounds,
                 safety, search_steps, search_rtol, lr, n_lambda, gcv_probes, seed, method, prior, penalize,
-                t_start) -> TemperatureSolution:
+                t_start, estimate_scale=False) -> TemperatureSolution:
     """The initial guess, the λ choice and the final solve of :func:`solve_temperature` (arguments checked)."""
     grid = problem.grid
     t_setup = time.perf_counter()
@@ -1307,7 +1340,8 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
             reference=lam_ref, note="λ given by the caller",
         )
     elif rule == "discrepancy":
-        e, target, note = _rule_discrepancy(run, theta0, lam_ref, safety, search_steps, float(search_rtol))
+        e, target, note = _rule_discrepancy(run, theta0, lam_ref, safety, search_steps, float(search_rtol),
+                                            estimate_scale=estimate_scale)
         choice = _discrepancy_choice(run, e, target, lam_ref, note)
     elif rule == "gcv":
         e, c, ch, rg, cr, note = _rule_gcv(run, theta0, lam_ref, lr, n_lambda, gcv_probes, seed)

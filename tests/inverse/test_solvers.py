@@ -166,20 +166,13 @@ def test_gauss_newton_noise_free(gray_clean):
     assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
 
 
-def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy):
-    """Test problem: gray, 8³, 1536 rays, 2 % noise, gradient prior.
-
-    Scan λ on a log grid (factor 10^0.25), take the λ of minimum RMS relative
-    temperature error (refined by a parabola in log λ), compare with the
-    discrepancy-principle λ.
-    """
+@pytest.fixture(scope="module")
+def error_optimal_lambda(gray_noisy):
+    """Error-optimal λ of ``gray_noisy``: scan λ on a log grid (factor 10^0.25) about the
+    balanced λ, take the λ of minimum RMS relative temperature error, refined by a parabola
+    in log λ."""
     problem, T = gray_noisy
-    auto = solve_temperature(problem, rule="discrepancy")
-    ch = auto.lambda_choice
-    assert ch.rule == "discrepancy" and ch.target == 1.0
-    assert auto.chi2 == pytest.approx(1.0, abs=1e-2)
-    assert len(ch.candidates) == len(ch.chi2) == len(ch.regularization_norms) >= 3
-    lam_ref = ch.reference
+    lam_ref = solve_temperature(problem, regularization=1.0).lambda_choice.reference
     lams = lam_ref * 10.0 ** np.arange(-3.0, 0.01, 0.25)
     errs = []
     T0 = None
@@ -192,10 +185,50 @@ def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy):
     assert 0 < k < len(lams) - 1, "error-optimal λ must be inside the scanned range"
     x = np.log(lams)
     den = errs[k - 1] - 2 * errs[k] + errs[k + 1]
-    lam_opt = np.exp(x[k] + 0.5 * (x[1] - x[0]) * (errs[k - 1] - errs[k + 1]) / den)
-    ratio = auto.regularization / lam_opt
-    print(f"discrepancy λ {auto.regularization:.4g}, error-optimal λ {lam_opt:.4g}, ratio {ratio:.3f}")
-    assert 1 / 3 <= ratio <= 3, f"discrepancy λ {auto.regularization:.3g} vs optimal {lam_opt:.3g}"
+    return float(np.exp(x[k] + 0.5 * (x[1] - x[0]) * (errs[k - 1] - errs[k + 1]) / den))
+
+
+def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy, error_optimal_lambda):
+    """Test problem: gray, 8³, 1536 rays, 2 % noise, gradient prior."""
+    problem, T = gray_noisy
+    auto = solve_temperature(problem, rule="discrepancy")
+    ch = auto.lambda_choice
+    assert ch.rule == "discrepancy" and ch.target == 1.0
+    assert auto.chi2 == pytest.approx(1.0, abs=1e-2)
+    assert len(ch.candidates) == len(ch.chi2) == len(ch.regularization_norms) >= 3
+    ratio = auto.regularization / error_optimal_lambda
+    print(f"discrepancy λ {auto.regularization:.4g}, error-optimal λ {error_optimal_lambda:.4g}, ratio {ratio:.3f}")
+    assert 1 / 3 <= ratio <= 3, f"discrepancy λ {auto.regularization:.3g} vs optimal {error_optimal_lambda:.3g}"
+
+
+@pytest.fixture(scope="module")
+def discrepancy_true_sigma(gray_noisy):
+    return solve_temperature(gray_noisy[0], rule="discrepancy")
+
+
+@pytest.mark.parametrize("factor", [3.0, 0.5])
+def test_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale(gray_noisy, discrepancy_true_sigma,
+                                                                            factor):
+    """σ stated ``factor``× the truth: with ``noise_scale="estimated"`` the rule recovers
+    Morozov's λ of the true σ (λ·factor² is the same objective), which the test above holds
+    within a factor 3 of the error-optimal λ.  The estimate errs high, by design: the fit at
+    λ_ref·1e-2 has fewer degrees of freedom than the n unknowns the estimate assumes (here
+    n/m = 1/3: s² 1.05, λ 1.14× Morozov's); so λ may be larger, by less than 1.5×.  The
+    given-σ rule cannot do this (measured: λ·f² 0.53× for f = 3, 5e-4× for f = 0.5)."""
+    problem, T = gray_noisy
+    scaled = LinearProblem(problem.A, problem.y, problem.sigma * factor, problem.grid, problem.wavelength)
+    sol = solve_temperature(scaled, rule="discrepancy", noise_scale="estimated")
+    ch = sol.lambda_choice
+    assert "noise scale estimated" in ch.note
+    # the target is the estimated scale: χ²/m of the noise ≈ 1/factor² (errs high, see above)
+    assert 1.0 <= ch.target * factor**2 <= 1.1
+    assert sol.chi2 == pytest.approx(ch.target, rel=1e-2)
+    ratio = sol.regularization * factor**2 / discrepancy_true_sigma.regularization
+    assert 1.0 <= ratio <= 1.5, ratio
+    with pytest.raises(ValueError, match="noise_scale='estimated' applies to rule='discrepancy' only"):
+        solve_temperature(scaled, rule="lcurve", noise_scale="estimated")
+    with pytest.raises(ValueError, match="noise_scale"):
+        solve_temperature(scaled, noise_scale="guess")
 
 
 def test_discrepancy_candidates_report_converged_chi2(gray_noisy):
