@@ -130,7 +130,8 @@ def cmd_reconstruct(args) -> int:
                       "and --weights the grid and rays are those of the files")
     m = run_reconstruct(
         args.output, scene=args.scene, lightfield=args.lightfield, weights=args.weights, noise=args.noise,
-        data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule, prior=args.prior,
+        data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule,
+        noise_scale=args.noise_scale, prior=args.prior,
         bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis or "flame",
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
         rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
@@ -291,6 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
     rc.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
                     help="lambda rule with --regularization auto")
+    rc.add_argument("--noise-scale", choices=("given", "estimated"), default="given",
+                    help="discrepancy rule: trust the noise model's sigma (given), or only its shape and estimate "
+                         "its scale from the residual of the least-regularized fit (estimated; Monte Carlo data)")
     rc.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default="gradient", help="smoothness prior (curvature: second differences, free faces)")
     rc.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
     rc.add_argument("--min-etendue-fraction", type=_fraction, default=0.2,

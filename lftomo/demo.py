@@ -802,6 +802,7 @@ def run_reconstruct(
     depths: Sequence[float] | None = None,
     regularization: str | float = "auto",
     rule: str = "discrepancy",
+    noise_scale: str = "given",
     prior: str = "gradient",
     bounds: tuple[float, float] = BOUNDS,
     posterior: bool = False,
@@ -827,6 +828,8 @@ def run_reconstruct(
     noise-free light field gets ``noise`` (default 1 %) relative Gaussian
     noise; the render's Monte Carlo error joins the noise model.  View pixels
     of étendue below ``min_etendue_fraction`` of the peak are left out.
+    ``noise_scale="estimated"`` lets the discrepancy rule estimate the noise
+    scale from the residual (:func:`lftomo.inverse.solvers.solve_temperature`).
     ``symmetry="axisymmetric"`` fits ring cells about the grid's vertical axis
     (reconstruction and field posterior).  ``quadrature`` K > 1 turns on
     sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene mode builds the
@@ -1002,9 +1005,9 @@ def run_reconstruct(
     with st("reconstruct", f"reconstruct ({rule} rule, {prior} prior{sym_text})"):
         try:
             rec = lt.reconstruct(m, W, regularization=regularization, rule=rule, prior=prior, bounds=tuple(bounds),
-                                 max_steps=max_steps, symmetry=symmetry, grid=grid)
+                                 max_steps=max_steps, symmetry=symmetry, grid=grid, noise_scale=noise_scale)
         except ValueError as exc:
-            raise ValueError(f"--regularization/--rule/--prior/--bounds: {exc}") from None
+            raise ValueError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")
     metrics["reconstruction"] = {**rec.summary(), "lambda_note": note, "max_steps": max_steps,
                                  "bounds_K": list(bounds)}

@@ -74,6 +74,19 @@ def test_reconstruct_from_scene_file(tmp_path, capsys):
     assert "reconstructed 4x4x4 voxels" in capsys.readouterr().out
 
 
+def test_reconstruct_noise_scale_estimated(tmp_path, capsys):
+    """--noise-scale estimated reaches the discrepancy rule (its note says so); with another rule it is refused."""
+    scene = _scene(tmp_path)
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(scene), "-o", str(out), "--noise-scale", "estimated", *FAST]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert "noise scale estimated" in m["reconstruction"]["lambda_note"]
+    assert "noise scale estimated" in capsys.readouterr().out
+    assert main(["reconstruct", str(scene), "-o", str(tmp_path / "r2"), "--noise-scale", "estimated",
+                 "--rule", "lcurve", *FAST]) == 2
+    assert "noise_scale='estimated' applies to rule='discrepancy' only" in capsys.readouterr().err
+
+
 def test_reconstruct_from_scene_refocus_fixed_lambda_with_posterior(tmp_path, capsys):
     scene = _scene(tmp_path)
     out = tmp_path / "rec"

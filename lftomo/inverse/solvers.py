@@ -86,6 +86,19 @@ Candidate λ are multiples of it.
   the exception: the noise model is only approximate.  Morozov's rule is known to over-smooth somewhat: on the 8³ test
   problems (m = 3n–8n rows, 2–5 % noise) it gave 1.9–2.9 × the error-optimal
   λ.
+  With ``noise_scale="estimated"`` σ is trusted up to a common factor only,
+  estimated from the least-regularized fit of the search, at ``λ_s = λ_ref ·
+  1e-2``: ``s² = χ²(λ_s) / (m − n)`` (n unknowns; the regression estimate of
+  the residual variance, n an upper bound of the fit's degrees of freedom, so
+  ``s²`` errs high), and the target is ``χ²/m = (1 + safety) s²``, reached at
+  the λ where χ² has risen by about n (in total) above the least-regularized
+  fit; ``tol = √(2n)/(m − n)``, the spread of that rise.  For Monte Carlo
+  data: their error model (:func:`lftomo.inverse.compare.monte_carlo_std`) is
+  right to a few per cent, but with m ≫ n χ²/m changes by only ~n/m ≈ 0.4 %
+  between an under- and an over-smoothed field (standard flame 32³ at 900
+  nm: 0.963 at λ 35, 0.970 at 3.5e4, 1.0 only at 2e5, where the field is
+  over-smoothed), so the given-σ target lands wherever the model's few per
+  cent put it.
 * ``"gcv"``: generalised cross-validation of the problem *linearised* about the
   current nonlinear solution ``θ̂`` (first at ``λ_ref · 1e-2``):
   ``GCV(λ) = m' ‖r_d + J δ_λ‖² / (m' − tr H_λ)²`` over the non-empty rows
