@@ -870,11 +870,13 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
         if m - n_unknowns < 1:
             raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
                              f"{n_unknowns} unknowns")
-        s2 = e.chi2 * m / (m - n_unknowns)
+        dof, dof_se = _fit_dof(run, e)
+        s2 = e.chi2 * m / (m - dof)
         target = (1.0 + safety) * s2
-        tol = min(tol, max(math.sqrt(2.0 * n_unknowns) / (m - n_unknowns), 1e-6))
-        scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − n) = {s2:.4g} (m = {m}, "
-                      f"n = {n_unknowns}), target chi²/m = {target:.5g}; ")
+        tol = min(tol, max(math.sqrt(2.0 * max(dof, 1.0)) / (m - dof), 1e-6))
+        scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
+                      f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
+                      f"target chi²/m = {target:.5g}; ")
     if g(e) < 0:  # too little misfit: increase λ
         lo = e
         hi = None
@@ -961,6 +963,50 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
             return found[0], target, scale_note + f"{jump}: {found[1]}"
     note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
     return best, target, scale_note + note
+
+
+@functools.lru_cache(maxsize=None)
+def _dof_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+    """Jitted Hutchinson samples of ``tr(2H − H²)``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ``, at ``theta`` (cached)."""
+    f = _functions(gray, tv, penalize, subvoxel)
+    ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
+
+    @jax.jit
+    def dof(theta, args, lam, scale, probes):
+        rr0, Jr = jax.linearize(lambda t: f["reg"](t, args), theta)
+        _, Jd = jax.linearize(lambda t: f["data"](t, args), theta)
+        sq = jnp.sqrt(lam)
+        struct = jax.ShapeDtypeStruct(theta.shape, theta.dtype)
+        # columns scaled by D (tr H does not depend on it; LSMR converges faster)
+        op = lx.FunctionLinearOperator(lambda v: (Jd(scale * v), sq * Jr(scale * v)), struct)
+        zero = jnp.zeros_like(rr0)
+
+        def quad(z):  # zᵀ (2H − H²) z = 2 zᵀHz − ‖Hz‖²
+            x = lx.linear_solve(op, (z, zero), ls, throw=False).value
+            hz = Jd(scale * x)
+            return 2.0 * jnp.vdot(z, hz) - jnp.vdot(hz, hz)
+
+        return jax.lax.map(quad, probes)  # a loop: HostCSR has no batching rule
+
+    return dof
+
+
+def _fit_dof(run: _Runner, e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
+    """Degrees of freedom of the residual of the fit ``e``: ``tr(2H − H²)``, ``H``
+    the influence matrix of the problem linearised at its solution, so that
+    ``E‖r‖² = σ² (m − tr(2H − H²)) + bias²`` (a linear smoother's residual).
+    Hutchinson's estimator with ``n_probes`` Rademacher vectors (the same
+    seed, the same vectors); returns ``(estimate, its standard error)``.
+    Checked against the dense trace on 6³ and 8³ test problems: 8 probes within
+    their standard error (3–8) of it."""
+    s = run.s
+    probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
+    fn = _dof_function(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
+    scale = jnp.asarray(run.column_scale(np.asarray(e.theta), e.lam))
+    q = np.asarray(fn(jnp.asarray(e.theta), run.args(e.lam), jnp.asarray(e.lam), scale, probes), dtype=float)
+    n = s.A_s.shape[1]
+    est = float(min(max(q.mean(), 0.0), n))
+    return est, float(q.std(ddof=1) / math.sqrt(n_probes)) if n_probes > 1 else math.nan
 
 
 @functools.lru_cache(maxsize=None)
