@@ -88,17 +88,23 @@ Candidate λ are multiples of it.
   λ.
   With ``noise_scale="estimated"`` σ is trusted up to a common factor only,
   estimated from the least-regularized fit of the search, at ``λ_s = λ_ref ·
-  1e-2``: ``s² = χ²(λ_s) / (m − n)`` (n unknowns; the regression estimate of
-  the residual variance, n an upper bound of the fit's degrees of freedom, so
-  ``s²`` errs high), and the target is ``χ²/m = (1 + safety) s²``, reached at
-  the λ where χ² has risen by about n (in total) above the least-regularized
-  fit; ``tol = √(2n)/(m − n)``, the spread of that rise.  For Monte Carlo
-  data: their error model (:func:`lftomo.inverse.compare.monte_carlo_std`) is
-  right to a few per cent, but with m ≫ n χ²/m changes by only ~n/m ≈ 0.4 %
-  between an under- and an over-smoothed field (standard flame 32³ at 900
-  nm: 0.963 at λ 35, 0.970 at 3.5e4, 1.0 only at 2e5, where the field is
-  over-smoothed), so the given-σ target lands wherever the model's few per
-  cent put it.
+  1e-2``: ``s² = χ²(λ_s) / (m − ν)``, ``ν = tr(2H − H²)`` the degrees of
+  freedom the fit takes from the residual (``H`` its influence matrix,
+  problem linearised at the solution; ``E‖r‖² = σ²(m − ν) + bias²`` for a
+  linear smoother), by Hutchinson's estimator with 8 Rademacher probes (one
+  LSMR solve each, Jacobi-scaled); the target is ``χ²/m = (1 + safety) s²``,
+  the misfit the true field would have, and ``tol = √(2ν)/(m − ν)``, the
+  spread of the rise of χ² above the least-regularized fit (residual degrees
+  of freedom of a linear smoother: Hastie & Tibshirani 1990, *Generalized
+  Additive Models*, ch. 3; σ² estimated from a residual: Wahba 1990, *Spline
+  Models for Observational Data*, ch. 4).  Not the number of unknowns n for ν:
+  on a ring grid most cells are dark and undetermined (32³: ~4800 cells),
+  and n/m sent λ 5× too high.  For Monte Carlo data: their error model
+  (:func:`lftomo.inverse.compare.monte_carlo_std`) is right to a few per
+  cent, but with m ≫ ν, χ²/m changes by only ~ν/m ≈ 0.5 % between an under-
+  and an over-smoothed field (standard flame 32³ at 900 nm: 0.963 at λ 35,
+  0.970 at 3.5e4, 1.0 only at 2e5, where the field is over-smoothed), so the
+  given-σ target lands wherever the model's few per cent put it.
 * ``"gcv"``: generalised cross-validation of the problem *linearised* about the
   current nonlinear solution ``θ̂`` (first at ``λ_ref · 1e-2``):
   ``GCV(λ) = m' ‖r_d + J δ_λ‖² / (m' − tr H_λ)²`` over the non-empty rows
@@ -862,10 +868,9 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
     scale_note = ""
     if estimate_scale:
         # σ known up to a factor: estimate it from this least-regularized fit
-        # (s² = χ²_s/(m − n), n unknowns ≥ the fit's degrees of freedom).  The
-        # target then sits n/(m − n) above χ²_s; what fixes λ is the rise of
-        # χ² above that fit, whose own spread for a field as far from the data
-        # as the truth is √(2n) in total: the tolerance.
+        # (s² = χ²_s/(m − ν), ν its residual degrees of freedom).  The target
+        # then sits ν/(m − ν) above χ²_s; what fixes λ is the rise of χ²
+        # above that fit, whose own spread is √(2ν) in total: the tolerance.
         n_unknowns = run.s.A_s.shape[1]
         if m - n_unknowns < 1:
             raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
@@ -1271,10 +1276,11 @@ def solve_temperature(
         ``"estimated"``: ``sigma`` is right up to a common factor (Monte Carlo
         data, whose error model is approximate; a model error), and the
         factor is estimated from the residual of the least-regularized fit of
-        the search (``λ_ref · 1e-2``), as in regression: ``s² = χ²_s / (m − n)``
-        (``χ²_s`` the total at that λ, ``n`` the unknowns, an upper bound of the
-        fit's degrees of freedom); target ``χ²/m = (1 + discrepancy_safety) ·
-        s²``.  See the module docstring.
+        the search (``λ_ref · 1e-2``), as in regression: ``s² = χ²_s / (m − ν)``
+        (``χ²_s`` the total at that λ, ``ν = tr(2H − H²)`` its residual
+        degrees of freedom, by Hutchinson's estimator: 8 more linear solves);
+        target ``χ²/m = (1 + discrepancy_safety) · s²``.  See the module
+        docstring.
     progress : bool, optional, keyword-only
         A tqdm bar on stderr counting the nonlinear steps of every solve, with
         the current λ and χ²/m.  Default: shown when ``A`` has more than
