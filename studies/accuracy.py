@@ -130,7 +130,8 @@ def main():
         problem = problem_on_grid(m, W, coarse)[0]
         chi2_true = problem.chi2(T_true)
         e["chi2_point"] = problem.chi2(T_point)
-        row = {"draw": d, **e, "lambda": rec.regularization, "lambda_rule": rec.lambda_rule, "chi2": rec.chi2,
+        row = {"draw": d, **e, "lambda": rec.regularization, "lambda_rule": rec.lambda_rule,
+               "lambda_note": getattr(getattr(rec.details, "lambda_choice", None), "note", ""), "chi2": rec.chi2,
                "chi2_truth": chi2_true, "seconds": dt, "converged": rec.converged}
         print(json.dumps(row))
         out.append(row)
