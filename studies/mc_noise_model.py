@@ -26,27 +26,13 @@ import dataclasses
 import sys
 
 import numpy as np
-from scipy.ndimage import maximum_filter
-
 import lftomo as lt
-from lftomo.inverse.compare import monte_carlo_std
+from lftomo.inverse.compare import monte_carlo_floor, monte_carlo_std
 
 
 def previous_model(lf) -> np.ndarray:
-    """The rule before session 20: ``max(se_d, ρ × 3×3 local max)`` (render part)."""
-    x = np.asarray(lf.raw, float).ravel()
-    s = np.asarray(lf.std_error, float).ravel()
-    idx, mask = lf.view_index, lf.view_mask
-    vals = np.where(mask, x[np.maximum(idx, 0)], 0.0)
-    svals = np.where(mask, s[np.maximum(idx, 0)], 0.0)
-    rho = np.zeros(vals.shape[:2])
-    for v, u in np.ndindex(*rho.shape):
-        lit = (vals[v, u] > 0) & (svals[v, u] > 0)
-        rho[v, u] = np.median(svals[v, u][lit] / vals[v, u][lit]) if lit.any() else 0.0
-    local = maximum_filter(vals, size=(1, 1, 3, 3), mode="constant")
-    floor = np.zeros_like(x)
-    floor[idx[mask]] = (rho[:, :, None, None] * local)[mask]
-    return np.maximum(s, floor)
+    """The rule before session 20: ``max(se_d, floor)`` (render part)."""
+    return np.maximum(np.asarray(lf.std_error, float), monte_carlo_floor(lf))
 
 
 def main():

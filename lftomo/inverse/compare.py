@@ -107,17 +107,32 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> 
     -------
     ndarray, shape of ``lf.raw`` (signal units)
     """
-    from scipy.ndimage import maximum_filter
-
     if lf.std_error is None:
         raise ValueError("lf has no std_error (not a Monte Carlo render)")
     if weights_rays_per_pixel < 1 or rays_per_pixel < 1:
         raise ValueError(f"rays per pixel must be >= 1, got {rays_per_pixel!r} and {weights_rays_per_pixel!r}")
+    se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
+    floor = monte_carlo_floor(lf).reshape(lf.n_channels, -1)
+    # scaled-inverse-χ² posterior of the pixel's variance: the render's own
+    # sample variance (rays_per_pixel − 1 degrees of freedom) and the floor
+    # as a prior worth one ray
+    out = np.sqrt((floor**2 + (rays_per_pixel - 1) * se**2) / rays_per_pixel)
+    out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
+    return out.reshape(np.shape(lf.raw))
+
+
+def monte_carlo_floor(lf) -> np.ndarray:
+    """The prior scale of :func:`monte_carlo_std`, per raw pixel: ``ρ`` × the
+    largest signal among the pixel and its 3 × 3 neighbours in the same
+    sub-aperture view, ``ρ`` the median relative standard error of the view's
+    lit pixels (0 outside the views).  Shape of ``lf.raw``."""
+    from scipy.ndimage import maximum_filter
+
     raw = np.asarray(lf.raw, dtype=float).reshape(lf.n_channels, -1)
     se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
     idx = lf.view_index
     mask = lf.view_mask
-    out = se.copy()
+    out = np.zeros_like(raw)
     for c in range(lf.n_channels):
         x, s = raw[c], se[c]
         vals = np.where(mask, x[np.maximum(idx, 0)], 0.0)
@@ -127,13 +142,7 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> 
             lit = (vals[v, u] > 0) & (svals[v, u] > 0)
             rho[v, u] = np.median(svals[v, u][lit] / vals[v, u][lit]) if lit.any() else 0.0
         local = maximum_filter(vals, size=(1, 1, 3, 3), mode="constant")
-        floor = np.zeros_like(x)
-        floor[idx[mask]] = (rho[:, :, None, None] * local)[mask]
-        # scaled-inverse-χ² posterior of the pixel's variance: the render's own
-        # sample variance (rays_per_pixel − 1 degrees of freedom) and the
-        # floor as a prior worth one ray
-        out[c] = np.sqrt((floor**2 + (rays_per_pixel - 1) * s**2) / rays_per_pixel)
-    out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
+        out[c, idx[mask]] = (rho[:, :, None, None] * local)[mask]
     return out.reshape(np.shape(lf.raw))
 
 
