@@ -38,6 +38,9 @@ def main():
     ap.add_argument("--rays", type=int, default=64)
     ap.add_argument("--weight-rays", type=int, default=64)
     ap.add_argument("--noise", type=float, default=0.01)
+    ap.add_argument("--mc-floor", default="bound", choices=["bound", "prior"],
+                    help="Monte Carlo error floor (lftomo.inverse.compare.monte_carlo_std): bound (conservative, "
+                         "allows for model error) or prior (the Monte Carlo error as it is)")
     ap.add_argument("--wavelength", type=float, default=650e-9)
     ap.add_argument("--draws", type=int, default=1)
     ap.add_argument("--rule", default="discrepancy")
@@ -95,7 +98,7 @@ def main():
     regs = [a.regularization] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for d, reg in ((d, reg) for d in range(a.draws) for reg in regs):
         noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
-        noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+        noisy = with_monte_carlo_noise(noisy, lf, floor=a.mc_floor, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
                                        min_etendue_fraction=a.min_etendue)
         m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
         t = time.perf_counter()

@@ -3,8 +3,8 @@
 The difference of two renders (seeds 11 and 21) of the standard flame has
 variance ``2 se²`` per raw pixel, with ``se`` the true Monte Carlo standard
 error.  Compares :func:`lftomo.inverse.compare.monte_carlo_std` (render part
-only: ``weights_rays_per_pixel`` → ∞) and the earlier ``max(se_d, floor)``
-rule with it, over the pixels a fit uses (sub-aperture views, étendue ≥ 20 %
+only: ``weights_rays_per_pixel`` → ∞), with ``floor="bound"`` and
+``floor="prior"``, against it, over the pixels a fit uses (sub-aperture views, étendue ≥ 20 %
 of the peak):
 
 * ``E[d²]/model²`` — ratio of the summed half squared differences to the
@@ -26,13 +26,9 @@ import dataclasses
 import sys
 
 import numpy as np
+
 import lftomo as lt
-from lftomo.inverse.compare import monte_carlo_floor, monte_carlo_std
-
-
-def previous_model(lf) -> np.ndarray:
-    """The rule before session 20: ``max(se_d, floor)`` (render part)."""
-    return np.maximum(np.asarray(lf.std_error, float), monte_carlo_floor(lf))
+from lftomo.inverse.compare import monte_carlo_std
 
 
 def main():
@@ -52,8 +48,8 @@ def main():
         return np.asarray(m.y), np.asarray(m.sigma)
 
     print(f"truth grid {fine.shape}, {wl * 1e9:.0f} nm, {rays} rays/pixel, flame width {width * 1e3:g} mm")
-    models = {"previous": previous_model(a),
-              "library": monte_carlo_std(a, weights_rays_per_pixel=10**9, rays_per_pixel=rays)}
+    models = {f: monte_carlo_std(a, weights_rays_per_pixel=10**9, rays_per_pixel=rays, floor=f)
+              for f in ("bound", "prior")}
     for name, model in models.items():
         y1, s1 = vec(a, model)
         y2, _ = vec(b, model)

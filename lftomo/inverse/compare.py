@@ -61,7 +61,11 @@ def effective_truth(medium, dst: Grid, wavelength: float | None):
     return sa_c, T_c
 
 
-def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> np.ndarray:
+#: How :func:`monte_carlo_std` uses its per-view floor.
+MC_FLOORS = ("bound", "prior")
+
+
+def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, floor: str = "bound") -> np.ndarray:
     """Standard deviation of ``data − W I_b`` due to Monte Carlo, per raw pixel.
 
     Synthetic data rendered by Monte Carlo and a weight matrix built by Monte
@@ -73,28 +77,33 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> 
 
     ``se_d²`` is a sample variance from few hits: a pixel whose rays all missed
     the flame reports ``se_d = 0`` although the other estimate may not vanish
-    there.  So it is combined with a prior scale, the floor ``ρ`` × the
-    largest signal among the pixel and its 3 × 3 neighbours in the same
-    sub-aperture view (``ρ`` the median relative standard error of the view's
-    lit pixels; rim views, partly vignetted, have larger ones), as the
-    posterior mean of a variance with a scaled-inverse-χ² prior worth one ray
-    (conjugate normal model, Gelman et al., *Bayesian Data Analysis*, 3rd ed.,
-    §3.3)::
+    there.  It is combined with a floor, ``ρ`` × the largest signal among the
+    pixel and its 3 × 3 neighbours in the same sub-aperture view (``ρ`` the
+    median relative standard error of the view's lit pixels; rim views,
+    partly vignetted, have larger ones; :func:`monte_carlo_floor`):
 
-        se² = (floor² + (R − 1) se_d²) / R,   R = rays_per_pixel.
+    * ``floor="bound"`` (default): ``max(se_d, floor)``.  It overestimates the
+      Monte Carlo variance itself 7–9× in total (it acts on 72 % of the
+      pixels, mostly at the flame's edges; true field's predicted χ²/m
+      0.77–0.81 on the 12 mm flame), and in doing so allows for the model
+      error of uniform voxels at those edges: with ``"prior"`` the 16³
+      free fit of the standard flame (χ²/m of the true field 3.98) chases that
+      error, 18–20 % mean error at any λ rule, against 7.7 % with the bound.
+    * ``floor="prior"``: the posterior mean of the pixel's variance with a
+      scaled-inverse-χ² prior of scale ``floor`` worth one ray (conjugate
+      normal model, Gelman et al., *Bayesian Data Analysis*, 3rd ed., §3.3),
+      ``se² = (floor² + (R − 1) se_d²) / R``, ``R = rays_per_pixel``: the
+      Monte Carlo error as it is (true field's predicted χ²/m 0.92–1.06).
+      For models with little discretisation error (sub-voxel emission), with
+      the discrepancy rule's ``noise_scale="estimated"``: standard flame at
+      900 nm, 32³, 0.52 % / 3.4 % (README, *Reconstruction accuracy*).
 
-    Checked against the difference of two independent renders of the
+    Both checked against the difference of two independent renders of the
     standard flame (12 mm wide, and 3 mm, the phantom's default; truth grids
     24³–64³; 650 and 900 nm; 16–64 rays per pixel; pixels of étendue ≥ 20 %
-    of the peak; 1 % noise; ``studies/mc_noise_model.py``): the
-    true field's predicted χ²/m is 0.92–1.06.  The earlier ``max(se_d,
-    floor)`` gave 0.77–0.81 on the 12 mm flame: it overestimated the Monte
-    Carlo variance 7–9× in total (the floor acted on 72 % of the pixels), and
-    the discrepancy rule then
-    over-smoothed (32³ at 900 nm: λ 2.1e5 and 3.6 % mean error, against
-    1.1 % at a λ 8× smaller).  Pixels of low étendue (rim of the microlens
-    images) have Monte Carlo errors far above this model: leave them out
-    (``LightField.min_etendue_fraction = 0.2``).
+    of the peak; 1 % noise; ``studies/mc_noise_model.py``).  Pixels of low
+    étendue (rim of the microlens images) have Monte Carlo errors far above
+    this model: leave them out (``LightField.min_etendue_fraction = 0.2``).
 
     Parameters
     ----------
@@ -102,6 +111,8 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> 
         The noise-free render (``std_error`` set), raw (rows, cols) or (n_λ, rows, cols).
     weights_rays_per_pixel, rays_per_pixel : int
         Rays per pixel of the weight matrix and of the render.
+    floor : {"bound", "prior"}
+        How the floor enters (above).
 
     Returns
     -------
@@ -111,12 +122,14 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int) -> 
         raise ValueError("lf has no std_error (not a Monte Carlo render)")
     if weights_rays_per_pixel < 1 or rays_per_pixel < 1:
         raise ValueError(f"rays per pixel must be >= 1, got {rays_per_pixel!r} and {weights_rays_per_pixel!r}")
+    if floor not in MC_FLOORS:
+        raise ValueError(f"floor must be one of {MC_FLOORS}, got {floor!r}")
     se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
-    floor = monte_carlo_floor(lf).reshape(lf.n_channels, -1)
-    # scaled-inverse-χ² posterior of the pixel's variance: the render's own
-    # sample variance (rays_per_pixel − 1 degrees of freedom) and the floor
-    # as a prior worth one ray
-    out = np.sqrt((floor**2 + (rays_per_pixel - 1) * se**2) / rays_per_pixel)
+    fl = monte_carlo_floor(lf).reshape(lf.n_channels, -1)
+    if floor == "bound":
+        out = np.maximum(se, fl)
+    else:  # scaled-inverse-χ² posterior: the render's sample variance (R − 1 dof), the floor a prior worth one ray
+        out = np.sqrt((fl**2 + (rays_per_pixel - 1) * se**2) / rays_per_pixel)
     out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
     return out.reshape(np.shape(lf.raw))
 
@@ -147,7 +160,7 @@ def monte_carlo_floor(lf) -> np.ndarray:
 
 
 def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_pixel: int,
-                           min_etendue_fraction: float | None = 0.2):
+                           min_etendue_fraction: float | None = 0.2, floor: str = "bound"):
     """The noisy light field with :func:`monte_carlo_std` added to its ``noise_std``.
 
     ``min_etendue_fraction`` (if not None) first replaces the decode's
@@ -162,6 +175,8 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
     rays_per_pixel, weights_rays_per_pixel : int
         Rays per pixel of the render and of the weight matrix.
     min_etendue_fraction : float or None
+    floor : {"bound", "prior"}
+        Passed to :func:`monte_carlo_std`.
 
     Returns
     -------
@@ -173,7 +188,8 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
             raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
         lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
         noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
-    mc = monte_carlo_std(lf, weights_rays_per_pixel=weights_rays_per_pixel, rays_per_pixel=rays_per_pixel)
+    mc = monte_carlo_std(lf, weights_rays_per_pixel=weights_rays_per_pixel, rays_per_pixel=rays_per_pixel,
+                         floor=floor)
     return dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2))
 
 

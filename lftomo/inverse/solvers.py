@@ -101,8 +101,8 @@ Candidate λ are multiples of it.
   on a ring grid most cells are dark and undetermined (24³: ν = 95 of 1536
   cells at 650 nm), and n/m sent λ 20× too high (900 nm, 24³: 5e4 against
   2.6e3).  For Monte Carlo data: their error model
-  (:func:`lftomo.inverse.compare.monte_carlo_std`) is right to a few per
-  cent, but with m ≫ ν, χ²/m changes by only ~ν/m ≈ 0.5 % between an under-
+  (:func:`lftomo.inverse.compare.monte_carlo_std`, ``floor="prior"``) is
+  right to a few per cent, but with m ≫ ν, χ²/m changes by only ~ν/m ≈ 0.5 % between an under-
   and an over-smoothed field (standard flame 32³ at 900 nm: 0.963 at λ 35,
   0.970 at 3.5e4, 1.0 only at 2e5, where the field is over-smoothed), so the
   given-σ target lands wherever the model's few per cent put it.
