@@ -363,8 +363,8 @@ def demo_settings(quick: bool = False, seed: int = 0) -> dict[str, Any]:
         "bounds_K": list(BOUNDS),
         "focal_stack_depths": list(FOCAL_DEPTHS),
         "compare_depths": list(COMPARE_DEPTHS),
-        "reconstruction": {"regularization": "auto", "rule": "discrepancy", "noise_scale": NOISE_SCALE, "prior": "gradient",
-                           "data": "subaperture", "method": "levenberg-marquardt"},
+        "reconstruction": {"regularization": "auto", "rule": "discrepancy", "noise_scale": NOISE_SCALE,
+                           "prior": "gradient", "data": "subaperture", "method": "levenberg-marquardt"},
         "posterior": {"basis": "ParametricFlame (6 parameters)", "grid": "reconstruction grid",
                       "n_walkers": 16, "burn": "n_steps // 4"},
     })

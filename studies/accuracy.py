@@ -27,8 +27,9 @@ import time
 import numpy as np
 
 import lftomo as lt
-from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
+from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 from lftomo.inverse.reconstruct import problem_on_grid
+from lftomo.inverse.solvers import NOISE_SCALES
 
 
 def main():
@@ -38,14 +39,14 @@ def main():
     ap.add_argument("--rays", type=int, default=64)
     ap.add_argument("--weight-rays", type=int, default=64)
     ap.add_argument("--noise", type=float, default=0.01)
-    ap.add_argument("--mc-floor", default="bound", choices=["bound", "prior"],
+    ap.add_argument("--mc-floor", default="bound", choices=MC_FLOORS,
                     help="Monte Carlo error floor (lftomo.inverse.compare.monte_carlo_std): bound (conservative, "
                          "allows for model error) or prior (the Monte Carlo error as it is)")
     ap.add_argument("--wavelength", type=float, default=650e-9)
     ap.add_argument("--draws", type=int, default=1)
     ap.add_argument("--rule", default="discrepancy")
     ap.add_argument("--prior", default="gradient")
-    ap.add_argument("--noise-scale", default="given", choices=["given", "estimated"],
+    ap.add_argument("--noise-scale", default="given", choices=NOISE_SCALES,
                     help="discrepancy rule: sigma as given, or its scale estimated from the residual")
     ap.add_argument("--regularization", default="auto")
     ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
@@ -98,8 +99,8 @@ def main():
     regs = [a.regularization] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for d, reg in ((d, reg) for d in range(a.draws) for reg in regs):
         noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
-        noisy = with_monte_carlo_noise(noisy, lf, floor=a.mc_floor, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
-                                       min_etendue_fraction=a.min_etendue)
+        noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+                                       min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
         m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
         t = time.perf_counter()
         opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}

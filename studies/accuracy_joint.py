@@ -47,7 +47,7 @@ import time
 import numpy as np
 
 import lftomo as lt
-from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
+from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 
 
 def main():
@@ -57,7 +57,7 @@ def main():
     ap.add_argument("--rays", type=int, default=32, help="rays per pixel of the truth render")
     ap.add_argument("--segment-rays", type=int, default=16, help="rays per pixel of the segment table")
     ap.add_argument("--noise", type=float, default=0.01, help="relative noise std per raw pixel")
-    ap.add_argument("--mc-floor", default="bound", choices=["bound", "prior"],
+    ap.add_argument("--mc-floor", default="bound", choices=MC_FLOORS,
                     help="Monte Carlo error floor (lftomo.inverse.compare.monte_carlo_std): bound (conservative, "
                          "allows for model error) or prior (the Monte Carlo error as it is)")
     ap.add_argument("--wavelengths", default="650e-9,800e-9")
@@ -114,8 +114,8 @@ def main():
     seg = lt.ray_segments(cam, quad, rays_per_pixel=a.segment_rays, seed=12, views=views, progress=False)
     sub = {"grid": coarse} if a.quadrature > 1 else {}
     noisy = lt.add_noise(lf, relative_std=a.noise, seed=a.seed)
-    noisy = with_monte_carlo_noise(noisy, lf, floor=a.mc_floor, rays_per_pixel=a.rays, weights_rays_per_pixel=a.segment_rays,
-                                   min_etendue_fraction=0.2)
+    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.segment_rays,
+                                   min_etendue_fraction=0.2, floor=a.mc_floor)
     ms = [lt.Measurement.from_lightfield(noisy, data="subaperture", channel=c, views=views) for c in range(len(wls))]
     t_setup = time.perf_counter() - t0
     print(f"grid {coarse.shape} (truth {fine.shape}); {len(views)} views, {ms[0].size} data per channel, "

@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 import lftomo as lt
-from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
+from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 
 
 def main():
@@ -44,7 +44,7 @@ def main():
     ap.add_argument("--rays", type=int, default=32)
     ap.add_argument("--weight-rays", type=int, default=32)
     ap.add_argument("--noise", type=float, default=0.01)
-    ap.add_argument("--mc-floor", default="bound", choices=["bound", "prior"],
+    ap.add_argument("--mc-floor", default="bound", choices=MC_FLOORS,
                     help="Monte Carlo error floor (lftomo.inverse.compare.monte_carlo_std): bound (conservative, "
                          "allows for model error) or prior (the Monte Carlo error as it is)")
     ap.add_argument("--draws", type=int, default=10)
@@ -108,7 +108,8 @@ def main():
     for d in range(a.draws):
         noisy = lt.add_noise(dataclasses.replace(lf, std_error=None), relative_std=a.noise, seed=300 + d)
         if not a.model_data:  # the Monte Carlo error of data and weights joins the noise
-            noisy = with_monte_carlo_noise(noisy, lf, floor=a.mc_floor, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays)
+            noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+                                           floor=a.mc_floor)
         m = lt.Measurement.from_lightfield(noisy, data="subaperture")
         t = time.perf_counter()
         if a.laplace_field:

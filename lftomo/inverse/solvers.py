@@ -971,6 +971,30 @@ def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, searc
     return best, target, scale_note + note
 
 
+def _linearised(f: dict, theta, args, lam, scale=None):
+    """The problem linearised at ``theta``: residuals ``rd0``, ``rr0``, the
+    Jacobian products ``Jd``, ``Jr``, the column scale ``D`` (identity when
+    ``scale`` is None) and the operator ``[Jd; √λ Jr] D`` for LSMR."""
+    rd0, Jd = jax.linearize(lambda t: f["data"](t, args), theta)
+    rr0, Jr = jax.linearize(lambda t: f["reg"](t, args), theta)
+    sq = jnp.sqrt(lam)
+    D = (lambda v: v) if scale is None else (lambda v: scale * v)
+    struct = jax.ShapeDtypeStruct(theta.shape, theta.dtype)
+    op = lx.FunctionLinearOperator(lambda v: (Jd(D(v)), sq * Jr(D(v))), struct)
+    return rd0, rr0, Jd, Jr, D, op
+
+
+def _influence_probes(op, Jd, D, zero, ls, probes):
+    """``(zᵀHz, ‖Hz‖²)`` for each probe ``z``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` (one LSMR solve each)."""
+
+    def quad(z):
+        x = lx.linear_solve(op, (z, zero), ls, throw=False).value
+        hz = Jd(D(x))
+        return jnp.vdot(z, hz), jnp.vdot(hz, hz)
+
+    return jax.lax.map(quad, probes)  # a loop: HostCSR has no batching rule
+
+
 @functools.lru_cache(maxsize=None)
 def _dof_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
     """Jitted Hutchinson samples of ``tr(2H − H²)``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ``, at ``theta`` (cached)."""
@@ -979,20 +1003,10 @@ def _dof_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
 
     @jax.jit
     def dof(theta, args, lam, scale, probes):
-        rr0, Jr = jax.linearize(lambda t: f["reg"](t, args), theta)
-        _, Jd = jax.linearize(lambda t: f["data"](t, args), theta)
-        sq = jnp.sqrt(lam)
-        struct = jax.ShapeDtypeStruct(theta.shape, theta.dtype)
         # columns scaled by D (tr H does not depend on it; LSMR converges faster)
-        op = lx.FunctionLinearOperator(lambda v: (Jd(scale * v), sq * Jr(scale * v)), struct)
-        zero = jnp.zeros_like(rr0)
-
-        def quad(z):  # zᵀ (2H − H²) z = 2 zᵀHz − ‖Hz‖²
-            x = lx.linear_solve(op, (z, zero), ls, throw=False).value
-            hz = Jd(scale * x)
-            return 2.0 * jnp.vdot(z, hz) - jnp.vdot(hz, hz)
-
-        return jax.lax.map(quad, probes)  # a loop: HostCSR has no batching rule
+        _, rr0, Jd, _, D, op = _linearised(f, theta, args, lam, scale)
+        zhz, hz2 = _influence_probes(op, Jd, D, jnp.zeros_like(rr0), ls, probes)
+        return 2.0 * zhz - hz2  # zᵀ (2H − H²) z
 
     return dof
 
@@ -1023,22 +1037,13 @@ def _gcv_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
 
     @jax.jit
     def gcv_eval(theta, args, lam, probes):
-        rd0, Jd = jax.linearize(lambda t: f["data"](t, args), theta)
-        rr0, Jr = jax.linearize(lambda t: f["reg"](t, args), theta)
+        rd0, rr0, Jd, Jr, D, op = _linearised(f, theta, args, lam)
         sq = jnp.sqrt(lam)
-        struct = jax.ShapeDtypeStruct(theta.shape, theta.dtype)
-        op = lx.FunctionLinearOperator(lambda v: (Jd(v), sq * Jr(v)), struct)
         delta = lx.linear_solve(op, (-rd0, -sq * rr0), ls, throw=False).value
         rd = rd0 + Jd(delta)
         rr = rr0 + Jr(delta)
-        zero = jnp.zeros_like(rr0)
-
-        def quad(z):  # zᵀ H z = zᵀ J (JᵀJ + λRᵀR)⁻¹ Jᵀ z
-            x = lx.linear_solve(op, (z, zero), ls, throw=False).value
-            return jnp.vdot(z, Jd(x))
-
-        tr = jnp.mean(jax.lax.map(quad, probes))  # a loop: HostCSR has no batching rule
-        return jnp.sum(rd * rd), jnp.sum(rr * rr), tr
+        zhz, _ = _influence_probes(op, Jd, D, jnp.zeros_like(rr0), ls, probes)  # zᵀ H z
+        return jnp.sum(rd * rd), jnp.sum(rr * rr), jnp.mean(zhz)
 
     return gcv_eval
 
