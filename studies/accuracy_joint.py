@@ -18,7 +18,9 @@ For reference the same data of the first channel are also inverted for T
 alone with σ_a known (the effective truth's), through ``W(σ_a)`` of the same
 segment table (λ by the discrepancy rule, with the noise scale estimated when
 ``--mc-floor prior``).
-The joint fit's own rule (largest λ with χ²/m ≤ 1) trusts σ as given.
+The joint fit's own rule is the largest λ with χ²/m ≤ 1 (``--noise-scale
+given``, σ trusted as given) or ≤ the estimated scale s² (``--noise-scale
+estimated``; the coarse start estimates it, the fine fit inherits it).
 
 ``--quadrature K`` turns on sub-voxel emission: the segment table is built on a
 grid ``K`` times finer than the reconstruction grid, and ``T`` and ``σ_a`` are
@@ -35,6 +37,7 @@ Usage::
 
     python studies/accuracy_joint.py [--n 8] [--refine 2] [--rays 32] [--segment-rays 16]
                                      [--quadrature 1] [--regularization auto|<float>[,<float>...]]
+                                     [--mc-floor bound|prior] [--noise-scale given|estimated]
                                      [--coarse-start NC | --start-npz file.npz] [--max-steps 100]
                                      [--json out.json] [--npz out.npz]
 """
@@ -48,6 +51,7 @@ import numpy as np
 
 import lftomo as lt
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
+from lftomo.inverse.solvers import NOISE_SCALES
 
 
 def main():
@@ -60,6 +64,9 @@ def main():
     ap.add_argument("--mc-floor", default="bound", choices=MC_FLOORS,
                     help="Monte Carlo error floor (lftomo.inverse.compare.monte_carlo_std): bound (conservative, "
                          "allows for model error) or prior (the Monte Carlo error as it is)")
+    ap.add_argument("--noise-scale", default="given", choices=NOISE_SCALES,
+                    help="the joint fit's discrepancy rule: sigma as given (target chi2/m = 1) or trusted up to a "
+                         "factor, estimated from the least-regularized fit (lt.reconstruct(..., noise_scale=...))")
     ap.add_argument("--wavelengths", default="650e-9,800e-9")
     ap.add_argument("--view-etendue", type=float, default=0.7,
                     help="use views whose median étendue is at least this fraction of the peak")
@@ -145,7 +152,7 @@ def main():
         quad_c = grid_c.refined(a.quadrature)
         seg_c = lt.ray_segments(cam, quad_c, rays_per_pixel=a.segment_rays, seed=12, views=views, progress=False)
         rec_c = lt.reconstruct(ms, seg_c, unknowns="T+sigma_a", max_steps=a.max_steps, symmetry=sym, prior=a.prior,
-                               **({"grid": grid_c} if a.quadrature > 1 else {}))
+                               noise_scale=a.noise_scale, **({"grid": grid_c} if a.quadrature > 1 else {}))
         start_opts = {"start": rec_c}  # the fine fit starts from it, and its λ search at its λ
         T_c = lt.interpolate_field(rec_c.T, grid_c, coarse)
         e_c = rel(T_c, T_true)
@@ -155,6 +162,11 @@ def main():
         print(f"coarse start {grid_c.shape}: lambda {rec_c.regularization:.3g} ({rec_c.lambda_rule}), "
               f"chi2/m {rec_c.chi2:.3f}; interpolated T {e_c.mean():.2%} mean, emitting "
               f"{coarse_info['emitting_T']:.2%}; {coarse_info['seconds']:.0f} s", flush=True)
+        coarse_info["lambda_path_errors"] = []
+        for (lam_k, chi2_k, _), T_k in zip(rec_c.details["lambda_path"], rec_c.details["lambda_path_T"]):
+            e_k = rel(lt.interpolate_field(T_k, grid_c, coarse), T_true)
+            coarse_info["lambda_path_errors"].append({"lambda": lam_k, "chi2": chi2_k, "T_mean_rel": float(e_k.mean())})
+            print(f"  coarse λ {lam_k:9.3g}: chi2/m {chi2_k:.5f}; T > 800 K {e_k.mean():.2%} / {e_k.max():.1%}")
     if a.start_npz:
         with np.load(a.start_npz, allow_pickle=False) as f:
             start_opts = {"T0": np.array(f["T"], dtype=np.float64), "sigma_a0": np.array(f["sigma_a"], dtype=np.float64)}
@@ -168,6 +180,8 @@ def main():
         t = time.perf_counter()
         opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
         opts["sigma_a_ridge"] = a.sigma_a_ridge
+        if reg == "auto":
+            opts["noise_scale"] = a.noise_scale
         rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps,
                              symmetry=sym, prior=a.prior, **opts, **sub, **start_opts)
         t_joint = time.perf_counter() - t
@@ -182,6 +196,7 @@ def main():
                       "sigma_a_mean_rel": float(es.mean()), "sigma_a_max_rel": float(es.max()),
                       "sigma_a_l1_rel": es_l1,
                       "lambda": rec.regularization, "rule": rec.lambda_rule, "chi2": rec.chi2,
+                      "chi2_target": rec.details["chi2_target"], "noise_scale": rec.details["noise_scale"],
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"]},
             "coarse_start": coarse_info,

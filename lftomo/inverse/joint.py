@@ -31,6 +31,14 @@ discrepancy principle (Morozov), the largest λ with ``χ²/m ≤ 1``: bracketed
 factors of 10 from λ = 10⁻² up to 10⁴ (each solve warm-started from the
 nearest λ solved), refined by two bisections in log λ.  ``rule="lcurve"``:
 the corner (largest curvature) of the L-curve of the solves at λ = 10⁻² … 10⁴.
+``noise_scale="estimated"`` (discrepancy rule only): σ is trusted up to a common
+factor, as in the T-only rule (:func:`lftomo.inverse.solvers.solve_temperature`):
+the target is ``χ²/m = s² = χ²_ref / (m − ν)``, ``χ²_ref`` the least χ²/m of the
+path's solves (in practice one of its first, least-regularized ones: the
+first, at 10⁻², often has not converged within ``max_steps``), ``ν = tr(2H − H²)``
+the residual degrees of freedom of the first solve (Hutchinson, 8 probes, one
+LSMR solve each); a coarse-to-fine ``start`` fitted the same way passes its
+``s²`` on.
 """
 
 from __future__ import annotations
@@ -45,6 +53,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 import scipy.sparse as sp
@@ -56,9 +65,11 @@ from .problem import LinearProblem
 from .reconstruct import Reconstruction
 from .regularizers import prior_operator, to_bcoo
 from .solvers import (
+    NOISE_SCALES,
     _baseline_start,
     _blackbody_np,
     _branch_corner,
+    _check_choice,
     _dblackbody_np,
     _Eval,
     _jacobi_scale,
@@ -166,6 +177,7 @@ def solve_temperature_absorption(
     linear_max_steps: int = 50,
     engine: str = "host",
     rule: str = "discrepancy",
+    noise_scale: str = "given",
     symmetry: Any = None,
     grid: Grid | None = None,
     start: Reconstruction | None = None,
@@ -197,6 +209,12 @@ def solve_temperature_absorption(
         How ``regularization="auto"`` chooses λ (module docstring).  When the
         noise σ is overestimated, χ²/m stays below 1 at every λ and the
         discrepancy rule takes its largest λ, 10⁴; ``lambda_rule`` says so.
+    noise_scale : {"given", "estimated"}
+        ``"given"`` (default): the discrepancy target is χ²/m = 1 (σ calibrated).
+        ``"estimated"``: σ known up to a common factor, the target the
+        estimated ``s²`` (module docstring); ``details["noise_scale"]`` holds
+        ``s2``, ``dof`` (ν), ``dof_se``, ``chi2_ref``, ``lambda_ref`` and
+        where it came from, ``details["chi2_target"]`` the target used.
     engine : {"host", "jax"}
         How the forward model and its exact derivatives are evaluated:
         ``"host"`` (default) builds the sparse Jacobians ``W(σ_a)`` and
@@ -264,6 +282,10 @@ def solve_temperature_absorption(
         raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
     if rule not in ("discrepancy", "lcurve"):
         raise ValueError(f"rule must be 'discrepancy' or 'lcurve' for the joint fit, got {rule!r}")
+    noise_scale = _check_choice("noise_scale", noise_scale, NOISE_SCALES)
+    if noise_scale == "estimated" and (rule != "discrepancy" or regularization != "auto"):
+        raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only, "
+                         f"got regularization={regularization!r}, rule={rule!r}")
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
@@ -438,19 +460,70 @@ def solve_temperature_absorption(
             obj_prev = obj
         return _Eval(lam, pv, data_sq / m_total, penalty_norm(pv), steps, bool(result == optx.RESULTS.successful), "")
 
+    def fit_dof(e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
+        """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their
+        standard error: Hutchinson's estimator with ``n_probes`` Rademacher
+        vectors, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` of the problem linearised at ``e``
+        (one Jacobi-scaled LSMR solve per probe), as the T-only rule's
+        (:func:`lftomo.inverse.solvers._fit_dof`)."""
+        args = {"theta_c": jnp.asarray(e.theta), "D": jnp.asarray(column_scale(np.asarray(e.theta), e.lam)),
+                "seg": seg, "lam": e.lam}
+        psi0 = jnp.zeros(2 * n_u)
+        r0, J = jax.linearize(lambda psi: scaled_residual(psi, args), psi0)
+        op = lx.FunctionLinearOperator(J, jax.ShapeDtypeStruct(psi0.shape, psi0.dtype))
+        ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
+        pad = jnp.zeros(r0.size - m_total)  # the prior's rows: H acts on the data only
+        q = []
+        for k, z in enumerate(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, m_total))):
+            bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe {k + 1}/{n_probes}")
+            z = jnp.asarray(z)
+            x = lx.linear_solve(op, jnp.concatenate([z, pad]), ls, throw=False).value
+            hz = J(x)[:m_total]
+            q.append(float(2.0 * jnp.vdot(z, hz) - jnp.vdot(hz, hz)))  # zᵀ(2H − H²)z
+        q = np.asarray(q)
+        return float(min(max(q.mean(), 0.0), 2 * n_u)), float(q.std(ddof=1) / math.sqrt(n_probes))
+
+    inherited = None  # the noise scale estimated by a coarse-to-fine start's own fit
+    if noise_scale == "estimated" and start is not None and isinstance(start.details, dict):
+        inherited = start.details.get("noise_scale")
+    if noise_scale == "estimated" and inherited is None:
+        lam_start = _LAMBDA_START  # the scale is estimated from this fit's own least-regularized solves
+
     n_seg = segments.n_segments
     show = progress if progress is not None else n_seg > PROGRESS_MIN_SEGMENTS
     bar = _progress(None, bool(show), "reconstruct T+σa", unit="step")
+    scale_info = None
+    target = 1.0  # χ²/m of the discrepancy rule
     try:
         evals = []  # every solve of the λ search, in the order solved
         if regularization == "auto":
-            # Morozov: the largest λ with χ²/m ≤ 1.  Bracket by factors of 10
-            # from λ = 1e-2, or from the λ of a coarse-to-fine ``start`` (warm
-            # starts from the nearest λ solved), then two bisections in log λ.
+            # Morozov: the largest λ with χ²/m ≤ target (1, or the estimated
+            # noise scale s²).  Bracket by factors of 10 from λ = 1e-2, or from
+            # the λ of a coarse-to-fine ``start`` (warm starts from the nearest
+            # λ solved), then two bisections in log λ.
+            if inherited is not None:
+                scale_info = {**inherited, "source": f"start's fit on {tuple(start.grid.shape)}"}
+                target = scale_info["s2"]
+
             def at(lam):
+                """Solve at ``lam``; whether its χ²/m meets the target (with
+                ``noise_scale="estimated"`` the target is re-estimated first)."""
+                nonlocal target, scale_info
                 near = min(evals, key=lambda e: abs(math.log(e.lam / lam)), default=None)
                 evals.append(solve(p if near is None else near.theta, lam))
-                return evals[-1].chi2
+                if noise_scale == "estimated" and inherited is None:
+                    # s² = χ²/(m − ν) of the least-regularized fit: the solve of
+                    # least χ² so far (the first, at 1e-2, is often not converged
+                    # within max_steps: χ²/m 0.9646 there against 0.9561 at 0.1,
+                    # 12³, 650 + 900 nm); ν of the first solve (ν falls with λ).
+                    if scale_info is None:
+                        dof, dof_se = fit_dof(evals[-1])
+                        scale_info = {"dof": dof, "dof_se": dof_se, "dof_lambda": evals[-1].lam}
+                    ref = min(evals, key=lambda e: e.chi2)
+                    s2 = ref.chi2 * m_total / (m_total - scale_info["dof"])
+                    scale_info.update(s2=s2, chi2_ref=ref.chi2, lambda_ref=ref.lam, source="this fit")
+                    target = s2
+                return evals[-1].chi2 <= target
 
             # The first solve is at a small λ, where the data move the fit
             # away from the (rough) start fastest; each larger λ is
@@ -464,14 +537,15 @@ def solve_temperature_absorption(
             if rule == "lcurve":
                 for k in range(round(math.log10(_LAMBDA_MAX / _LAMBDA_START)) + 1):  # λ = 1e-2 … 1e4
                     at(_LAMBDA_START * 10.0 ** k)
-            elif at(lam) <= 1.0:
-                while lam < _LAMBDA_MAX and at(min(lam * 10.0, _LAMBDA_MAX)) <= 1.0:
+            elif at(lam):
+                while lam < _LAMBDA_MAX and at(min(lam * 10.0, _LAMBDA_MAX)):
                     lam = min(lam * 10.0, _LAMBDA_MAX)  # a start's λ need not be a power of ten
             else:
-                while lam > _LAMBDA_MIN and at(max(lam / 10.0, _LAMBDA_MIN)) > 1.0:
+                while lam > _LAMBDA_MIN and not at(max(lam / 10.0, _LAMBDA_MIN)):
                     lam = max(lam / 10.0, _LAMBDA_MIN)
-            ok = sorted(e.lam for e in evals if e.chi2 <= 1.0)
-            bad = sorted(e.lam for e in evals if e.chi2 > 1.0)
+            ok = sorted(e.lam for e in evals if e.chi2 <= target)
+            bad = sorted(e.lam for e in evals if e.chi2 > target)
+            goal = "chi²/m ≤ 1" if scale_info is None else "chi²/m ≤ s²"
             if rule == "lcurve":
                 # Only solutions on the L-curve count (_branch_corner keeps
                 # them): a solve stopped at max_steps can be dominated.
@@ -485,12 +559,12 @@ def solve_temperature_absorption(
                 lo_l, hi_l = ok[-1], min(q for q in bad if q > ok[-1])
                 for _ in range(2):
                     mid = math.sqrt(lo_l * hi_l)
-                    if at(mid) <= 1.0:
+                    if at(mid):
                         lo_l = mid
                     else:
                         hi_l = mid
                 lam = lo_l
-                rule = (f"discrepancy (largest λ with chi²/m ≤ 1: factor-10 bracket from {lam_start:.3g}, "
+                rule = (f"discrepancy (largest λ with {goal}: factor-10 bracket from {lam_start:.3g}, "
                         "2 bisections in log λ)")
             elif ok:
                 # χ²/m ≤ 1 at every λ up to the cap: σ is overestimated (e.g. a
@@ -500,10 +574,15 @@ def solve_temperature_absorption(
                 # worse at 24³ with sub-voxel emission (21-23 % against 15.2 %),
                 # where no solve of the path had converged in 100 steps.
                 lam = ok[-1]
-                rule = f"discrepancy: chi²/m ≤ 1 up to the largest λ tried, {lam:.3g} (σ overestimated?)"
+                rule = f"discrepancy: {goal} up to the largest λ tried, {lam:.3g} (σ overestimated?)"
             else:
                 lam = bad[0]
-                rule = "discrepancy: chi²/m > 1 down to the smallest λ tried"
+                rule = f"discrepancy: chi²/m > {target:.5g} down to the smallest λ tried"
+            if scale_info is not None:
+                rule = (f"noise scale estimated ({scale_info['source']}): s² = chi²/(m − ν) = {scale_info['s2']:.5g} "
+                        f"(chi²/m {scale_info['chi2_ref']:.5g} at λ = {scale_info['lambda_ref']:.3g}, m = "
+                        f"{m_total}, ν = tr(2H − H²) = {scale_info['dof']:.4g} ± {scale_info['dof_se']:.2g} at "
+                        f"λ = {scale_info['dof_lambda']:.3g}, of {2 * n_u} unknowns); " + rule)
             best = next(e for e in evals if e.lam == lam)
         else:
             lam = float(regularization)
@@ -534,7 +613,8 @@ def solve_temperature_absorption(
         data_kind="subaperture",
         details={"lambda_path": [(e.lam, e.chi2, e.reg) for e in evals], "lambda_path_T": [f[0] for f in path_fields],
                  "lambda_path_sigma_a": [f[1] for f in path_fields], "wavelengths": wls, "alpha": alpha, "start": start_label,
-                 "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape)},
+                 "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape),
+                 "noise_scale": scale_info, "chi2_target": target},
         symmetry=ring,
         metadata={} if E is None else {"quadrature_grid": seg_grid.to_dict()},
     )

@@ -136,6 +136,51 @@ def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
         assert chi2_sq / sum(m.size for m in ms) == pytest.approx(path[k][1], rel=1e-9), (k, path[k])
 
 
+def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale():
+    """σ claimed at 3 × and at 1.15 × the noise: with ``noise_scale="estimated"`` the joint rule's
+    target is s² = χ²/(m − ν) of its least-regularized solve.  The fit at (σ·f, λ) is the fit at
+    (σ, λ·f²), so s²·f² and λ·f² must not depend on f: s²·f² to the path's own convergence (1e-3),
+    λ·f² to the search's resolution (two bisections of a factor 10: 10^0.25 = 1.78).  (Measured:
+    s²·f² 1.2575 for both, λ·f² 285 and 418; the given-σ rule takes the cap 1e4 for f = 3, λ·f²
+    9e4, the test below.)  A coarse-to-fine start passes its estimate on."""
+    out = {}
+    for f in (3.0, 1.15):
+        flame, ms, seg, kw = _blob_two_colour(f)
+        rec = reconstruct(ms, seg, noise_scale="estimated", **kw)
+        scale = rec.details["noise_scale"]
+        assert rec.lambda_rule.startswith("noise scale estimated (this fit)") and "largest λ with chi²/m ≤ s²" in \
+            rec.lambda_rule, rec.lambda_rule
+        n_unknowns = 2 * rec.symmetry.n_voxels
+        assert 0 < scale["dof"] <= n_unknowns and scale["lambda_ref"] <= 1.0, scale
+        path = rec.details["lambda_path"]
+        assert path[0][0] == 1e-2 and scale["chi2_ref"] == min(c for _, c, _ in path)
+        m = sum(mm.size for mm in ms)
+        assert scale["s2"] == pytest.approx(scale["chi2_ref"] * m / (m - scale["dof"]), rel=1e-12)
+        assert rec.details["chi2_target"] == scale["s2"]
+        # Morozov's rule against the estimated target: the largest λ solved with χ²/m ≤ s²
+        ok = [lam for lam, c, _ in path if c <= scale["s2"]]
+        assert rec.regularization == max(ok) and rec.chi2 <= scale["s2"], (rec.regularization, path)
+        assert all(c > scale["s2"] for lam, c, _ in path if lam > rec.regularization), path
+        out[f] = (scale["s2"] * f**2, rec.regularization * f**2)
+    assert out[3.0][0] == pytest.approx(out[1.15][0], rel=1e-3), out
+    assert 1 / 1.78 <= out[3.0][1] / out[1.15][1] <= 1.78, out
+    # coarse-to-fine: the fine fit takes the coarse fit's estimate and starts at its λ
+    grid = lt.Grid.from_dict(seg.metadata["grid"])
+    coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
+    seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
+    rec_c = reconstruct(ms, seg_c, noise_scale="estimated", **kw)
+    rec_s = reconstruct(ms, seg, start=rec_c, noise_scale="estimated", **kw)
+    assert rec_s.details["noise_scale"]["source"] == "start's fit on (2, 2, 2)"
+    assert rec_s.details["chi2_target"] == rec_c.details["noise_scale"]["s2"]
+    assert rec_s.details["lambda_path"][0][0] == rec_c.regularization
+    for bad, match in (({"rule": "lcurve"}, "noise_scale='estimated' applies to regularization='auto' with "
+                                            "rule='discrepancy' only"),
+                       ({"regularization": 1.0}, "noise_scale='estimated' applies"),
+                       ({"noise_scale": "guess"}, "noise_scale must be one of")):
+        with pytest.raises(ValueError, match=match):
+            reconstruct(ms, seg, **{"noise_scale": "estimated", **kw, **bad})
+
+
 def test_joint_lambda_rules_when_sigma_is_overestimated():
     """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ.  The discrepancy
     rule then stops at its largest λ, 1e4 (the most smoothed field), and says so; rule="lcurve" takes
