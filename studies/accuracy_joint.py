@@ -20,7 +20,8 @@ segment table (λ by the discrepancy rule, with the noise scale estimated when
 ``--mc-floor prior``).
 The joint fit's own rule is the largest λ with χ²/m ≤ 1 (``--noise-scale
 given``, σ trusted as given) or ≤ the estimated scale s² (``--noise-scale
-estimated``; the coarse start estimates it, the fine fit inherits it).
+estimated``; each fit estimates its own: the fine fit's search then begins
+two decades below the coarse start's λ).
 
 ``--quadrature K`` turns on sub-voxel emission: the segment table is built on a
 grid ``K`` times finer than the reconstruction grid, and ``T`` and ``σ_a`` are

@@ -142,13 +142,13 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     (σ, λ·f²), so s²·f² and λ·f² must not depend on f: s²·f² to the path's own convergence (1e-3),
     λ·f² to the search's resolution (two bisections of a factor 10: 10^0.25 = 1.78).  (Measured:
     s²·f² 1.2575 for both, λ·f² 285 and 418; the given-σ rule takes the cap 1e4 for f = 3, λ·f²
-    9e4, the test below.)  A coarse-to-fine start passes its estimate on."""
+    9e4, the test below.)  With a coarse-to-fine start the search begins two decades below its λ."""
     out = {}
     for f in (3.0, 1.15):
         flame, ms, seg, kw = _blob_two_colour(f)
         rec = reconstruct(ms, seg, noise_scale="estimated", **kw)
         scale = rec.details["noise_scale"]
-        assert rec.lambda_rule.startswith("noise scale estimated (this fit)") and "largest λ with chi²/m ≤ s²" in \
+        assert rec.lambda_rule.startswith("noise scale estimated: s²") and "largest λ with chi²/m ≤ s²" in \
             rec.lambda_rule, rec.lambda_rule
         n_unknowns = 2 * rec.symmetry.n_voxels
         assert 0 < scale["dof"] <= n_unknowns and scale["lambda_ref"] <= 1.0, scale
@@ -164,15 +164,14 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
         out[f] = (scale["s2"] * f**2, rec.regularization * f**2)
     assert out[3.0][0] == pytest.approx(out[1.15][0], rel=1e-3), out
     assert 1 / 1.78 <= out[3.0][1] / out[1.15][1] <= 1.78, out
-    # coarse-to-fine: the fine fit takes the coarse fit's estimate and starts at its λ
+    # coarse-to-fine: the fine fit estimates its own s², from two decades below the start's λ
     grid = lt.Grid.from_dict(seg.metadata["grid"])
     coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
     seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
-    rec_c = reconstruct(ms, seg_c, noise_scale="estimated", **kw)
+    rec_c = reconstruct(ms, seg_c, regularization=3e3, **kw)
     rec_s = reconstruct(ms, seg, start=rec_c, noise_scale="estimated", **kw)
-    assert rec_s.details["noise_scale"]["source"] == "start's fit on (2, 2, 2)"
-    assert rec_s.details["chi2_target"] == rec_c.details["noise_scale"]["s2"]
-    assert rec_s.details["lambda_path"][0][0] == rec_c.regularization
+    assert rec_s.details["lambda_path"][0][0] == pytest.approx(30.0, rel=1e-12)
+    assert rec_s.details["noise_scale"]["dof_lambda"] == pytest.approx(30.0, rel=1e-12)
     for bad, match in (({"rule": "lcurve"}, "noise_scale='estimated' applies to regularization='auto' with "
                                             "rule='discrepancy' only"),
                        ({"regularization": 1.0}, "noise_scale='estimated' applies"),
