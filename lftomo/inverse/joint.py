@@ -329,6 +329,9 @@ def solve_temperature_absorption(
     else:
         seg = segments.to_jax()
     m_total = sum(m.y.size for m in ms)
+    if noise_scale == "estimated" and m_total <= 2 * n_u:
+        raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m_total} data for "
+                         f"{2 * n_u} unknowns")
 
     def model_signal(seg_, Ib, sa):
         return host_F(Ib, sa) if seg_ is None else seg_.forward(Ib, sa)
