@@ -72,6 +72,7 @@ from .solvers import (
     _check_choice,
     _dblackbody_np,
     _Eval,
+    _influence_probes,
     _jacobi_scale,
     _make_setup,
     _nl_solver,
@@ -473,17 +474,17 @@ def solve_temperature_absorption(
                 "seg": seg, "lam": e.lam}
         psi0 = jnp.zeros(2 * n_u)
         r0, J = jax.linearize(lambda psi: scaled_residual(psi, args), psi0)
-        op = lx.FunctionLinearOperator(J, jax.ShapeDtypeStruct(psi0.shape, psi0.dtype))
+
+        def split(r):
+            return r[:m_total], r[m_total:]  # data rows (H acts on them), prior rows
+
+        op = lx.FunctionLinearOperator(lambda v: split(J(v)), jax.ShapeDtypeStruct(psi0.shape, psi0.dtype))
         ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
-        pad = jnp.zeros(r0.size - m_total)  # the prior's rows: H acts on the data only
-        q = []
-        for k, z in enumerate(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, m_total))):
-            bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe {k + 1}/{n_probes}")
-            z = jnp.asarray(z)
-            x = lx.linear_solve(op, jnp.concatenate([z, pad]), ls, throw=False).value
-            hz = J(x)[:m_total]
-            q.append(float(2.0 * jnp.vdot(z, hz) - jnp.vdot(hz, hz)))  # zᵀ(2H − H²)z
-        q = np.asarray(q)
+        bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: {n_probes} probes")
+        probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, m_total)))
+        zhz, hz2 = _influence_probes(op, lambda x: split(J(x))[0], lambda v: v, jnp.zeros(r0.size - m_total), ls,
+                                     probes)
+        q = 2.0 * np.asarray(zhz, dtype=float) - np.asarray(hz2, dtype=float)  # zᵀ(2H − H²)z
         return float(min(max(q.mean(), 0.0), 2 * n_u)), float(q.std(ddof=1) / math.sqrt(n_probes))
 
     if noise_scale == "estimated" and start is not None:
