@@ -147,13 +147,17 @@ def main():
     print(f"T only (sigma_a known), channel 1: T {eO.mean():.2%} mean / {eO.max():.1%} max, "
           f"lambda {only.regularization:.3g}, {t_only:.0f} s", flush=True)
     start_opts, coarse_info = {}, None
+    # σ_a's prior terms, the same for the coarse start and the fit
+    prior_opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
+    prior_opts["sigma_a_ridge"] = a.sigma_a_ridge
     if a.coarse_start:
         t = time.perf_counter()
         grid_c = lt.phantoms.default_flame_grid((a.coarse_start,) * 3)
         quad_c = grid_c.refined(a.quadrature)
         seg_c = lt.ray_segments(cam, quad_c, rays_per_pixel=a.segment_rays, seed=12, views=views, progress=False)
         rec_c = lt.reconstruct(ms, seg_c, unknowns="T+sigma_a", max_steps=a.max_steps, symmetry=sym, prior=a.prior,
-                               noise_scale=a.noise_scale, **({"grid": grid_c} if a.quadrature > 1 else {}))
+                               noise_scale=a.noise_scale, **prior_opts,
+                               **({"grid": grid_c} if a.quadrature > 1 else {}))
         start_opts = {"start": rec_c}  # the fine fit starts from it, and its λ search at its λ
         T_c = lt.interpolate_field(rec_c.T, grid_c, coarse)
         e_c = rel(T_c, T_true)
@@ -179,8 +183,7 @@ def main():
     regs = ["auto"] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for reg in regs:
         t = time.perf_counter()
-        opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
-        opts["sigma_a_ridge"] = a.sigma_a_ridge
+        opts = dict(prior_opts)
         if reg == "auto":
             opts["noise_scale"] = a.noise_scale
         rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps,
@@ -199,7 +202,8 @@ def main():
                       "lambda": rec.regularization, "rule": rec.lambda_rule, "chi2": rec.chi2,
                       "chi2_target": rec.details["chi2_target"], "noise_scale": rec.details["noise_scale"],
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
-                      "lambda_path": rec.details["lambda_path"], "start": rec.details["start"]},
+                      "lambda_path": rec.details["lambda_path"], "start": rec.details["start"],
+                      "sigma_a_scale": a.sigma_a_scale or None, "sigma_a_ridge": a.sigma_a_ridge},
             "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
             "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),
