@@ -203,7 +203,7 @@ def main():
                       "chi2_target": rec.details["chi2_target"], "noise_scale": rec.details["noise_scale"],
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"],
-                      "sigma_a_scale": a.sigma_a_scale or None, "sigma_a_ridge": a.sigma_a_ridge},
+                      "sigma_a_scale": prior_opts.get("sigma_a_scale"), "sigma_a_ridge": prior_opts["sigma_a_ridge"]},
             "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
             "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),
