@@ -480,10 +480,14 @@ def solve_temperature_absorption(
 
         op = lx.FunctionLinearOperator(lambda v: split(J(v)), jax.ShapeDtypeStruct(psi0.shape, psi0.dtype))
         ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
-        bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: {n_probes} probes")
+        bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe 1/{n_probes}")
         probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, m_total)))
+
+        def on_probe(k):
+            if k < n_probes:
+                bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe {k + 1}/{n_probes}")
         zhz, hz2 = _influence_probes(op, lambda x: split(J(x))[0], lambda v: v, jnp.zeros(r0.size - m_total), ls,
-                                     probes)
+                                     probes, on_probe=on_probe)
         q = 2.0 * np.asarray(zhz, dtype=float) - np.asarray(hz2, dtype=float)  # zᵀ(2H − H²)z
         return float(min(max(q.mean(), 0.0), 2 * n_u)), float(q.std(ddof=1) / math.sqrt(n_probes))
 

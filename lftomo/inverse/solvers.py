@@ -984,15 +984,25 @@ def _linearised(f: dict, theta, args, lam, scale=None):
     return rd0, rr0, Jd, Jr, D, op
 
 
-def _influence_probes(op, Jd, D, zero, ls, probes):
-    """``(zᵀHz, ‖Hz‖²)`` for each probe ``z``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` (one LSMR solve each)."""
+def _influence_probes(op, Jd, D, zero, ls, probes, on_probe=None):
+    """``(zᵀHz, ‖Hz‖²)`` for each probe ``z``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` (one LSMR solve each).
 
-    def quad(z):
+    ``on_probe``, if given, is called on the host with the number of probes
+    done (1, 2, …) after each solve: progress for a slow step.  Leave it
+    ``None`` inside a cached jitted function (the T-only rule's).
+    """
+
+    def quad(kz):
+        k, z = kz
         x = lx.linear_solve(op, (z, zero), ls, throw=False).value
         hz = Jd(D(x))
-        return jnp.vdot(z, hz), jnp.vdot(hz, hz)
+        out = jnp.vdot(z, hz), jnp.vdot(hz, hz)
+        if on_probe is not None:
+            # ordered: the calls follow the loop; the result feeds it so it runs after the solve
+            jax.debug.callback(lambda k_, _: on_probe(int(k_) + 1), k, out[0], ordered=True)
+        return out
 
-    return jax.lax.map(quad, probes)  # a loop: HostCSR has no batching rule
+    return jax.lax.map(quad, (jnp.arange(probes.shape[0]), probes))  # a loop: HostCSR has no batching rule
 
 
 @functools.lru_cache(maxsize=None)

@@ -568,3 +568,30 @@ def test_fit_dof_matches_the_dense_trace():
         exact = float(np.trace(2 * H - H @ H))
         assert 0 < se < 0.1 * exact
         assert abs(est - exact) <= 3 * se, (f, est, se, exact)
+
+
+def test_influence_probes_are_exact_and_report_progress():
+    """zᵀHz and ‖Hz‖² of each probe against the dense H = J (JᵀJ + RᵀR)⁻¹ Jᵀ, and one
+    progress call per probe, in order, with the number of probes done."""
+    import jax
+    import jax.numpy as jnp
+    import lineax as lx
+
+    from lftomo.inverse.solvers import _influence_probes
+
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(30, 8))
+    R = 0.7 * np.eye(8) + 0.1 * rng.normal(size=(8, 8))
+    Jj, Rj = jnp.asarray(J), jnp.asarray(R)
+    op = lx.FunctionLinearOperator(lambda v: (Jj @ v, Rj @ v), jnp.zeros(8))
+    probes = rng.choice([-1.0, 1.0], size=(5, 30))
+    done = []
+    ls = lx.LSMR(rtol=1e-10, atol=1e-10, max_steps=200)
+    zhz, hz2 = _influence_probes(op, lambda x: Jj @ x, lambda v: v, jnp.zeros(8), ls, jnp.asarray(probes),
+                                 on_probe=done.append)
+    H = J @ np.linalg.solve(J.T @ J + R.T @ R, J.T)
+    Hz = probes @ H.T
+    np.testing.assert_allclose(np.asarray(zhz), np.einsum("ij,ij->i", probes, Hz), rtol=1e-7)
+    np.testing.assert_allclose(np.asarray(hz2), np.einsum("ij,ij->i", Hz, Hz), rtol=1e-7)
+    jax.effects_barrier()
+    assert done == [1, 2, 3, 4, 5]
