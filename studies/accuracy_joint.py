@@ -79,6 +79,8 @@ def main():
                     help="weight of the zeroth-order (ridge) prior term on sigma_a, relative to the smoothness term")
     ap.add_argument("--sigma-a-scale", type=float, default=0.0,
                     help="scale (1/m) of sigma_a in its prior term (0: the solver's default)")
+    ap.add_argument("--lambda-max", type=float, default=0.0,
+                    help="largest lambda the joint 'auto' search tries (0: the solver's default, 1e4)")
     ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
                     help="axisymmetric: fit ring cells about the box's vertical axis (lt.ring_grid)")
     ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian", "curvature"])
@@ -150,6 +152,8 @@ def main():
     # σ_a's prior terms, the same for the coarse start and the fit
     prior_opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
     prior_opts["sigma_a_ridge"] = a.sigma_a_ridge
+    if a.lambda_max > 0:
+        prior_opts["lambda_max"] = a.lambda_max
     if a.coarse_start:
         t = time.perf_counter()
         grid_c = lt.phantoms.default_flame_grid((a.coarse_start,) * 3)
@@ -203,7 +207,8 @@ def main():
                       "chi2_target": rec.details["chi2_target"], "noise_scale": rec.details["noise_scale"],
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"],
-                      "sigma_a_scale": prior_opts.get("sigma_a_scale"), "sigma_a_ridge": prior_opts["sigma_a_ridge"]},
+                      "sigma_a_scale": prior_opts.get("sigma_a_scale"), "sigma_a_ridge": prior_opts["sigma_a_ridge"],
+                      "lambda_max": prior_opts.get("lambda_max")},
             "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
             "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),

@@ -171,6 +171,7 @@ def solve_temperature_absorption(
     sigma_a_scale: float | None = None,
     sigma_a_ridge: float = 0.0,
     sigma_a0: Any = None,
+    lambda_max: float = _LAMBDA_MAX,
     max_steps: int = 100,
     rtol: float = 1e-6,
     atol: float = 1e-6,
@@ -205,11 +206,17 @@ def solve_temperature_absorption(
     sigma_a0 : ndarray of shape grid.shape, optional
         Initial ``σ_a`` at the first wavelength (m⁻¹); default from the same
         two-colour start.
+    lambda_max : float
+        Largest λ the ``"auto"`` search tries (default 1e4; the L-curve path
+        runs from 1e-2 to it).  With a large ``sigma_a_scale`` (σₐ's curvature
+        cheap) χ²/m can stay below the target up to 1e4 (measured: 650 + 900 nm,
+        24³, scale 2000 m⁻¹, ``noise_scale="estimated"``); a larger cap lets the
+        discrepancy rule find its λ instead of stopping at the cap.
 
     rule : {"discrepancy", "lcurve"}
         How ``regularization="auto"`` chooses λ (module docstring).  When the
         noise σ is overestimated, χ²/m stays below 1 at every λ and the
-        discrepancy rule takes its largest λ, 10⁴; ``lambda_rule`` says so.
+        discrepancy rule takes its largest λ, ``lambda_max``; ``lambda_rule`` says so.
     noise_scale : {"given", "estimated"}
         ``"given"`` (default): the discrepancy target is χ²/m = 1 (σ calibrated).
         ``"estimated"``: σ known up to a common factor, the target the
@@ -290,6 +297,9 @@ def solve_temperature_absorption(
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+    lam_max = float(lambda_max)
+    if not (math.isfinite(lam_max) and lam_max >= _LAMBDA_START):
+        raise ValueError(f"lambda_max must be a finite number >= {_LAMBDA_START:g}, got {lambda_max!r}")
     if not (sigma_a_max > 0):
         raise ValueError(f"sigma_a_max must be > 0, got {sigma_a_max!r}")
     s_scale = float(sigma_a_max if sigma_a_scale is None else sigma_a_scale)
@@ -382,7 +392,7 @@ def solve_temperature_absorption(
         T0 = interpolate_field(start.T, start.grid, grid)  # raises if start's grid is finer than grid
         sigma_a0 = interpolate_field(start.sigma_a, start.grid, grid)
         if start.regularization > 0:
-            lam_start = min(max(float(start.regularization), _LAMBDA_MIN), _LAMBDA_MAX)
+            lam_start = min(max(float(start.regularization), _LAMBDA_MIN), lam_max)
         start_label = f"interpolated from a fit on {tuple(start.grid.shape)} (λ {start.regularization:.3g})"
     if T0 is None or sigma_a0 is None:
         if isinstance(T0, str) or isinstance(sigma_a0, str):
@@ -542,11 +552,11 @@ def solve_temperature_absorption(
             # end of the path).
             lam = lam_start
             if rule == "lcurve":
-                for k in range(round(math.log10(_LAMBDA_MAX / _LAMBDA_START)) + 1):  # λ = 1e-2 … 1e4
+                for k in range(round(math.log10(lam_max / _LAMBDA_START)) + 1):  # λ = 1e-2 … lambda_max
                     at(_LAMBDA_START * 10.0 ** k)
             elif at(lam):
-                while lam < _LAMBDA_MAX and at(min(lam * 10.0, _LAMBDA_MAX)):
-                    lam = min(lam * 10.0, _LAMBDA_MAX)  # a start's λ need not be a power of ten
+                while lam < lam_max and at(min(lam * 10.0, lam_max)):
+                    lam = min(lam * 10.0, lam_max)  # a start's λ need not be a power of ten
             else:
                 while lam > _LAMBDA_MIN and not at(max(lam / 10.0, _LAMBDA_MIN)):
                     lam = max(lam / 10.0, _LAMBDA_MIN)
@@ -561,7 +571,7 @@ def solve_temperature_absorption(
                 lam = (ok[-1] if ok else bad[0]) if found is None else found[0].lam
                 rule = ("lcurve: " + (found[1] if found is not None else "too few solutions on the L-curve "
                                       "for a curvature: discrepancy") + f" ({len(front)} of {len(evals)} solves "
-                        "on the L-curve, λ = 1e-2 … 1e4)")
+                        f"on the L-curve, λ = 1e-2 … {lam_max:.3g})")
             elif ok and bad and bad[-1] > ok[-1]:
                 lo_l, hi_l = ok[-1], min(q for q in bad if q > ok[-1])
                 for _ in range(2):

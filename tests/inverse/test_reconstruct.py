@@ -223,6 +223,13 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     np.testing.assert_allclose(rec_s.details["T_start"], lt.interpolate_field(rec_c.T, coarse, grid))
     objective = [r.chi2 * sum(m.size for m in ms) + 1e4 * r.regularization_norm ** 2 for r in (rec_s, rec)]
     assert objective[0] == pytest.approx(objective[1], rel=1e-3), objective
+    # a higher cap (lambda_max) lets the factor-10 steps go on past 1e4, and the rule names it
+    rec_m = reconstruct(ms, seg, start=rec_c, lambda_max=1e5, **kw)
+    assert np.allclose([p[0] for p in rec_m.details["lambda_path"]], [3e3, 3e4, 1e5], rtol=1e-12, atol=0)
+    assert rec_m.regularization == 1e5 and "largest λ tried, 1e+05" in rec_m.lambda_rule, rec_m.lambda_rule
+    for bad in (0.0, 1e-3, math.inf, math.nan):
+        with pytest.raises(ValueError, match="lambda_max must be a finite number >= 0.01"):
+            reconstruct(ms, seg, lambda_max=bad, **kw)
     with pytest.raises(ValueError, match="either start or T0"):
         reconstruct(ms, seg, start=rec_c, T0=rec.T, **kw)
     with pytest.raises(ValueError, match="start must be a Reconstruction with unknowns='T\\+sigma_a'"):
