@@ -552,8 +552,13 @@ def solve_temperature_absorption(
             # end of the path).
             lam = lam_start
             if rule == "lcurve":
-                for k in range(round(math.log10(lam_max / _LAMBDA_START)) + 1):  # λ = 1e-2 … lambda_max
-                    at(_LAMBDA_START * 10.0 ** k)
+                # λ = 1e-2, 1e-1, … up to lambda_max, and lambda_max itself when it is not a power of ten
+                n_dec = math.floor(math.log10(lam_max / _LAMBDA_START) + 1e-9)
+                path = [_LAMBDA_START * 10.0 ** k for k in range(n_dec + 1)]
+                if path[-1] < lam_max * (1.0 - 1e-9):
+                    path.append(lam_max)
+                for q in path:
+                    at(q)
             elif at(lam):
                 while lam < lam_max and at(min(lam * 10.0, lam_max)):
                     lam = min(lam * 10.0, lam_max)  # a start's λ need not be a power of ten

@@ -199,10 +199,13 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     R_s = L @ (rec.symmetry.project(rec.sigma_a).ravel() / 200.0)  # σ_a scale: the default sigma_a_max
     assert rec.regularization_norm == pytest.approx(math.hypot(np.linalg.norm(R_T), np.linalg.norm(R_s)), rel=1e-9)
     assert rec.regularization_norm == path[-1][2]
-    lc = reconstruct(ms, seg, rule="lcurve", **kw)
+    # the L-curve path runs over the decades up to lambda_max and ends at lambda_max itself when that
+    # is not a power of ten
+    lc = reconstruct(ms, seg, rule="lcurve", lambda_max=3e4, **kw)
     assert lc.lambda_rule.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_rule
+    assert "λ = 1e-2 … 3e+04" in lc.lambda_rule, lc.lambda_rule
     lams = [p[0] for p in lc.details["lambda_path"]]
-    assert np.allclose(lams, [10.0 ** k for k in range(-2, 5)], rtol=1e-12, atol=0)
+    assert np.allclose(lams, [10.0 ** k for k in range(-2, 5)] + [3e4], rtol=1e-12, atol=0), lams
     assert all(c < 0.5 for _, c, _ in lc.details["lambda_path"])
     k = lams.index(lc.regularization)
     np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
