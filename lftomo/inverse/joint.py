@@ -562,13 +562,11 @@ def solve_temperature_absorption(
             # end of the path).
             lam = lam_start
             if rule == "lcurve":
-                # λ = 1e-2, 1e-1, … up to lambda_max, and lambda_max itself when it is not a power of ten
-                n_dec = math.floor(math.log10(lam_max / _LAMBDA_START) + 1e-9)
-                path = [_LAMBDA_START * 10.0 ** k for k in range(n_dec + 1)]
-                if path[-1] < lam_max * (1.0 - 1e-9):
-                    path.append(lam_max)
-                for q in path:
+                q = _LAMBDA_START  # λ = 1e-2, 1e-1, … below lambda_max, then lambda_max itself
+                while q < lam_max * (1.0 - 1e-9):
                     at(q)
+                    q *= 10.0
+                at(lam_max)
             elif at(lam):
                 while lam < lam_max and at(min(lam * 10.0, lam_max)):
                     lam = min(lam * 10.0, lam_max)  # a start's λ need not be a power of ten
