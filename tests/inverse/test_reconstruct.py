@@ -136,6 +136,35 @@ def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
         assert chi2_sq / sum(m.size for m in ms) == pytest.approx(path[k][1], rel=1e-9), (k, path[k])
 
 
+def test_joint_polish_continues_the_chosen_solve_exactly():
+    """``polish_steps`` continues the chosen λ's solve.  The chunks of Jacobi-scaled steps carry no
+    state, so 10 steps plus a 20-step polish must be the 30-step solve (measured: equal to the last
+    bit; 1e-9 allows for rounding), at the same λ, and ``details["polish"]`` must hold the 10-step
+    fit it started from.  The 10-step solve is far from converged here (χ²/m 255 against 1.20
+    after 30 steps), so the polish must lower the objective."""
+    flame, ms, seg, kw = _blob_two_colour(1.15)
+    lam = 1e3
+    short = reconstruct(ms, seg, regularization=lam, max_steps=10, **kw)
+    polished = reconstruct(ms, seg, regularization=lam, max_steps=10, polish_steps=20, **kw)
+    long = reconstruct(ms, seg, regularization=lam, max_steps=30, **kw)
+    assert not short.converged and short.details["polish"] is None
+    pol = polished.details["polish"]
+    np.testing.assert_allclose(pol["T_before"], short.T, rtol=1e-12)
+    np.testing.assert_allclose(pol["sigma_a_before"], short.sigma_a, rtol=1e-12)
+    assert pol["chi2_before"] == short.chi2 and pol["steps"] == 20
+    np.testing.assert_allclose(polished.T, long.T, rtol=1e-9)
+    np.testing.assert_allclose(polished.sigma_a, long.sigma_a, rtol=1e-9)
+    assert polished.chi2 == pytest.approx(long.chi2, rel=1e-9) and pol["chi2_after"] == polished.chi2
+    assert polished.iterations == long.iterations == 30 and polished.regularization == lam
+    assert polished.lambda_rule == "fixed; then polished at that λ: 20 more steps", polished.lambda_rule
+    m = sum(mm.size for mm in ms)
+    objective = [m * r.chi2 + lam * r.regularization_norm ** 2 for r in (short, polished)]
+    assert objective[1] < objective[0], objective
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="polish_steps must be an integer >= 0"):
+            reconstruct(ms, seg, regularization=lam, max_steps=10, polish_steps=bad, **kw)
+
+
 def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale():
     """σ claimed at 3 × and at 1.15 × the noise: with ``noise_scale="estimated"`` the joint rule's
     target is s² = χ²/(m − ν) of its least-regularized solve.  The fit at (σ·f, λ) is the fit at
