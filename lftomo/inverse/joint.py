@@ -232,11 +232,12 @@ def solve_temperature_absorption(
         10 steps.  λ is not re-chosen.  The chunks of Jacobi-scaled steps carry
         no state from one to the next, so this is the solve that
         ``max_steps + polish_steps`` steps would have made, spent on the chosen
-        λ only.  At 24³ the search's solves stop unconverged at 100 steps, and
-        the error keeps falling well after the misfit settles: with 650 +
-        900 nm, σₐ scale 2000 m⁻¹ and the rule's λ 3.16·10⁴, T above 800 K went
-        from 3.48 % to 2.97 % after 600 more steps (about 4–6 s a step on
-        2 cores; README, *Reconstruction accuracy*).
+        λ only.  At 24³ the search's solves stop unconverged at 100 steps
+        (650 + 900 nm, σₐ scale 2000 m⁻¹, the rule's λ 3.16·10⁴): 600 more
+        steps took T above 800 K from 3.48 % to 2.97 %, 1000 more to 2.25 %,
+        but the emitting core then got worse (1.1 % → 1.8 %) and χ²/m rose past
+        the rule's target, so a long polish over-regularizes relative to the
+        rule (README, *Reconstruction accuracy*; 4–7 s a step on 2 cores).
         ``details["polish"]`` records the steps, χ²/m and ‖R‖ before and after,
         and the fields before (``T_before``, ``sigma_a_before``).
 
@@ -539,6 +540,10 @@ def solve_temperature_absorption(
         # after 40 steps at the same λ)
         lam_start = max(lam_start * 1e-2, _LAMBDA_MIN)
 
+    def fields(theta):
+        """``T`` and ``σ_ref`` on ``grid`` from the unknowns ``theta``."""
+        return tuple(np.asarray(on_voxels(x)).reshape(grid.shape) for x in unpack(jnp.asarray(theta)))
+
     n_seg = segments.n_segments
     show = progress if progress is not None else n_seg > PROGRESS_MIN_SEGMENTS
     bar = _progress(None, bool(show), "reconstruct T+σa", unit="step")
@@ -640,26 +645,20 @@ def solve_temperature_absorption(
                 raise ValueError(f"regularization must be 'auto' or a number >= 0, got {regularization!r}")
             best = solve(p, lam)
             rule = "fixed"
-        polish, theta_before = None, None
+        polish = None
         if polish_steps > 0 and not best.converged:
             # continue the chosen λ's solve: λ is settled, its fields were still moving when the search stopped
             more = solve(best.theta, lam, int(polish_steps))
+            T_before, s_before = fields(best.theta)
             polish = {"steps": more.steps, "converged": more.converged, "chi2_before": best.chi2,
-                      "reg_before": best.reg, "chi2_after": more.chi2, "reg_after": more.reg}
+                      "reg_before": best.reg, "chi2_after": more.chi2, "reg_after": more.reg,
+                      "T_before": T_before, "sigma_a_before": s_before}
             rule += f"; then polished at that λ: {more.steps} more steps"
-            theta_before = best.theta
             best = _Eval(lam, more.theta, more.chi2, more.reg, best.steps + more.steps, more.converged, "")
     finally:
         bar.close()
-
-    def fields(theta):
-        """``T`` and ``σ_ref`` on ``grid`` from the unknowns ``theta``."""
-        return tuple(np.asarray(on_voxels(x)).reshape(grid.shape) for x in unpack(jnp.asarray(theta)))
     path_fields = [fields(e.theta) for e in evals]
-    if polish is not None:
-        polish["T_before"], polish["sigma_a_before"] = fields(theta_before)
-    T, sref = unpack(jnp.asarray(best.theta))
-    T, sref = np.asarray(on_voxels(T)), np.asarray(on_voxels(sref))
+    T, sref = fields(best.theta)
     if ring is not None:
         T_init, s_init = ring.expand(T_init), ring.expand(s_init)
     return Reconstruction(
