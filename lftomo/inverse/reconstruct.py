@@ -194,7 +194,10 @@ def reconstruct(
     prior : {"gradient", "laplacian", "tv", "curvature"}
     bounds : (T_min, T_max)
         Temperature bounds (K), enforced by parameterisation.
-    method : {"levenberg-marquardt", "gauss-newton"}
+    method : {"levenberg-marquardt", "gauss-newton"}, or "dense-lm" for "T+sigma_a"
+        optimistix's matrix-free solvers; ``"dense-lm"``: Levenberg–Marquardt on
+        exact dense normal equations, for joint fits with few unknowns
+        (:func:`lftomo.inverse.joint.solve_temperature_absorption`).
     rule : {"discrepancy", "gcv", "lcurve"}
         (``"T+sigma_a"``: "discrepancy" or "lcurve".)
     T0 : ndarray, optional
@@ -244,6 +247,9 @@ def reconstruct(
                                             symmetry=symmetry, grid=grid, **options)
     from .solvers import solve_temperature
 
+    if method not in ("levenberg-marquardt", "gauss-newton"):
+        raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', got {method!r}"
+                         + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
     if isinstance(measurement, (list, tuple)):
         raise ValueError("unknowns='T' takes one Measurement (one wavelength); pass the channel to use")
     t0 = time.perf_counter()

@@ -1,0 +1,89 @@
+"""Levenberg–Marquardt on dense normal equations (lftomo.inverse.denselm) against scipy's solvers."""
+
+import numpy as np
+import pytest
+import scipy.optimize as so
+
+from lftomo.inverse.denselm import levenberg_marquardt_dense
+
+T_SAMPLES = np.linspace(0.0, 4.0, 60)
+
+
+def _decay_data(seed=0):
+    """y = a exp(−b t) + c + 1 % noise, a = 2, b = 1.3, c = 0.5."""
+    rng = np.random.default_rng(seed)
+    y = 2.0 * np.exp(-1.3 * T_SAMPLES) + 0.5
+    return y + 0.01 * rng.standard_normal(y.size)
+
+
+def _residual(p, y):
+    a, b, c = p
+    return a * np.exp(-b * T_SAMPLES) + c - y
+
+
+def _jacobian(p):
+    a, b, _ = p
+    e = np.exp(-b * T_SAMPLES)
+    return np.stack([e, -a * T_SAMPLES * e, np.ones_like(e)], axis=1)
+
+
+def _evaluate(y):
+    def evaluate(p, with_jacobian):
+        r = _residual(p, y)
+        F = float(r @ r)
+        if not with_jacobian:
+            return F, F
+        J = _jacobian(p)
+        return F, F, J.T @ J, J.T @ r
+    return evaluate
+
+
+def test_unconstrained_minimum_is_scipys():
+    """Same minimiser as MINPACK's lmder (scipy least_squares, method='lm') from a far start."""
+    y = _decay_data()
+    p0 = np.array([0.5, 5.0, -1.0])
+    res = levenberg_marquardt_dense(_evaluate(y), p0, max_steps=200)
+    ref = so.least_squares(_residual, p0, jac=lambda p, y: _jacobian(p), args=(y,), method="lm",
+                           xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.p, ref.x, rtol=1e-7)
+    assert res.objective == pytest.approx(2.0 * ref.cost, rel=1e-10)  # scipy's cost is ½‖r‖²
+    assert res.steps < 60, res.steps
+
+
+def test_bound_active_at_the_optimum_is_reached_exactly():
+    """With c ≤ 0.3 (the unconstrained c is 0.5) the optimum has c on its bound: the projected
+    method puts it there exactly and agrees with scipy's trust-region-reflective solver."""
+    y = _decay_data(1)
+    lo, hi = np.array([0.0, 0.0, -np.inf]), np.array([np.inf, 10.0, 0.3])
+    p0 = np.array([1.0, 0.5, 0.0])
+    res = levenberg_marquardt_dense(_evaluate(y), p0, lower=lo, upper=hi, max_steps=300)
+    ref = so.least_squares(_residual, p0, jac=lambda p, y: _jacobian(p), args=(y,), bounds=(lo, hi),
+                           method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert res.converged, res.message
+    assert res.p[2] == 0.3
+    np.testing.assert_allclose(res.p, ref.x, rtol=1e-6)
+    assert res.objective <= 2.0 * ref.cost * (1 + 1e-9)
+
+
+def test_start_outside_the_box_is_projected_and_bad_bounds_refused():
+    y = _decay_data(2)
+    res = levenberg_marquardt_dense(_evaluate(y), np.array([5.0, 1.0, 0.0]), lower=np.zeros(3),
+                                    upper=np.array([3.0, 5.0, 1.0]), max_steps=200)
+    assert np.all(res.p <= [3.0, 5.0, 1.0]) and res.converged
+    with pytest.raises(ValueError, match="lower and upper must have the shape of p0"):
+        levenberg_marquardt_dense(_evaluate(y), np.zeros(3), lower=np.ones(3), upper=np.zeros(3))
+    with pytest.raises(ValueError, match="lower and upper must have the shape of p0"):
+        levenberg_marquardt_dense(_evaluate(y), np.zeros(3), lower=np.zeros(2))
+
+
+def test_non_finite_trial_points_are_rejected_not_accepted():
+    """A residual that is NaN beyond b = 3 (e.g. an overflow) only makes the damping grow."""
+    y = _decay_data(3)
+    ev = _evaluate(y)
+
+    def guarded(p, with_jacobian):
+        out = ev(p, with_jacobian)
+        return (np.nan,) + out[1:] if p[1] > 3.0 else out
+    res = levenberg_marquardt_dense(guarded, np.array([2.0, 2.9, 0.5]), max_steps=200)
+    assert res.converged and np.isfinite(res.objective) and res.p[1] <= 3.0
