@@ -87,11 +87,10 @@ def _model_reduction(G: np.ndarray, g: np.ndarray, h: np.ndarray) -> float:
     return -(2.0 * float(g @ h) + float(h @ (G @ h)))
 
 
-def _feasible_step(G, g, damping, held, h_held, h, p, lo, hi, rounds: int = 8) -> tuple[np.ndarray, bool]:
+def _feasible_step(G, g, damping, held, h, p, lo, hi, rounds: int = 8) -> tuple[np.ndarray, bool]:
     """A step inside the box that the damped model says is downhill, and whether the box cut it.
 
-    The damped step ``h`` (``held`` unknowns moved by ``h_held``) is projected
-    on the box.  If the projection cut some unknowns, they are moved onto the
+    The damped step ``h`` (``held`` unknowns fixed) is projected on the box.  If the projection cut some unknowns, they are moved onto the
     bound they crossed and the others re-solved with those moves fixed,
     until no more are cut (the step of the projected Newton method on the
     face of the box it reaches); if that is not downhill in the model, the
@@ -112,7 +111,7 @@ def _feasible_step(G, g, damping, held, h_held, h, p, lo, hi, rounds: int = 8) -
             if not out.any():
                 break
             fixed |= out
-            moves = np.where(held, h_held, 0.0) if stay else np.where(held, h_held, np.clip(p + h_try, lo, hi) - p)
+            moves = np.zeros(p.size) if stay else np.where(held, 0.0, np.clip(p + h_try, lo, hi) - p)
             h_try = _damped_step(G, g, damping, fixed, moves)
         h_try = np.clip(p + h_try, lo, hi) - p
         if _model_reduction(G, g, h_try) > 0.0:
@@ -132,7 +131,6 @@ def levenberg_marquardt_dense(
     max_component: float = np.inf,
     lower: np.ndarray | None = None,
     upper: np.ndarray | None = None,
-    bound_eps: float = 0.0,
     on_step: Callable[[int, float, float, float], None] | None = None,
 ) -> DenseLMResult:
     """Minimise ``‖r(p)‖²`` by Levenberg–Marquardt on exact dense normal equations.
@@ -201,17 +199,14 @@ def levenberg_marquardt_dense(
         diag = np.diag(G).copy()
         d_max = np.maximum(d_max, diag)
         D = np.maximum(d_max, 1e-12 * max(float(d_max.max()), 1e-300))
-        # active set (Bertsekas 1982): within ``bound_eps`` of a bound with the descent direction (−g)
-        # pointing out of the box; those unknowns move onto the bound and stay there this step
-        at_lo, at_hi = (p <= lo + bound_eps) & (g > 0), (p >= hi - bound_eps) & (g < 0)
-        held = at_lo | at_hi
-        h_held = np.where(at_lo, lo - p, np.where(at_hi, hi - p, 0.0))
+        # active set (Bertsekas 1982): on a bound with the descent direction (−g) pointing out of the box
+        held = ((p <= lo) & (g > 0)) | ((p >= hi) & (g < 0))
         try:
-            h = _damped_step(G, g, mu * D, held, h_held)
+            h = _damped_step(G, g, mu * D, held)
         except (np.linalg.LinAlgError, sla.LinAlgError):
             mu, nu = mu * nu, nu * 2.0
             continue
-        h, cut = _feasible_step(G, g, mu * D, held, h_held, h, p, lo, hi)
+        h, cut = _feasible_step(G, g, mu * D, held, h, p, lo, hi)
         if np.linalg.norm(h) <= xtol * (np.linalg.norm(p) + xtol):
             # no move: converged, unless the box cut the step while the projected gradient is
             # still large (then damp more: a shorter step may stay inside)

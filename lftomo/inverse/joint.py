@@ -626,7 +626,7 @@ def solve_temperature_absorption(
 
         x0 = 1.0 / (1.0 + np.exp(-np.asarray(p0, np.float64)))
         res = levenberg_marquardt_dense(lambda x, jac: dense_evaluate(x, lam, jac), x0, lower=np.zeros(x0.size),
-                                        upper=np.ones(x0.size), bound_eps=1e-4, max_steps=steps_max, ftol=dense_ftol,
+                                        upper=np.ones(x0.size), max_steps=steps_max, ftol=dense_ftol,
                                         on_step=on_step)
         xc = np.clip(res.p, 1e-15, 1.0 - 1e-15)
         pv = np.log(xc) - np.log1p(-xc)
