@@ -267,7 +267,9 @@ def solve_temperature_absorption(
         the rule's target, so a long polish over-regularizes relative to the
         rule (README, *Reconstruction accuracy*; 4–7 s a step on 2 cores).
         ``details["polish"]`` records the steps, χ²/m and ‖R‖ before and after,
-        and the fields before (``T_before``, ``sigma_a_before``).
+        and the fields before (``T_before``, ``sigma_a_before``).  With
+        ``method="dense-lm"`` the polish restarts the damping (not bit-equal
+        to one longer solve).
 
     rule : {"discrepancy", "lcurve"}
         How ``regularization="auto"`` chooses λ (module docstring).  When the
@@ -537,12 +539,12 @@ def solve_temperature_absorption(
 
     # ---- exact dense normal equations (method="dense-lm"): few unknowns, long residual
     LtL = (L_sp.T @ L_sp).toarray() if method == "dense-lm" else None
+    dense_ftol = 1e-9  # relative reduction of the objective in a step at which a solve has converged
     data_y = [np.asarray(m.y, float) for m in ms]
     data_inv_s = [1.0 / np.asarray(m.sigma, float) for m in ms]
     valid_np = [r >= 0 for r in rows]
+    row_weight = [w.diagonal() for w in whiten]  # valid/σ per datum
     sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ): the last trial point's pass
-
-    row_weight = [np.where(r >= 0, 1.0 / np.asarray(m.sigma, float), 0.0) for m, r in zip(ms, rows)]
 
     def data_rows(M, c, column_scale=None):
         """The table rows of channel ``c``'s data, whitened (× valid/σ), columns × ``column_scale``:
@@ -633,7 +635,6 @@ def solve_temperature_absorption(
         return _Eval(lam, pv, res.data_sq / m_total, penalty_norm(pv), res.steps, res.converged, res.message)
 
     run_solve = solve_dense if method == "dense-lm" else solve
-    dense_ftol = 1e-9
 
     def fit_dof(e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
         """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their
