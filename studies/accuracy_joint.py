@@ -40,6 +40,7 @@ Usage::
                                      [--quadrature 1] [--regularization auto|<float>[,<float>...]]
                                      [--mc-floor bound|prior] [--noise-scale given|estimated]
                                      [--coarse-start NC | --start-npz file.npz] [--max-steps 100]
+                                     [--method levenberg-marquardt|gauss-newton|dense-lm]
                                      [--json out.json] [--npz out.npz]
 """
 from __future__ import annotations
@@ -52,6 +53,7 @@ import numpy as np
 
 import lftomo as lt
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
+from lftomo.inverse.joint import JOINT_METHODS
 from lftomo.inverse.solvers import NOISE_SCALES
 
 
@@ -74,6 +76,10 @@ def main():
     ap.add_argument("--width", type=float, default=0.012, help="flame base width (m); 0: the phantom's default")
     ap.add_argument("--regularization", default="auto")
     ap.add_argument("--max-steps", type=int, default=100)
+    ap.add_argument("--method", default="levenberg-marquardt", choices=list(JOINT_METHODS),
+                    help="the joint solver (lt.reconstruct(..., method=...)): optimistix's matrix-free "
+                         "Levenberg-Marquardt, Gauss-Newton, or dense-lm (exact dense normal equations, bounds by "
+                         "projection); used by the coarse start too")
     ap.add_argument("--polish-steps", type=int, default=0,
                     help="continue the chosen λ's solve of the fit (not of a coarse start) for up to this many "
                          "more steps (polish_steps of the joint fit; default 0)")
@@ -165,6 +171,7 @@ def main():
         quad_c = grid_c.refined(a.quadrature)
         seg_c = lt.ray_segments(cam, quad_c, rays_per_pixel=a.segment_rays, seed=12, views=views, progress=False)
         rec_c = lt.reconstruct(ms, seg_c, unknowns="T+sigma_a", max_steps=a.max_steps, symmetry=sym, prior=a.prior,
+                               method=a.method,
                                noise_scale=a.noise_scale, **prior_opts,
                                **({"grid": grid_c} if a.quadrature > 1 else {}))
         start_opts = {"start": rec_c}  # the fine fit starts from it, and its λ search at its λ
@@ -195,7 +202,7 @@ def main():
         opts = dict(prior_opts)
         if reg == "auto":
             opts["noise_scale"] = a.noise_scale
-        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps,
+        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps, method=a.method,
                              polish_steps=a.polish_steps, symmetry=sym, prior=a.prior, **opts, **sub, **start_opts)
         t_joint = time.perf_counter() - t
         eT, es = rel(rec.T, T_true), rel(rec.sigma_a, sa_c)
@@ -213,7 +220,7 @@ def main():
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"],
                       "sigma_a_scale": prior_opts.get("sigma_a_scale"), "sigma_a_ridge": prior_opts["sigma_a_ridge"],
-                      "lambda_max": prior_opts.get("lambda_max")},
+                      "lambda_max": prior_opts.get("lambda_max"), "method": a.method},
             "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
             "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),
