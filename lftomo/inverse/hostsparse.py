@@ -37,7 +37,7 @@ import scipy.sparse as sp
 from jax.custom_derivatives import linear_call
 from numba import njit, prange
 
-__all__ = ["HostCSR", "host_csr"]
+__all__ = ["HostCSR", "host_csr", "projected_normal_equations"]
 
 _REGISTRY: dict[int, tuple[sp.csr_matrix, sp.csr_matrix]] = {}
 _COUNTER = itertools.count(1)
@@ -155,3 +155,103 @@ def host_csr(matrix: Any) -> HostCSR:
     op = HostCSR(key, A.shape)
     weakref.finalize(op, _REGISTRY.pop, key, None)
     return op
+
+
+@njit(cache=True, parallel=True)
+def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_parts, g_parts):
+    """Per row ``r``: ``j_r = [A[r] M, B[r] M]`` (2 n_u); ``G += j_rᵀ j_r`` (upper triangle), ``g += j_r res[r]``.
+
+    The rows are split into ``G_parts.shape[0]`` contiguous chunks, run in
+    parallel, each accumulating into its own ``G_parts[c]``, ``g_parts[c]``.
+    """
+    n_rows = ap.shape[0] - 1
+    n_parts = G_parts.shape[0]
+    n = 2 * n_u
+    for c in prange(n_parts):
+        acc = np.zeros(n)
+        mark = np.zeros(n, np.bool_)
+        touched = np.empty(n, np.int64)
+        G = G_parts[c]
+        g = g_parts[c]
+        for r in range(c * n_rows // n_parts, (c + 1) * n_rows // n_parts):
+            nt = 0
+            for k in range(ap[r], ap[r + 1]):
+                q, v = ai[k], ad[k]
+                for t in range(mp[q], mp[q + 1]):
+                    j = mi[t]
+                    if not mark[j]:
+                        mark[j] = True
+                        touched[nt] = j
+                        nt += 1
+                    acc[j] += v * md[t]
+            for k in range(bp[r], bp[r + 1]):
+                q, v = bi[k], bd[k]
+                for t in range(mp[q], mp[q + 1]):
+                    j = n_u + mi[t]
+                    if not mark[j]:
+                        mark[j] = True
+                        touched[nt] = j
+                        nt += 1
+                    acc[j] += v * md[t]
+            rr = res[r]
+            for x in range(nt):
+                i = touched[x]
+                vi = acc[i]
+                g[i] += vi * rr
+                for y in range(x, nt):
+                    j = touched[y]
+                    if i <= j:
+                        G[i, j] += vi * acc[j]
+                    else:
+                        G[j, i] += vi * acc[j]
+            for x in range(nt):
+                acc[touched[x]] = 0.0
+                mark[touched[x]] = False
+
+
+def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_matrix | None,
+                               res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``G = JᵀJ`` (dense) and ``g = Jᵀ res`` of ``J = [A M, B M]``, without forming ``J``.
+
+    The Gauss–Newton matrix of a joint fit whose two Jacobian blocks (``∂r/∂T``
+    and ``∂r/∂σ_a`` on the segment table's voxels, sparse, one row per datum)
+    are summed onto few unknowns by ``M`` (interpolation and ring expansion,
+    ``E P``; ``None``: the identity).  One pass over the rows, parallel, with a
+    dense accumulator per row: about 10× faster than scipy's ``(A M)``,
+    ``hstack`` and ``JᵀJ`` sparse products (24³ axisymmetric joint fit, 57 600
+    rows, 110 592 quadrature voxels, 1536 ring cells).
+
+    Parameters
+    ----------
+    A, B : scipy.sparse.csr_matrix, shape (m, n_q)
+    M : scipy.sparse.csr_matrix of shape (n_q, n_u), or None (n_u = n_q)
+    res : ndarray, shape (m,)
+
+    Returns
+    -------
+    G : ndarray, shape (2 n_u, 2 n_u), symmetric
+    g : ndarray, shape (2 n_u,)
+    """
+    A, B = sp.csr_matrix(A, dtype=np.float64), sp.csr_matrix(B, dtype=np.float64)
+    if A.shape != B.shape or A.shape[0] != np.shape(res)[0]:
+        raise ValueError(f"A {A.shape}, B {B.shape} and res {np.shape(res)} must have the same rows (and A, B columns)")
+    if M is None:
+        M = sp.identity(A.shape[1], format="csr", dtype=np.float64)
+    M = sp.csr_matrix(M, dtype=np.float64)
+    if M.shape[0] != A.shape[1]:
+        raise ValueError(f"M has {M.shape[0]} rows, A and B {A.shape[1]} columns")
+    n_u = M.shape[1]
+    import numba
+
+    n_parts = max(1, min(numba.get_num_threads(), A.shape[0]))
+    G_parts = np.zeros((n_parts, 2 * n_u, 2 * n_u))
+    g_parts = np.zeros((n_parts, 2 * n_u))
+    with _LOCK:
+        _normal_equations_kernel(A.indptr, A.indices, A.data, B.indptr, B.indices, B.data, M.indptr, M.indices,
+                                 M.data, np.ascontiguousarray(res, dtype=np.float64), n_u, G_parts, g_parts)
+    G = G_parts[0]
+    for part in G_parts[1:]:
+        G += part
+    lower = np.tril_indices(2 * n_u, -1)
+    G[lower] = G.T[lower]  # the kernel filled the upper triangle
+    return G, g_parts.sum(axis=0)

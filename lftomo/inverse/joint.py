@@ -65,6 +65,7 @@ from ..forward.grid import Grid
 from ..forward.render import _progress
 from ..forward.weights import RaySegments
 from .denselm import levenberg_marquardt_dense
+from .hostsparse import projected_normal_equations
 from .problem import LinearProblem
 from .reconstruct import Reconstruction
 from .regularizers import prior_operator, to_bcoo
@@ -546,13 +547,14 @@ def solve_temperature_absorption(
     row_weight = [w.diagonal() for w in whiten]  # valid/σ per datum
     sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ): the last trial point's pass
 
-    def data_rows(M, c, column_scale=None):
-        """The table rows of channel ``c``'s data, whitened (× valid/σ), columns × ``column_scale``:
-        ``diag(w) M[rows] diag(s)`` by scaling the CSR values in place of two sparse products."""
+    to_seg_csr = None if to_seg is None else sp.csr_matrix(to_seg)
+
+    def data_rows(M, c, column_scale):
+        """The table rows of channel ``c``'s data, whitened (× valid/σ), columns × ``column_scale`` (an array or
+        a number): ``diag(w) M[rows] diag(s)`` by scaling the CSR values in place of two sparse products."""
         M = sp.csr_matrix(M)[rows_np[c]]
         M.data *= np.repeat(row_weight[c], np.diff(M.indptr))
-        if column_scale is not None:
-            M.data *= column_scale[M.indices]
+        M.data *= column_scale[M.indices] if np.ndim(column_scale) else column_scale
         return M
 
     def dense_evaluate(x, lam, with_jacobian):
@@ -577,14 +579,13 @@ def solve_temperature_absorption(
             res = (np.where(valid_np[c], signal[rows_np[c]], 0.0) - data_y[c]) * data_inv_s[c]
             data_sq += float(res @ res)
             if with_jacobian:
-                # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) and of ∂F/∂σ, scaled elementwise,
-                # then summed per unknown (E P); ∂T/∂x and ∂σ/∂x are constants in the unit box
-                Wc = data_rows(segments.weights(sa_c).matrix, c, _dblackbody_np(Tv, wls[c]))
-                Jc = data_rows(dF_ds, c)
-                A = sp.hstack([per_unknown(Wc) * (hi - lo), per_unknown(Jc) * (factors[c] * sigma_a_max)],
-                              format="csr")
-                G += (A.T @ A).toarray()
-                g += A.T @ res
+                # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ ∂σ/∂x (both constants
+                # in the unit box), summed per unknown (E P) inside the normal-equations kernel
+                Wc = data_rows(segments.weights(sa_c).matrix, c, _dblackbody_np(Tv, wls[c]) * (hi - lo))
+                Jc = data_rows(dF_ds, c, factors[c] * sigma_a_max)
+                Gc, gc = projected_normal_equations(Wc, Jc, to_seg_csr, res)
+                G += Gc
+                g += gc
         rT, rs = L_sp @ ((T - lo) / (hi - lo)), L_sp @ (sref / s_scale)
         prior_sq = float(rT @ rT + rs @ rs + ridge * np.sum((sref / s_scale) ** 2))
         F = data_sq + lam * prior_sq

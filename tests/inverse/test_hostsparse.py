@@ -1,11 +1,11 @@
-"""HostCSR: scipy CSR applied from JAX — values, JVP, transpose and gradient."""
+"""HostCSR: scipy CSR applied from JAX — values, JVP, transpose and gradient; the projected normal equations."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from lftomo.inverse.hostsparse import host_csr
+from lftomo.inverse.hostsparse import host_csr, projected_normal_equations
 
 jax.config.update("jax_enable_x64", True)
 
@@ -42,3 +42,23 @@ def test_bad_input(mat):
         op @ jnp.ones(24)
     with pytest.raises(ValueError, match="scipy sparse"):
         host_csr(np.ones((3, 3)))
+
+
+def test_projected_normal_equations_equal_the_explicit_products():
+    """G = JᵀJ and g = Jᵀr of J = [A M, B M] without forming J, against scipy's explicit products
+    (random sparse blocks; M with empty rows and columns, A and B with different patterns)."""
+    rng = np.random.default_rng(0)
+    A = sp.random(700, 90, density=0.05, random_state=1, format="csr")
+    B = sp.random(700, 90, density=0.08, random_state=2, format="csr")
+    M = sp.random(90, 17, density=0.15, random_state=3, format="csr")
+    res = rng.standard_normal(700)
+    for MM in (M, None):
+        G, g = projected_normal_equations(A, B, MM, res)
+        J = sp.hstack([A, B] if MM is None else [A @ MM, B @ MM]).toarray()
+        np.testing.assert_allclose(G, J.T @ J, rtol=1e-12, atol=1e-12 * np.abs(J.T @ J).max())
+        np.testing.assert_allclose(g, J.T @ res, rtol=1e-12, atol=1e-12 * np.abs(J.T @ res).max())
+        assert np.array_equal(G, G.T)
+    with pytest.raises(ValueError, match="must have the same rows"):
+        projected_normal_equations(A, B[:-1], M, res)
+    with pytest.raises(ValueError, match="M has 17 rows, A and B 90 columns"):
+        projected_normal_equations(A, B, M.T.tocsr(), res)
