@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 from jax.custom_derivatives import linear_call
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 __all__ = ["HostCSR", "host_csr", "projected_normal_equations"]
 
@@ -241,9 +241,7 @@ def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_mat
     if M.shape[0] != A.shape[1]:
         raise ValueError(f"M has {M.shape[0]} rows, A and B {A.shape[1]} columns")
     n_u = M.shape[1]
-    import numba
-
-    n_parts = max(1, min(numba.get_num_threads(), A.shape[0]))
+    n_parts = max(1, min(get_num_threads(), A.shape[0]))
     G_parts = np.zeros((n_parts, 2 * n_u, 2 * n_u))
     g_parts = np.zeros((n_parts, 2 * n_u))
     with _LOCK:

@@ -554,7 +554,7 @@ def solve_temperature_absorption(
     row_weight = [w.diagonal() for w in whiten]  # valid/σ per datum
     sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ): the last trial point's pass
 
-    to_seg_csr = None if to_seg is None else sp.csr_matrix(to_seg)
+    to_seg_csr = None if to_seg is None or method != "dense-lm" else sp.csr_matrix(to_seg)
 
     def data_rows(M, c, column_scale):
         """The table rows of channel ``c``'s data, whitened (× valid/σ), columns × ``column_scale`` (an array or

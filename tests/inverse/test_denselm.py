@@ -51,6 +51,31 @@ def test_unconstrained_minimum_is_scipys():
     assert res.steps < 60, res.steps
 
 
+def test_slow_convergence_rule_counts_accepted_steps():
+    """``slow_rtol``/``slow_window``: converged once the last ``slow_window`` accepted steps together
+    reduced F by at most ``slow_rtol · F``.  With ``slow_rtol`` = 1 any reduction to no less than half
+    qualifies, so the solve stops right after ``slow_window`` accepted steps, at an F still far above the
+    minimum; with ``slow_rtol`` = 0 the rule never fires and the solve reaches scipy's minimum."""
+    y = _decay_data()
+    p0 = np.array([0.5, 5.0, -1.0])
+    accepted = []
+
+    def counting(p, with_jacobian):
+        out = _evaluate(y)(p, with_jacobian)
+        if with_jacobian:
+            accepted.append(out[0])  # one Jacobian per accepted point (and the start)
+        return out
+
+    fast = levenberg_marquardt_dense(counting, p0, max_steps=200, slow_rtol=1.0, slow_window=2)
+    assert fast.converged and "last 2 accepted steps" in fast.message, fast.message
+    # Jacobians at the start and after the first accepted step; the second completes the window and
+    # stops the solve before its Jacobian
+    assert len(accepted) == 2
+    full = levenberg_marquardt_dense(_evaluate(y), p0, max_steps=200, slow_rtol=0.0)
+    assert full.converged and "accepted steps" not in full.message, full.message
+    assert fast.objective > 10.0 * full.objective
+
+
 def test_bound_active_at_the_optimum_is_reached_exactly():
     """With c ≤ 0.3 (the unconstrained c is 0.5) the optimum has c on its bound: the projected
     method puts it there exactly and agrees with scipy's trust-region-reflective solver."""
