@@ -39,6 +39,7 @@ Usage::
     python studies/accuracy_joint.py [--n 8] [--refine 2] [--rays 32] [--segment-rays 16]
                                      [--quadrature 1] [--regularization auto|<float>[,<float>...]]
                                      [--mc-floor bound|prior] [--noise-scale given|estimated]
+                                     [--sigma-a-space linear|log] [--sigma-a-min S] [--sigma-a-scale S]
                                      [--coarse-start NC | --start-npz file.npz] [--max-steps 100]
                                      [--method levenberg-marquardt|gauss-newton|dense-lm]
                                      [--json out.json] [--npz out.npz]
@@ -53,7 +54,7 @@ import numpy as np
 
 import lftomo as lt
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
-from lftomo.inverse.joint import JOINT_METHODS
+from lftomo.inverse.joint import JOINT_METHODS, SIGMA_A_SPACES
 from lftomo.inverse.solvers import NOISE_SCALES
 
 
@@ -86,8 +87,13 @@ def main():
     ap.add_argument("--seed", type=int, default=100, help="noise seed")
     ap.add_argument("--sigma-a-ridge", type=float, default=0.0,
                     help="weight of the zeroth-order (ridge) prior term on sigma_a, relative to the smoothness term")
+    ap.add_argument("--sigma-a-space", default="linear", choices=list(SIGMA_A_SPACES),
+                    help="what sigma_a's unknowns and prior are linear in: sigma_a, or its logarithm")
+    ap.add_argument("--sigma-a-min", type=float, default=0.0,
+                    help="lower bound of sigma_a (1/m) with --sigma-a-space log (0: the solver's default)")
     ap.add_argument("--sigma-a-scale", type=float, default=0.0,
-                    help="scale (1/m) of sigma_a in its prior term (0: the solver's default)")
+                    help="scale of sigma_a in its prior term: 1/m, or nepers with --sigma-a-space log "
+                         "(0: the solver's default)")
     ap.add_argument("--lambda-max", type=float, default=0.0,
                     help="largest lambda the joint 'auto' search tries (0: the solver's default, 1e4)")
     ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
@@ -163,6 +169,9 @@ def main():
     # σ_a's prior terms, the same for the coarse start and the fit
     prior_opts = {"sigma_a_scale": a.sigma_a_scale} if a.sigma_a_scale > 0 else {}
     prior_opts["sigma_a_ridge"] = a.sigma_a_ridge
+    prior_opts["sigma_a_space"] = a.sigma_a_space
+    if a.sigma_a_min > 0:
+        prior_opts["sigma_a_min"] = a.sigma_a_min
     if a.lambda_max > 0:
         prior_opts["lambda_max"] = a.lambda_max
     if a.coarse_start:
@@ -220,6 +229,7 @@ def main():
                       "converged": rec.converged, "iterations": rec.iterations, "seconds": t_joint,
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"],
                       "sigma_a_scale": prior_opts.get("sigma_a_scale"), "sigma_a_ridge": prior_opts["sigma_a_ridge"],
+                      "sigma_a_space": a.sigma_a_space, "sigma_a_min": prior_opts.get("sigma_a_min"),
                       "lambda_max": prior_opts.get("lambda_max"), "method": a.method},
             "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},

@@ -92,6 +92,10 @@ from .symmetry import resolve_symmetry
 #: on exact dense normal equations (:mod:`lftomo.inverse.denselm`).
 JOINT_METHODS = ("levenberg-marquardt", "gauss-newton", "dense-lm")
 
+#: What the σ_a unknowns and their prior are linear in: ``"linear"`` (σ_ref in [0, σ_max],
+#: smoothness of σ_ref) or ``"log"`` (ln σ_ref in [ln σ_min, ln σ_max], smoothness of ln σ_ref).
+SIGMA_A_SPACES = ("linear", "log")
+
 #: A solve also stops when its objective changes by less than this fraction
 #: over a chunk of 10 steps (or ``rtol`` if larger).
 _OBJECTIVE_RTOL = 1e-4
@@ -177,6 +181,8 @@ def solve_temperature_absorption(
     T0: Any = None,
     alpha: float = 1.38,
     sigma_a_max: float = 200.0,
+    sigma_a_space: str = "linear",
+    sigma_a_min: float = 1e-4,
     sigma_a_scale: float | None = None,
     sigma_a_ridge: float = 0.0,
     sigma_a0: Any = None,
@@ -233,8 +239,25 @@ def solve_temperature_absorption(
         Soot exponent of ``σ_a(λ) ∝ λ^-α``.
     sigma_a_max : float
         Upper bound of ``σ_a`` at the first wavelength (m⁻¹).
+    sigma_a_space : {"linear", "log"}
+        What the ``σ_a`` unknowns and their smoothness prior are linear in.
+        ``"linear"`` (default): ``σ_ref`` in ``[0, sigma_a_max]``, the prior
+        on ``σ_ref``.  ``"log"``: ``ln σ_ref`` in ``[ln sigma_a_min,
+        ln sigma_a_max]``, the prior on ``ln σ_ref`` — soot absorption spans
+        decades and falls off smoothly in its logarithm, so a linear
+        smoothness prior cannot hold it above 0 where the data are dark
+        (the fit drops σₐ to the bound and raises T to keep σₐ I_b(T)),
+        while the log prior extrapolates it from where the flame emits.  A
+        factor ``k`` error in ``σ_a`` then costs only ``ln k / (hc/λkT)`` in
+        T where one channel still sees the emission (``hc/λkT`` ≈ 19 at
+        900 nm and 850 K).
+    sigma_a_min : float
+        Lower bound of ``σ_a`` at the first wavelength for ``sigma_a_space="log"``
+        (m⁻¹, > 0; default 1e-4: optical depth 5e-6 over 5 cm).
     sigma_a_scale : float, optional
-        Scale (m⁻¹) that ``σ_a`` is divided by in the prior: the prior is
+        With ``sigma_a_space="log"``: the scale (nepers) ``ln σ_ref`` is
+        divided by in the prior, default ``ln(sigma_a_max / sigma_a_min)``.
+        Otherwise the scale (m⁻¹) that ``σ_a`` is divided by in the prior: the prior is
         ``λ (‖L (T − T_min)/(T_max − T_min)‖² + ‖L σ_a/scale‖² + ridge ‖σ_a/scale‖²)``.
         Default ``sigma_a_max``.  A larger scale makes σₐ's roughness cheaper
         than T's (soot is thin and intermittent, temperature smooth): 2000 m⁻¹
@@ -372,12 +395,38 @@ def solve_temperature_absorption(
         raise ValueError(f"polish_steps must be an integer >= 0, got {polish_steps!r}")
     if not (sigma_a_max > 0):
         raise ValueError(f"sigma_a_max must be > 0, got {sigma_a_max!r}")
-    s_scale = float(sigma_a_max if sigma_a_scale is None else sigma_a_scale)
+    sigma_a_space = _check_choice("sigma_a_space", sigma_a_space, SIGMA_A_SPACES)
+    if sigma_a_space == "log":
+        is_number = isinstance(sigma_a_min, (int, float, np.number)) and not isinstance(sigma_a_min, bool)
+        if not (is_number and 0 < sigma_a_min < sigma_a_max):
+            raise ValueError(f"sigma_a_min must be a number with 0 < sigma_a_min < sigma_a_max ({sigma_a_max!r}) "
+                             f"for sigma_a_space='log', got {sigma_a_min!r}")
+        span = math.log(sigma_a_max / sigma_a_min)  # σ_ref = σ_min exp(span u), u in [0, 1]
+    else:
+        span = float(sigma_a_max)  # σ_ref = σ_max u
+    s_scale = float(span if sigma_a_scale is None else sigma_a_scale)
     ridge = float(sigma_a_ridge)
     if not (ridge >= 0 and math.isfinite(ridge)):
         raise ValueError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
     if not (s_scale > 0 and math.isfinite(s_scale)):
         raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
+    # The prior acts on σ_ref (linear) or ln σ_ref (log) over the scale: in the unit coordinate u of σ_ref
+    # both are b·u (+ a constant), b = span/scale, so the prior stays quadratic in u either way.
+    b_prior = span / s_scale
+
+    def sigma_of_unit(u, xp=np):
+        """``σ_ref`` (m⁻¹) of the unit coordinate ``u`` in [0, 1]."""
+        return sigma_a_min * xp.exp(span * u) if sigma_a_space == "log" else span * u
+
+    def unit_of_sigma(s):
+        """The unit coordinate of ``σ_ref`` (clipped to the bounds)."""
+        if sigma_a_space == "log":
+            return np.log(np.clip(s, sigma_a_min, sigma_a_max) / sigma_a_min) / span
+        return np.clip(s, 0.0, sigma_a_max) / span
+
+    def dsigma_du(s):
+        """``∂σ_ref/∂u`` at ``σ_ref = s``."""
+        return span * s if sigma_a_space == "log" else np.full(np.shape(s), span)
     seg_grid = Grid.from_dict(segments.metadata["grid"])
     grid, E = resolve_quadrature(grid, seg_grid, "segment table's")
     n = grid.n_voxels
@@ -419,7 +468,7 @@ def solve_temperature_absorption(
 
     def unpack(p):
         th, rho = p[:n_u], p[n_u:]
-        return lo + (hi - lo) * jax.nn.sigmoid(th), sigma_a_max * jax.nn.sigmoid(rho)
+        return lo + (hi - lo) * jax.nn.sigmoid(th), sigma_of_unit(jax.nn.sigmoid(rho), jnp)
 
     def on_voxels(x):
         """Unknowns -> the reconstruction grid's voxels."""
@@ -438,9 +487,10 @@ def solve_temperature_absorption(
             s = model_signal(seg_, planck_jax(Tv, wls[c]), sv * factors[c])
             model = jnp.where(valid[c], s[rows_j[c]], 0.0)
             out.append((model - ys[c]) * inv_s[c])
+        q = b_prior * jax.nn.sigmoid(p[n_u:])  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
         out.append(jnp.sqrt(lam) * (L @ ((T - lo) / (hi - lo))))
-        out.append(jnp.sqrt(lam) * (L @ (sref / s_scale)))
-        out.append(jnp.sqrt(lam * ridge) * (sref / s_scale))
+        out.append(jnp.sqrt(lam) * (L @ q))
+        out.append(jnp.sqrt(lam * ridge) * q)
         return jnp.concatenate(out)
 
     def logit(x):
@@ -476,7 +526,7 @@ def solve_temperature_absorption(
         raise ValueError(f"T0 and sigma_a0 must have {n} voxels (grid {grid.shape})")
     if ring is not None:
         T_init, s_init = ring.project(T_init).ravel(), ring.project(s_init).ravel()
-    p = jnp.asarray(np.concatenate([logit((T_init - lo) / (hi - lo)), logit(s_init / sigma_a_max)]))
+    p = jnp.asarray(np.concatenate([logit((T_init - lo) / (hi - lo)), logit(unit_of_sigma(s_init))]))
     solver = None if method == "dense-lm" else _nl_solver(method, rtol, atol, linear_rtol, linear_max_steps)
 
     # Jacobi scaling, as in the T-only solver: chunks of optimistix steps on ψ
@@ -490,8 +540,8 @@ def solve_temperature_absorption(
 
     def column_scale(pv, lam):
         sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
-        T, sref = lo + (hi - lo) * sg, sigma_a_max * sr
-        dT, ds = (hi - lo) * sg * (1.0 - sg), sigma_a_max * sr * (1.0 - sr)
+        T, sref = lo + (hi - lo) * sg, sigma_of_unit(sr)
+        dT, ds = (hi - lo) * sg * (1.0 - sg), dsigma_du(sref) * sr * (1.0 - sr)
         Tv, sv = (T, sref) if to_seg is None else (to_seg @ T, to_seg @ sref)
         c2 = np.zeros(2 * n_u)
         for c in range(len(ms)):
@@ -504,7 +554,7 @@ def solve_temperature_absorption(
             c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * dT ** 2
             c2[n_u:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
         c2[:n_u] += lam * colsq_L * (dT / (hi - lo)) ** 2
-        c2[n_u:] += lam * (colsq_L + ridge) * (ds / s_scale) ** 2
+        c2[n_u:] += lam * (colsq_L + ridge) * (b_prior * sr * (1.0 - sr)) ** 2
         return _jacobi_scale(c2)
 
     def scaled_residual(psi, args):
@@ -512,9 +562,10 @@ def solve_temperature_absorption(
 
     def penalty_norm(pv):
         """‖R‖ of the prior (the norm λ weighs): T and σ smoothness and the σ ridge."""
-        T, sref = unpack(jnp.asarray(pv))
-        a, b = L @ ((T - lo) / (hi - lo)), L @ (sref / s_scale)
-        return float(jnp.sqrt(jnp.sum(a * a) + jnp.sum(b * b) + ridge * jnp.sum((sref / s_scale) ** 2)))
+        T = unpack(jnp.asarray(pv))[0]
+        q = b_prior * jax.nn.sigmoid(jnp.asarray(pv)[n_u:])
+        a, b = L @ ((T - lo) / (hi - lo)), L @ q
+        return float(jnp.sqrt(jnp.sum(a * a) + jnp.sum(b * b) + ridge * jnp.sum(q * q)))
 
     def objective(pv, lam):
         """The minimised objective at ``pv`` and its data part ‖r‖² (one residual evaluation)."""
@@ -566,8 +617,9 @@ def solve_temperature_absorption(
 
     def dense_evaluate(x, lam, with_jacobian):
         """``F``, its data part and, on request, ``G = JᵀJ``, ``g = Jᵀr`` at ``x = [(T − T_min)/(T_max − T_min),
-        σ_ref/σ_max]`` (the unit box; exact sparse Jacobians of the segment table, projected on the unknowns)."""
-        T, sref = lo + (hi - lo) * x[:n_u], sigma_a_max * x[n_u:]  # ∂T/∂x = T_max − T_min, ∂σ_ref/∂x = σ_max
+        u]`` (the unit box, ``σ_ref = sigma_of_unit(u)``; exact sparse Jacobians of the segment table, projected
+        on the unknowns)."""
+        T, sref = lo + (hi - lo) * x[:n_u], sigma_of_unit(x[n_u:])  # ∂T/∂x = T_max − T_min
         Tv, sv = (T, sref) if to_seg is None else (to_seg @ T, to_seg @ sref)
         data_sq = 0.0
         if with_jacobian:
@@ -586,29 +638,33 @@ def solve_temperature_absorption(
             res = (np.where(valid_np[c], signal[rows_np[c]], 0.0) - data_y[c]) * data_inv_s[c]
             data_sq += float(res @ res)
             if with_jacobian:
-                # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ ∂σ/∂x (both constants
-                # in the unit box), summed per unknown (E P) inside the normal-equations kernel
+                # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ_ref, summed per
+                # unknown (E P) inside the normal-equations kernel; ∂σ_ref/∂u is applied below
                 Wc = data_rows(segments.weights(sa_c).matrix, c, _dblackbody_np(Tv, wls[c]) * (hi - lo))
-                Jc = data_rows(dF_ds, c, factors[c] * sigma_a_max)
+                Jc = data_rows(dF_ds, c, factors[c])
                 Gc, gc = projected_normal_equations(Wc, Jc, to_seg_csr, res)
                 G += Gc
                 g += gc
-        rT, rs = L_sp @ ((T - lo) / (hi - lo)), L_sp @ (sref / s_scale)
-        prior_sq = float(rT @ rT + rs @ rs + ridge * np.sum((sref / s_scale) ** 2))
+        q = b_prior * x[n_u:]  # σ_ref / scale, or ln(σ_ref / σ_min) / scale; T's prior term is x itself
+        rT, rs = L_sp @ ((T - lo) / (hi - lo)), L_sp @ q
+        prior_sq = float(rT @ rT + rs @ rs + ridge * np.sum(q * q))
         F = data_sq + lam * prior_sq
         if not with_jacobian:
             return F, data_sq
+        d = dsigma_du(sref)  # the σ_ref columns: ∂/∂u = ∂σ_ref/∂u · ∂/∂σ_ref
+        G[:, n_u:] *= d
+        G[n_u:, :] *= d[:, None]
+        g[n_u:] *= d
         G += lam * prior_gram()
-        b = sigma_a_max / s_scale  # ∂(σ_ref/scale)/∂x; T's prior term is x itself
         g[:n_u] += lam * (L_sp.T @ rT)
-        g[n_u:] += lam * b * (L_sp.T @ rs + ridge * sref / s_scale)
+        g[n_u:] += lam * b_prior * (L_sp.T @ rs + ridge * q)
         return F, data_sq, G, g
 
     @functools.cache
     def prior_gram():
         """The prior's Gauss–Newton matrix per unit λ in the unit-box unknowns (constant: the prior is
         quadratic in ``T`` and ``σ_ref``, linear in ``x``)."""
-        b = sigma_a_max / s_scale
+        b = b_prior
         Gp = np.zeros((2 * n_u, 2 * n_u))
         Gp[:n_u, :n_u] = LtL
         Gp[n_u:, n_u:] = b * b * (LtL + ridge * np.eye(n_u))

@@ -2,6 +2,7 @@
 the same table (two independent derivations of the exact derivatives)."""
 
 import dataclasses
+import re
 
 import jax
 import jax.numpy as jnp
@@ -91,6 +92,10 @@ def test_joint_sigma_a_prior_options(table):
     free = lt.reconstruct(ms, seg, **kw)
     pulled = lt.reconstruct(ms, seg, sigma_a_ridge=1e8, **kw)
     assert pulled.sigma_a.mean() < 0.7 * free.sigma_a.mean(), (pulled.sigma_a.mean(), free.sigma_a.mean())
-    for bad in ({"sigma_a_scale": -1.0}, {"sigma_a_ridge": float("nan")}):
+    for bad in ({"sigma_a_scale": -1.0}, {"sigma_a_ridge": float("nan")}, {"sigma_a_space": "sqrt"}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             lt.reconstruct(ms, seg, **{**kw, **bad})
+    for bad_min in (0.0, -1.0, 200.0, float("nan"), "1e-3"):
+        with pytest.raises(ValueError, match=r"sigma_a_min must be a number with 0 < sigma_a_min < sigma_a_max "
+                                             rf"\(200.0\) for sigma_a_space='log', got {re.escape(repr(bad_min))}"):
+            lt.reconstruct(ms, seg, **{**kw, "sigma_a_space": "log", "sigma_a_min": bad_min})

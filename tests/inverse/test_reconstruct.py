@@ -66,11 +66,13 @@ def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
     assert f"{rec.iterations}" in err
 
 
-@pytest.mark.parametrize("method", ["levenberg-marquardt", "dense-lm"])
-def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method):
+@pytest.mark.parametrize("method, space", [("levenberg-marquardt", "linear"), ("dense-lm", "linear"),
+                                           ("levenberg-marquardt", "log"), ("dense-lm", "log")])
+def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method, space):
     """Noise-free on-grid data at 650 and 800 nm (same rays; a solver check):
     T and sigma_a are recovered where the flame is hot and absorbing, by optimistix's
-    matrix-free Levenberg–Marquardt and by the dense one."""
+    matrix-free Levenberg–Marquardt and by the dense one, with sigma_a's unknowns
+    linear in sigma_a or in its logarithm."""
     cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
     grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
     wl = (650e-9, 800e-9)
@@ -87,7 +89,7 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method):
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2)
     rec = reconstruct(ms, seg, unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0),
                       T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200,
-                      progress=True, method=method)
+                      progress=True, method=method, sigma_a_space=space)
     bar = capsys.readouterr().err
     assert "reconstruct T+σa" in bar and "λ=1e-10" in bar and "χ²/m=" in bar, bar
     assert rec.errors(T, hot=1000.0)["max_rel"] < 0.01
