@@ -87,8 +87,7 @@ MIN_ETENDUE_FRACTION = 0.2
 #: The discrepancy rule's noise scale (:func:`lftomo.inverse.solvers.solve_temperature`).  The
 #: demo's uniform 16³ voxels have a large model error at the flame's edges, which the default
 #: Monte Carlo floor ("bound") allows for; there the given-σ rule (7.2 % at λ 297) is measured.
-#: "estimated" goes with the accurate floor ("prior") and sub-voxel emission (README,
-#: *Reconstruction accuracy*).
+#: "estimated" goes with the accurate floor ("prior") and sub-voxel emission (docs/accuracy.md).
 NOISE_SCALE = "given"
 FOCAL_DEPTHS = (0.98, 0.99, 1.0, 1.01, 1.02)   # m: across the 50 mm flame box at 1 m
 COMPARE_DEPTHS = (0.985, 1.0, 1.015)

@@ -420,7 +420,7 @@ NB04 = [
         costs several), at most 10 Levenberg–Marquardt steps of at most 10 LSMR iterations each,
         as printed. The same noise model as above, per channel. Start: a uniform 1400 K and
         2 m⁻¹ (given here; by default the solver starts from tomographic two-colour pyrometry).
-        `studies/accuracy_joint.py` measures the joint fit at 8³ (see the README).
+        `studies/accuracy_joint.py` measures the joint fit (docs/accuracy.md).
 
         This shows the call at the size this notebook can afford, not an accuracy: 4 mm voxels
         are coarse against the 1.2 mm lenslet footprint, and the `χ²/m` of the effective truth

@@ -96,7 +96,7 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
       Monte Carlo error as it is (true field's predicted χ²/m 0.92–1.06).
       For models with little discretisation error (sub-voxel emission), with
       the discrepancy rule's ``noise_scale="estimated"``: standard flame at
-      900 nm, 32³, 0.52 % / 3.4 % (README, *Reconstruction accuracy*).
+      900 nm, 32³, 0.52 % / 3.4 % (docs/accuracy.md).
 
     Both checked against the difference of two independent renders of the
     standard flame (12 mm wide, and 3 mm, the phantom's default; truth grids

@@ -4,8 +4,8 @@ Laboratory flames (burners, candles, jets) are very often axisymmetric about a
 vertical axis, and the classical way to exploit it is Abel inversion: one view
 of an axisymmetric field determines it.  A single plenoptic camera sees the
 flame through a small aperture, so a general 3-D reconstruction hardly knows
-where along the line of sight the emission sits (README, *Reconstruction
-accuracy*); an axisymmetric model removes that ambiguity, because the depth
+where along the line of sight the emission sits (docs/accuracy.md);
+an axisymmetric model removes that ambiguity, because the depth
 profile of the field at one lateral position is its lateral profile at another.
 
 :class:`RingGrid` restricts a field on a :class:`~lftomo.forward.grid.Grid` to
