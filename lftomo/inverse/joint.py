@@ -567,9 +567,9 @@ def solve_temperature_absorption(
 
     def penalty_norm(pv):
         """‖R‖ of the prior (the norm λ weighs): T and σ smoothness and the σ ridge."""
-        T = unpack(jnp.asarray(pv))[0]
-        q = b_prior * jax.nn.sigmoid(jnp.asarray(pv)[n_u:])
-        a, b = L @ ((T - lo) / (hi - lo)), L @ q
+        x = jax.nn.sigmoid(jnp.asarray(pv))  # the unit box: (T − T_min)/(T_max − T_min), σ_ref's coordinate u
+        q = b_prior * x[n_u:]  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
+        a, b = L @ x[:n_u], L @ q
         return float(jnp.sqrt(jnp.sum(a * a) + jnp.sum(b * b) + ridge * jnp.sum(q * q)))
 
     def objective(pv, lam):
@@ -668,11 +668,10 @@ def solve_temperature_absorption(
     @functools.cache
     def prior_gram():
         """The prior's Gauss–Newton matrix per unit λ in the unit-box unknowns (constant: the prior is
-        quadratic in ``T`` and ``σ_ref``, linear in ``x``)."""
-        b = b_prior
+        quadratic in ``x``: its σ terms are ``b_prior u``)."""
         Gp = np.zeros((2 * n_u, 2 * n_u))
         Gp[:n_u, :n_u] = LtL
-        Gp[n_u:, n_u:] = b * b * (LtL + ridge * np.eye(n_u))
+        Gp[n_u:, n_u:] = b_prior * b_prior * (LtL + ridge * np.eye(n_u))
         Gp.flags.writeable = False
         return Gp
 
