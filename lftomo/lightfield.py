@@ -58,29 +58,11 @@ def geometric_centers(camera: Camera) -> np.ndarray:
 
     Lenslet ``(i, j)`` (row i from +y, column j from -x, as on the sensor).
     The centre is where the chief ray from the exit-pupil centre through the
-    lenslet's principal points meets the sensor.  Pixel ``(r, c)`` has its
+    lenslet's principal points meets the sensor
+    (:attr:`Camera.microlens_image_centers`).  Pixel ``(r, c)`` has its
     centre at coordinates ``(r, c)``.
     """
-    mla = camera.mla
-    nx, ny = mla.count
-    z_xp, _ = camera.exit_pupil
-    z_h1 = camera.z_mla - mla.front_principal_plane
-    f = mla.focal_length
-    z_h2 = camera.z_mla - mla.thickness + (f - mla.back_focal_distance)
-    dist = z_h2 - camera.z_sensor
-    scale = 1.0 + dist / (z_xp - z_h1)
-    j = np.arange(nx)
-    i = np.arange(ny)
-    cx = (j + 0.5 - 0.5 * nx) * mla.pitch * scale
-    cy = (0.5 * ny - i - 0.5) * mla.pitch * scale
-    nrows, ncols = camera.sensor_shape
-    p = camera.sensor.pixel_pitch
-    col = cx / p + 0.5 * ncols - 0.5
-    row = 0.5 * nrows - 0.5 - cy / p
-    out = np.empty((ny, nx, 2))
-    out[..., 0] = row[:, None]
-    out[..., 1] = col[None, :]
-    return out
+    return np.array(camera.microlens_image_centers)
 
 
 def decode_index(camera: Camera, centers: np.ndarray) -> np.ndarray:

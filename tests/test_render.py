@@ -58,7 +58,7 @@ def test_pixel_etendue_backward_equals_forward(small_camera):
     rows, cols = np.divmod(pix, cam.sensor_shape[1])
     from lftomo.forward.camera import _pixel_throughput
 
-    res = _pixel_throughput(rows, cols, 20000, 3, cam.packed)
+    res = _pixel_throughput(rows, cols, 20000, 3, cam.packed, *cam.sampler_arrays("independent", 20000))
     bwd, bse = res[:, 0], res[:, 3]
     lit = (fwd > 0) | (bwd > 0)
     assert lit.sum() > 20
@@ -201,9 +201,10 @@ def test_exit_pupil_cull_changes_no_pixel(small_camera):
 
     rows, cols = np.indices(small_camera.sensor_shape)
     rows, cols = rows.ravel()[::7], cols.ravel()[::7]
-    culled = _pixel_throughput(rows, cols, 64, 1, small_camera.packed)
+    arrays = small_camera.sampler_arrays("stratified", 64)
+    culled = _pixel_throughput(rows, cols, 64, 1, small_camera.packed, *arrays)
     no_cull = small_camera.packed.copy()
     no_cull[O.O_XP_R2] = 0.0
-    full = _pixel_throughput(rows, cols, 64, 1, no_cull)
+    full = _pixel_throughput(rows, cols, 64, 1, no_cull, *arrays)
     assert np.array_equal(culled, full)
     assert small_camera.packed[O.O_XP_R2] > 0

@@ -28,6 +28,8 @@ from numba import njit, prange
 
 from .._validate import require_int, require_positive, require_finite_scalar
 from . import optics as _o
+from . import sampler as _sampler
+from .sampler import DEFAULT_SAMPLER
 from .rng import rng_init
 
 
@@ -255,54 +257,61 @@ def _trace_points_to_image(points, stop_xy, optics):
 
 
 @njit(cache=True, parallel=True)
-def _pixel_throughput(rows, cols, n_rays, seed, optics):
+def _pixel_throughput(rows, cols, n_rays, seed, optics, sampler, mli):
     """Monte Carlo étendue (m² sr) of each pixel and its mean stop position.
 
-    Returns (N, 4): étendue, mean stop x, mean stop y, étendue standard error.
+    Returns (N, 4): étendue, mean stop x, mean stop y, étendue standard error
+    (from the sampler's independent groups).
     """
     n = rows.shape[0]
+    k_groups = int(sampler[_sampler.S_GROUPS])
     out = np.zeros((n, 4))
     for k in prange(n):
-        state = rng_init(seed, rows[k] * 1000003 + cols[k])
-        s = 0.0
+        key = rng_init(seed, rows[k] * 1000003 + cols[k])
+        state = key
+        gs = np.zeros(k_groups)
         s2 = 0.0
         sx = 0.0
         sy = 0.0
-        for _ in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(rows[k], cols[k], state, optics)
+        for m in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _sampler.pixel_ray(
+                rows[k], cols[k], 0.0, 0.0, m, n_rays, key, state, optics, sampler, mli)
             if ok:
-                s += w
+                gs[m % k_groups] += w
                 s2 += w * w
                 sx += w * ox
                 sy += w * oy
-        mean = s / n_rays
-        out[k, 0] = mean
+        s = gs.sum()
+        out[k, 0] = s / n_rays
         if s > 0.0:
             out[k, 1] = sx / s
             out[k, 2] = sy / s
-        var = max(s2 / n_rays - mean * mean, 0.0)
-        out[k, 3] = math.sqrt(var / n_rays)
+        out[k, 3] = _sampler.mean_variance(gs, s2, n_rays, sampler) ** 0.5
     return out
 
 
 @njit(cache=True, parallel=True)
-def _pixel_stop_samples(rows, cols, off_r, off_c, n_rays, seed, optics):
+def _pixel_stop_samples(rows, cols, off_r, off_c, n_rays, seed, optics, sampler, mli):
     """Stop-plane positions (x, y) and weights (m² sr) of ``n_rays`` backward
     rays per pixel (displaced by off_r, off_c pixels): (N, n_rays, 3); weight
     0 for vignetted rays."""
     n = rows.shape[0]
     out = np.zeros((n, n_rays, 3))
     for k in prange(n):
-        state = rng_init(seed, rows[k] * 1000003 + cols[k])
+        key = rng_init(seed, rows[k] * 1000003 + cols[k])
+        state = key
         for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray_offset(
-                rows[k], cols[k], off_r, off_c, state, optics
-            )
+            state, ok, ox, oy, oz, dx, dy, dz, w = _sampler.pixel_ray(
+                rows[k], cols[k], off_r, off_c, m, n_rays, key, state, optics, sampler, mli)
             if ok:
                 out[k, m, 0] = ox
                 out[k, m, 1] = oy
                 out[k, m, 2] = w
     return out
+
+
+_NO_TABLE = np.zeros((1, 3))
+_NO_TABLE.setflags(write=False)
 
 
 @dataclass(frozen=True)
@@ -514,7 +523,9 @@ class Camera:
                     for c in range(p):
                         rows.append(bi * p + r)
                         cols.append(bj * p + c)
-        res = _pixel_throughput(np.array(rows, np.int64), np.array(cols, np.int64), 400, 12345, probe)
+        indep = _sampler.pack_sampler("independent", 400)
+        res = _pixel_throughput(np.array(rows, np.int64), np.array(cols, np.int64), 400, 12345, probe,
+                                indep, np.zeros((1, 3)))
         return bool(np.any(res[:, 0] > 0.0))
 
     # ---- paraxial optics --------------------------------------------------
@@ -566,8 +577,71 @@ class Camera:
         """(z, diameter) of the paraxial exit pupil (image of the stop)."""
         return _exit_pupil(self.main_lens)
 
+    # ---- microlens images and pixel sampling -----------------------------
+    @cached_property
+    def microlens_image_centers(self) -> np.ndarray:
+        """Microlens-image centres (row, col) in pixel coordinates, (n_y, n_x, 2).
+
+        Lenslet ``(i, j)`` (row i from +y, column j from -x, as on the
+        sensor).  The centre is where the chief ray from the exit-pupil centre
+        through the lenslet's principal points meets the sensor (paraxial);
+        pixel ``(r, c)`` has its centre at coordinates ``(r, c)``.
+        """
+        mla = self.mla
+        nx, ny = mla.count
+        z_xp, _ = self.exit_pupil
+        z_h1 = self.z_mla - mla.front_principal_plane
+        f = mla.focal_length
+        z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
+        dist = z_h2 - self.z_sensor
+        scale = 1.0 + dist / (z_xp - z_h1)
+        cx = (np.arange(nx) + 0.5 - 0.5 * nx) * mla.pitch * scale
+        cy = (0.5 * ny - np.arange(ny) - 0.5) * mla.pitch * scale
+        nrows, ncols = self.sensor_shape
+        p = self.sensor.pixel_pitch
+        out = np.empty((ny, nx, 2))
+        out[..., 0] = (0.5 * nrows - 0.5 - cy / p)[:, None]
+        out[..., 1] = (cx / p + 0.5 * ncols - 0.5)[None, :]
+        out.setflags(write=False)
+        return out
+
+    @cached_property
+    def microlens_image_radius(self) -> float:
+        """Paraxial radius (pixels) of a microlens image: the exit pupil seen
+        through a lenslet's principal point, plus the blur of the lenslet
+        aperture when the sensor is not in its focal plane."""
+        mla = self.mla
+        z_xp, d_xp = self.exit_pupil
+        z_h1 = self.z_mla - mla.front_principal_plane
+        f = mla.focal_length
+        z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
+        dist = z_h2 - self.z_sensor
+        r = 0.5 * d_xp * dist / (z_xp - z_h1) + 0.5 * mla.diameter * abs(dist - f) / f
+        return float(r / self.sensor.pixel_pitch)
+
+    @cached_property
+    def microlens_image_table(self) -> np.ndarray:
+        """Conservative microlens-image discs that the stratified pixel sampler
+        restricts its pixel samples to, (n_y * n_x, 3) (see
+        :func:`lftomo.forward.sampler.microlens_images`)."""
+        return _sampler.microlens_images(self.packed, self.microlens_image_centers, self.microlens_image_radius)
+
+    @cached_property
+    def lenslet_sampling_disc(self) -> tuple[float, float]:
+        """``(kappa, rho)`` of the lenslet disc the stratified sampler draws
+        from (:func:`lftomo.forward.sampler.lenslet_disc`)."""
+        return _sampler.lenslet_disc(self.packed)
+
+    def sampler_arrays(self, sampler: str, n_rays: int) -> tuple[np.ndarray, np.ndarray]:
+        """Packed sampler and microlens-image table for the numba kernels."""
+        if sampler == "independent":
+            return _sampler.pack_sampler(sampler, n_rays), _NO_TABLE
+        packed = _sampler.pack_sampler(sampler, n_rays, *self.lenslet_sampling_disc)
+        return packed, self.microlens_image_table
+
     # ---- Monte Carlo helpers ---------------------------------------------
-    def pixel_etendue(self, rows=None, cols=None, *, n_rays: int = 4096, seed: int = 0) -> np.ndarray:
+    def pixel_etendue(self, rows=None, cols=None, *, n_rays: int = 4096, seed: int = 0,
+                      sampler: str = DEFAULT_SAMPLER) -> np.ndarray:
         """Monte Carlo étendue (m² sr) of pixels through the whole optics.
 
         Parameters
@@ -576,6 +650,10 @@ class Camera:
             Pixels (default: all, returning an array of ``sensor_shape``).
         n_rays : int
             Rays per pixel.
+        seed : int
+            Seed of the per-pixel random keys.
+        sampler : {"independent", "stratified"}
+            Pixel sampler (:mod:`lftomo.forward.sampler`).
 
         Returns
         -------
@@ -588,7 +666,8 @@ class Camera:
             rows, cols = rr.ravel(), cc.ravel()
         rows = np.asarray(rows, np.int64)
         cols = np.asarray(cols, np.int64)
-        res = _pixel_throughput(rows.ravel(), cols.ravel(), int(n_rays), int(seed), self.packed)
+        res = _pixel_throughput(rows.ravel(), cols.ravel(), int(n_rays), int(seed), self.packed,
+                                *self.sampler_arrays(sampler, int(n_rays)))
         out = res[:, 0]
         return out.reshape(self.sensor_shape) if full else out.reshape(rows.shape)
 
@@ -606,7 +685,8 @@ class Camera:
         rr, cc = np.indices((p, p))
         rows = (i0 * p + rr).ravel()
         cols = (j0 * p + cc).ravel()
-        res = _pixel_throughput(rows.astype(np.int64), cols.astype(np.int64), 20000, 7, self.packed)
+        res = _pixel_throughput(rows.astype(np.int64), cols.astype(np.int64), 20000, 7, self.packed,
+                                *self.sampler_arrays(DEFAULT_SAMPLER, 20000))
         xy = res[:, 1:3].reshape(p, p, 2)  # noqa: E501
         et = res[:, 0].reshape(p, p)
         xy[et <= 0] = np.nan
@@ -618,7 +698,7 @@ class Camera:
         """Étendue (m² sr) of every pixel, (rows, cols): 64 backward rays per
         pixel with a fixed seed, so that masks derived from it depend on the
         camera only (computed once per camera)."""
-        et = self.pixel_etendue(n_rays=64, seed=2024)
+        et = self.pixel_etendue(n_rays=64, seed=2024, sampler=DEFAULT_SAMPLER)
         et.setflags(write=False)
         return et
 
@@ -639,7 +719,8 @@ class Camera:
             rr, cc = np.indices((p, p))
             rows = (i0 * p + rr).ravel().astype(np.int64)
             cols = (j0 * p + cc).ravel().astype(np.int64)
-            res = _pixel_stop_samples(rows, cols, key[0], key[1], key[2], 11, self.packed)
+            res = _pixel_stop_samples(rows, cols, key[0], key[1], key[2], 11, self.packed,
+                                      *self.sampler_arrays(DEFAULT_SAMPLER, key[2]))
             cache[key] = res.reshape(p, p, -1, 3)[::-1, ::-1].copy()
         return cache[key]
 

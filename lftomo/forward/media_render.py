@@ -32,6 +32,7 @@ from numba import njit, prange
 
 from .._validate import require_int
 from . import optics as _o
+from . import sampler as _smp
 from .dda import integrate_emission, ray_box, transmittance
 from .rng import rng_init, rng_uniform
 from .scattering import hg_phase, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance
@@ -80,51 +81,57 @@ def pack_medium(medium, wavelengths) -> dict[str, Any]:
 
 
 @njit(cache=True, parallel=True)
-def _rows_absorbing(row0, row1, optics, surf, tex, n_ch, rays_per_pixel, seed,
-                    x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, mean, sq):
+def _rows_absorbing(row0, row1, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
+                    x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, mean, var):
     ncols = int(optics[_o.O_NCOLS])
     n_pix = (row1 - row0) * ncols
     inv_n = 1.0 / rays_per_pixel
+    k_groups = int(sampler[_smp.S_GROUPS])
     for k in prange(n_pix):
         r = row0 + k // ncols
         c = k % ncols
-        state = rng_init(seed, r * ncols + c)
+        key = rng_init(seed, r * ncols + c)
+        state = key
         L = np.zeros(n_ch)
-        acc = np.zeros(n_ch)
-        acc2 = np.zeros(n_ch)
-        for _ in range(rays_per_pixel):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+        gs = np.zeros((n_ch, k_groups))
+        sq = np.zeros(n_ch)
+        for m in range(rays_per_pixel):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
+                                                                  optics, sampler, mli)
             if not ok:
                 continue
             integrate_emission(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, surf, tex, L)
             for ch in range(n_ch):
                 v = w * L[ch]
-                acc[ch] += v
-                acc2[ch] += v * v
+                gs[ch, m % k_groups] += v
+                sq[ch] += v * v
         for ch in range(n_ch):
-            mean[ch, r, c] = acc[ch] * inv_n
-            sq[ch, r, c] = acc2[ch] * inv_n
+            mean[ch, r, c] = gs[ch].sum() * inv_n
+            var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], rays_per_pixel, sampler)
 
 
 @njit(cache=True, parallel=True)
-def _rows_scattering(row0, row1, optics, surf, tex, n_ch, rays_per_pixel, seed,
+def _rows_scattering(row0, row1, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
                      x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, sigma_s, g, Ib, majorant,
-                     max_bounces, mean, sq):
+                     max_bounces, mean, var):
     ncols = int(optics[_o.O_NCOLS])
     n_pix = (row1 - row0) * ncols
     inv_n = 1.0 / rays_per_pixel
+    k_groups = int(sampler[_smp.S_GROUPS])
     for k in prange(n_pix):
         r = row0 + k // ncols
         c = k % ncols
-        state = rng_init(seed, r * ncols + c)
+        key = rng_init(seed, r * ncols + c)
+        state = key
         # transport draws from its own stream, so the optics samples are the
         # same as in any other render with this seed (common random numbers)
         tstate = rng_init(seed, TRANSPORT_STREAM + r * ncols + c)
         L = np.zeros(n_ch)
-        acc = np.zeros(n_ch)
-        acc2 = np.zeros(n_ch)
-        for _ in range(rays_per_pixel):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+        gs = np.zeros((n_ch, k_groups))
+        sq = np.zeros(n_ch)
+        for m in range(rays_per_pixel):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
+                                                                  optics, sampler, mli)
             if not ok:
                 continue
             for ch in range(n_ch):
@@ -133,30 +140,31 @@ def _rows_scattering(row0, row1, optics, surf, tex, n_ch, rays_per_pixel, seed,
                                    sigma_a, sigma_s, g, Ib, majorant, surf, tex, tstate, L, max_bounces)
             for ch in range(n_ch):
                 v = w * L[ch]
-                acc[ch] += v
-                acc2[ch] += v * v
+                gs[ch, m % k_groups] += v
+                sq[ch] += v * v
         for ch in range(n_ch):
-            mean[ch, r, c] = acc[ch] * inv_n
-            sq[ch, r, c] = acc2[ch] * inv_n
+            mean[ch, r, c] = gs[ch].sum() * inv_n
+            var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], rays_per_pixel, sampler)
 
 
 def medium_row_kernel(medium, wavelengths, camera):
     """Validate the medium against the camera and return ``f(r0, r1, optics,
-    surf, tex, n_ch, n_rays, seed, mean, sq)`` rendering rows [r0, r1)."""
+    sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)`` rendering rows
+    [r0, r1) (``var``: the estimated variance of each pixel's mean)."""
     check_medium_visible(medium, camera)
     p = pack_medium(medium, wavelengths)
     x0, y0, z0 = (float(v) for v in p["lower"])
     hx, hy, hz = (float(v) for v in p["spacing"])
     nx, ny, nz = (int(v) for v in p["shape"])
     if not medium.is_scattering:
-        def run(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq):
-            _rows_absorbing(r0, r1, optics, surf, tex, n_ch, n_rays, seed,
-                            x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["Ib"], mean, sq)
+        def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
+            _rows_absorbing(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
+                            x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["Ib"], mean, var)
     else:
-        def run(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq):
-            _rows_scattering(r0, r1, optics, surf, tex, n_ch, n_rays, seed,
+        def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
+            _rows_scattering(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
                              x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["sigma_s"], p["g"], p["Ib"],
-                             p["majorant"], MAX_BOUNCES, mean, sq)
+                             p["majorant"], MAX_BOUNCES, mean, var)
     return run
 
 
@@ -165,9 +173,9 @@ def empty_row_kernel(n_ch):
     integrator with an empty 1-voxel grid that no object-space ray meets."""
     sigma = np.zeros((n_ch, 1))
 
-    def run(r0, r1, optics, surf, tex, n_ch_, n_rays, seed, mean, sq):
-        _rows_absorbing(r0, r1, optics, surf, tex, n_ch_, n_rays, seed,
-                        0.0, 0.0, -10.0, 1e-9, 1e-9, 1e-9, 1, 1, 1, sigma, sigma, mean, sq)
+    def run(r0, r1, optics, sampler, mli, surf, tex, n_ch_, n_rays, seed, mean, var):
+        _rows_absorbing(r0, r1, optics, sampler, mli, surf, tex, n_ch_, n_rays, seed,
+                        0.0, 0.0, -10.0, 1e-9, 1e-9, 1e-9, 1, 1, 1, sigma, sigma, mean, var)
     return run
 
 

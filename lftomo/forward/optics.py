@@ -210,6 +210,12 @@ def lenslet_center(i, j, optics):
 
 
 @njit(cache=True, inline="always")
+def vertex_z_back(optics):
+    """z of the lenslets' back (sensor-side) vertex plane."""
+    return optics[O_M2_ZV]
+
+
+@njit(cache=True, inline="always")
 def mla_backward(px, py, pz, dx, dy, dz, i, j, optics):
     """Through lenslet (i, j) from the sensor side. Returns (ok, p, d)."""
     cx, cy = lenslet_center(i, j, optics)
@@ -356,9 +362,23 @@ def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
     dy = ey * inv
     dz = ez * inv
     w = (sp * sp) * (math.pi * rs * rs) * dz * dz / r2 / psel
-    ok, px, py, pz, dx, dy, dz = mla_backward(sx, sy, sz, dx, dy, dz, i, j, optics)
+    ok, x, y, dx, dy, dz = trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics)
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    return state, True, x, y, 0.0, dx, dy, dz, w
+
+
+@njit(cache=True, inline="always")
+def trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics):
+    """Trace a ray from the sensor point (sx, sy, sz) with unit direction
+    (dz > 0) through lenslet (i, j) and the main lens to the stop plane.
+
+    Returns ``(ok, x, y, dx, dy, dz)``: the object-space ray's origin on the
+    stop plane z = 0 and its direction; ``ok`` False when it is vignetted.
+    """
+    ok, px, py, pz, dx, dy, dz = mla_backward(sx, sy, sz, dx, dy, dz, i, j, optics)
+    if not ok:
+        return False, 0.0, 0.0, dx, dy, dz
     # Early cull: a ray that crosses the paraxial exit-pupil plane far outside
     # the pupil (by a margin that covers pupil aberrations) cannot pass the stop.
     cull = optics[O_XP_R2]
@@ -367,11 +387,8 @@ def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
         ex = px + t * dx
         ey = py + t * dy
         if ex * ex + ey * ey > cull:
-            return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
-    ok, x, y, dx, dy, dz = main_lens_backward(px, py, pz, dx, dy, dz, optics)
-    if not ok:
-        return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
-    return state, True, x, y, 0.0, dx, dy, dz, w
+            return False, 0.0, 0.0, dx, dy, dz
+    return main_lens_backward(px, py, pz, dx, dy, dz, optics)
 
 
 @njit(cache=True)

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from .._validate import require_int
+from .sampler import DEFAULT_SAMPLER, SAMPLERS
 
 
 def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
@@ -44,6 +45,7 @@ def render(
     rays_per_pixel: int = 16,
     seed: int = 0,
     wavelengths: Any = (650e-9,),
+    sampler: str = DEFAULT_SAMPLER,
     progress: bool | None = None,
 ):
     """Render the raw plenoptic image of ``scene`` by backward Monte Carlo.
@@ -60,6 +62,10 @@ def render(
     wavelengths : float, sequence of float, or "gray"
         Spectral channels in m (default 650 nm), or ``"gray"`` for the total
         (σT⁴/π) band.  One raw channel per wavelength.
+    sampler : {"stratified", "independent"}
+        Where each pixel's rays start (:mod:`lftomo.forward.sampler`):
+        randomized quasi-Monte Carlo restricted to where light can pass,
+        or independent uniform samples (the default).
     progress : bool, optional
         Show a progress bar (default: when the render is large).
 
@@ -82,9 +88,12 @@ def render(
     n_ch = 1 if wl is None else len(wl)
     surf, tex = pack_surfaces(scene.surfaces, wl)
     optics = camera.packed
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
+    packed_sampler, mli = camera.sampler_arrays(sampler, n_rays)
     nrows, ncols = camera.sensor_shape
     mean = np.zeros((n_ch, nrows, ncols))
-    sq = np.zeros((n_ch, nrows, ncols))
+    var = np.zeros((n_ch, nrows, ncols))
     t0 = time.perf_counter()
     from .media_render import empty_row_kernel, medium_row_kernel
 
@@ -98,18 +107,18 @@ def render(
     show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
     bar = _progress(len(chunks) * step * ncols, show, "render")
     for r0, r1 in chunks:
-        row_kernel(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq)
+        row_kernel(r0, r1, optics, packed_sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)
         bar.update((r1 - r0) * ncols)
     bar.close()
     elapsed = time.perf_counter() - t0
-    var = np.maximum(sq - mean * mean, 0.0)
-    std_error = np.sqrt(var / n_rays)
+    std_error = np.sqrt(var)
     raw = mean[0] if n_ch == 1 else mean
     se = std_error[0] if n_ch == 1 else std_error
     meta = {
         "renderer": "backward",
         "transport": "surfaces" if scene.medium is None else ("delta tracking" if scene.medium.is_scattering else "exact DDA"),
         "rays_per_pixel": n_rays,
+        "sampler": sampler,
         "seed": seed,
         "wavelengths": None if wl is None else list(wl),
         "scene": scene.summary(),

@@ -101,6 +101,8 @@ from numba import njit, prange
 
 from .._validate import require_int, require_npz_file
 from . import optics as _o
+from . import sampler as _smp
+from .sampler import DEFAULT_SAMPLER
 from .dda import max_segments, ray_box, traverse
 from .rng import rng_init, rng_uniform, rng_uniform_open
 from .scattering import RR_DEPTH, sample_hg_direction
@@ -143,7 +145,7 @@ def _finish_row(out_idx, out_val, o, cnt, pos):
 
 
 @njit(cache=True, parallel=True)
-def _rows_absorbing(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, pos):
     """Exact weight rows of the pixels ``pix`` (flat raw indices), no scattering.
 
@@ -166,14 +168,16 @@ def _rows_absorbing(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz
         Ls = np.zeros(1)
         r = pix[k] // ncols
         c = pix[k] - r * ncols
-        state = rng_init(seed, pix[k])
+        key = rng_init(seed, pix[k])
+        state = key
         o = buf_off[k]
         cap = buf_off[k + 1] - o
         cnt = 0
         bg = 0.0
         overflow = False
-        for _ in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+        for m in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+                                                                  optics, sampler, mli)
             if not ok:
                 continue
             t_s = math.inf
@@ -215,7 +219,7 @@ def _rows_absorbing(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz
 
 
 @njit(cache=True, parallel=True)
-def _rows_scattering(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                      sigma_a, sigma_s, g, max_bounces, buf_off, out_idx, out_val, out_cnt, out_bg, pos):
     """Monte Carlo weight rows with scattering (see the module docstring):
     expected-value emission along each flight, next scattering vertex sampled
@@ -241,15 +245,17 @@ def _rows_scattering(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, h
         Ls = np.zeros(1)
         r = pix[k] // ncols
         c = pix[k] - r * ncols
-        state = rng_init(seed, pix[k])
+        key = rng_init(seed, pix[k])
+        state = key
         tstate = rng_init(seed, TRANSPORT_STREAM + pix[k])
         o = buf_off[k]
         cap = buf_off[k + 1] - o
         cnt = 0
         bg = 0.0
         overflow = False
-        for _ in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+        for m in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+                                                                  optics, sampler, mli)
             if not ok or overflow:
                 continue
             w0 = w * inv_n
@@ -345,7 +351,7 @@ def _rows_scattering(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, h
 
 
 @njit(cache=True, parallel=True)
-def _rows_segments(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                    o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl):
     """Ray–segment table of the pixels ``pix``: per row ``k`` the kept rays
     (``o_nr[k]`` of them: weight ``o_rw[k, q]`` m² sr, surface radiance
@@ -364,11 +370,13 @@ def _rows_segments(pix, optics, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz,
         Ls = np.zeros(1)
         r = pix[k] // ncols
         c = pix[k] - r * ncols
-        state = rng_init(seed, pix[k])
+        key = rng_init(seed, pix[k])
+        state = key
         o = seg_off[k]
         nr = 0
-        for _ in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+        for m in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+                                                                  optics, sampler, mli)
             if not ok:
                 continue
             t_s = math.inf
@@ -1183,6 +1191,7 @@ def weights(
     memory_limit: float | None = None,
     progress: bool | None = None,
     max_bounces: int = _MAX_BOUNCES,
+    sampler: str = DEFAULT_SAMPLER,
 ) -> WeightMatrix:
     """Ray–voxel weight matrix ``W`` of the camera for a medium on ``grid``.
 
@@ -1229,6 +1238,9 @@ def weights(
     max_bounces : int
         Scattering only: collisions after which the roulette survival is
         capped at 0.5 (unbiased; not a truncation).
+    sampler : {"stratified", "independent"}
+        Pixel sampler (:mod:`lftomo.forward.sampler`); the rays are those of
+        :func:`lftomo.render` with the same seed and sampler.
 
     Returns
     -------
@@ -1255,6 +1267,10 @@ def weights(
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
     optics = camera.packed
+    if sampler not in _smp.SAMPLERS:
+        raise ValueError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
+    sampler_name = sampler
+    sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
     ga = _grid_args(grid)
     n_vox = grid.n_voxels
     m = max_segments(*ga[6:])
@@ -1263,14 +1279,14 @@ def weights(
         cap_max = int(min(n_vox, n_rays * m))
 
         def call(pix, buf_off, oi, ov, oc, ob, pos):
-            _rows_absorbing(pix, optics, surf, tex, n_rays, seed, *ga, sa, buf_off, oi, ov, oc, ob, pos)
+            _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, buf_off, oi, ov, oc, ob, pos)
 
         estimator = "exact DDA per ray (same rays as render)"
     else:
         cap_max = n_vox  # paths may scatter anywhere
 
         def call(pix, buf_off, oi, ov, oc, ob, pos):
-            _rows_scattering(pix, optics, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi, ov,
+            _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi, ov,
                              oc, ob, pos)
 
         estimator = ("Monte Carlo: expected-value emission along each flight, scattering vertices sampled from "
@@ -1281,7 +1297,8 @@ def weights(
         what="weight matrix", n_rays=n_rays)
     elapsed = time.perf_counter() - t0
     meta = _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc,
-                 {"estimate": est, "build_seconds": elapsed, "max_bounces": max_bounces if scattering else None})
+                 {"estimate": est, "build_seconds": elapsed, "max_bounces": max_bounces if scattering else None,
+                  "sampler": sampler_name})
     return WeightMatrix(data, indices, indptr, (int(pixel_index.size), n_vox), pixel_index, view_pixel, view_ptr,
                         tuple(int(a) for a in camera.views_shape), tuple(int(a) for a in camera.sensor_shape),
                         background, meta)
@@ -1545,6 +1562,7 @@ def ray_segments(
     lightfield: Any = None,
     memory_limit: float | None = None,
     progress: bool | None = None,
+    sampler: str = DEFAULT_SAMPLER,
 ) -> RaySegments:
     """Ray–segment table (pixel row, ray, voxel, chord length) of the camera's rays.
 
@@ -1571,6 +1589,10 @@ def ray_segments(
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
     optics = camera.packed
+    if sampler not in _smp.SAMPLERS:
+        raise ValueError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
+    sampler_name = sampler
+    sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
     ga = _grid_args(grid)
     m = max_segments(*ga[6:])
     n_rows = pixel_index.size
@@ -1586,7 +1608,7 @@ def ray_segments(
         if bufs is None or bufs[0].size < n * cap:
             bufs = (np.empty(max(n * cap, 1), np.int32), np.empty(max(n * cap, 1)))
         o_sv, o_sl = bufs
-        _rows_segments(pix, optics, surf, tex, n_rays, seed, *ga, o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl)
+        _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl)
         return o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl
 
     t0 = time.perf_counter()
@@ -1661,7 +1683,7 @@ def ray_segments(
     ray_row = np.repeat(np.arange(n_rows, dtype=np.int64), np.diff(row_ray_ptr))
     zeros = np.zeros(grid.n_voxels)
     meta = _meta(camera, grid, wl, n_rays, seed, "exact DDA per ray (same rays as render)", zeros, zeros, zeros,
-                 surf_summary, views_desc, {"build_seconds": time.perf_counter() - t0,
+                 surf_summary, views_desc, {"build_seconds": time.perf_counter() - t0, "sampler": sampler_name,
                                             "estimate": {"segments": seg_est, "rays": ray_est, "bytes": est_bytes}})
     del meta["sigma_a"]
     return RaySegments(ray_row, ray_w, ray_L, ray_ptr, row_ray_ptr, voxel, length, grid.n_voxels, pixel_index,

@@ -18,6 +18,7 @@ import lftomo as lt
 from lftomo.forward import optics as _o
 from lftomo.forward.dda import ray_box
 from lftomo.forward.rng import rng_init
+from lftomo.forward.sampler import DEFAULT_SAMPLER, pixel_ray
 from lftomo.forward.weights import RaySegments, WeightMatrix, ray_segments, weights, weights_refocus
 
 WL = 650e-9
@@ -70,7 +71,7 @@ def binned(values, bins, n=4):
 
 
 @njit(cache=True)
-def _chords(pixels, n_rays, seed, optics, lo, hi):
+def _chords(pixels, n_rays, seed, optics, sampler, mli, lo, hi):
     """Independent of the DDA: the same rays as the renderer (stream = pixel),
     and the chord through the box by the slab method.  Returns (w, L) per ray."""
     ncols = int(optics[_o.O_NCOLS])
@@ -80,9 +81,11 @@ def _chords(pixels, n_rays, seed, optics, lo, hi):
     for k in range(n):
         r = pixels[k] // ncols
         c = pixels[k] % ncols
-        state = rng_init(seed, pixels[k])
+        key = rng_init(seed, pixels[k])
+        state = key
         for q in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _o.sample_pixel_ray(r, c, state, optics)
+            state, ok, ox, oy, oz, dx, dy, dz, w = pixel_ray(r, c, 0.0, 0.0, q, n_rays, key, state, optics,
+                                                             sampler, mli)
             if not ok:
                 continue
             t0, t1 = ray_box(ox, oy, oz, dx, dy, dz, lo[0], lo[1], lo[2], hi[0], hi[1], hi[2])
@@ -166,7 +169,7 @@ def test_surfaces_occlude_and_give_the_background(cam, grid, blob):
 
 def test_thin_limit_row_sums_are_weighted_chords(cam, grid):
     pix_all = weights(cam, grid, sigma_a=1.0, rays_per_pixel=NRAYS, seed=8).pixel_index
-    w, L = _chords(pix_all, NRAYS, 8, cam.packed, np.array(grid.lower), np.array(grid.upper))
+    w, L = _chords(pix_all, NRAYS, 8, cam.packed, *cam.sampler_arrays(DEFAULT_SAMPLER, NRAYS), np.array(grid.lower), np.array(grid.upper))
     chord = (w * L).sum(axis=1) / NRAYS
     seen = chord > 0
     assert seen.sum() > 100
@@ -414,7 +417,7 @@ def test_segments_rebuild_weights_exactly(cam, grid, blob, segments):
         assert (Ws.matrix != W.matrix).nnz == 0  # same operations in the same order
         np.testing.assert_array_equal(Ws.background, W.background)
     # chord lengths from the table = independent slab-method chords
-    w, L = _chords(S.pixel_index, NRAYS, 3, cam.packed, np.array(grid.lower), np.array(grid.upper))
+    w, L = _chords(S.pixel_index, NRAYS, 3, cam.packed, *cam.sampler_arrays(DEFAULT_SAMPLER, NRAYS), np.array(grid.lower), np.array(grid.upper))
     np.testing.assert_allclose(S.chord_lengths(), (w * L).sum(axis=1) / NRAYS, rtol=1e-12, atol=1e-20)
 
 

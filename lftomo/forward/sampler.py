@@ -1,0 +1,574 @@
+"""Pixel samplers: where the backward rays of a pixel start.
+
+A pixel's signal is the radiant power through its area (DESIGN §1),
+``Φ = ∫_pixel ∫_disc L cos θ_s cos θ_q / r² dA_q dA_s``, an integral over a
+4-D domain: a point ``s`` on the pixel and a point ``q`` on the back-vertex
+plane of a lenslet (the ray from ``s`` to ``q`` is then traced through the
+lenslet and the main lens; vignetting at every aperture comes from that
+trace).  A sampler chooses the ``N`` points ``(s, q)`` of a pixel and their
+weights ``w = cos θ_s cos θ_q / (r² p(s, q))`` so that ``mean(w L)`` is
+unbiased for ``Φ``.  Two samplers:
+
+``"stratified"``
+    Randomized quasi-Monte Carlo over the pixel's 4-D domain, restricted to
+    where light can pass.  The ``N`` samples form ``K = min(8, N)``
+    independent randomizations of ``N/K`` points each (sample ``m`` belongs to
+    group ``m mod K``, point ``m // K`` of that group); each group is a 4-D
+    Sobol' point set (Joe & Kuo 2008 direction numbers) with its own nested
+    uniform (Owen) scrambling, done with the hash of Burley (2020).  The
+    pixel-area pair is mapped to a box that contains the part of the pixel
+    inside its microlens image (the image of the main-lens exit pupil; the
+    box is the bounding box of pixel ∩ a conservative disc about the image
+    centre), the lenslet pair to a disc that contains every crossing point of
+    a ray that passes the lenslet's clear aperture from that sensor point
+    (concentric map of Shirley & Chiu 1997, area preserving).  A defensive
+    mixture (Hesterberg 1995) of probability ``alpha`` draws the sample
+    from the whole pixel and the whole sampling disc instead, and every
+    sample is weighted by the mixture density, so the estimator stays
+    unbiased even where the restricted region would miss light.  Groups are
+    independent unbiased estimates: their spread gives an honest standard
+    error (:func:`group_std_error`).
+``"independent"`` (the default, :data:`DEFAULT_SAMPLER`)
+    Uniform points on the pixel and on a disc over the lenslet's back-vertex
+    plane, drawn from a per-pixel stream.
+
+Random numbers depend only on ``(seed, pixel, sample index)``, never on the
+thread that runs the pixel, so images are identical for any thread count.
+
+References
+----------
+Joe, S. & Kuo, F. Y. (2008). Constructing Sobol sequences with better
+two-dimensional projections. SIAM J. Sci. Comput. 30, 2635–2654.
+Owen, A. B. (1995). Randomly permuted (t, m, s)-nets and (t, s)-sequences.
+Burley, B. (2020). Practical hash-based Owen scrambling. JCGT 9(4), 1–20.
+Shirley, P. & Chiu, K. (1997). A low distortion map between disk and square.
+J. Graphics Tools 2(3), 45–52.
+Hesterberg, T. (1995). Weighted average importance sampling and defensive
+mixture distributions. Technometrics 37, 185–194.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from . import optics as _o
+from .rng import rng_init, rng_uniform
+
+SAMPLERS = ("stratified", "independent")
+#: The sampler used when none is named.  "independent" until the stratified
+#: sampler's open discrepancy (docs/performance.md, *Pixel sampling*) is
+#: understood; select "stratified" explicitly to use it.
+DEFAULT_SAMPLER = "independent"
+#: Randomizations (groups) of the stratified sampler; fewer when N < 8.
+N_GROUPS = 8
+#: Probability of the defensive (whole pixel, whole disc) component.
+DEFENSIVE_FRACTION = 0.02
+
+# ---- packed sampler layout (1-D float64) ----------------------------------
+S_KIND = 0  # 0: independent, 1: stratified
+S_GROUPS = 1  # K, number of independent randomizations
+S_ALPHA = 2  # defensive mixture probability
+S_KAPPA = 3  # centre of the passing lenslet disc: c + kappa (s - c)
+S_RHO = 4  # its radius (m), on the back surface projected on the xy plane
+S_SIZE = 5
+
+# ---- microlens-image table, (n_lenslets, 3): centre row, centre col, radius
+# in pixel-corner coordinates (pixel (r, c) covers [r, r+1) x [c, c+1)).
+
+
+def _direction_numbers(n_bits: int = 32) -> np.ndarray:
+    """Sobol' generator columns of the first four dimensions, (4, n_bits) uint64.
+
+    Dimension 0 is van der Corput's; dimensions 1–3 use the primitive
+    polynomials and initial numbers of Joe & Kuo (2008): (s, a, m) =
+    (1, 0, [1]), (2, 1, [1, 3]), (3, 1, [1, 3, 1]).  Column ``k`` is the value
+    that bit ``k`` of the index contributes, as a 32-bit fraction.
+    """
+    table = [(1, 0, [1]), (2, 1, [1, 3]), (3, 1, [1, 3, 1])]
+    v = np.zeros((4, n_bits), dtype=np.uint64)
+    for k in range(n_bits):
+        v[0, k] = 1 << (31 - k)
+    for d, (s, a, m0) in enumerate(table, start=1):
+        m = list(m0)
+        for k in range(s, n_bits):
+            new = m[k - s] ^ (m[k - s] << s)
+            for i in range(1, s):
+                if (a >> (s - 1 - i)) & 1:
+                    new ^= m[k - i] << i
+            m.append(new)
+        for k in range(n_bits):
+            v[d, k] = m[k] << (31 - k)
+    return v
+
+
+SOBOL_V = _direction_numbers()
+_MASK32 = np.uint64(0xFFFFFFFF)
+_INV32 = 1.0 / 4294967296.0
+
+
+@njit(cache=True, inline="always")
+def sobol_u32(index, dim):
+    """Unscrambled Sobol' coordinate ``dim`` (0..3) of point ``index`` as a 32-bit integer."""
+    x = np.uint64(0)
+    k = 0
+    i = np.uint64(index)
+    while i != 0 and k < 32:
+        if i & np.uint64(1):
+            x ^= SOBOL_V[dim, k]
+        i >>= np.uint64(1)
+        k += 1
+    return x
+
+
+@njit(cache=True, inline="always")
+def _reverse32(x):
+    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | ((x & np.uint64(0x55555555)) << np.uint64(1))
+    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | ((x & np.uint64(0x33333333)) << np.uint64(2))
+    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((x & np.uint64(0x0F0F0F0F)) << np.uint64(4))
+    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((x & np.uint64(0x00FF00FF)) << np.uint64(8))
+    x = ((x >> np.uint64(16)) & np.uint64(0x0000FFFF)) | ((x & np.uint64(0x0000FFFF)) << np.uint64(16))
+    return x & _MASK32
+
+
+@njit(cache=True, inline="always")
+def owen_scramble_u32(x, seed):
+    """Nested uniform (Owen) scrambling of a 32-bit fraction ``x``.
+
+    The Laine–Karras hash on the bit-reversed value (Burley 2020, eq. 4 and
+    its constants): each bit is flipped by a hash of the bits above it and
+    of ``seed``, which is a random nested permutation of the base-2 digits.
+    """
+    x = _reverse32(x)
+    x = (x + (seed & _MASK32)) & _MASK32
+    x ^= (x * np.uint64(0x6C50B47C)) & _MASK32
+    x ^= (x * np.uint64(0xB82F1E52)) & _MASK32
+    x ^= (x * np.uint64(0xC7AFE638)) & _MASK32
+    x ^= (x * np.uint64(0x8D22F6E6)) & _MASK32
+    return _reverse32(x)
+
+
+@njit(cache=True, inline="always")
+def scrambled_sobol(index, dim, seed):
+    """Owen-scrambled Sobol' coordinate in [0, 1) (adds a uniform sub-2⁻³² jitter)."""
+    x = owen_scramble_u32(sobol_u32(index, dim), seed)
+    return (float(x) + 0.5) * _INV32
+
+
+@njit(cache=True, inline="always")
+def concentric_disc(u1, u2):
+    """Area-preserving map of the unit square onto the unit disc (Shirley & Chiu 1997)."""
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if a == 0.0 and b == 0.0:
+        return 0.0, 0.0
+    if abs(a) > abs(b):
+        r = a
+        phi = 0.25 * math.pi * (b / a)
+    else:
+        r = b
+        phi = 0.5 * math.pi - 0.25 * math.pi * (a / b)
+    return r * math.cos(phi), r * math.sin(phi)
+
+
+@njit(cache=True, inline="always")
+def pixel_box(r0, c0, cr, cc, rad):
+    """Bounding box of the unit pixel square ``[r0, r0+1) x [c0, c0+1)`` ∩ the
+    disc of centre ``(cr, cc)`` and radius ``rad`` (pixel units).
+
+    Returns ``(nonempty, rlo, rhi, clo, chi)``.
+    """
+    r1 = r0 + 1.0
+    c1 = c0 + 1.0
+    # nearest point of the square to the centre, per axis
+    ry = min(max(cr, r0), r1)
+    cy = min(max(cc, c0), c1)
+    dr = ry - cr
+    dc = cy - cc
+    if dr * dr + dc * dc >= rad * rad:
+        return False, 0.0, 0.0, 0.0, 0.0
+    hw = math.sqrt(rad * rad - dr * dr)  # half-width in c at the row nearest the centre
+    hh = math.sqrt(rad * rad - dc * dc)  # half-height in r at the column nearest the centre
+    clo = max(c0, cc - hw)
+    chi = min(c1, cc + hw)
+    rlo = max(r0, cr - hh)
+    rhi = min(r1, cr + hh)
+    return True, rlo, rhi, clo, chi
+
+
+@njit(cache=True, inline="always")
+def _hash_uniform(key, m, salt):
+    """A uniform number in [0, 1) from (key, m, salt) (counter-based)."""
+    st = rng_init(np.uint64(key) ^ np.uint64(salt), m)
+    st, u = rng_uniform(st)
+    return u
+
+
+@njit(cache=True)
+def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
+    """Sample ray ``m`` of the ``n_rays`` rays of pixel (row, col) into object space.
+
+    Parameters
+    ----------
+    row, col : int
+        The pixel; its lenslet is ``(row // ppl, col // ppl)``.
+    off_r, off_c : float
+        Displacement (pixels) of the sampled square from the pixel, seen
+        through the pixel's lenslet (0 for the pixel itself).
+    m, n_rays : int
+        Sample index and number of samples of this pixel.
+    key : uint64
+        The pixel's random key, ``rng_init(seed, pixel)``.
+    state : uint64
+        The independent sampler's stream state (returned advanced).
+    optics, sampler, mli : ndarray
+        Packed camera (``optics.O_*``), packed sampler (``S_*``) and
+        microlens-image table (n_lenslets, 3).
+
+    Returns
+    -------
+    tuple
+        ``(state, ok, ox, oy, oz, dx, dy, dz, w)``: object-space origin on the
+        stop plane, unit direction (dz > 0) and weight ``w`` (m² sr) with
+        ``E[w L] = ∫∫ L cos θ dA dω`` over the pixel.
+    """
+    if sampler[S_KIND] == 0.0:
+        return _o.sample_pixel_ray_offset(row, col, off_r, off_c, state, optics)
+    return _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli)
+
+
+@njit(cache=True)
+def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
+    sp = optics[_o.O_S_PITCH]
+    ppl = int(optics[_o.O_S_PPL])
+    k_groups = int(sampler[S_GROUPS])
+    g = m % k_groups
+    idx = m // k_groups
+    # one well-mixed scrambling seed per (group, dimension): the Laine–Karras
+    # hash only scrambles, related seeds would give correlated dimensions
+    u1 = scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1))
+    u2 = scrambled_sobol(idx, 1, rng_init(key, 4 * g + 2))
+    a1 = scrambled_sobol(idx, 2, rng_init(key, 4 * g + 3))
+    a2 = scrambled_sobol(idx, 3, rng_init(key, 4 * g + 4))
+    i = row // ppl
+    j = col // ppl
+    psel = 1.0
+    rings = int(optics[_o.O_RINGS])
+    if rings > 0:
+        us = _hash_uniform(key, m, 0x5E1EC7)
+        p_own = optics[_o.O_P_OWN]
+        if us >= p_own:
+            n_nb = (2 * rings + 1) * (2 * rings + 1) - 1
+            kk = int((us - p_own) / (1.0 - p_own) * n_nb)
+            if kk >= n_nb:
+                kk = n_nb - 1
+            if kk >= n_nb // 2:
+                kk += 1
+            i += kk // (2 * rings + 1) - rings
+            j += kk % (2 * rings + 1) - rings
+            psel = (1.0 - p_own) / n_nb
+            if i < 0 or j < 0 or i >= int(optics[_o.O_M_NY]) or j >= int(optics[_o.O_M_NX]):
+                return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+        else:
+            psel = p_own
+    # restricted pixel region: box of pixel ∩ microlens image disc
+    r0 = row + off_r
+    c0 = col + off_c
+    lens = i * int(optics[_o.O_M_NX]) + j
+    has_box, rlo, rhi, clo, chi = pixel_box(r0, c0, mli[lens, 0], mli[lens, 1], mli[lens, 2])
+    alpha = sampler[S_ALPHA] if has_box else 1.0
+    a_box = (rhi - rlo) * (chi - clo) if has_box else 0.0
+    if has_box and a_box <= 0.0:
+        has_box = False
+        alpha = 1.0
+    use_full = alpha >= 1.0 or _hash_uniform(key, m, 0xDEFE75E) < alpha
+    if use_full:
+        fr = r0 + u2
+        fc = c0 + u1
+    else:
+        fr = rlo + (rhi - rlo) * u2
+        fc = clo + (chi - clo) * u1
+    sx = (fc - 0.5 * optics[_o.O_NCOLS]) * sp
+    sy = (0.5 * optics[_o.O_NROWS] - fr) * sp
+    sz = optics[_o.O_S_Z]
+    # a point h of the lenslet's back surface (coordinates projected on the
+    # xy plane): from the disc about c + κ (s − c) that holds the rays that
+    # pass both lenslet apertures, or (defensive) the whole clear aperture
+    cx, cy = _o.lenslet_center(i, j, optics)
+    rc = optics[_o.O_M_R]
+    rho = sampler[S_RHO]
+    bx = cx + sampler[S_KAPPA] * (sx - cx)
+    by = cy + sampler[S_KAPPA] * (sy - cy)
+    ax, ay = concentric_disc(a1, a2)
+    if use_full or rho <= 0.0:
+        hx = cx + rc * ax
+        hy = cy + rc * ay
+    else:
+        hx = bx + rho * ax
+        hy = by + rho * ay
+    lx = hx - cx
+    ly = hy - cy
+    rho2 = lx * lx + ly * ly
+    if rho2 > rc * rc:
+        return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    curv = optics[_o.O_M2_C]
+    root = math.sqrt(max(1.0 - curv * curv * rho2, 0.0))
+    hz = _o.vertex_z_back(optics) - curv * rho2 / (1.0 + root)
+    # the sphere's unit normal at h (up to sign); a plane: n = z
+    nx = curv * lx
+    ny = curv * ly
+    nz = root
+    # mixture density per unit pixel-coordinate area and m² of projected surface
+    dens = alpha / (math.pi * rc * rc)
+    if rho > 0.0 and has_box and rlo <= fr <= rhi and clo <= fc <= chi:
+        ddx = hx - bx
+        ddy = hy - by
+        if ddx * ddx + ddy * ddy <= rho * rho:
+            dens += (1.0 - alpha) / (a_box * math.pi * rho * rho)
+    elif rho <= 0.0:
+        dens = 1.0 / (math.pi * rc * rc) * (alpha + ((1.0 - alpha) / a_box if has_box and rlo <= fr <= rhi and clo <= fc <= chi else 0.0))
+    ex = hx - sx
+    ey = hy - sy
+    ez = hz - sz
+    r2 = ex * ex + ey * ey + ez * ez
+    inv = 1.0 / math.sqrt(r2)
+    dx = ex * inv
+    dy = ey * inv
+    dz = ez * inv
+    # dω = dA_xy |n·d| / (|n_z| r²) for a surface patch of projected area dA_xy
+    cos_h = abs(nx * dx + ny * dy + nz * dz)
+    w = (sp * sp) * dz * cos_h / (nz * r2) / (dens * psel)
+    ok, x, y, dx, dy, dz = _o.trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics)
+    if not ok:
+        return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    return state, True, x, y, 0.0, dx, dy, dz, w
+
+
+# ---------------------------------------------------------------------------
+# per-camera tables
+# ---------------------------------------------------------------------------
+
+
+def group_count(n_rays: int) -> int:
+    """Number of independent randomizations for ``n_rays`` samples per pixel."""
+    return int(min(N_GROUPS, max(int(n_rays), 1)))
+
+
+def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0) -> np.ndarray:
+    """Packed sampler (``S_*`` layout) for ``n_rays`` samples per pixel."""
+    if kind not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {SAMPLERS}, got {kind!r}")
+    s = np.zeros(S_SIZE)
+    s[S_KIND] = 1.0 if kind == "stratified" else 0.0
+    s[S_GROUPS] = group_count(n_rays)
+    s[S_ALPHA] = DEFENSIVE_FRACTION
+    s[S_KAPPA] = kappa
+    s[S_RHO] = rho
+    s.setflags(write=False)
+    return s
+
+
+@njit(cache=True)
+def _surface_passes(sx, sy, hx, hy, i, j, optics):
+    """Does the ray from sensor point (sx, sy) towards the back-surface point
+    projected at (hx, hy) pass lenslet (i, j)?"""
+    cx, cy = _o.lenslet_center(i, j, optics)
+    rc = optics[_o.O_M_R]
+    rho2 = (hx - cx) ** 2 + (hy - cy) ** 2
+    if rho2 > rc * rc:
+        return False
+    curv = optics[_o.O_M2_C]
+    hz = _o.vertex_z_back(optics) - curv * rho2 / (1.0 + math.sqrt(max(1.0 - curv * curv * rho2, 0.0)))
+    sz = optics[_o.O_S_Z]
+    ex = hx - sx
+    ey = hy - sy
+    ez = hz - sz
+    inv = 1.0 / math.sqrt(ex * ex + ey * ey + ez * ez)
+    ok, px, py, pz, dx, dy, dz = _o.mla_backward(sx, sy, sz, ex * inv, ey * inv, ez * inv, i, j, optics)
+    return ok
+
+
+@njit(cache=True)
+def _bisect_edge(sx, sy, bx, by, ux, uy, i, j, optics):
+    """Distance from (bx, by) along (ux, uy) to the edge of the passing set."""
+    lo = 0.0
+    hi = 2.0 * optics[_o.O_M_R]
+    if not _surface_passes(sx, sy, bx, by, i, j, optics):
+        return 0.0
+    for _ in range(45):
+        mid = 0.5 * (lo + hi)
+        if _surface_passes(sx, sy, bx + mid * ux, by + mid * uy, i, j, optics):
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float]:
+    """Disc on the lenslet's back surface that holds the rays passing the lenslet.
+
+    From a sensor point ``s`` the rays that pass both clear apertures of a
+    lenslet cross its back surface (coordinates projected on the xy plane) in
+    a near-disc whose centre moves with ``s``: ``c + κ (s − c)``.  κ is fitted
+    to the centres of the passing sets of 24 sensor points over the central
+    lenslet's pixel block (their extents found by bisection); the radius is
+    the largest edge distance, by bisection along ``n_angles`` directions from
+    each fitted centre, padded by 0.3 %.  Returns ``(kappa, rho)`` (1, m).
+    """
+    ppl = int(optics[_o.O_S_PPL])
+    half = 0.5 * ppl * optics[_o.O_S_PITCH]
+    i = int(optics[_o.O_M_NY]) // 2
+    j = int(optics[_o.O_M_NX]) // 2
+    cx, cy = _o.lenslet_center(i, j, optics)
+    grid = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    offs = [(a * half, b * half) for a in grid for b in grid]
+    num = den = 0.0
+    for ox, oy in offs:
+        d = math.hypot(ox, oy)
+        if d == 0.0:
+            continue
+        ux, uy = ox / d, oy / d
+        hi = _bisect_edge(cx + ox, cy + oy, cx, cy, ux, uy, i, j, optics)
+        lo = _bisect_edge(cx + ox, cy + oy, cx, cy, -ux, -uy, i, j, optics)
+        num += 0.5 * (hi - lo) * d
+        den += d * d
+    if den == 0.0:
+        raise ValueError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
+    kappa = num / den
+    rho = 0.0
+    for ox, oy in offs:
+        bx, by = cx + kappa * ox, cy + kappa * oy
+        for a in range(n_angles):
+            phi = 2.0 * math.pi * (a + 0.5) / n_angles
+            rho = max(rho, _bisect_edge(cx + ox, cy + oy, bx, by, math.cos(phi), math.sin(phi), i, j, optics))
+    return float(kappa), float(1.003 * rho)
+
+
+@njit(cache=True, parallel=True)
+def _lenslet_block_hits(lenses_i, lenses_j, n, seed, optics):
+    """Sensor points (pixel-corner coordinates row, col) of passing rays from
+    an n x n stratified grid of sensor points over each lenslet's pixel block
+    (one extra ring of pixels around it), each with a uniform lenslet-disc
+    point: (n_lenses, n*n, 3) = (row, col, passed)."""
+    ppl = int(optics[_o.O_S_PPL])
+    sp = optics[_o.O_S_PITCH]
+    nrows = optics[_o.O_NROWS]
+    ncols = optics[_o.O_NCOLS]
+    out = np.zeros((lenses_i.shape[0], n * n, 3))
+    for L in prange(lenses_i.shape[0]):
+        i = lenses_i[L]
+        j = lenses_j[L]
+        cx, cy = _o.lenslet_center(i, j, optics)
+        state = rng_init(seed, L)
+        for a in range(n):
+            for b in range(n):
+                fr = i * ppl - 1.0 + (ppl + 2.0) * (a + 0.5) / n
+                fc = j * ppl - 1.0 + (ppl + 2.0) * (b + 0.5) / n
+                sx = (fc - 0.5 * ncols) * sp
+                sy = (0.5 * nrows - fr) * sp
+                sz = optics[_o.O_S_Z]
+                state, ax, ay = _o.sample_unit_disc(state)
+                rs = optics[_o.O_SAMPLE_R]
+                ex = cx + rs * ax - sx
+                ey = cy + rs * ay - sy
+                ez = optics[_o.O_M2_ZV] - sz
+                inv = 1.0 / math.sqrt(ex * ex + ey * ey + ez * ez)
+                ok, x, y, dx, dy, dz = _o.trace_lenslet_to_stop(sx, sy, sz, ex * inv, ey * inv, ez * inv,
+                                                                i, j, optics)
+                out[L, a * n + b, 0] = fr
+                out[L, a * n + b, 1] = fc
+                out[L, a * n + b, 2] = 1.0 if ok else 0.0
+    return out
+
+
+def microlens_images(optics: np.ndarray, centres: np.ndarray, radius: float, *, n_grid: int = 160,
+                     margin_px: float = 0.3) -> np.ndarray:
+    """Conservative microlens-image discs, (n_y * n_x, 3): centre row, centre col, radius (px).
+
+    ``centres`` (n_y, n_x, 2) are the predicted image centres (row, col) with
+    pixel (r, c) centred at (r, c); ``radius`` the predicted image radius
+    (px).  The radius is checked on nine lenslets (centre, edges, corners) by
+    tracing an ``n_grid²`` grid of sensor points over each pixel block: the
+    table's radius is the largest distance of a passing point from its
+    predicted centre, times 1.05, plus ``margin_px`` — or the prediction,
+    whichever is larger — so that the disc contains the whole image
+    including the main lens's pupil aberrations.
+    """
+    ny, nx = centres.shape[:2]
+    sel_i = sorted({0, ny // 2, ny - 1})
+    sel_j = sorted({0, nx // 2, nx - 1})
+    li = np.array([a for a in sel_i for _ in sel_j], np.int64)
+    lj = np.array([b for _ in sel_i for b in sel_j], np.int64)
+    hits = _lenslet_block_hits(li, lj, n_grid, 97, optics)
+    worst = 0.0
+    cell = 1.0 / n_grid * (int(optics[_o.O_S_PPL]) + 2.0)
+    for L in range(len(li)):
+        ok = hits[L, :, 2] > 0
+        if not np.any(ok):
+            continue
+        cr = centres[li[L], lj[L], 0] + 0.5
+        cc = centres[li[L], lj[L], 1] + 0.5
+        d = np.sqrt((hits[L, ok, 0] - cr) ** 2 + (hits[L, ok, 1] - cc) ** 2).max() + cell
+        worst = max(worst, d)
+    rad = max(float(radius), 1.05 * worst) + margin_px
+    table = np.empty((ny * nx, 3))
+    table[:, 0] = centres[..., 0].ravel() + 0.5
+    table[:, 1] = centres[..., 1].ravel() + 0.5
+    table[:, 2] = rad
+    table.setflags(write=False)
+    return table
+
+
+@njit(cache=True, inline="always")
+def group_variance(gs, n_rays):
+    """Estimated variance of a pixel estimate ``Σ gs / n_rays`` from its
+    group sums ``gs`` (K,) (see :func:`group_std_error`); NaN for K = 1."""
+    k = gs.shape[0]
+    if k < 2:
+        return np.nan
+    mean = gs.sum() / n_rays
+    acc = 0.0
+    for g in range(k):
+        n_g = (n_rays - g + k - 1) // k
+        d = gs[g] - n_g * mean
+        acc += d * d
+    return acc / (n_rays * n_rays) * k / (k - 1)
+
+
+@njit(cache=True, inline="always")
+def mean_variance(gs, sq, n_rays, sampler):
+    """Estimated variance of a pixel's mean ``Σ gs / n_rays``.
+
+    Independent sampler: the sample variance of the ``n_rays`` scores
+    (``sq`` their sum of squares) over ``n_rays``.  Stratified sampler: from
+    the spread of the K independent group sums ``gs``
+    (:func:`group_variance`); with K = 1 (one ray) there is no estimate and 0
+    is returned, as the independent sampler's one-sample variance is.
+    """
+    if sampler[S_KIND] == 0.0 or gs.shape[0] < 2:
+        mean = gs.sum() / n_rays
+        return max(sq / n_rays - mean * mean, 0.0) / n_rays
+    return group_variance(gs, n_rays)
+
+
+def group_std_error(group_sum: np.ndarray, n_rays: int, axis: int = -1) -> np.ndarray:
+    """Standard error of a pixel estimate from its K group sums.
+
+    ``group_sum[..., g]`` is the sum of ``w L`` over the samples of group
+    ``g`` (sample ``m`` is in group ``m mod K``).  The estimate is
+    ``Σ_g group_sum / N``; with group means ``ȳ_g = group_sum_g / n_g`` its
+    variance is estimated by ``Σ_g n_g² (ȳ_g − ȳ)² / (N² (1 − 1/K))``
+    (independent groups).  K = 1 gives NaN (no estimate).
+    """
+    gs = np.moveaxis(np.asarray(group_sum, float), axis, -1)
+    k = gs.shape[-1]
+    n = int(n_rays)
+    if k < 2:
+        return np.full(gs.shape[:-1], np.nan)
+    n_g = np.array([len(range(g, n, k)) for g in range(k)], float)
+    mean = gs.sum(axis=-1) / n
+    dev = gs - n_g * mean[..., None]
+    var = (dev ** 2).sum(axis=-1) / (n * n) * k / (k - 1)
+    return np.sqrt(var)
