@@ -905,7 +905,7 @@ def calibration_figure(path: str | Path, grid: MicrolensGrid, white: Any, *, zoo
     ax[0].legend(loc="upper right", fontsize=8)
     res = np.linalg.norm(grid.residuals, axis=-1)
     im = ax[1].imshow(np.ma.masked_invalid(res), cmap="viridis", interpolation="nearest")
-    ax[1].set_title(f"centroid residual (px), rms {grid.rms_residual:.3f}; blank: not used")
+    ax[1].set_title(f"centroid residual (px), rms {grid.rms_residual:.3f}")
     ax[1].set_xlabel("lenslet j")
     ax[1].set_ylabel("lenslet i")
     fig.colorbar(im, ax=ax[1])

@@ -193,7 +193,8 @@ def write_atomically(path: str | Path, write: Callable[[Any], None], *, binary: 
         raise ValueError(f"output directory {str(p.parent)!r} of {str(p)!r} does not exist")
     fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "wb" if binary else "w") as fh:
+        os.close(fd)
+        with open(tmp, "wb" if binary else "w") as fh:  # by name: some writers (tifffile) need fh.name
             write(fh)
         os.replace(tmp, p)
     except BaseException:
