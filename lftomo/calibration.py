@@ -229,7 +229,8 @@ def _fourier_lattice(img: np.ndarray, min_pitch: float, max_pitch: float) -> np.
         k = np.array([(pr - rows // 2) / rows, (pc - cols // 2) / cols])
         vecs.append(k / np.dot(k, k))  # a lattice vector parallel to its reciprocal (orthogonal lattice)
     if abs(np.dot(vecs[0], vecs[1])) > 0.2 * np.linalg.norm(vecs[0]) * np.linalg.norm(vecs[1]):
-        raise ValueError("the white image's spectrum shows no rectangular lattice (hexagonal MLAs are not supported)")
+        raise ValueError("the white image's power spectrum shows no rectangular lattice of lenslet images (is it a white "
+                         "image of a plenoptic camera? hexagonal MLAs are not supported)")
     return np.array(vecs)
 
 
