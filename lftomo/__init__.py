@@ -25,6 +25,9 @@ from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 from .inverse.subvoxel import interpolate_field, interpolation_matrix
 from .inverse.symmetry import RingGrid, ring_grid
+from .rawio import RawFrame, read_raw, write_raw, subtract_dark, CameraDescription, load_camera_description
+from .calibration import (MicrolensGrid, calibrate_grid, decode_operator, decode_views, refocus_views,
+                          RadiometricCalibration, radiometric_calibration, save_calibration, load_calibration)
 from .inverse.compare import (Comparison, compare_refocus_subaperture, effective_truth, monte_carlo_std,
                               with_monte_carlo_noise)
 
@@ -93,4 +96,19 @@ __all__ = [
     "effective_truth",
     "monte_carlo_std",
     "with_monte_carlo_noise",
+    "RawFrame",
+    "read_raw",
+    "write_raw",
+    "subtract_dark",
+    "CameraDescription",
+    "load_camera_description",
+    "MicrolensGrid",
+    "calibrate_grid",
+    "decode_operator",
+    "decode_views",
+    "refocus_views",
+    "RadiometricCalibration",
+    "radiometric_calibration",
+    "save_calibration",
+    "load_calibration",
 ]

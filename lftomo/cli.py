@@ -161,6 +161,70 @@ def cmd_reconstruct(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    """``lftomo calibrate``: microlens grid (and radiometric factors) of a real camera from raw frames."""
+    from .calibration import calibrate_grid, calibration_figure, radiometric_calibration, save_calibration
+    from .rawio import load_camera_description, read_raw
+
+    if (args.blackbody is None) != (args.temperature is None):
+        raise ValueError("--blackbody and --temperature go together (the blackbody frame and its temperature in K)")
+    cam = load_camera_description(args.camera) if args.camera else None
+    if args.blackbody is not None and cam is None:
+        raise ValueError("--blackbody needs --camera CAMERA.toml (wavelength, gain, f-number of the acquisition)")
+    if args.blackbody is not None and cam.gain is None:
+        raise ValueError(f"--blackbody: camera file {cam.source!r} needs [sensor] gain_e_per_count for the noise "
+                         "of the calibration factors")
+    out = Path(args.output)
+    out = out if out.suffix == ".npz" else out.with_suffix(".npz")
+    if not out.parent.is_dir():
+        raise ValueError(f"-o/--output: directory {str(out.parent)!r} does not exist")
+    bits = cam.bit_depth if cam else None
+    white = read_raw(args.white, bit_depth=bits, what="white frame")
+    if cam is not None and cam.sensor_shape is not None and white.shape != cam.sensor_shape:
+        raise ValueError(f"white frame {white.source!r} has shape {white.shape}, but camera file {cam.source!r} "
+                         f"says [sensor] shape = {list(cam.sensor_shape)}")
+    frames = {}
+    for key, path in (("dark", args.dark), ("blackbody", args.blackbody)):
+        if path is not None:
+            f = read_raw(path, bit_depth=white.bit_depth, allow_float=key == "dark", what=f"--{key} frame")
+            if f.shape != white.shape:
+                raise ValueError(f"--{key} frame {f.source!r} has shape {f.shape}, but white frame "
+                                 f"{white.source!r} has shape {white.shape}")
+            frames[key] = f
+    dark = frames.get("dark")
+    n_sat = int(white.saturated.sum())
+    grid = calibrate_grid(white.counts, dark=None if dark is None else dark.counts)
+    radio = None
+    if args.blackbody is not None:
+        radio = radiometric_calibration(frames["blackbody"], temperature=args.temperature,
+                                        temperature_std=args.temperature_std, wavelength=cam.wavelength,
+                                        etendue=cam.paraxial_pixel_etendue, gain=cam.gain,
+                                        read_noise=cam.read_noise or 0.0, dark=dark, dark_frames=args.dark_frames)
+    d = grid.describe()
+    meta = {"white": white.source, "dark": None if dark is None else dark.source, "blackbody": args.blackbody,
+            "camera": None if cam is None else cam.to_dict(), "grid": d,
+            "etendue": None if radio is None else {"kind": "paraxial", "value_m2sr": cam.paraxial_pixel_etendue}}
+    save_calibration(out, grid, radiometric=radio, metadata=meta)
+    fig = calibration_figure(out.with_suffix(".png"), grid, white.counts)
+    print(f"microlens grid of {white.source} ({white.shape[0]}x{white.shape[1]} px, {white.bit_depth}-bit, "
+          f"{n_sat} saturated px):")
+    print(f"  pitch            {d['pitch_px'][0]:.4f} x {d['pitch_px'][1]:.4f} px (rows x cols)")
+    print(f"  rotation         {d['rotation_deg']:.4f} deg")
+    print(f"  offset           ({d['offset_px'][0]:.3f}, {d['offset_px'][1]:.3f}) px from the image centre")
+    print(f"  lenslets         {d['lenslets'][0]} x {d['lenslets'][1]} ({d['lenslets_fitted']} fitted, "
+          f"rms residual {d['rms_residual_px']:.3f} px)")
+    if cam is not None and cam.expected_pitch_px is not None:
+        print(f"  nominal pitch    {cam.expected_pitch_px:.4f} px ([mla] pitch_um / [sensor] pixel_pitch_um)")
+    if radio is not None:
+        f = radio.factor[radio.valid]
+        print(f"radiometric factor at {radio.wavelength * 1e9:.1f} nm, T_bb {radio.temperature:.1f} K: median "
+              f"{np.median(f):.4g} W/m per count over {f.size} px, noise {100 * np.median(radio.rel_std_noise[radio.valid]):.2f} %, "
+              f"source temperature {100 * radio.rel_std_temperature:.2f} % (paraxial etendue "
+              f"{cam.paraxial_pixel_etendue:.4g} m2 sr)")
+    print(f"wrote {out}, {fig}")
+    return 0
+
+
 # ---- argument types: argparse names the option in its error message
 def _nonneg_int(text: str) -> int:
     try:
@@ -192,6 +256,10 @@ def _float_where(text: str, ok, allowed: str) -> float:
 
 def _pos_float(text: str) -> float:
     return _float_where(text, lambda v: v > 0, "a finite number > 0")
+
+
+def _float_where_nonneg(text: str) -> float:
+    return _float_where(text, lambda v: v >= 0, "a finite number >= 0")
 
 
 def _fraction(text: str) -> float:
@@ -326,6 +394,18 @@ def build_parser() -> argparse.ArgumentParser:
                                                                       "the one matching --weights)")
     rc.add_argument("--quiet", action="store_true", help="no progress bars")
     rc.set_defaults(func=cmd_reconstruct)
+    cal = sub.add_parser("calibrate", help="microlens grid (and radiometric factors) of a real camera from a "
+                                           "white frame (and a blackbody frame): PNG, TIFF or .npy")
+    cal.add_argument("white", help="white (flat-field) raw frame")
+    cal.add_argument("--dark", default=None, help="dark frame (same exposure, lens capped)")
+    cal.add_argument("--dark-frames", type=_pos_int, default=1, help="frames averaged in --dark (default 1)")
+    cal.add_argument("--blackbody", default=None, help="raw frame of a blackbody source filling the view")
+    cal.add_argument("--temperature", type=_pos_float, default=None, help="blackbody temperature, K")
+    cal.add_argument("--temperature-std", type=_float_where_nonneg, default=0.0,
+                     help="standard uncertainty of the blackbody temperature, K (default 0)")
+    cal.add_argument("--camera", default=None, help="camera/acquisition TOML (bit depth, wavelength, gain, f-number)")
+    cal.add_argument("-o", "--output", default="calibration.npz", help="output .npz (a .png figure beside it)")
+    cal.set_defaults(func=cmd_calibrate)
     return p
 
 
