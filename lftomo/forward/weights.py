@@ -175,8 +175,8 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
         cnt = 0
         bg = 0.0
         overflow = False
-        for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+        for ray in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
                 continue
@@ -253,8 +253,8 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
         cnt = 0
         bg = 0.0
         overflow = False
-        for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+        for ray in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok or overflow:
                 continue
@@ -374,8 +374,8 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
         state = key
         o = seg_off[k]
         nr = 0
-        for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+        for ray in range(n_rays):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
                 continue
