@@ -78,7 +78,7 @@ def cmd_weights(args) -> int:
     cfg = _load(args.scene)
     medium = cfg.scene.medium
     if medium is None:
-        raise ValueError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
+        raise LftomoError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
@@ -86,7 +86,7 @@ def cmd_weights(args) -> int:
     if out.suffix != ".npz":
         out = out.with_suffix(".npz")
     if not out.parent.is_dir():  # before the build, not after it
-        raise ValueError(f"-o/--output: directory {str(out.parent)!r} does not exist")
+        raise LftomoError(f"-o/--output: directory {str(out.parent)!r} does not exist")
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
     for wl in channels:
         path = out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz")
@@ -117,7 +117,7 @@ def _refuse_given(args, names: tuple[str, ...], where: str) -> None:
     """ValueError if any option ``names`` (argparse dests) was given: it would be ignored here."""
     given = [f"--{k.replace('_', '-')}" for k in names if getattr(args, k) is not None]
     if given:
-        raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} {where}")
+        raise LftomoError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} {where}")
 
 
 def cmd_reconstruct(args) -> int:

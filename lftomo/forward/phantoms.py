@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import LftomoError
 from .._validate import require_finite_scalar, require_nonnegative, require_positive, require_vector
 from .grid import Grid
 from .medium import Medium, SootRule
@@ -44,7 +45,7 @@ def default_flame_grid(shape: tuple[int, int, int] = (32, 32, 32), focus_distanc
     """
     f = require_positive("focus_distance", focus_distance)
     if f <= 0.025:
-        raise ValueError(f"focus_distance must be > 0.025 m so the box lies in object space z > 0, got {f!r}")
+        raise LftomoError(f"focus_distance must be > 0.025 m so the box lies in object space z > 0, got {f!r}")
     return Grid(tuple(shape), (-0.025, -0.030, f - 0.025), (0.025, 0.030, f + 0.025))
 
 
@@ -249,7 +250,7 @@ def _flame_medium(
     T_peak = require_positive("T_peak", T_peak)
     T_ambient = require_positive("T_ambient", T_ambient)
     if T_peak <= T_ambient:
-        raise ValueError(f"T_peak must exceed T_ambient={T_ambient!r}, got {T_peak!r}")
+        raise LftomoError(f"T_peak must exceed T_ambient={T_ambient!r}, got {T_peak!r}")
     sa = require_nonnegative("sigma_a_peak", sigma_a_peak)
     p = require_nonnegative("soot_exponent", soot_exponent)
     theta = np.clip(theta, 0.0, 1.0)
@@ -305,7 +306,7 @@ def two_lobed_flame(
     """
     a = require_nonnegative("secondary_amplitude", secondary_amplitude)
     if a > 1.0:
-        raise ValueError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+        raise LftomoError(f"secondary_amplitude must be in [0, 1], got {a!r}")
     ws = require_positive("width_scale", width_scale)
     L = grid.size
     c = grid.center

@@ -18,6 +18,7 @@ import time
 from typing import Any
 
 import numpy as np
+from ..errors import LftomoError
 from .._validate import require_int
 
 
@@ -26,12 +27,12 @@ def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
     if wavelengths is None or (isinstance(wavelengths, str) and wavelengths.lower() == "gray"):
         return None
     if isinstance(wavelengths, str):
-        raise ValueError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
+        raise LftomoError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
     arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
     if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ValueError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
+        raise LftomoError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
     if np.any(arr > 1e-3):
-        raise ValueError(
+        raise LftomoError(
             f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
         )
     return tuple(float(a) for a in arr)
@@ -74,7 +75,7 @@ def render(
     from .scene import Scene, pack_surfaces
 
     if not isinstance(scene, Scene):
-        raise ValueError(f"scene must be an lftomo.Scene, got {type(scene).__name__}")
+        raise LftomoError(f"scene must be an lftomo.Scene, got {type(scene).__name__}")
     n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
     seed = require_int("seed", seed, minimum=0)
     wl = _resolve_wavelengths(wavelengths)

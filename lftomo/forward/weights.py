@@ -99,6 +99,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit, prange
 
+from ..errors import LftomoError
 from .._validate import require_int, require_npz_file
 from . import optics as _o
 from .dda import max_segments, ray_box, traverse
@@ -523,7 +524,7 @@ def _memory_limit(value) -> int:
     if value is None:
         return _default_memory_limit()
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not value > 0:
-        raise ValueError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
+        raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
                          f"got {value!r}")
     return int(value)
 
@@ -534,7 +535,7 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), "
+        raise LftomoError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), "
                          f"got {type(value).__name__}") from None
     if arr.ndim == 0:
         arr = np.full(n, float(arr))
@@ -543,11 +544,11 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
         # e.g. Medium fields, would compile a second specialisation)
         arr = np.array(arr.reshape(n), dtype=np.float64, order="C", copy=True)
     else:
-        raise ValueError(f"shape of {name} {arr.shape} does not match the grid {tuple(grid.shape)} or ({n},)")
+        raise LftomoError(f"shape of {name} {arr.shape} does not match the grid {tuple(grid.shape)} or ({n},)")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {int(np.count_nonzero(~np.isfinite(arr)))} non-finite value(s)")
+        raise LftomoError(f"{name} must be finite, got {int(np.count_nonzero(~np.isfinite(arr)))} non-finite value(s)")
     if minimum is not None and arr.size and arr.min() < minimum:
-        raise ValueError(f"{name} must be >= {minimum} everywhere (m^-1), got minimum {arr.min()!r}")
+        raise LftomoError(f"{name} must be >= {minimum} everywhere (m^-1), got minimum {arr.min()!r}")
     return arr
 
 
@@ -555,12 +556,12 @@ def _wavelength(value: Any) -> float | None:
     if value is None or (isinstance(value, str) and value.lower() == "gray"):
         return None
     if isinstance(value, (str, bool)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"wavelength must be a wavelength in m (e.g. 650e-9) or 'gray', got {value!r}")
+        raise LftomoError(f"wavelength must be a wavelength in m (e.g. 650e-9) or 'gray', got {value!r}")
     v = float(value)
     if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"wavelength must be a positive wavelength in m, got {value!r}")
+        raise LftomoError(f"wavelength must be a positive wavelength in m, got {value!r}")
     if v > 1e-3:
-        raise ValueError(f"wavelength must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
+        raise LftomoError(f"wavelength must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
     return v
 
 
@@ -576,11 +577,11 @@ def _pack_surfaces(surfaces: Any, wavelength: float | None):
     try:
         surfs = list(surfaces)
     except TypeError:
-        raise ValueError(f"surfaces must be None, a Scene or a sequence of PlanarEmitter, "
+        raise LftomoError(f"surfaces must be None, a Scene or a sequence of PlanarEmitter, "
                          f"got {type(surfaces).__name__}") from None
     for k, s in enumerate(surfs):
         if not isinstance(s, PlanarEmitter):
-            raise ValueError(f"surfaces[{k}] must be a PlanarEmitter, got {type(s).__name__}")
+            raise LftomoError(f"surfaces[{k}] must be a PlanarEmitter, got {type(s).__name__}")
     surf, tex = pack_surfaces(surfs, None if wavelength is None else (wavelength,))
     return surf, tex, [s.summary() for s in surfs]
 
@@ -591,9 +592,9 @@ def _check_grid(camera, grid) -> None:
     from .media_render import check_medium_visible
 
     if not isinstance(camera, Camera):
-        raise ValueError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
+        raise LftomoError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
     if not isinstance(grid, Grid):
-        raise ValueError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
+        raise LftomoError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
     check_medium_visible(types.SimpleNamespace(grid=grid), camera)
 
 
@@ -607,9 +608,9 @@ def _decode(camera, lightfield):
             cache["lf"] = LightField(raw=np.zeros(camera.sensor_shape), camera=camera)
         lightfield = cache["lf"]
     elif not isinstance(lightfield, LightField):
-        raise ValueError(f"lightfield must be an lftomo.LightField or None, got {type(lightfield).__name__}")
+        raise LftomoError(f"lightfield must be an lftomo.LightField or None, got {type(lightfield).__name__}")
     elif lightfield.camera.to_dict() != camera.to_dict():
-        raise ValueError("lightfield was decoded for another camera than the one given; "
+        raise LftomoError("lightfield was decoded for another camera than the one given; "
                          f"differences: {_dict_diff(camera.to_dict(), lightfield.camera.to_dict())}")
     return lightfield.view_index, lightfield.view_mask
 
@@ -624,7 +625,7 @@ def _select_rows(camera, views, lightfield):
         desc: Any = "all lit view pixels"
     elif isinstance(views, np.ndarray) and views.dtype == bool:
         if views.shape != shape:
-            raise ValueError(f"shape of the views mask {views.shape} does not match the views shape {shape} "
+            raise LftomoError(f"shape of the views mask {views.shape} does not match the views shape {shape} "
                              "(n_v, n_u, n_y, n_x)")
         sel = views & (vidx >= 0)
         desc = f"pixel mask with {int(sel.sum())} pixels"
@@ -632,12 +633,12 @@ def _select_rows(camera, views, lightfield):
         try:
             pairs = [tuple(int(a) for a in vu) for vu in views]
         except (TypeError, ValueError):
-            raise ValueError(f"views must be None, a boolean mask of shape {shape} or a list of (v, u) "
+            raise LftomoError(f"views must be None, a boolean mask of shape {shape} or a list of (v, u) "
                              f"pairs, got {views!r}") from None
         sel = np.zeros(shape, bool)
         for k, vu in enumerate(pairs):
             if len(vu) != 2 or not (0 <= vu[0] < nv and 0 <= vu[1] < nu):
-                raise ValueError(f"views[{k}] = {vu!r} is not a view (v, u) with 0 <= v < {nv}, 0 <= u < {nu}")
+                raise LftomoError(f"views[{k}] = {vu!r} is not a view (v, u) with 0 <= v < {nv}, 0 <= u < {nu}")
             sel[vu] = vmask[vu]
         desc = [list(vu) for vu in sorted(set(pairs))]
     flat = np.flatnonzero(sel.ravel())
@@ -806,7 +807,7 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     estimate = {"nnz": nnz_est, "nnz_standard_error": se * n_rows, "bytes": est_bytes, "rows": int(n_rows),
                 "pilot_rows": int(pilot.size), "row_capacity": cap}
     if est_bytes > memory_limit:
-        raise ValueError(
+        raise LftomoError(
             f"the {what} needs an estimated {est_bytes / 1e9:.3g} GB ({nnz_est:.4g} non-zeros for {n_rows} "
             f"pixel rows x {n_vox} voxels, {n_rays} rays per pixel), more than memory_limit = "
             f"{memory_limit / 1e9:.3g} GB; select fewer views (views=...), use a coarser grid or fewer "
@@ -1112,25 +1113,25 @@ class WeightMatrix:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
         except (ValueError, OSError) as exc:
-            raise ValueError(f"{str(path)!r} is not a readable lftomo weight-matrix .npz: {exc}") from None
+            raise LftomoError(f"{str(path)!r} is not a readable lftomo weight-matrix .npz: {exc}") from None
         need = {"meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background"}
         if not need <= set(arrays) or arrays["meta"].dtype.kind != "U":
-            raise ValueError(f"{str(path)!r} is not an lftomo weight-matrix file "
+            raise LftomoError(f"{str(path)!r} is not an lftomo weight-matrix file "
                              f"(missing {sorted(need - set(arrays))})")
         meta = json.loads(str(arrays["meta"]))
         if meta.get("format") != FORMAT:
-            raise ValueError(f"{str(path)!r} has format {meta.get('format')!r}, expected {FORMAT!r}")
+            raise LftomoError(f"{str(path)!r} has format {meta.get('format')!r}, expected {FORMAT!r}")
         diffs = _dict_diff(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
         if diffs:
-            raise ValueError(f"{str(path)!r} was built for another camera (file vs camera in use): "
+            raise LftomoError(f"{str(path)!r} was built for another camera (file vs camera in use): "
                              + "; ".join(diffs))
         diffs = _dict_diff(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
         if diffs:
-            raise ValueError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
+            raise LftomoError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
         if not (isinstance(wavelength, str) and wavelength == "any"):
             wl = _wavelength(wavelength)
             if _dict_diff(meta.get("wavelength"), wl):
-                raise ValueError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, "
+                raise LftomoError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, "
                                  f"not {wl!r} m")
         shape = tuple(meta["shape"])
         W = cls(arrays["data"], arrays["indices"], arrays["indptr"], shape, arrays["pixel_index"],
@@ -1139,7 +1140,7 @@ class WeightMatrix:
                                        if k not in ("format", "shape", "views_shape", "sensor_shape")})
         _ = W.matrix  # validates the CSR structure
         if W.indptr.size != shape[0] + 1 or W.pixel_index.size != shape[0]:
-            raise ValueError(f"{str(path)!r} is corrupt: row arrays do not match shape {shape}")
+            raise LftomoError(f"{str(path)!r} is corrupt: row arrays do not match shape {shape}")
         return W
 
     def __repr__(self) -> str:
@@ -1605,7 +1606,7 @@ def ray_segments(
     chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12 + n_rays * 24))))
     est_bytes = seg_est * 12 + ray_est * 32 + n_rows * 32 + chunk_rows * (cap * 12 + n_rays * 24)
     if est_bytes > limit:
-        raise ValueError(
+        raise LftomoError(
             f"the ray-segment table needs an estimated {est_bytes / 1e9:.3g} GB ({seg_est:.4g} segments of "
             f"{ray_est:.4g} rays), more than memory_limit = {limit / 1e9:.3g} GB; select fewer views, use a "
             "coarser grid or fewer rays_per_pixel, or raise memory_limit"
