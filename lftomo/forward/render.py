@@ -19,7 +19,10 @@ from typing import Any
 
 import numpy as np
 from ..errors import LftomoError
-from .._validate import require_int
+import numba
+
+from .._validate import require_instance, require_rays, require_seed
+from .chunks import ChunkSizer
 
 
 def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
@@ -72,12 +75,15 @@ def render(
         standard error and the pixel étendue.
     """
     from ..lightfield import LightField
+    from .camera import Camera
     from .scene import Scene, pack_surfaces
 
-    if not isinstance(scene, Scene):
-        raise LftomoError(f"scene must be an lftomo.Scene, got {type(scene).__name__}")
-    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    seed = require_int("seed", seed, minimum=0)
+    require_instance("scene", scene, Scene, "an lftomo.Scene")
+    require_instance("camera", camera, Camera, "an lftomo.Camera")
+    n_rays = require_rays("rays_per_pixel", rays_per_pixel, n_pixels=camera.sensor_shape[0] * camera.sensor_shape[1])
+    seed = require_seed("seed", seed)
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise LftomoError(f"progress must be True, False or None, got {progress!r}")
     wl = _resolve_wavelengths(wavelengths)
     scene.check_visible_from(camera)
     n_ch = 1 if wl is None else len(wl)
@@ -93,15 +99,16 @@ def render(
         row_kernel = medium_row_kernel(scene.medium, wl, camera)
     else:
         row_kernel = empty_row_kernel(n_ch)
-    ppl = camera.pixels_per_lenslet
-    step = max(ppl, (nrows // 20) // ppl * ppl) if nrows >= 20 * ppl else nrows
-    chunks = [(r, min(r + step, nrows)) for r in range(0, nrows, step)]
+    # chunks of rows sized to ~0.25 s each, so that Ctrl-C is seen between two kernel calls
+    sizer = ChunkSizer(nrows, start=numba.get_num_threads())
     show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
-    bar = _progress(len(chunks) * step * ncols, show, "render")
-    for r0, r1 in chunks:
-        row_kernel(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq)
-        bar.update((r1 - r0) * ncols)
-    bar.close()
+    bar = _progress(nrows * ncols, show, "render")
+    try:
+        for r0, r1 in sizer.ranges(nrows):
+            row_kernel(r0, r1, optics, surf, tex, n_ch, n_rays, seed, mean, sq)
+            bar.update((r1 - r0) * ncols)
+    finally:
+        bar.close()
     elapsed = time.perf_counter() - t0
     var = np.maximum(sq - mean * mean, 0.0)
     std_error = np.sqrt(var / n_rays)

@@ -100,7 +100,8 @@ import scipy.sparse as sp
 from numba import njit, prange
 
 from ..errors import LftomoError
-from .._validate import require_int, require_npz_file
+from .._validate import require_int, require_rays, require_seed
+from .chunks import ChunkSizer
 from . import optics as _o
 from .dda import max_segments, ray_box, traverse
 from .rng import rng_init, rng_uniform, rng_uniform_open
@@ -789,8 +790,12 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     n_rows = pixel_index.size
     pos = _pos_scratch(n_vox)
     pilot = _pilot_rows(n_rows)
+    sizer = ChunkSizer(max(16, _CHUNK_BYTES // (min(cap_max, 4096) * 12)), start=numba.get_num_threads())
+    t_pilot = time.perf_counter()
     if pilot.size:
-        _, _, _, cnt_p, _, _ = _run_rows(kernel_call, pixel_index[pilot], min(cap_max, 4096), cap_max, pos)
+        cnt_p = np.concatenate([  # in chunks: Ctrl-C is seen between them
+            _run_rows(kernel_call, pixel_index[pilot[a:b]], min(cap_max, 4096), cap_max, pos)[3]
+            for a, b in sizer.ranges(pilot.size)])
         mean = float(cnt_p.mean())
         se = float(cnt_p.std(ddof=1) / math.sqrt(cnt_p.size)) if cnt_p.size > 1 else 0.0
         cap = int(min(cap_max, max(64, 1.5 * cnt_p.max() + 16)))
@@ -804,8 +809,9 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12))))
     scratch = chunk_rows * cap * 12 + pos.nbytes
     est_bytes = int(nnz_est * (8 + ib) + (n_rows + 1) * ib + n_rows * 24 + scratch)
+    seconds = (time.perf_counter() - t_pilot) * n_rows / max(pilot.size, 1)
     estimate = {"nnz": nnz_est, "nnz_standard_error": se * n_rows, "bytes": est_bytes, "rows": int(n_rows),
-                "pilot_rows": int(pilot.size), "row_capacity": cap}
+                "pilot_rows": int(pilot.size), "row_capacity": cap, "seconds": seconds}
     if est_bytes > memory_limit:
         raise LftomoError(
             f"the {what} needs an estimated {est_bytes / 1e9:.3g} GB ({nnz_est:.4g} non-zeros for {n_rows} "
@@ -819,8 +825,8 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
     bar = _progress(n_rows, bool(show), desc)
     bufs = None
-    for r0 in range(0, n_rows, chunk_rows):
-        r1 = min(r0 + chunk_rows, n_rows)
+    sizer = ChunkSizer(chunk_rows, start=sizer.rows)  # time-sized chunks (Ctrl-C), at most chunk_rows
+    for r0, r1 in sizer.ranges(n_rows):
         buf_off, out_idx, out_val, out_cnt, out_bg, extra = _run_rows(
             kernel_call, pixel_index[r0:r1], cap, cap_max, pos, bufs)
         bufs = (out_idx, out_val)
@@ -1074,22 +1080,33 @@ class WeightMatrix:
         """Write an ``.npz`` (no pickle): CSR arrays, row maps, background and JSON metadata.
 
         ``compressed=True`` uses ``np.savez_compressed`` (smaller, slower).
-        Returns the path written (``.npz`` appended if missing).
+        The write is atomic (:func:`lftomo.io.atomic_path`): an interrupted
+        save leaves the previous file at ``path``.  Returns the path written
+        (``.npz`` appended if missing).
         """
+        from ..io import atomic_path, check_output_file
+
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
+        check_output_file(path, what="weight-matrix file")
         meta = dict(self.metadata, format=FORMAT, shape=list(self.shape), views_shape=list(self.views_shape),
                     sensor_shape=list(self.sensor_shape))
         writer = np.savez_compressed if compressed else np.savez
-        writer(path, meta=np.array(json.dumps(meta)), data=self.data, indices=self.indices, indptr=self.indptr,
-               pixel_index=self.pixel_index, view_pixel=self.view_pixel, view_ptr=self.view_ptr,
-               background=self.background)
+        with atomic_path(path) as tmp:
+            writer(tmp, meta=np.array(json.dumps(meta)), data=self.data, indices=self.indices, indptr=self.indptr,
+                   pixel_index=self.pixel_index, view_pixel=self.view_pixel, view_ptr=self.view_ptr,
+                   background=self.background)
         return path
 
     @classmethod
     def load(cls, path: str | os.PathLike, camera, grid, *, wavelength: Any = "any") -> WeightMatrix:
         """Read a matrix written by :meth:`save` and check it was made for ``camera`` and ``grid``.
+
+        Every member is validated before use: dtypes, shapes, the CSR
+        structure (``indptr`` starts at 0, never decreases and ends at nnz;
+        column indices in range), finite non-negative weights and background,
+        row maps in range, and physical metadata.
 
         Parameters
         ----------
@@ -1103,49 +1120,134 @@ class WeightMatrix:
 
         Raises
         ------
-        ValueError
-            Unreadable file, wrong format, or a camera/grid/wavelength mismatch
-            (the message lists the differing parameters).
+        LftomoError
+            Unreadable or corrupt file (naming the member), wrong format, or a
+            camera/grid/wavelength mismatch (the message lists the differing
+            parameters).
         """
-        path = require_npz_file(path, what="weight-matrix file",
-                                needs="expected a weight matrix written by WeightMatrix.save or `lftomo weights`")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (ValueError, OSError) as exc:
-            raise LftomoError(f"{str(path)!r} is not a readable lftomo weight-matrix .npz: {exc}") from None
-        need = {"meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background"}
-        if not need <= set(arrays) or arrays["meta"].dtype.kind != "U":
-            raise LftomoError(f"{str(path)!r} is not an lftomo weight-matrix file "
-                             f"(missing {sorted(need - set(arrays))})")
-        meta = json.loads(str(arrays["meta"]))
-        if meta.get("format") != FORMAT:
-            raise LftomoError(f"{str(path)!r} has format {meta.get('format')!r}, expected {FORMAT!r}")
-        diffs = _dict_diff(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
-        if diffs:
-            raise LftomoError(f"{str(path)!r} was built for another camera (file vs camera in use): "
-                             + "; ".join(diffs))
-        diffs = _dict_diff(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
-        if diffs:
-            raise LftomoError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
-        if not (isinstance(wavelength, str) and wavelength == "any"):
-            wl = _wavelength(wavelength)
-            if _dict_diff(meta.get("wavelength"), wl):
-                raise LftomoError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, "
-                                 f"not {wl!r} m")
-        shape = tuple(meta["shape"])
-        W = cls(arrays["data"], arrays["indices"], arrays["indptr"], shape, arrays["pixel_index"],
-                arrays["view_pixel"], arrays["view_ptr"], tuple(meta["views_shape"]), tuple(meta["sensor_shape"]),
-                arrays["background"], {k: v for k, v in meta.items()
-                                       if k not in ("format", "shape", "views_shape", "sensor_shape")})
-        _ = W.matrix  # validates the CSR structure
-        if W.indptr.size != shape[0] + 1 or W.pixel_index.size != shape[0]:
-            raise LftomoError(f"{str(path)!r} is corrupt: row arrays do not match shape {shape}")
-        return W
+        from ..io import read_npz
+
+        _check_grid_types(camera, grid)
+        arrays = read_npz(path, what=_WHAT, needs="expected a weight matrix written by WeightMatrix.save or "
+                          "`lftomo weights`")
+        meta, shape, views_shape, sensor_shape = _check_weights_meta(arrays, path)
+        _check_weights_for(meta, path, camera, grid, wavelength)
+        a = _check_weights_arrays(arrays, path, shape, views_shape, sensor_shape)
+        return cls(a["data"], a["indices"], a["indptr"], shape, a["pixel_index"], a["view_pixel"], a["view_ptr"],
+                   views_shape, sensor_shape, a["background"],
+                   {k: v for k, v in meta.items() if k not in ("format", "shape", "views_shape", "sensor_shape")})
 
     def __repr__(self) -> str:
         return (f"WeightMatrix(shape={self.shape}, nnz={self.nnz}, {self.nbytes / 1e6:.3g} MB, "
                 f"views={len(self.blocks)}, wavelength={self.metadata.get('wavelength')!r})")
+
+
+_WHAT = "weight-matrix file"
+_W_MEMBERS = ("meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background")
+
+
+def _check_grid_types(camera, grid) -> None:
+    from .camera import Camera
+    from .grid import Grid
+
+    if not isinstance(camera, Camera):
+        raise LftomoError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
+    if not isinstance(grid, Grid):
+        raise LftomoError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
+
+
+def _int_list(meta: dict, key: str, n: int, path, minimum: int = 1) -> tuple[int, ...]:
+    v = meta.get(key)
+    if not (isinstance(v, list) and len(v) == n and all(isinstance(x, int) and not isinstance(x, bool)
+                                                        and x >= minimum for x in v)):
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' key {key!r} must be a list of {n} integers "
+                          f">= {minimum}, got {v!r}")
+    return tuple(v)
+
+
+def _check_weights_meta(arrays: dict, path):
+    """The metadata of a weight-matrix file: format, shapes and physical values."""
+    from ..io import json_member
+
+    missing = [m for m in _W_MEMBERS if m not in arrays]
+    if missing:
+        raise LftomoError(f"{_WHAT} {str(path)!r} is not an lftomo weight-matrix file: member(s) {missing} are "
+                          f"missing; it holds {sorted(arrays)}")
+    unknown = sorted(set(arrays) - set(_W_MEMBERS))
+    if unknown:
+        raise LftomoError(f"{_WHAT} {str(path)!r}: unknown member(s) {unknown}; allowed: {list(_W_MEMBERS)}")
+    meta = json_member(arrays, path=path, what=_WHAT)
+    if meta.get("format") != FORMAT:
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' has format {meta.get('format')!r}, "
+                          f"expected {FORMAT!r}")
+    shape = _int_list(meta, "shape", 2, path, minimum=0)
+    views_shape = _int_list(meta, "views_shape", 4, path)
+    sensor_shape = _int_list(meta, "sensor_shape", 2, path)
+    wl = meta.get("wavelength")
+    if wl is not None and not (isinstance(wl, (int, float)) and not isinstance(wl, bool) and math.isfinite(wl)
+                               and 0 < wl <= 1e-3):
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' wavelength must be null (gray) or a wavelength "
+                          f"in m in (0, 1e-3], got {wl!r}")
+    for key, lo in (("rays_per_pixel", 1), ("seed", 0)):
+        v = meta.get(key)
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+            raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' {key} must be an integer >= {lo}, got {v!r}")
+    return meta, shape, views_shape, sensor_shape
+
+
+def _check_weights_for(meta: dict, path, camera, grid, wavelength) -> None:
+    """The file's camera, grid (and wavelength) must be those in use."""
+    diffs = _dict_diff(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
+    if diffs:
+        raise LftomoError(f"{str(path)!r} was built for another camera (file vs camera in use): " + "; ".join(diffs))
+    diffs = _dict_diff(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
+    if diffs:
+        raise LftomoError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
+    if not (isinstance(wavelength, str) and wavelength == "any"):
+        wl = _wavelength(wavelength)
+        if _dict_diff(meta.get("wavelength"), wl):
+            raise LftomoError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, not {wl!r} m")
+
+
+def _check_csr(indptr: np.ndarray, indices: np.ndarray, n_rows: int, n_cols: int, path) -> None:
+    where = f"{_WHAT} {str(path)!r}: member"
+    if indptr[0] != 0 or indptr[-1] != indices.size:
+        raise LftomoError(f"{where} 'indptr' must start at 0 and end at nnz = {indices.size}, got "
+                          f"{int(indptr[0])} ... {int(indptr[-1])}")
+    if indptr.size > 1 and np.any(np.diff(indptr) < 0):
+        k = int(np.flatnonzero(np.diff(indptr) < 0)[0])
+        raise LftomoError(f"{where} 'indptr' decreases at row {k} ({int(indptr[k])} -> {int(indptr[k + 1])}); "
+                          "a CSR row pointer never decreases")
+    if indices.size and (indices.min() < 0 or indices.max() >= n_cols):
+        raise LftomoError(f"{where} 'indices' holds column indices from {int(indices.min())} to "
+                          f"{int(indices.max())}; allowed 0 .. {n_cols - 1} (the voxels)")
+
+
+def _check_weights_arrays(arrays: dict, path, shape, views_shape, sensor_shape) -> dict:
+    """Dtypes, shapes, CSR structure and values of the arrays of a weight-matrix file."""
+    from ..io import check_member
+
+    n_rows, n_cols = shape
+    kw = dict(path=path, what=_WHAT)
+    data = check_member(arrays, "data", ndim=1, minimum=0.0, **kw)
+    indices = check_member(arrays, "indices", kinds="i", shape=data.shape, **kw)
+    indptr = check_member(arrays, "indptr", kinds="i", shape=(n_rows + 1,), **kw)
+    for name, a in (("indices", indices), ("indptr", indptr)):
+        if a.dtype not in (np.int32, np.int64):
+            raise LftomoError(f"{_WHAT} {str(path)!r}: member {name!r} has dtype {a.dtype}; expected int32 or int64")
+    _check_csr(indptr, indices, n_rows, n_cols, path)
+    nv, nu = views_shape[:2]
+    out = {"data": data, "indices": indices, "indptr": indptr.astype(indices.dtype, copy=False)}
+    out["pixel_index"] = check_member(arrays, "pixel_index", kinds="i", shape=(n_rows,), minimum=0,
+                                      maximum=sensor_shape[0] * sensor_shape[1] - 1, **kw)
+    out["view_pixel"] = check_member(arrays, "view_pixel", kinds="i", shape=(n_rows,), minimum=0,
+                                     maximum=int(np.prod(views_shape)) - 1, **kw)
+    vp = check_member(arrays, "view_ptr", kinds="i", shape=(nv * nu + 1,), minimum=0, maximum=n_rows, **kw)
+    if vp[0] != 0 or vp[-1] != n_rows or np.any(np.diff(vp) < 0):
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'view_ptr' must rise from 0 to {n_rows} (rows per view)")
+    out["view_ptr"] = vp
+    out["background"] = check_member(arrays, "background", shape=(n_rows,), minimum=0.0, **kw)
+    return out
 
 
 def _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc, extra=None):
@@ -1243,8 +1345,8 @@ def weights(
         above ``memory_limit``.
     """
     _check_grid(camera, grid)
-    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    seed = require_int("seed", seed, minimum=0)
+    n_rays = require_rays("rays_per_pixel", rays_per_pixel)
+    seed = require_seed("seed", seed)
     max_bounces = require_int("max_bounces", max_bounces, minimum=1)
     sa = _field_flat("sigma_a", sigma_a, grid)
     ss = _field_flat("sigma_s", sigma_s, grid)
@@ -1255,6 +1357,7 @@ def weights(
     limit = _memory_limit(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
+    require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
     optics = camera.packed
     ga = _grid_args(grid)
     n_vox = grid.n_voxels
@@ -1565,12 +1668,13 @@ def ray_segments(
     RaySegments
     """
     _check_grid(camera, grid)
-    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    seed = require_int("seed", seed, minimum=0)
+    n_rays = require_rays("rays_per_pixel", rays_per_pixel)
+    seed = require_seed("seed", seed)
     wl = _wavelength(wavelength)
     limit = _memory_limit(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
+    require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
     optics = camera.packed
     ga = _grid_args(grid)
     m = max_segments(*ga[6:])
@@ -1620,8 +1724,7 @@ def ray_segments(
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
     bar = _progress(n_rows, bool(show), "ray segments")
     bufs = None
-    for r0 in range(0, n_rows, chunk_rows):
-        r1 = min(r0 + chunk_rows, n_rows)
+    for r0, r1 in ChunkSizer(chunk_rows, start=numba.get_num_threads()).ranges(n_rows):  # ~0.25 s: Ctrl-C
         o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl = run(pixel_index[r0:r1], cap, bufs)
         bufs = (o_sv, o_sl)
         extra = {}
