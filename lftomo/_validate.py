@@ -219,7 +219,7 @@ def _rule(gt: float | None, ge: float | None, le: float | None) -> str:
     return " and ".join(parts)
 
 
-def toml_int(where: str, value: Any, *, minimum: int | None = None) -> int:
+def toml_int(where: str, value: Any, *, minimum: int | None = None, maximum: int | None = None) -> int:
     """An integer scene-file value (a float with an integral value is accepted, a bool is not).
 
     Parameters
@@ -240,14 +240,15 @@ def toml_int(where: str, value: Any, *, minimum: int | None = None) -> int:
     ValueError
         Naming ``where``, the value and what is allowed.
     """
-    allowed = "an integer" if minimum is None else f"an integer >= {minimum}"
+    allowed = "an integer" + ("" if minimum is None else f" >= {minimum}") + ("" if maximum is None else
+                                                                               f" <= {maximum}")
     v: int | None = None
     if _is_real(value):
         if isinstance(value, (numbers.Integral, np.integer)):
             v = int(value)
-        elif float(value).is_integer():
+        elif np.isfinite(float(value)) and float(value).is_integer():
             v = int(float(value))
-    if v is None or (minimum is not None and v < minimum):
+    if v is None or (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
         raise LftomoError(f"{where} must be {allowed}, got {_fmt(value)}")
     return v
 

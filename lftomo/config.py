@@ -52,9 +52,11 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import LftomoError
-from ._validate import toml_int, toml_number, toml_numbers
+from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, require_inside, require_regular_file, toml_int, toml_number,
+                        toml_numbers)
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
 from .forward.scene import PlanarEmitter, Scene, checkerboard
+from .lightfield import check_refocus_depth
 
 DEFAULT_SCENE = Path(__file__).parent / "data" / "targets.toml"
 
@@ -113,13 +115,12 @@ def _wavelengths(value: Any) -> Any:
     return tuple(a * 1e-9 for a in nm)
 
 
-def _texture_file(tab: str, path: Any, base: Path) -> np.ndarray:
+def _texture_file(tab: str, path: Any, base: Path, allow_outside: bool = False) -> np.ndarray:
     """Read the 2-D (or 3-D) ``.npy`` texture of a ``texture = "file"`` surface, without pickle."""
     if not isinstance(path, str):
         raise LftomoError(f"{tab} path must be a file name (a string), got {path!r}")
-    p = (base / path).resolve()
-    if not p.is_file():
-        raise LftomoError(f"{tab}: texture file {str(p)!r} does not exist")
+    p = require_inside(base / path, base, where=f"{tab} path", allow_outside=allow_outside)
+    require_regular_file(p, what="texture file", prefix=f"{tab}: ")
     if zipfile.is_zipfile(p):
         raise LftomoError(f"{tab} path: {str(p)!r} is an .npz archive; texture = 'file' needs one array in an "
                          ".npy file (numpy.save)")
@@ -132,6 +133,8 @@ def _texture_file(tab: str, path: Any, base: Path) -> np.ndarray:
         tex = np.load(p, allow_pickle=False)
     except ValueError as exc:
         raise LftomoError(f"{tab}: cannot read {str(p)!r} without pickle: {exc}") from None
+    except (OSError, EOFError) as exc:
+        raise LftomoError(f"{tab}: cannot read {str(p)!r} (truncated or corrupt): {exc}") from None
     if tex.dtype.kind not in "fiu":
         raise LftomoError(f"{tab}: texture dtype {tex.dtype} in {str(p)!r} is not numeric")
     if tex.ndim not in (2, 3) or 0 in tex.shape:
@@ -149,7 +152,7 @@ def _squares(tab: str, value: Any) -> int | tuple[int, int]:
     return toml_int(where, value, minimum=1)
 
 
-def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
+def _surface(k: int, s: Any, base: Path, allow_outside: bool = False) -> PlanarEmitter:
     """Build the ``k``-th (0-based) ``[[surface]]``; messages count surfaces from 1."""
     tab = f"[[surface]] #{k + 1}"
     _check_keys(tab, s, _SURFACE)
@@ -194,7 +197,7 @@ def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
         else:
             if "path" not in s:
                 raise LftomoError(f"{tab}: texture = 'file' needs 'path' (a 2-D .npy array)")
-            radiance = _texture_file(tab, s["path"], base) * value
+            radiance = _texture_file(tab, s["path"], base, allow_outside) * value
         emitter = dict(radiance=radiance)
     try:
         return PlanarEmitter(**emitter, **kw)
@@ -248,13 +251,17 @@ def camera_from_table(cam: Mapping[str, Any]) -> Camera:
         raise LftomoError(f"[camera]: {exc}") from None
 
 
-def load_scene_file(path: str | Path | None = None) -> SceneConfig:
+def load_scene_file(path: str | Path | None = None, *, allow_outside: bool = False) -> SceneConfig:
     """Read and validate a TOML scene file (default: the built-in target scene).
 
     Parameters
     ----------
     path : str or Path, optional
         The ``.toml`` file; relative paths inside it are relative to its folder.
+    allow_outside : bool
+        Let ``path =`` keys (textures, media) name files outside the scene
+        file's folder (``../x.npz``, absolute paths, links out).  Off by
+        default, so that a scene file cannot read arbitrary files.
 
     Returns
     -------
@@ -266,30 +273,33 @@ def load_scene_file(path: str | Path | None = None) -> SceneConfig:
         If the file is missing, not TOML, or any value is invalid; the message
         names the table and key, the value given and what is allowed.
     """
-    p = Path(path) if path is not None else DEFAULT_SCENE
-    if not p.is_file():
-        raise LftomoError(f"scene file {str(p)!r} does not exist")
+    p = require_regular_file(path if path is not None else DEFAULT_SCENE, what="scene file")
     try:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise LftomoError(f"scene file {str(p)!r} is not valid TOML: {exc}") from None
     except UnicodeDecodeError:
         raise LftomoError(f"scene file {str(p)!r} is not a text (UTF-8 TOML) file") from None
-    return scene_from_dict(data, base=p.parent, source=str(p))
+    return scene_from_dict(data, base=p.parent, source=str(p), allow_outside=allow_outside)
 
 
-def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: str = "<dict>") -> SceneConfig:
+def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: str = "<dict>",
+                    allow_outside: bool = False) -> SceneConfig:
     """Validate a parsed scene mapping and build the objects.
 
     The cheap tables (``[camera]``, ``[render]``, ``[output]``) are checked
-    before the surfaces and the medium are built.
+    before the surfaces and the medium are built.  Files named by ``path =``
+    keys must lie inside ``base`` unless ``allow_outside``.
     """
+    if not isinstance(allow_outside, bool):
+        raise LftomoError(f"allow_outside must be True or False, got {allow_outside!r}")
     _check_keys("the top level", data, _TOP)
     camera = camera_from_table(data.get("camera", {}))
     r = data.get("render", {})
     _check_keys("[render]", r, _RENDER)
-    rays_per_pixel = toml_int("[render] rays_per_pixel", r.get("rays_per_pixel", 16), minimum=1)
-    seed = toml_int("[render] seed", r.get("seed", 0), minimum=0)
+    rays_per_pixel = toml_int("[render] rays_per_pixel", r.get("rays_per_pixel", 16), minimum=1,
+                              maximum=MAX_RAYS_PER_PIXEL)
+    seed = toml_int("[render] seed", r.get("seed", 0), minimum=0, maximum=MAX_SEED)
     wavelengths = _wavelengths(r.get("wavelength_nm", 650))
     out = data.get("output", {})
     _check_keys("[output]", out, _OUTPUT)
@@ -298,16 +308,18 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
         raise LftomoError(
             f"[output] focal_stack_depths must be a list of numbers > 0 (m), e.g. [0.95, 1.0, 1.05], got {depths_t!r}"
         )
-    depths = tuple(toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m") for i, d in enumerate(depths_t))
+    depths = tuple(check_refocus_depth(camera, toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m"),
+                                       f"[output] focal_stack_depths[{i}]") for i, d in enumerate(depths_t))
     surfaces_t = data.get("surface", [])
     if not isinstance(surfaces_t, list):
         raise LftomoError("surfaces must be given as [[surface]] tables")
-    surfaces = [_surface(k, s, base) for k, s in enumerate(surfaces_t)]
+    surfaces = [_surface(k, s, base, allow_outside) for k, s in enumerate(surfaces_t)]
     medium = None
     if "medium" in data:
         from .forward.media_config import medium_from_table
 
-        medium = medium_from_table(data["medium"], base=base, focus_distance=camera.focus_distance)
+        medium = medium_from_table(data["medium"], base=base, focus_distance=camera.focus_distance,
+                                   allow_outside=allow_outside)
     scene = Scene(surfaces=surfaces, medium=medium)
     if not surfaces and medium is None:
         raise LftomoError(f"scene file {source!r} defines no [[surface]] and no [medium]: nothing to see")

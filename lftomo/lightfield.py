@@ -38,7 +38,7 @@ import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.optimize
@@ -257,6 +257,23 @@ def alpha_of_depth(camera: Camera, depth: float) -> float:
     return (z_xp - _image_plane_z(camera, float(depth))) / (z_xp - z_h1)
 
 
+def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
+    """``depth`` (m from the stop) as float if the main lens images it behind itself.
+
+    An object at or inside the focal length (plus the stop-to-lens distance)
+    has no real image: refocusing there would silently return zeros.
+    """
+    from ._validate import require_positive
+
+    d = require_positive(name, depth)
+    lo = camera.main_lens.focal_length * 1.02 + camera.main_lens.stop_to_vertex
+    if d <= lo:
+        raise LftomoError(f"{name} = {d!r} m is inside or too close to the main-lens focal length "
+                          f"({camera.main_lens.focal_length:.4g} m): refocus depths must be > {lo:.4g} m "
+                          "from the aperture stop")
+    return d
+
+
 def depth_of_alpha(camera: Camera, alpha: float) -> float:
     """Inverse of :func:`alpha_of_depth` (m)."""
     f = camera.main_lens.focal_length
@@ -404,9 +421,7 @@ class LightField:
 
     def refocus_operator_at(self, depth: float) -> sp.csr_matrix:
         """Sparse matrix R (n_y*n_x, rows*cols) with ``refocus_at(depth) = (R @ raw.ravel()).reshape(n_y, n_x)``."""
-        from ._validate import require_positive
-
-        depth = require_positive("depth", depth)
+        depth = check_refocus_depth(self.camera, depth)
         shifts = view_shift_field(self.camera, self.centers, depth)
         return _shift_and_add_matrix(self.view_index, self.view_mask, shifts, self.camera.sensor_shape)
 

@@ -24,13 +24,14 @@ from __future__ import annotations
 import inspect
 import numbers
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_npz_file, toml_int, toml_number, toml_numbers
+from .._validate import require_inside, require_npz_file, toml_int, toml_number, toml_numbers
 from . import phantoms
 from .grid import Grid
 from .medium import Medium
@@ -94,11 +95,12 @@ def _param_value(where: str, v: Any) -> None:
         raise LftomoError(f"{where} must be a number or a list of numbers, got {v!r}")
 
 
-def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
+def _from_file(t: Mapping[str, Any], grid: Grid, base: Path, allow_outside: bool = False) -> Medium:
     path = t["path"]
     if not isinstance(path, str):
         raise LftomoError(f"[medium] path must be a file name (a string), got {path!r}")
-    p = require_npz_file((base / path).resolve(), prefix="[medium] path: ", what="medium file",
+    p = require_inside(base / path, base, where="[medium] path", allow_outside=allow_outside)
+    p = require_npz_file(p, prefix="[medium] path: ", what="medium file",
                          needs="phantom = 'file' needs an .npz (numpy.savez) with arrays sigma_a and T [, sigma_s, g]")
     try:
         with np.load(p, allow_pickle=False) as z:
@@ -108,7 +110,7 @@ def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
                 raise LftomoError(f"[medium] path: {str(p)!r} has no array(s) {missing}; it holds {files}; "
                                  "phantom = 'file' needs sigma_a and T [, sigma_s, g]")
             shapes = {n: z[n].shape for n in _FILE_ARRAYS}
-    except (OSError, zipfile.BadZipFile) as exc:
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
         raise LftomoError(f"[medium] path: cannot read {str(p)!r}: {exc}") from None
     except ValueError as exc:
         msg = str(exc)
@@ -130,7 +132,8 @@ def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
         raise LftomoError(f"[medium] path: {exc}") from None
 
 
-def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_distance: float = 1.0) -> Medium:
+def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_distance: float = 1.0,
+                      allow_outside: bool = False) -> Medium:
     """Build a :class:`Medium` from a ``[medium]`` table of a scene file.
 
     Parameters
@@ -139,6 +142,8 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_dis
         The parsed ``[medium]`` table (see the module docstring).
     base : Path
         Folder that a relative ``path`` is resolved against (the scene file's).
+    allow_outside : bool
+        Let ``path`` name a file outside ``base`` (default: refused).
     focus_distance : float
         Centre z (m) of the default box when the table gives neither
         ``lower``/``upper`` nor ``focus_distance`` (scene files: the camera's).
@@ -175,7 +180,7 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_dis
             raise LftomoError("[medium.params] is not used with phantom = 'file'")
     grid = _grid(t, _shape(t), focus_distance)
     if kind == "file":
-        return _from_file(t, grid, base)
+        return _from_file(t, grid, base, allow_outside)
     func = PHANTOMS[kind]
     sig = inspect.signature(func).parameters
     allowed = [n for n, prm in sig.items() if prm.kind == prm.KEYWORD_ONLY]

@@ -16,13 +16,15 @@ from __future__ import annotations
 import dataclasses
 import os
 import zipfile
+import zlib
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_finite_scalar, require_npz_file, require_positive
+from .._validate import require_finite_scalar, require_positive, require_regular_file
 from ..radiation import blackbody_intensity
 from .grid import Grid
 
@@ -314,7 +316,13 @@ class Medium:
                 "soot_reference_wavelength": np.float64(self.sigma_a_rule.reference_wavelength),
                 "soot_alpha": np.float64(self.sigma_a_rule.alpha),
             }
-        np.savez(path, sigma_a=self.sigma_a, sigma_s=self.sigma_s, g=self.g, T=self.T, **extra)
+        from ..io import atomic_path
+
+        path = Path(path)
+        if path.suffix != ".npz":  # as numpy.savez does
+            path = path.with_name(path.name + ".npz")
+        with atomic_path(path) as tmp:
+            np.savez(tmp, sigma_a=self.sigma_a, sigma_s=self.sigma_s, g=self.g, T=self.T, **extra)
 
     @classmethod
     def from_npz(cls, path: str | os.PathLike, grid: Grid) -> Medium:
@@ -325,9 +333,9 @@ class Medium:
         arrays of ``grid.shape``); ``soot_reference_wavelength`` (m) and
         ``soot_alpha`` (optional, together: a :class:`SootRule`).
         """
-        path = require_npz_file(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)")
-        with np.load(path, allow_pickle=False) as z:
-            keys = set(z.files)
+        from ..io import read_npz
+
+        keys = set(read_npz(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)"))
         kw: dict[str, Any] = {}
         for name in ("sigma_a", "T"):
             kw[name] = load_field(path, name=name, shape=grid.shape)
@@ -372,9 +380,7 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
         For object (pickled) arrays, non-real dtypes, a missing key, a wrong
         shape, or non-finite values.
     """
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise LftomoError(f"{name} file {p!r} does not exist")
+    p = os.fspath(require_regular_file(path, what=f"{name} file"))
     with open(p, "rb") as f:
         magic = f.read(6)
     if magic != b"\x93NUMPY" and not zipfile.is_zipfile(p):  # else numpy reports a text file as pickled data
@@ -383,6 +389,8 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
         data = np.load(p, allow_pickle=False)
     except ValueError as e:  # object arrays refuse to load without pickle
         raise LftomoError(f"{name} in {p!r} cannot be loaded without pickling (object array?): {e}") from None
+    except (OSError, EOFError, zipfile.BadZipFile) as e:
+        raise LftomoError(f"{name} file {p!r} cannot be read (truncated or corrupt): {e}") from None
     if isinstance(data, np.lib.npyio.NpzFile):
         with data:
             if name not in data.files:
@@ -391,6 +399,8 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
                 arr = data[name]
             except ValueError as e:
                 raise LftomoError(f"{name} in {p!r} cannot be loaded without pickling (object array?): {e}") from None
+            except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+                raise LftomoError(f"{name} in {p!r} cannot be read (truncated or corrupt): {e}") from None
     else:
         arr = data
     if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):

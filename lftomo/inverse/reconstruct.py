@@ -13,6 +13,7 @@ transmittance in JAX.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -163,6 +164,15 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
                          background=problem.background, metadata=meta, interpolation=E), grid
 
 
+def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
+    """Warn (UserWarning) when fewer data than unknowns are fitted: the field is
+    then fixed by the prior more than by the data, whatever the solver reports."""
+    if n_data < n_unknowns:
+        warnings.warn(f"reconstructing {n_unknowns} unknowns from only {n_data} data: the data cannot determine "
+                      "the field, the result is mostly the smoothness prior; use more views or pixels, or a "
+                      "coarser grid", UserWarning, stacklevel=3)
+
+
 def reconstruct(
     measurement,
     weights,
@@ -258,6 +268,7 @@ def reconstruct(
     if ring is not None:
         problem = ring_problem(problem, ring)
         T0 = ring_start(T0, ring)
+    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else ring.n_rings)
     t_setup = time.perf_counter() - t0
     sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
                             method=method, rule=rule, **options)
