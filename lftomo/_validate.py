@@ -69,10 +69,10 @@ def require_int(name: str, value: Any, *, minimum: int | None = None, maximum: i
         else:
             raise LftomoError(f"{name} must be an integer, got {_fmt(value)}")
     v = int(value)
-    if (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
-        lo = "" if minimum is None else f">= {minimum}"
-        hi = "" if maximum is None else f"<= {maximum}"
-        raise LftomoError(f"{name} must be an integer {' and '.join(x for x in (lo, hi) if x)}, got {v}")
+    if minimum is not None and v < minimum:
+        raise LftomoError(f"{name} must be an integer >= {minimum}, got {v}")
+    if maximum is not None and v > maximum:
+        raise LftomoError(f"{name} must be an integer <= {maximum}, got {v}")
     return v
 
 
@@ -240,14 +240,15 @@ def toml_int(where: str, value: Any, *, minimum: int | None = None, maximum: int
     ValueError
         Naming ``where``, the value and what is allowed.
     """
-    allowed = "an integer" + ("" if minimum is None else f" >= {minimum}") + ("" if maximum is None else
-                                                                               f" <= {maximum}")
+    allowed = "an integer" + ("" if minimum is None else f" >= {minimum}")
     v: int | None = None
     if _is_real(value):
         if isinstance(value, (numbers.Integral, np.integer)):
             v = int(value)
         elif np.isfinite(float(value)) and float(value).is_integer():
             v = int(float(value))
+    if v is not None and maximum is not None and v > maximum:  # the bound named only when it is the problem
+        allowed += f" and <= {maximum}"
     if v is None or (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
         raise LftomoError(f"{where} must be {allowed}, got {_fmt(value)}")
     return v

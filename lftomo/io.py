@@ -299,8 +299,8 @@ def read_npz(path: str | os.PathLike, *, what: str, needs: str, limit: Any = Non
                 shape, dtype, offset = _member_header(zf, member)
                 name = member[:-4]
                 if dtype.hasobject:
-                    raise LftomoError(f"{what} {str(p)!r}: member {name!r} holds Python objects (dtype {dtype}); "
-                                      "lftomo never unpickles")
+                    raise LftomoError(f"{what} {str(p)!r}: member {name!r} holds Python objects (dtype {dtype}) "
+                                      "that cannot be read without pickling; lftomo never unpickles")
                 nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
                 if offset + nbytes != info.file_size:
                     raise LftomoError(f"{what} {str(p)!r}: member {name!r} announces shape {tuple(shape)} "

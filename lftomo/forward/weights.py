@@ -938,7 +938,7 @@ class WeightMatrix:
         """Row range of sub-aperture ``(v, u)``."""
         nv, nu = self.views_shape[:2]
         if not (0 <= int(v) < nv and 0 <= int(u) < nu):
-            raise ValueError(f"(v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
+            raise LftomoError(f"(v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
         k = int(v) * nu + int(u)
         return slice(int(self.view_ptr[k]), int(self.view_ptr[k + 1]))
 
@@ -969,7 +969,7 @@ class WeightMatrix:
         if x.shape == grid_shape and x.ndim == 3:
             return x.reshape(n)
         if x.shape[:1] != (n,) or x.ndim > 2:
-            raise ValueError(f"shape of x {x.shape} does not match the {n} voxels of W "
+            raise LftomoError(f"shape of x {x.shape} does not match the {n} voxels of W "
                              f"(({n},), ({n}, k) or the grid shape {grid_shape})")
         return x
 
@@ -984,7 +984,7 @@ class WeightMatrix:
         """``W.T @ y`` for y of shape (n_rows,) or (n_rows, k)."""
         y = np.asarray(y)
         if y.shape[:1] != (self.n_rows,) or y.ndim > 2:
-            raise ValueError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
+            raise LftomoError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
         return self.matrix.T @ y
 
     def signal(self, Ib) -> np.ndarray:
@@ -1020,7 +1020,7 @@ class WeightMatrix:
         masked where a view pixel has no row (unlit or not selected)."""
         y = np.asarray(y, dtype=float)
         if y.shape != (self.n_rows,):
-            raise ValueError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
+            raise LftomoError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
         out = np.full(int(np.prod(self.views_shape)), float(fill))
         mask = np.ones(out.size, bool)
         out[self.view_pixel] = y
@@ -1031,7 +1031,7 @@ class WeightMatrix:
         """Scatter a row vector into a raw image (sensor_shape); pixels without a row get ``fill``."""
         y = np.asarray(y, dtype=float)
         if y.shape != (self.n_rows,):
-            raise ValueError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
+            raise LftomoError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
         out = np.full(self.sensor_shape[0] * self.sensor_shape[1], float(fill))
         out[self.pixel_index] = y
         return out.reshape(self.sensor_shape)
@@ -1040,21 +1040,21 @@ class WeightMatrix:
         """Data vector (n_rows,) of a raw image (rows, cols): ``raw.ravel()[pixel_index]``."""
         raw = np.asarray(raw, dtype=float)
         if raw.shape != tuple(self.sensor_shape):
-            raise ValueError(f"shape of raw {raw.shape} does not match the sensor {tuple(self.sensor_shape)}")
+            raise LftomoError(f"shape of raw {raw.shape} does not match the sensor {tuple(self.sensor_shape)}")
         return raw.ravel()[self.pixel_index]
 
     def rows_from_views(self, views) -> np.ndarray:
         """Data vector (n_rows,) of a views array (n_v, n_u, n_y, n_x)."""
         v = np.ma.getdata(views)
         if v.shape != tuple(self.views_shape):
-            raise ValueError(f"shape of views {v.shape} does not match {tuple(self.views_shape)}")
+            raise LftomoError(f"shape of views {v.shape} does not match {tuple(self.views_shape)}")
         return np.asarray(v, float).ravel()[self.view_pixel]
 
     def select(self, views) -> WeightMatrix:
         """Rows of a subset: a list of ``(v, u)`` or a boolean mask of ``views_shape``."""
         if isinstance(views, np.ndarray) and views.dtype == bool:
             if views.shape != tuple(self.views_shape):
-                raise ValueError(f"shape of the views mask {views.shape} does not match {tuple(self.views_shape)}")
+                raise LftomoError(f"shape of the views mask {views.shape} does not match {tuple(self.views_shape)}")
             keep = views.ravel()[self.view_pixel]
         else:
             keep = np.zeros(self.n_rows, bool)
@@ -1352,7 +1352,7 @@ def weights(
     ss = _field_flat("sigma_s", sigma_s, grid)
     gg = _field_flat("g", g, grid, minimum=None)
     if np.any(np.abs(gg) >= 1.0):
-        raise ValueError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
+        raise LftomoError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
     wl = _wavelength(wavelength)
     limit = _memory_limit(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
@@ -1499,7 +1499,7 @@ class RaySegments:
         limit = _memory_limit(memory_limit)
         est = bound * (8 + 4 + (8 if mode == 1 else 0)) + n_rows * 32
         if est > limit:
-            raise ValueError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
+            raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
                              f"memory_limit = {limit / 1e9:.3g} GB")
         pos = _pos_scratch(self.n_voxels)
         inv_n = 1.0 / self.rays_per_pixel
@@ -1854,23 +1854,23 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
     from .camera import Camera
 
     if not isinstance(W, WeightMatrix):
-        raise ValueError(f"W must be a WeightMatrix, got {type(W).__name__}")
+        raise LftomoError(f"W must be a WeightMatrix, got {type(W).__name__}")
     if isinstance(lightfield_or_camera, Camera):
         lf = LightField(raw=np.zeros(lightfield_or_camera.sensor_shape), camera=lightfield_or_camera)
     elif isinstance(lightfield_or_camera, LightField):
         lf = lightfield_or_camera
     else:
-        raise ValueError(f"lightfield_or_camera must be a LightField or a Camera, "
+        raise LftomoError(f"lightfield_or_camera must be a LightField or a Camera, "
                          f"got {type(lightfield_or_camera).__name__}")
     diffs = _dict_diff(W.metadata.get("camera"), json.loads(json.dumps(lf.camera.to_dict())))
     if diffs:
-        raise ValueError("W was built for another camera than the light field's: " + "; ".join(diffs))
+        raise LftomoError("W was built for another camera than the light field's: " + "; ".join(diffs))
     try:
         depth_list = [float(d) for d in np.atleast_1d(np.asarray(depths, dtype=float))]
     except (TypeError, ValueError):
-        raise ValueError(f"depths must be a sequence of depths in m, got {depths!r}") from None
+        raise LftomoError(f"depths must be a sequence of depths in m, got {depths!r}") from None
     if not depth_list or not all(math.isfinite(d) and d > 0 for d in depth_list):
-        raise ValueError(f"depths must be a non-empty sequence of positive depths in m, got {depths!r}")
+        raise LftomoError(f"depths must be a non-empty sequence of positive depths in m, got {depths!r}")
     pix, first = W.raw_rows()
     have = np.zeros(W.sensor_shape[0] * W.sensor_shape[1], bool)
     have[pix] = True
@@ -1880,7 +1880,7 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
         used = np.flatnonzero(np.diff(R.indptr) > 0)
         missing = used[~have[used]]
         if missing.size:
-            raise ValueError(
+            raise LftomoError(
                 f"the refocus at depth {d!r} m uses {missing.size} raw pixels that are not rows of W "
                 f"(e.g. raw index {int(missing[0])}); build W with views=None and the same decode"
             )

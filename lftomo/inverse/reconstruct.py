@@ -268,7 +268,7 @@ def reconstruct(
     if ring is not None:
         problem = ring_problem(problem, ring)
         T0 = ring_start(T0, ring)
-    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else ring.n_rings)
+    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
     sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
                             method=method, rule=rule, **options)
