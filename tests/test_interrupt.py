@@ -80,14 +80,15 @@ def test_interrupt_leaves_previous_or_complete_file(tmp_path, command):
     delay = random.Random().uniform(0.0, 1.5)
     proc = _start(argv + ["--seed", "7"])
     code, err, seconds = _interrupt(proc, delay)
-    assert code in (0, 130), err
+    # -SIGINT: the signal came after the command had finished, while Python shut down
+    assert code in (0, 130, -signal.SIGINT), err
     assert "Traceback" not in err, err
     if code == 130:
         assert "lftomo: interrupted" in err
         assert seconds < 5.0, f"took {seconds:.1f} s to stop"
     after = target.read_bytes()
     if after == before:
-        assert code == 130, "a finished run must replace the file"
+        assert code == 130, f"a finished run must replace the file (exit {code})"
     else:  # a complete new file
         cfg = load_scene_file(scene)
         if command == "render":
