@@ -794,17 +794,20 @@ def summary_text(metrics: dict[str, Any], out: str | Path) -> str:
 
 # ============================================================================ lftomo reconstruct
 def _grid_of_weight_file(path: Path):
-    """The grid recorded in a weight-matrix file (read without pickle)."""
+    """The grid recorded in a weight-matrix file (read without pickle, checked)."""
     from .forward.grid import Grid
+    from .io import json_member, read_npz
 
+    what = "weight-matrix file"
+    arrays = read_npz(path, what=what, needs="expected a weight matrix written by WeightMatrix.save or "
+                      "`lftomo weights`")
+    meta = json_member(arrays, path=path, what=what)
+    if not isinstance(meta.get("grid"), dict):
+        raise LftomoError(f"{what} {str(path)!r} carries no grid metadata (not written by lftomo weights?)")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-    except (OSError, ValueError, KeyError) as exc:
-        raise LftomoError(f"{str(path)!r} is not a readable lftomo weight-matrix .npz: {exc}") from None
-    if "grid" not in meta:
-        raise LftomoError(f"{str(path)!r} carries no grid metadata (not written by lftomo weights?)")
-    return Grid.from_dict(meta["grid"]), meta
+        return Grid.from_dict(meta["grid"]), meta
+    except (ValueError, TypeError, KeyError) as exc:
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' grid is invalid: {exc}") from None
 
 
 def run_reconstruct(

@@ -34,7 +34,6 @@ the views that contribute to it.  It is linear in ``raw``:
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -54,6 +53,11 @@ FORMAT = "lftomo-lightfield-1"
 
 # ---- geometry of the decode -------------------------------------------------
 
+def _require_camera(camera: Any) -> None:
+    if not isinstance(camera, Camera):
+        raise LftomoError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
+
+
 def geometric_centers(camera: Camera) -> np.ndarray:
     """Microlens-image centres (row, col) in pixel coordinates, shape (n_y, n_x, 2).
 
@@ -62,6 +66,7 @@ def geometric_centers(camera: Camera) -> np.ndarray:
     lenslet's principal points meets the sensor.  Pixel ``(r, c)`` has its
     centre at coordinates ``(r, c)``.
     """
+    _require_camera(camera)
     mla = camera.mla
     nx, ny = mla.count
     z_xp, _ = camera.exit_pupil
@@ -252,6 +257,7 @@ def alpha_of_depth(camera: Camera, depth: float) -> float:
     and to the MLA principal plane.  α = 1 at the focus distance; α > 1 for
     nearer depths.
     """
+    _require_camera(camera)
     z_xp, _ = camera.exit_pupil
     z_h1 = camera.z_mla - camera.mla.front_principal_plane
     return (z_xp - _image_plane_z(camera, float(depth))) / (z_xp - z_h1)
@@ -263,6 +269,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
     An object at or inside the focal length (plus the stop-to-lens distance)
     has no real image: refocusing there would silently return zeros.
     """
+    _require_camera(camera)
     from ._validate import require_positive
 
     d = require_positive(name, depth)
@@ -276,6 +283,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
 
 def depth_of_alpha(camera: Camera, alpha: float) -> float:
     """Inverse of :func:`alpha_of_depth` (m)."""
+    _require_camera(camera)
     f = camera.main_lens.focal_length
     lo = f * 1.02 + camera.main_lens.stop_to_vertex
     hi = 1e4 * f

@@ -128,6 +128,20 @@ OBJECT_CASES = {
     "lf-camera": (lambda: lt.LightField(raw=np.zeros((100, 100)), camera={}), "camera must be an lftomo.Camera"),
     "lf-raw-shape": (lambda: lt.LightField(raw=np.zeros((3, 3)), camera=tiny_camera()), "shape of raw"),
     "lf-raw-nan": (lambda: lt.LightField(raw=np.full((100, 100), np.nan), camera=tiny_camera()), "raw must be finite"),
+    "scene-surfaces-int": (lambda: lt.Scene(surfaces=3), "surfaces must be a sequence of PlanarEmitter, got int"),
+    "scene-medium-dict": (lambda: lt.Scene(medium={}), "medium must be an lftomo.Medium or None, got dict"),
+    "blob-grid-dict": (lambda: lt.phantoms.gaussian_blob({}, center=(0, 0, 1), width=0.01, T_peak=1500.0,
+                                                         sigma_a_peak=1.0), "grid must be an lftomo.Grid, got dict"),
+    "flame-grid-str": (lambda: lt.phantoms.axisymmetric_flame("grid"), "grid must be an lftomo.Grid, got str"),
+    "alpha-camera": (lambda: lt.alpha_of_depth({}, 1.0), "camera must be an lftomo.Camera, got dict"),
+    "centers-camera": (lambda: lt.geometric_centers(None), "camera must be an lftomo.Camera, got NoneType"),
+    "reconstruct-types": (lambda: lt.reconstruct("m", "w"), "measurement must be an lftomo.Measurement, got str"),
+    "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
+                                                 {}), "camera must be an lftomo.Camera, got dict"),
+    "forward-bundles": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
+                                                  tiny_camera(), n_bundles=2**63), "n_bundles must be an integer <="),
+    "forward-seed": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
+                                               tiny_camera(), seed=2**63), "seed must be an integer <="),
 }
 
 

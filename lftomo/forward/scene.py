@@ -181,6 +181,12 @@ class Scene:
     medium: Any = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.surfaces, (PlanarEmitter, str, bytes)) or not hasattr(self.surfaces, "__iter__"):
+            raise LftomoError(f"surfaces must be a sequence of PlanarEmitter, got {type(self.surfaces).__name__}")
+        from .medium import Medium
+
+        if self.medium is not None and not isinstance(self.medium, Medium):
+            raise LftomoError(f"medium must be an lftomo.Medium or None, got {type(self.medium).__name__}")
         surfs = tuple(self.surfaces)
         for k, s in enumerate(surfs):
             if not isinstance(s, PlanarEmitter):

@@ -164,6 +164,26 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
                          background=problem.background, metadata=meta, interpolation=E), grid
 
 
+def _check_types(measurement: Any, weights: Any) -> None:
+    """Type checks at the API boundary (before any attribute is read)."""
+    import scipy.sparse as sp
+
+    from ..errors import LftomoError
+    from ..forward.weights import RaySegments, RefocusWeights, WeightMatrix
+    from .measurement import Measurement
+
+    ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
+    for k, m in enumerate(ms):
+        if not isinstance(m, Measurement):
+            where = "measurement" if len(ms) == 1 and not isinstance(measurement, (list, tuple)) else f"measurement[{k}]"
+            raise LftomoError(f"{where} must be an lftomo.Measurement, got {type(m).__name__}")
+    ws = list(weights) if isinstance(weights, (list, tuple)) else [weights]
+    for w in ws:
+        if not isinstance(w, (WeightMatrix, RaySegments, RefocusWeights)) and not sp.issparse(w):
+            raise LftomoError(f"weights must be an lftomo.WeightMatrix, RaySegments or RefocusWeights, got "
+                              f"{type(w).__name__}")
+
+
 def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
     """Warn (UserWarning) when fewer data than unknowns are fitted: the field is
     then fixed by the prior more than by the data, whatever the solver reports."""
@@ -241,6 +261,7 @@ def reconstruct(
     """
     if unknowns not in ("T", "T+sigma_a"):
         raise ValueError(f"unknowns must be 'T' or 'T+sigma_a', got {unknowns!r}")
+    _check_types(measurement, weights)
     lo, hi = bounds
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
