@@ -99,3 +99,16 @@ def test_cli_refuses_large_runs(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert err.startswith("lftomo: error: [camera]: a camera of 10 x 10 microlenses"), err
     assert not (tmp_path / "W.npz").exists()
+
+
+def test_render_time_estimate_and_refusal():
+    cam = tiny_camera()
+    scene = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+    lf = lt.render(scene, cam, rays_per_pixel=2, wavelengths="gray", progress=False)
+    assert 0 < lf.metadata["estimated_seconds"] < 60
+    t0 = time.perf_counter()
+    with pytest.raises(LftomoError, match=r"the render would take an estimated .* more than max_seconds = 1 s"):
+        lt.render(scene, cam, rays_per_pixel=2**24, wavelengths="gray", progress=False, max_seconds=1)
+    assert time.perf_counter() - t0 < 5.0
+    with pytest.raises(LftomoError, match="max_seconds must be > 0"):
+        lt.render(scene, cam, rays_per_pixel=1, wavelengths="gray", progress=False, max_seconds=-1)

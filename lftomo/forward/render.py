@@ -49,6 +49,7 @@ def render(
     seed: int = 0,
     wavelengths: Any = (650e-9,),
     progress: bool | None = None,
+    max_seconds: float | None = None,
 ):
     """Render the raw plenoptic image of ``scene`` by backward Monte Carlo.
 
@@ -66,6 +67,10 @@ def render(
         (σT⁴/π) band.  One raw channel per wavelength.
     progress : bool, optional
         Show a progress bar (default: when the render is large).
+    max_seconds : float, optional
+        Refuse (:class:`lftomo.LftomoError`) a render whose estimated time
+        exceeds this.  The estimate, from a pilot of a few rows at up to 64
+        rays per pixel, is kept in ``metadata["estimated_seconds"]``.
 
     Returns
     -------
@@ -92,6 +97,10 @@ def render(
     nrows, ncols = camera.sensor_shape
     mean = np.zeros((n_ch, nrows, ncols))
     sq = np.zeros((n_ch, nrows, ncols))
+    if max_seconds is not None:
+        from .._validate import require_positive
+
+        max_seconds = require_positive("max_seconds", max_seconds)
     t0 = time.perf_counter()
     from .media_render import empty_row_kernel, medium_row_kernel
 
@@ -99,9 +108,11 @@ def render(
         row_kernel = medium_row_kernel(scene.medium, wl, camera)
     else:
         row_kernel = empty_row_kernel(n_ch)
+    show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
+    estimate = _estimate_seconds(row_kernel, optics, surf, tex, n_ch, n_rays, seed, mean.shape)
+    _check_estimate(estimate, max_seconds, bool(show))
     # chunks of rows sized to ~0.25 s each, so that Ctrl-C is seen between two kernel calls
     sizer = ChunkSizer(nrows, start=numba.get_num_threads())
-    show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
     bar = _progress(nrows * ncols, show, "render")
     try:
         for r0, r1 in sizer.ranges(nrows):
@@ -122,8 +133,37 @@ def render(
         "wavelengths": None if wl is None else list(wl),
         "scene": scene.summary(),
         "elapsed_s": elapsed,
+        "estimated_seconds": estimate,
     }
     return LightField(raw=raw, camera=camera, wavelengths=wl, std_error=se, metadata=meta)
+
+
+def _estimate_seconds(row_kernel, optics, surf, tex, n_ch, n_rays, seed, shape) -> float:
+    """Seconds the render will take, from a few middle rows at up to 64 rays per pixel.
+
+    The cost grows linearly with the rays, so a pilot with few rays estimates a
+    render with any number of them without tracing them.
+    """
+    nrows, ncols = shape[1:]
+    k = max(1, min(nrows, 4 * numba.get_num_threads()))
+    r0 = (nrows - k) // 2
+    n_pilot = min(n_rays, 64)
+    scratch_m, scratch_s = np.zeros(shape), np.zeros(shape)
+    t = time.perf_counter()
+    row_kernel(r0, r0 + k, optics, surf, tex, n_ch, n_pilot, seed, scratch_m, scratch_s)
+    per_ray = (time.perf_counter() - t) / (k * ncols * n_pilot)
+    return per_ray * nrows * ncols * n_rays
+
+
+def _check_estimate(seconds: float, max_seconds: float | None, show: bool) -> None:
+    text = f"{seconds:.3g} s" if seconds < 3600 else f"{seconds / 3600:.3g} h"
+    if max_seconds is not None and seconds > max_seconds:
+        raise LftomoError(f"the render would take an estimated {text}, more than max_seconds = {max_seconds:g} s; "
+                          "use fewer rays_per_pixel or a smaller camera, or raise max_seconds")
+    if show and seconds > 30:
+        import sys
+
+        print(f"render: estimated {text} (Ctrl-C stops it)", file=sys.stderr, flush=True)
 
 
 class _NoBar:
