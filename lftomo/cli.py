@@ -365,6 +365,14 @@ def _file_errors() -> tuple[type[BaseException], ...]:
     return (zipfile.BadZipFile, EOFError, zlib.error)
 
 
+def _numba_errors() -> tuple[type[BaseException], ...]:
+    try:
+        from numba.core.errors import NumbaError
+    except ImportError:  # pragma: no cover
+        return ()
+    return (NumbaError,)
+
+
 def main(argv=None) -> int:
     """Run the ``lftomo`` command.
 
@@ -391,6 +399,11 @@ def main(argv=None) -> int:
         return 2
     except _file_errors() as exc:
         print(f"lftomo: error: a file is corrupt or truncated ({type(exc).__name__}: {exc})", file=sys.stderr)
+        return 2
+    except _numba_errors() as exc:  # an input that slipped past the checks into a kernel
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        print(f"lftomo: error: a compiled kernel refused its input ({type(exc).__name__}: {first}); "
+              "please report this with the command line", file=sys.stderr)
         return 2
 
 

@@ -567,7 +567,7 @@ def test_cli_integer_options_are_bounded(capsys, argv, option):
     assert f"argument {option}" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("exc", ["interrupt", "badzip", "eof", "zlib", "memory", "keyerror-json"])
+@pytest.mark.parametrize("exc", ["interrupt", "badzip", "eof", "zlib", "memory", "keyerror-json", "numba"])
 def test_cli_last_guard(tmp_path, cli_files, capsys, monkeypatch, exc):
     """Whatever escapes a command: exit 130 for Ctrl-C, 2 with one line for damaged files, no traceback."""
     import zlib
@@ -575,7 +575,8 @@ def test_cli_last_guard(tmp_path, cli_files, capsys, monkeypatch, exc):
     import lftomo.forward.render as render_mod
 
     errors = {"interrupt": KeyboardInterrupt(), "badzip": zipfile.BadZipFile("bad"), "eof": EOFError("eof"),
-              "zlib": zlib.error("Error -3"), "memory": MemoryError(), "keyerror-json": json.JSONDecodeError("x", "", 0)}
+              "zlib": zlib.error("Error -3"), "memory": MemoryError(), "keyerror-json": json.JSONDecodeError("x", "", 0),
+              "numba": __import__("numba").core.errors.TypingError("Cannot unify int64 and float64")}
 
     def boom(*a, **k):
         raise errors[exc]
