@@ -27,9 +27,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import json
 import math
 import platform
+import shutil
 import sys
 import time
 import warnings
@@ -39,6 +41,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import LftomoError
+
+#: Folder inside the report folder that keeps the long stages of an unfinished run.
+RESUME_DIR = ".lftomo-resume"
 
 #: Reduced camera of ``--quick``: the seed camera with a 2× coarser MLA *and*
 #: 2× larger pixels — 30 × 30 lenslets of 1 mm (every lenslet dimension doubled,
@@ -418,21 +423,45 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
     final = check_output_dir(out_dir, what="out_dir")
     # the report is written in a staging folder and published complete: an
     # interrupted rerun leaves the previous report and its files as they were
+    resume = final / RESUME_DIR
     with staged_directory(final) as stage:
-        metrics = _demo_into(stage, quick=bool(quick), seed=seed, progress=progress)
+        metrics = _demo_into(stage, quick=bool(quick), seed=seed, progress=progress, resume=resume)
+    shutil.rmtree(resume, ignore_errors=True)  # the run is complete: nothing left to resume
     if progress:
         print(summary_text(metrics, final), flush=True)
     return metrics
 
 
-def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool) -> dict[str, Any]:
-    """The stages of :func:`run_demo`, writing into ``out`` (the staging folder)."""
+def _resumable(path: Path, load, make, save, resumed: list[str], name: str):
+    """An earlier run's complete result at ``path`` (checked by ``load``), or ``make()`` saved there atomically."""
+    if path.is_file():
+        try:
+            obj = load(path)
+            resumed.append(name)
+            return obj
+        except ValueError:  # damaged or from another version: compute again
+            path.unlink(missing_ok=True)
+    obj = make()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save(obj, path)
+    return obj
+
+
+def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Path) -> dict[str, Any]:
+    """The stages of :func:`run_demo`, writing into ``out`` (the staging folder).
+
+    The render and the weight matrix (the long stages) are also kept in
+    ``resume`` under a key of the settings, so that a rerun after an
+    interruption takes them from there (the same seeds give the same result).
+    """
     import lftomo as lt
     from .inverse.compare import compare_refocus_subaperture, effective_truth
     from .report import write_report
 
     t_start = time.perf_counter()
     cfg = demo_settings(quick, seed)
+    key = hashlib.sha256(json.dumps([cfg, lt.__version__], sort_keys=True).encode()).hexdigest()[:16]
+    resumed: list[str] = []
     st = _Stages(9, progress)
     sections: list[dict[str, Any]] = []
     metrics: dict[str, Any] = {"parameters": cfg, "environment": _environment()}
@@ -465,8 +494,11 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool) -> dict[str
         coarse = lt.phantoms.default_flame_grid(tuple(cfg["recon_shape"]), cfg["focus_distance"])
         flame = lt.phantoms.axisymmetric_flame(fine, width_base=FLAME_WIDTH_BASE)
         scene = lt.Scene(medium=flame)
-        lf = lt.render(scene, camera, rays_per_pixel=n_d, seed=cfg["seeds"]["render"], wavelengths=(wl,),
-                       progress=progress)
+        lf = _resumable(
+            resume / f"lightfield-{key}.npz", lt.LightField.load,
+            lambda: lt.render(scene, camera, rays_per_pixel=n_d, seed=cfg["seeds"]["render"], wavelengths=(wl,),
+                              progress=progress),
+            lambda obj, p: obj.save(p), resumed, "render")
         t_mc = lf.metadata.get("elapsed_s")
         files = save_lightfield_products(lf, out, FOCAL_DEPTHS)
     lit = lf.raw > 1e-3 * lf.raw.max()
@@ -497,8 +529,11 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool) -> dict[str
     # ---- 3. weight matrix on the reconstruction grid
     with st("weights", f"weight matrix on the {cfg['recon_shape']} reconstruction grid ({n_w} rays/pixel)"):
         sa_c, T_eff = effective_truth(flame, coarse, wl)
-        W = lt.weights(camera, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
-                       seed=cfg["seeds"]["weights"], progress=progress)
+        W = _resumable(
+            resume / f"weights-{key}.npz", lambda p: lt.WeightMatrix.load(p, camera, coarse, wavelength=wl),
+            lambda: lt.weights(camera, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
+                               seed=cfg["seeds"]["weights"], progress=progress),
+            lambda obj, p: obj.save(p), resumed, "weights")
     metrics["weights"] = {"recon_grid": coarse.to_dict(), "shape": list(W.shape), "nnz": W.nnz,
                           "megabytes": W.nbytes / 1e6, "rays_per_pixel": n_w, "seed": cfg["seeds"]["weights"],
                           "build_seconds": W.metadata.get("build_seconds"),
@@ -730,6 +765,7 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool) -> dict[str
     st.timings["total"] = time.perf_counter() - t_start
     metrics["timings_s"] = dict(st.timings)
     metrics["warnings"] = warned + [f"camera: {w}" for w in design["warnings"]]
+    metrics["resumed_stages"] = resumed
     metrics = _finite(metrics)
     intro = (f"lftomo {metrics['environment']['lftomo']} — {cfg['mode']} run, seed {seed}, "
              f"{st.timings['total']:.0f} s on {metrics['environment']['cpu_count']} cores. "

@@ -123,3 +123,65 @@ def test_ctrl_c_between_chunks_is_prompt():
     assert time.perf_counter() - t0 < 3.0
     timer.cancel()
     assert np.isfinite(0.0)
+
+
+def test_interrupted_demo_rerun_keeps_the_previous_report(tmp_path, monkeypatch):
+    """run_demo writes into a staging folder: an interrupted rerun leaves the previous report and the
+    files beside it as they were; a completed run publishes all files and the marker last."""
+    import lftomo.demo as demo
+    from lftomo.io import COMPLETE_MARKER
+
+    def fake(out, *, quick, seed, progress, resume):
+        (out / "fields.npz").write_bytes(b"new fields %d" % seed)
+        (out / "index.html").write_text(f"report of seed {seed}")
+        (out / "metrics.json").write_text("{}")
+        if seed == 2:
+            raise KeyboardInterrupt
+        return {"parameters": {"mode": "quick", "seed": seed}}
+
+    monkeypatch.setattr(demo, "_demo_into", fake)
+    out = tmp_path / "report"
+    demo.run_demo(out, quick=True, seed=1, progress=False)
+    assert (out / "index.html").read_text() == "report of seed 1"
+    assert (out / COMPLETE_MARKER).is_file()
+    with pytest.raises(KeyboardInterrupt):
+        demo.run_demo(out, quick=True, seed=2, progress=False)
+    assert (out / "index.html").read_text() == "report of seed 1"
+    assert (out / "fields.npz").read_bytes() == b"new fields 1"
+    assert (out / COMPLETE_MARKER).is_file()
+    _no_leftovers(out)
+
+
+def test_demo_resumes_complete_stages(tmp_path):
+    from lftomo.demo import _resumable
+
+    made, resumed = [], []
+    path = tmp_path / "r" / "x.npz"
+
+    def make():
+        made.append(1)
+        return np.arange(3.0)
+
+    def load(p):
+        with np.load(p, allow_pickle=False) as z:
+            return z["a"]
+
+    def save(obj, p):
+        from lftomo.io import atomic_path
+
+        with atomic_path(p) as tmp:
+            np.savez(tmp, a=obj)
+
+    assert np.array_equal(_resumable(path, load, make, save, resumed, "stage"), np.arange(3.0))
+    assert np.array_equal(_resumable(path, load, make, save, resumed, "stage"), np.arange(3.0))
+    assert len(made) == 1 and resumed == ["stage"]
+    path.write_bytes(b"damaged")  # an unreadable earlier result is computed again
+
+    def strict_load(p):
+        try:
+            return load(p)
+        except Exception as exc:
+            raise ValueError(str(exc)) from None
+
+    _resumable(path, strict_load, make, save, resumed, "stage")
+    assert len(made) == 2
