@@ -124,17 +124,9 @@ def _texture_file(tab: str, path: Any, base: Path, allow_outside: bool = False) 
     if zipfile.is_zipfile(p):
         raise LftomoError(f"{tab} path: {str(p)!r} is an .npz archive; texture = 'file' needs one array in an "
                          ".npy file (numpy.save)")
-    with open(p, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":
-        raise LftomoError(f"{tab} path: {str(p)!r} is not an .npy file; texture = 'file' needs a 2-D array "
-                         "saved with numpy.save")
-    try:
-        tex = np.load(p, allow_pickle=False)
-    except ValueError as exc:
-        raise LftomoError(f"{tab}: cannot read {str(p)!r} without pickle: {exc}") from None
-    except (OSError, EOFError) as exc:
-        raise LftomoError(f"{tab}: cannot read {str(p)!r} (truncated or corrupt): {exc}") from None
+    from .io import read_npy
+
+    tex = read_npy(p, what=f"{tab} path:")
     if tex.dtype.kind not in "fiu":
         raise LftomoError(f"{tab}: texture dtype {tex.dtype} in {str(p)!r} is not numeric")
     if tex.ndim not in (2, 3) or 0 in tex.shape:

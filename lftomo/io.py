@@ -280,7 +280,6 @@ def read_npz(path: str | os.PathLike, *, what: str, needs: str, limit: Any = Non
         Naming the file and the member.
     """
     import zipfile
-    import zlib
 
     import numpy as np
 
@@ -313,8 +312,8 @@ def read_npz(path: str | os.PathLike, *, what: str, needs: str, limit: Any = Non
                     out[member[:-4]] = np.lib.format.read_array(fh, allow_pickle=False)
     except LftomoError:
         raise
-    except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, RuntimeError,
-            NotImplementedError, SyntaxError, TypeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - any failure to decode damaged bytes (BadZipFile, zlib.error,
+        # EOFError, tokenize.TokenError from a mangled .npy header, ...) is the file's fault, not a bug
         where = f" member {member[:-4]!r}" if member else ""
         raise LftomoError(f"{what} {str(p)!r}{where} cannot be read ({type(exc).__name__}: {exc}); "
                           "the file is corrupt or truncated") from None
@@ -366,3 +365,44 @@ def check_member(arrays: dict[str, Any], name: str, *, path: Any, what: str, kin
     if maximum is not None and a.size and a.max() > maximum:
         raise LftomoError(f"{where} must be <= {maximum:g}, got maximum {a.max().item()!r}")
     return a
+
+
+def read_npy(path: str | os.PathLike, *, what: str, limit: Any = None):
+    """Read one ``.npy`` array without pickle, its header checked first (as :func:`read_npz`).
+
+    Raises
+    ------
+    LftomoError
+        Not an ``.npy`` file, object dtype, a size that does not match the
+        file (truncated), above the memory limit, or undecodable.
+    """
+    import numpy as np
+    from numpy.lib import format as npf
+
+    from ._validate import check_allocation, require_regular_file
+
+    p = require_regular_file(path, what=what)
+    try:
+        with open(p, "rb") as fh:
+            if fh.read(6) != b"\x93NUMPY":
+                raise LftomoError(f"{what} {str(p)!r} is not an .npy file (numpy.save)")
+            fh.seek(0)
+            version = npf.read_magic(fh)
+            header = npf.read_array_header_1_0 if version == (1, 0) else npf.read_array_header_2_0
+            shape, _, dtype = header(fh)
+            dtype = np.dtype(dtype)
+            if dtype.hasobject:
+                raise LftomoError(f"{what} {str(p)!r} holds Python objects (dtype {dtype}) that cannot be read "
+                                  "without pickling; lftomo never unpickles")
+            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if fh.tell() + nbytes != p.stat().st_size:
+                raise LftomoError(f"{what} {str(p)!r} announces shape {tuple(shape)} ({nbytes} bytes) but holds "
+                                  f"{p.stat().st_size - fh.tell()} bytes: truncated or corrupt")
+            check_allocation(f"{what} {str(p)!r}", nbytes, limit=limit)
+            fh.seek(0)
+            return np.load(fh, allow_pickle=False)
+    except LftomoError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - damaged bytes
+        raise LftomoError(f"{what} {str(p)!r} cannot be read ({type(exc).__name__}: {exc}); the file is corrupt "
+                          "or truncated") from None

@@ -599,3 +599,27 @@ def test_error_type_is_a_value_error():
     assert issubclass(LftomoError, ValueError)
     assert lt.LftomoError is LftomoError
     assert math.isfinite(1.0)
+
+
+@pytest.mark.parametrize("damage, match", [
+    ("truncated", "corrupt or truncated"),
+    ("header", "cannot be read|truncated or corrupt"),
+    ("object", "without pickling"),
+    ("text", "is not an .npy file|is neither an .npy array nor an .npz archive"),
+])
+def test_damaged_npy_files(tmp_path, damage, match):
+    """.npy files (textures, fields): damaged bytes give LftomoError naming the file and key."""
+    p = tmp_path / "t.npy"
+    if damage == "object":
+        np.save(p, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    elif damage == "text":
+        p.write_text("1 2 3")
+    else:
+        np.save(p, np.eye(8))
+        raw = p.read_bytes()
+        p.write_bytes(raw[:100] if damage == "truncated" else raw.replace(b"'shape': (8, 8)", b"'shape': (8, 8"))
+    with pytest.raises(LftomoError, match=f"sigma_a file '.*t.npy'.*({match})"):
+        lt.load_field(p, name="sigma_a")
+    scene = _scene(tmp_path, surface='texture = "file"\npath = "t.npy"')
+    with pytest.raises(LftomoError, match=rf"\[\[surface\]\] #1 path: '.*t.npy'.*({match})"):
+        load_scene_file(scene)

@@ -10,6 +10,8 @@ silently corrupt object.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -18,7 +20,9 @@ from hypothesis import strategies as st
 import lftomo as lt
 from reliability_helpers import read_arrays, tiny_camera, tiny_grid, tiny_lightfield, tiny_weights
 
-SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# 40 examples per test in CI (about a second); more with LFTOMO_MUTATION_EXAMPLES=1000
+SETTINGS = settings(max_examples=int(os.environ.get("LFTOMO_MUTATION_EXAMPLES", "40")), deadline=None,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import zipfile
-import zlib
 from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any
@@ -385,24 +384,15 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
         magic = f.read(6)
     if magic != b"\x93NUMPY" and not zipfile.is_zipfile(p):  # else numpy reports a text file as pickled data
         raise LftomoError(f"{name} file {p!r} is neither an .npy array nor an .npz archive")
-    try:
-        data = np.load(p, allow_pickle=False)
-    except ValueError as e:  # object arrays refuse to load without pickle
-        raise LftomoError(f"{name} in {p!r} cannot be loaded without pickling (object array?): {e}") from None
-    except (OSError, EOFError, zipfile.BadZipFile) as e:
-        raise LftomoError(f"{name} file {p!r} cannot be read (truncated or corrupt): {e}") from None
-    if isinstance(data, np.lib.npyio.NpzFile):
-        with data:
-            if name not in data.files:
-                raise LftomoError(f"{p!r} has no array {name!r}; it holds {sorted(data.files)}")
-            try:
-                arr = data[name]
-            except ValueError as e:
-                raise LftomoError(f"{name} in {p!r} cannot be loaded without pickling (object array?): {e}") from None
-            except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
-                raise LftomoError(f"{name} in {p!r} cannot be read (truncated or corrupt): {e}") from None
+    from ..io import read_npy, read_npz
+
+    if zipfile.is_zipfile(p):  # every member's header checked first; objects, truncation -> LftomoError
+        data = read_npz(p, what=f"{name} file", needs="expected an .npz archive (numpy.savez)")
+        if name not in data:
+            raise LftomoError(f"{p!r} has no array {name!r}; it holds {sorted(data)}")
+        arr = data[name]
     else:
-        arr = data
+        arr = read_npy(p, what=f"{name} file")
     if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise LftomoError(f"{name} in {p!r} must have a real numeric dtype, got {arr.dtype}")
     if shape is not None and arr.shape != tuple(shape):
