@@ -5,6 +5,8 @@ Public API (re-exported names only; see the README for a walk-through).
 
 __version__ = "0.1.0"
 
+from .errors import LftomoError
+
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor, thick_lens_focal_length, spherical_aberration
 from .forward.scene import PlanarEmitter, Scene, checkerboard, uniform
 from .forward.render import render
@@ -33,6 +35,7 @@ from .inverse.compare import (Comparison, compare_refocus_subaperture, effective
 
 __all__ = [
     "__version__",
+    "LftomoError",
     "Camera",
     "MainLens",
     "MicrolensArray",

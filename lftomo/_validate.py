@@ -1,13 +1,18 @@
-"""Input checks that raise ValueError naming the argument, its value and what is allowed."""
+"""Input checks that raise :class:`lftomo.LftomoError` (a ValueError) naming the
+argument, its value and what is allowed; size estimates with a memory limit."""
 
 from __future__ import annotations
 
 import numbers
+import os
+import stat
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .errors import LftomoError
 
 
 def _fmt(value: Any) -> str:
@@ -22,48 +27,143 @@ def _fmt(value: Any) -> str:
 def require_finite_scalar(name: str, value: Any) -> float:
     """Return ``value`` as float; raise if it is not a finite real scalar."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
-        raise ValueError(f"{name} must be a real number, got {_fmt(value)}")
+        raise LftomoError(f"{name} must be a real number, got {_fmt(value)}")
     v = float(value)
     if not np.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {v!r}")
+        raise LftomoError(f"{name} must be finite, got {v!r}")
     return v
 
 
 def require_positive(name: str, value: Any) -> float:
     v = require_finite_scalar(name, value)
     if v <= 0.0:
-        raise ValueError(f"{name} must be > 0, got {v!r}")
+        raise LftomoError(f"{name} must be > 0, got {v!r}")
     return v
 
 
 def require_nonnegative(name: str, value: Any) -> float:
     v = require_finite_scalar(name, value)
     if v < 0.0:
-        raise ValueError(f"{name} must be >= 0, got {v!r}")
+        raise LftomoError(f"{name} must be >= 0, got {v!r}")
     return v
 
 
-def require_int(name: str, value: Any, *, minimum: int | None = None) -> int:
+#: Largest accepted seed: seeds are offset by small integers (s+1, s+2, ...) and
+#: mixed as unsigned 64-bit numbers inside numba; this leaves headroom.
+MAX_SEED = 2**62 - 1
+#: Largest accepted ``rays_per_pixel``: counters inside numba are int64.
+MAX_RAYS_PER_PIXEL = 2**32
+#: Largest ray count of one render or weight build (pixels x rays per pixel):
+#: about 10 days at 10 million rays per second.
+MAX_TOTAL_RAYS = 10**13
+
+
+def require_int(name: str, value: Any, *, minimum: int | None = None, maximum: int | None = None) -> int:
+    """Return ``value`` as int; raise unless it is an integer in ``[minimum, maximum]``.
+
+    A float with an integral value is accepted, a bool or a string is not.
+    """
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
-        if isinstance(value, (float, np.floating)) and float(value).is_integer():
+        if isinstance(value, (float, np.floating)) and np.isfinite(value) and float(value).is_integer():
             value = int(value)
         else:
-            raise ValueError(f"{name} must be an integer, got {_fmt(value)}")
+            raise LftomoError(f"{name} must be an integer, got {_fmt(value)}")
     v = int(value)
     if minimum is not None and v < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {v}")
+        raise LftomoError(f"{name} must be an integer >= {minimum}, got {v}")
+    if maximum is not None and v > maximum:
+        raise LftomoError(f"{name} must be an integer <= {maximum}, got {v}")
     return v
+
+
+def require_seed(name: str, value: Any) -> int:
+    """A random seed: an integer in ``[0, MAX_SEED]``."""
+    return require_int(name, value, minimum=0, maximum=MAX_SEED)
+
+
+def require_rays(name: str, value: Any, *, n_pixels: int | None = None) -> int:
+    """Rays per pixel in ``[1, MAX_RAYS_PER_PIXEL]``; with ``n_pixels``, the total
+    ``n_pixels * value`` must not exceed :data:`MAX_TOTAL_RAYS`."""
+    v = require_int(name, value, minimum=1, maximum=MAX_RAYS_PER_PIXEL)
+    if n_pixels is not None and n_pixels * v > MAX_TOTAL_RAYS:
+        raise LftomoError(
+            f"{name} = {v} over {n_pixels} pixels is {n_pixels * v:.3g} rays, more than the limit of "
+            f"{MAX_TOTAL_RAYS:.0e} rays of one run (about 10 days at 1e7 rays/s); use fewer rays per pixel, "
+            "fewer pixels or views, or split the run over seeds")
+    return v
+
+
+def require_instance(name: str, value: Any, kind: type | tuple[type, ...], what: str) -> Any:
+    """``value`` if it is an instance of ``kind``; else "``name`` must be ``what``, got <type>"."""
+    if not isinstance(value, kind):
+        raise LftomoError(f"{name} must be {what}, got {type(value).__name__}")
+    return value
+
+
+# ---------------------------------------------------------------- memory
+def physical_memory() -> int:
+    """Physical memory of the machine in bytes (8 GiB if unknown)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return 16 * 2**30
+
+
+def memory_limit(value: Any = None) -> int:
+    """The memory limit in bytes: ``value`` if given, else the environment variable
+    ``LFTOMO_MEMORY_LIMIT_GB`` (GB = 1e9 bytes), else half the physical memory."""
+    if value is None:
+        env = os.environ.get("LFTOMO_MEMORY_LIMIT_GB")
+        if env is None:
+            return physical_memory() // 2
+        try:
+            gb = float(env)
+        except ValueError:
+            gb = float("nan")
+        if not (np.isfinite(gb) and gb > 0):
+            raise LftomoError(f"environment variable LFTOMO_MEMORY_LIMIT_GB must be a number > 0, got {env!r}")
+        return int(gb * 1e9)
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.integer, np.floating)) \
+            or not (np.isfinite(float(value)) and value > 0):
+        raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
+                          f"got {_fmt(value)}")
+    return int(value)
+
+
+def check_allocation(what: str, nbytes: float, *, limit: Any = None, hint: str = "") -> None:
+    """Refuse, before allocating, an estimated ``nbytes`` above the memory limit.
+
+    Parameters
+    ----------
+    what : str
+        What would be allocated, e.g. ``"a field on the 2000 x 2000 x 2000 grid"``.
+    nbytes : float
+        Estimated bytes.
+    limit : float, optional
+        Bytes; default :func:`memory_limit` (``LFTOMO_MEMORY_LIMIT_GB`` or half the memory).
+    hint : str
+        What to do instead.
+
+    Raises
+    ------
+    LftomoError
+    """
+    lim = memory_limit(limit)
+    if nbytes > lim:
+        raise LftomoError(f"{what} needs an estimated {nbytes / 1e9:.3g} GB, more than the memory limit of "
+                          f"{lim / 1e9:.3g} GB" + (f"; {hint}" if hint else "")
+                          + " (the limit: memory_limit= or LFTOMO_MEMORY_LIMIT_GB, default half the memory)")
 
 
 def require_vector(name: str, value: Any, length: int) -> tuple[float, ...]:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a sequence of {length} numbers, got {_fmt(value)}") from None
+        raise LftomoError(f"{name} must be a sequence of {length} numbers, got {_fmt(value)}") from None
     if arr.shape != (length,):
-        raise ValueError(f"{name} must have {length} components, got shape {arr.shape}")
+        raise LftomoError(f"{name} must have {length} components, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {tuple(arr.tolist())}")
+        raise LftomoError(f"{name} must be finite, got {tuple(arr.tolist())}")
     return tuple(float(a) for a in arr)
 
 
@@ -81,20 +181,20 @@ def require_array(
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be numeric, got {_fmt(value)}") from None
+        raise LftomoError(f"{name} must be numeric, got {_fmt(value)}") from None
     if ndim is not None and arr.ndim != ndim:
-        raise ValueError(f"{name} must be {ndim}-D, got shape {arr.shape}")
+        raise LftomoError(f"{name} must be {ndim}-D, got shape {arr.shape}")
     if shape is not None and arr.shape != tuple(shape):
-        raise ValueError(f"shape of {name} {arr.shape} does not match the expected shape {tuple(shape)}")
+        raise LftomoError(f"shape of {name} {arr.shape} does not match the expected shape {tuple(shape)}")
     if not np.all(np.isfinite(arr)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
-        raise ValueError(f"{name} must be finite, got {bad} non-finite value(s) (NaN or inf)")
+        raise LftomoError(f"{name} must be finite, got {bad} non-finite value(s) (NaN or inf)")
     if strictly_positive and arr.size and arr.min() <= 0:
-        raise ValueError(f"{name} must be > 0 everywhere, got minimum {float(arr.min())!r}")
+        raise LftomoError(f"{name} must be > 0 everywhere, got minimum {float(arr.min())!r}")
     if minimum is not None and arr.size and arr.min() < minimum:
-        raise ValueError(f"{name} must be >= {minimum} everywhere, got minimum {float(arr.min())!r}")
+        raise LftomoError(f"{name} must be >= {minimum} everywhere, got minimum {float(arr.min())!r}")
     if maximum is not None and arr.size and arr.max() > maximum:
-        raise ValueError(f"{name} must be <= {maximum} everywhere, got maximum {float(arr.max())!r}")
+        raise LftomoError(f"{name} must be <= {maximum} everywhere, got maximum {float(arr.max())!r}")
     return arr
 
 
@@ -119,7 +219,7 @@ def _rule(gt: float | None, ge: float | None, le: float | None) -> str:
     return " and ".join(parts)
 
 
-def toml_int(where: str, value: Any, *, minimum: int | None = None) -> int:
+def toml_int(where: str, value: Any, *, minimum: int | None = None, maximum: int | None = None) -> int:
     """An integer scene-file value (a float with an integral value is accepted, a bool is not).
 
     Parameters
@@ -140,15 +240,17 @@ def toml_int(where: str, value: Any, *, minimum: int | None = None) -> int:
     ValueError
         Naming ``where``, the value and what is allowed.
     """
-    allowed = "an integer" if minimum is None else f"an integer >= {minimum}"
+    allowed = "an integer" + ("" if minimum is None else f" >= {minimum}")
     v: int | None = None
     if _is_real(value):
         if isinstance(value, (numbers.Integral, np.integer)):
             v = int(value)
-        elif float(value).is_integer():
+        elif np.isfinite(float(value)) and float(value).is_integer():
             v = int(float(value))
-    if v is None or (minimum is not None and v < minimum):
-        raise ValueError(f"{where} must be {allowed}, got {_fmt(value)}")
+    if v is not None and maximum is not None and v > maximum:  # the bound named only when it is the problem
+        allowed += f" and <= {maximum}"
+    if v is None or (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
+        raise LftomoError(f"{where} must be {allowed}, got {_fmt(value)}")
     return v
 
 
@@ -194,7 +296,7 @@ def toml_number(
         ok = not np.isnan(v) and (allow_inf or np.isfinite(v))
         ok = ok and (gt is None or v > gt) and (ge is None or v >= ge) and (le is None or v <= le)
     if not ok:
-        raise ValueError(f"{where} must be {allowed}, got {_fmt(value)}")
+        raise LftomoError(f"{where} must be {allowed}, got {_fmt(value)}")
     return v
 
 
@@ -245,7 +347,7 @@ def toml_numbers(
             elif (gt is not None and not float(x) > gt) or (ge is not None and not float(x) >= ge):
                 ok = False
     if not ok:
-        raise ValueError(f"{where} must be {allowed}, got {_fmt(value)}")
+        raise LftomoError(f"{where} must be {allowed}, got {_fmt(value)}")
     return tuple(float(x) for x in value)
 
 
@@ -256,9 +358,47 @@ def require_npz_file(path: Any, *, what: str, needs: str, prefix: str = "") -> P
     than as numpy's "pickled data" error.  Messages: ``"{prefix}{what} '<path>'
     does not exist"`` and ``"{prefix}'<path>' is not an .npz archive; {needs}"``.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"{prefix}{what} {str(p)!r} does not exist")
+    p = require_regular_file(path, what=what, prefix=prefix)
     if not zipfile.is_zipfile(p):
-        raise ValueError(f"{prefix}{str(p)!r} is not an .npz archive; {needs}")
+        raise LftomoError(f"{prefix}{str(p)!r} is not an .npz archive; {needs}")
     return p
+
+
+def require_regular_file(path: Any, *, what: str, prefix: str = "") -> Path:
+    """``path`` as a Path if it names an existing regular file (or a link to one).
+
+    A directory, FIFO, socket or device is reported as what it is, not as
+    missing; a FIFO would block a reader forever.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise LftomoError(f"{prefix}{what} must be a path (str or os.PathLike), got {type(path).__name__}")
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise LftomoError(f"{prefix}{what} {str(p)!r} does not exist") from None
+    except OSError as exc:
+        raise LftomoError(f"{prefix}{what} {str(p)!r} cannot be read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode)
+                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode)
+                else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
+        raise LftomoError(f"{prefix}{what} {str(p)!r} is {kind}, not a regular file")
+    return p
+
+
+def require_inside(path: Path, base: Path, *, where: str, allow_outside: bool) -> Path:
+    """``path`` resolved; unless ``allow_outside``, it must lie inside ``base``.
+
+    Scene files may name files (textures, media) only inside their own folder,
+    so a scene file from elsewhere cannot read arbitrary files of the machine.
+    """
+    resolved = Path(path).resolve()
+    if allow_outside:
+        return resolved
+    root = Path(base).resolve()
+    if resolved != root and root not in resolved.parents:
+        raise LftomoError(f"{where} {str(path)!r} points outside the scene file's folder {str(root)!r} "
+                          f"(to {str(resolved)!r}); move the file into that folder, or allow it explicitly "
+                          "(--allow-outside-paths, allow_outside=True)")
+    return resolved

@@ -10,15 +10,17 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import LftomoError
 
-def _load(scene_path):
+
+def _load(scene_path, args=None):
     from .config import load_scene_file
 
-    return load_scene_file(scene_path)
+    return load_scene_file(scene_path, allow_outside=bool(getattr(args, "allow_outside_paths", False)))
 
 
 def cmd_camera(args) -> int:
-    cfg = _load(args.scene)
+    cfg = _load(args.scene, args)
     d = cfg.camera.describe(warn=False)  # the report prints its warnings itself
     if args.json:
         print(json.dumps(d, indent=2))
@@ -42,10 +44,10 @@ def cmd_camera(args) -> int:
 
 def cmd_render(args) -> int:
     from .forward.render import render
+    from .io import check_output_dir, staged_directory
 
-    cfg = _load(args.scene)
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg = _load(args.scene, args)
+    out = check_output_dir(args.output, what="-o/--output")  # before the work, not after it
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     t0 = time.perf_counter()
@@ -56,16 +58,17 @@ def cmd_render(args) -> int:
     from .demo import save_lightfield_products
 
     depths = cfg.focal_stack_depths or (cfg.camera.focus_distance,)
-    files = save_lightfield_products(lf, out, depths)
-    summary = {
-        "scene": cfg.source,
-        "rays_per_pixel": rpp,
-        "seed": seed,
-        "render_seconds": t_render,
-        "total_signal": float(np.sum(lf.raw)),
-        "files": [str(f) for f in files],
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    with staged_directory(out) as stage:  # all files appear together, summary.json last
+        files = [out / f.name for f in save_lightfield_products(lf, stage, depths)]
+        summary = {
+            "scene": cfg.source,
+            "rays_per_pixel": rpp,
+            "seed": seed,
+            "render_seconds": t_render,
+            "total_signal": float(np.sum(lf.raw)),
+            "files": [str(f) for f in files],
+        }
+        (stage / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"rendered {lf.camera.sensor_shape[0]}x{lf.camera.sensor_shape[1]} px in {t_render:.1f} s; wrote:")
     for f in files + [out / "summary.json"]:
         print(f"  {f}")
@@ -74,22 +77,23 @@ def cmd_render(args) -> int:
 
 def cmd_weights(args) -> int:
     from .forward.weights import weights
+    from .io import check_output_file
 
-    cfg = _load(args.scene)
+    cfg = _load(args.scene, args)
     medium = cfg.scene.medium
     if medium is None:
-        raise ValueError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
+        raise LftomoError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
     out = Path(args.output)
     if out.suffix != ".npz":
         out = out.with_suffix(".npz")
-    if not out.parent.is_dir():  # before the build, not after it
-        raise ValueError(f"-o/--output: directory {str(out.parent)!r} does not exist")
+    paths = [out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz") for wl in channels]
+    for path in paths:  # before the build, not after it
+        check_output_file(path, what="-o/--output")
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
-    for wl in channels:
-        path = out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz")
+    for wl, path in zip(channels, paths):
         band = "gray" if wl is None else f"{wl * 1e9:.0f} nm"
         print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {band})", file=sys.stderr)
         W = weights(cfg.camera, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
@@ -117,7 +121,7 @@ def _refuse_given(args, names: tuple[str, ...], where: str) -> None:
     """ValueError if any option ``names`` (argparse dests) was given: it would be ignored here."""
     given = [f"--{k.replace('_', '-')}" for k in names if getattr(args, k) is not None]
     if given:
-        raise ValueError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} {where}")
+        raise LftomoError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} {where}")
 
 
 def cmd_reconstruct(args) -> int:
@@ -136,7 +140,7 @@ def cmd_reconstruct(args) -> int:
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
         rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
         min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, quadrature=args.quadrature,
-        progress=not args.quiet)
+        progress=not args.quiet, allow_outside=args.allow_outside_paths)
     r = m["reconstruction"]
     print(f"reconstructed {'x'.join(map(str, r['grid_shape']))} voxels from {m['measurement']['n_data']} "
           f"{r['data']} data: lambda {r['regularization']:.3g} ({r['lambda_rule']}), chi2/m {r['chi2_per_datum']:.3g}, "
@@ -226,21 +230,36 @@ def cmd_calibrate(args) -> int:
 
 
 # ---- argument types: argparse names the option in its error message
-def _nonneg_int(text: str) -> int:
+def _int_in(text: str, lo: int, hi: int) -> int:
+    """``int(text)`` if ``lo <= value <= hi``; else an argparse error saying what is allowed."""
+    allowed = f"an integer from {lo} to {hi}"
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}") from None
+    if not lo <= v <= hi:
+        raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}")
     return v
+
+
+def _nonneg_int(text: str) -> int:
+    return _int_in(text, 0, 2**31 - 1)
 
 
 def _pos_int(text: str) -> int:
-    v = _nonneg_int(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return v
+    return _int_in(text, 1, 2**31 - 1)
+
+
+def _seed(text: str) -> int:
+    from ._validate import MAX_SEED
+
+    return _int_in(text, 0, MAX_SEED)
+
+
+def _rays(text: str) -> int:
+    from ._validate import MAX_RAYS_PER_PIXEL
+
+    return _int_in(text, 1, MAX_RAYS_PER_PIXEL)
 
 
 def _float_where(text: str, ok, allowed: str) -> float:
@@ -312,34 +331,42 @@ def _shape3(text: str) -> tuple[int, int, int]:
     return tuple(vals)
 
 
+def _add_allow_outside(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="let the scene file's path = keys (textures, media) name files outside its folder")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
     c = sub.add_parser("camera", help="print the camera design report of a scene file (default: built-in scene)")
     c.add_argument("scene", nargs="?", default=None, help="TOML scene file")
     c.add_argument("--json", action="store_true", help="print JSON")
+    _add_allow_outside(c)
     c.set_defaults(func=cmd_camera)
     r = sub.add_parser("render", help="render the raw light field, views and a focal stack")
     r.add_argument("scene", nargs="?", default=None, help="TOML scene file (default: built-in target scene)")
     r.add_argument("-o", "--output", default="lftomo-render", help="output directory")
-    r.add_argument("--rays-per-pixel", type=_pos_int, default=None, help="override render.rays_per_pixel")
-    r.add_argument("--seed", type=_nonneg_int, default=None, help="override render.seed")
+    r.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
+    r.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_allow_outside(r)
     r.set_defaults(func=cmd_render)
     w = sub.add_parser("weights", help="build the ray-voxel weight matrix of the scene's medium grid (.npz)")
     w.add_argument("scene", help="TOML scene file with a [medium]")
     w.add_argument("-o", "--output", default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
-    w.add_argument("--rays-per-pixel", type=_pos_int, default=None, help="override render.rays_per_pixel")
-    w.add_argument("--seed", type=_nonneg_int, default=None, help="override render.seed")
+    w.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
+    w.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     w.add_argument("--memory-limit-gb", type=_pos_float, default=None,
                    help="refuse a build estimated above this size (default: half the machine's memory)")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_allow_outside(w)
     w.set_defaults(func=cmd_weights)
     d = sub.add_parser("demo", help="the whole story on the built-in flame: render, weights, reconstruction, "
                                      "posterior, refocus vs views; writes an HTML report")
     d.add_argument("-o", "--output", default="lftomo-demo", help="report directory (default lftomo-demo)")
     d.add_argument("--quick", action="store_true", help="small camera and grids, short chain (~1 min on 2 cores with a warm numba cache)")
-    d.add_argument("--seed", type=_nonneg_int, default=0, help="base seed (render s, noise s+1, weights s+2, "
+    d.add_argument("--seed", type=_seed, default=0, help="base seed (render s, noise s+1, weights s+2, "
                                                                "posterior s+3)")
     d.add_argument("--quiet", action="store_true", help="no stage messages, progress bars or summary")
     d.set_defaults(func=cmd_demo)
@@ -386,13 +413,14 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,
                     help="scene mode: reconstruction grid nx,ny,nz dividing the [medium] shape (default half)")
-    rc.add_argument("--rays-per-pixel", type=_pos_int, default=None, help="scene mode: override render.rays_per_pixel")
-    rc.add_argument("--seed", type=_nonneg_int, default=None,
+    rc.add_argument("--rays-per-pixel", type=_rays, default=None, help="scene mode: override render.rays_per_pixel")
+    rc.add_argument("--seed", type=_seed, default=None,
                     help="seed s: scene mode renders with s, noise s+1, weights s+2 (default render.seed); "
                          "file mode: noise s+1")
     rc.add_argument("--channel", type=_nonneg_int, default=None, help="wavelength channel (default: the first / "
                                                                       "the one matching --weights)")
     rc.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_allow_outside(rc)
     rc.set_defaults(func=cmd_reconstruct)
     cal = sub.add_parser("calibrate", help="microlens grid (and radiometric factors) of a real camera from a "
                                            "white frame (and a blackbody frame): PNG, TIFF or .npy")
@@ -409,16 +437,53 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _file_errors() -> tuple[type[BaseException], ...]:
+    """Exceptions of damaged files that a loader might still let through (a last guard)."""
+    import zipfile
+    import zlib
+
+    return (zipfile.BadZipFile, EOFError, zlib.error)
+
+
+def _numba_errors() -> tuple[type[BaseException], ...]:
+    try:
+        from numba.core.errors import NumbaError
+    except ImportError:  # pragma: no cover
+        return ()
+    return (NumbaError,)
+
+
 def main(argv=None) -> int:
+    """Run the ``lftomo`` command.
+
+    Exit status: 0 success; 2 a bad argument, scene file, input file or output
+    location (``lftomo: error: ...`` on stderr, no traceback); 130 interrupted
+    (Ctrl-C), with every output file either as before or complete.
+    """
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except ValueError as exc:
+    except KeyboardInterrupt:
+        print("lftomo: interrupted; no output file was left half-written", file=sys.stderr)
+        return 130
+    except ValueError as exc:  # LftomoError and the checks of numpy/scipy
         print(f"lftomo: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file that cannot be read or written: not a bug of lftomo
         print(f"lftomo: error: {exc.strerror or exc}" + (f": {exc.filename!r}" if exc.filename else ""),
               file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("lftomo: error: out of memory; use a smaller camera, grid or ray count, or lower "
+              "LFTOMO_MEMORY_LIMIT_GB so that the size checks refuse such runs up front", file=sys.stderr)
+        return 2
+    except _file_errors() as exc:
+        print(f"lftomo: error: a file is corrupt or truncated ({type(exc).__name__}: {exc})", file=sys.stderr)
+        return 2
+    except _numba_errors() as exc:  # an input that slipped past the checks into a kernel
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        print(f"lftomo: error: a compiled kernel refused its input ({type(exc).__name__}: {first}); "
+              "please report this with the command line", file=sys.stderr)
         return 2
 
 

@@ -51,9 +51,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._validate import toml_int, toml_number, toml_numbers
+from .errors import LftomoError
+from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, require_inside, require_regular_file, toml_int, toml_number,
+                        toml_numbers)
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
 from .forward.scene import PlanarEmitter, Scene, checkerboard
+from .lightfield import check_refocus_depth
 
 DEFAULT_SCENE = Path(__file__).parent / "data" / "targets.toml"
 
@@ -89,52 +92,45 @@ def _check_keys(label: str, table: Any, allowed: set[str]) -> None:
     ``label`` names the table as written in the file, e.g. ``"[camera]"``.
     """
     if not isinstance(table, Mapping):
-        raise ValueError(f"{label} must be a table, got {type(table).__name__} {table!r}")
+        raise LftomoError(f"{label} must be a table, got {type(table).__name__} {table!r}")
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise ValueError(f"unknown key(s) {unknown} in {label}; allowed: {sorted(allowed)}")
+        raise LftomoError(f"unknown key(s) {unknown} in {label}; allowed: {sorted(allowed)}")
 
 
 def _wavelengths(value: Any) -> Any:
     where = "[render] wavelength_nm"
     if isinstance(value, str):
         if value.lower() != "gray":
-            raise ValueError(f"{where} must be a number, a list of numbers or 'gray', got {value!r}")
+            raise LftomoError(f"{where} must be a number, a list of numbers or 'gray', got {value!r}")
         return None
     if isinstance(value, list):
         if not value:
-            raise ValueError(f"{where} must be a number, a non-empty list of numbers or 'gray', got []")
+            raise LftomoError(f"{where} must be a number, a non-empty list of numbers or 'gray', got []")
         nm = toml_numbers(where, value, gt=0, unit="nm")
     else:
         nm = (toml_number(where, value, gt=0, unit="nm"),)
     if any(a < 100 or a > 100000 for a in nm):
-        raise ValueError(f"{where} = {value!r} is outside 100-100000 nm; give nanometres")
+        raise LftomoError(f"{where} = {value!r} is outside 100-100000 nm; give nanometres")
     return tuple(a * 1e-9 for a in nm)
 
 
-def _texture_file(tab: str, path: Any, base: Path) -> np.ndarray:
+def _texture_file(tab: str, path: Any, base: Path, allow_outside: bool = False) -> np.ndarray:
     """Read the 2-D (or 3-D) ``.npy`` texture of a ``texture = "file"`` surface, without pickle."""
     if not isinstance(path, str):
-        raise ValueError(f"{tab} path must be a file name (a string), got {path!r}")
-    p = (base / path).resolve()
-    if not p.is_file():
-        raise ValueError(f"{tab}: texture file {str(p)!r} does not exist")
+        raise LftomoError(f"{tab} path must be a file name (a string), got {path!r}")
+    p = require_inside(base / path, base, where=f"{tab} path", allow_outside=allow_outside)
+    require_regular_file(p, what="texture file", prefix=f"{tab}: ")
     if zipfile.is_zipfile(p):
-        raise ValueError(f"{tab} path: {str(p)!r} is an .npz archive; texture = 'file' needs one array in an "
+        raise LftomoError(f"{tab} path: {str(p)!r} is an .npz archive; texture = 'file' needs one array in an "
                          ".npy file (numpy.save)")
-    with open(p, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":
-        raise ValueError(f"{tab} path: {str(p)!r} is not an .npy file; texture = 'file' needs a 2-D array "
-                         "saved with numpy.save")
-    try:
-        tex = np.load(p, allow_pickle=False)
-    except ValueError as exc:
-        raise ValueError(f"{tab}: cannot read {str(p)!r} without pickle: {exc}") from None
+    from .io import read_npy
+
+    tex = read_npy(p, what=f"{tab} path:")
     if tex.dtype.kind not in "fiu":
-        raise ValueError(f"{tab}: texture dtype {tex.dtype} in {str(p)!r} is not numeric")
+        raise LftomoError(f"{tab}: texture dtype {tex.dtype} in {str(p)!r} is not numeric")
     if tex.ndim not in (2, 3) or 0 in tex.shape:
-        raise ValueError(f"{tab}: texture in {str(p)!r} must be a 2-D array (rows, cols) or a 3-D array "
+        raise LftomoError(f"{tab}: texture in {str(p)!r} must be a 2-D array (rows, cols) or a 3-D array "
                          f"(n_wavelengths, rows, cols), got shape {tex.shape}")
     return np.asarray(tex, float)
 
@@ -143,18 +139,18 @@ def _squares(tab: str, value: Any) -> int | tuple[int, int]:
     where = f"{tab} squares"
     if isinstance(value, list):
         if len(value) != 2:
-            raise ValueError(f"{where} must be an integer >= 1 or a list of 2 integers >= 1 [rows, cols], got {value!r}")
+            raise LftomoError(f"{where} must be an integer >= 1 or a list of 2 integers >= 1 [rows, cols], got {value!r}")
         return (toml_int(f"{where}[0]", value[0], minimum=1), toml_int(f"{where}[1]", value[1], minimum=1))
     return toml_int(where, value, minimum=1)
 
 
-def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
+def _surface(k: int, s: Any, base: Path, allow_outside: bool = False) -> PlanarEmitter:
     """Build the ``k``-th (0-based) ``[[surface]]``; messages count surfaces from 1."""
     tab = f"[[surface]] #{k + 1}"
     _check_keys(tab, s, _SURFACE)
     for key in ("center", "size"):
         if key not in s:
-            raise ValueError(f"{tab} needs '{key}'")
+            raise LftomoError(f"{tab} needs '{key}'")
     kw: dict[str, Any] = dict(
         center=toml_numbers(f"{tab} center", s["center"], length=3, hint="[x, y, z]", unit="m"),
         size=toml_numbers(f"{tab} size", s["size"], length=2, gt=0, hint="[width, height]", unit="m"),
@@ -164,13 +160,13 @@ def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
             kw[key] = toml_numbers(f"{tab} {key}", s[key], length=3, hint="[x, y, z]")
     kind = s.get("texture", "uniform")
     if not isinstance(kind, str) or kind not in _TEXTURES:
-        raise ValueError(f"{tab} texture must be one of {list(_TEXTURES)}, got {kind!r}")
+        raise LftomoError(f"{tab} texture must be one of {list(_TEXTURES)}, got {kind!r}")
     if "temperature" in s:
         if "radiance" in s:
-            raise ValueError(f"{tab}: give radiance or temperature, not both")
+            raise LftomoError(f"{tab}: give radiance or temperature, not both")
         unused = sorted(set(s) & set(_TEXTURE_ONLY)) + ([f"texture = {kind!r}"] if kind != "uniform" else [])
         if unused:
-            raise ValueError(f"{tab}: {', '.join(unused)} not used with temperature (a uniform blackbody "
+            raise LftomoError(f"{tab}: {', '.join(unused)} not used with temperature (a uniform blackbody "
                              "surface); remove it or give radiance instead of temperature")
         emitter = dict(
             temperature=toml_number(f"{tab} temperature", s["temperature"], gt=0, unit="K"),
@@ -178,11 +174,11 @@ def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
         )
     else:
         if "emissivity" in s:
-            raise ValueError(f"{tab} emissivity is only used with temperature (a blackbody surface); "
+            raise LftomoError(f"{tab} emissivity is only used with temperature (a blackbody surface); "
                              "remove it or give temperature")
         for key in sorted(set(s) & set(_TEXTURE_ONLY)):
             if _TEXTURE_ONLY[key] != kind:
-                raise ValueError(f"{tab} {key} is only used with texture = {_TEXTURE_ONLY[key]!r}, but this surface "
+                raise LftomoError(f"{tab} {key} is only used with texture = {_TEXTURE_ONLY[key]!r}, but this surface "
                                  f"has texture = {kind!r}; remove {key} or set texture = {_TEXTURE_ONLY[key]!r}")
         value = toml_number(f"{tab} radiance", s.get("radiance", 1.0), ge=0, unit=_RADIANCE_UNIT)
         if kind == "uniform":
@@ -192,13 +188,13 @@ def _surface(k: int, s: Any, base: Path) -> PlanarEmitter:
             radiance = checkerboard(_squares(tab, s.get("squares", 8)), low=low, high=value)
         else:
             if "path" not in s:
-                raise ValueError(f"{tab}: texture = 'file' needs 'path' (a 2-D .npy array)")
-            radiance = _texture_file(tab, s["path"], base) * value
+                raise LftomoError(f"{tab}: texture = 'file' needs 'path' (a 2-D .npy array)")
+            radiance = _texture_file(tab, s["path"], base, allow_outside) * value
         emitter = dict(radiance=radiance)
     try:
         return PlanarEmitter(**emitter, **kw)
     except ValueError as exc:
-        raise ValueError(f"{tab}: {exc}") from None
+        raise LftomoError(f"{tab}: {exc}") from None
 
 
 def _camera_part(part: str, t: Any) -> dict[str, Any]:
@@ -207,7 +203,7 @@ def _camera_part(part: str, t: Any) -> dict[str, Any]:
     tab = f"[camera.{part}]"
     defaults = {f.name: f.default for f in dataclasses.fields(kind)}
     if not isinstance(t, Mapping):
-        raise ValueError(f"[camera] {part} must be a table ({tab} with keys {sorted(defaults)}), got {t!r}")
+        raise LftomoError(f"[camera] {part} must be a table ({tab} with keys {sorted(defaults)}), got {t!r}")
     _check_keys(tab, t, set(defaults))
     out: dict[str, Any] = {}
     for key, v in t.items():
@@ -215,11 +211,11 @@ def _camera_part(part: str, t: Any) -> dict[str, Any]:
         default = defaults[key]
         if isinstance(default, bool):
             if not isinstance(v, bool):
-                raise ValueError(f"{where} must be true or false, got {v!r}")
+                raise LftomoError(f"{where} must be true or false, got {v!r}")
             out[key] = v
         elif isinstance(default, tuple):
             if not isinstance(v, list) or len(v) != len(default):
-                raise ValueError(f"{where} must be a list of {len(default)} integers >= 1, got {v!r}")
+                raise LftomoError(f"{where} must be a list of {len(default)} integers >= 1, got {v!r}")
             out[key] = tuple(toml_int(f"{where}[{i}]", x, minimum=1) for i, x in enumerate(v))
         else:  # lengths and indices; radii may be inf (a plane)
             out[key] = toml_number(where, v, allow_inf=key in ("r1", "r2"), unit=None if key == "index" else "m")
@@ -238,22 +234,26 @@ def camera_from_table(cam: Mapping[str, Any]) -> Camera:
     _check_keys("[camera]", cam, _CAMERA)
     preset = cam.get("preset", "seed")
     if preset != "seed":
-        raise ValueError(f"[camera] preset must be 'seed' (the only preset), got {preset!r}")
+        raise LftomoError(f"[camera] preset must be 'seed' (the only preset), got {preset!r}")
     fd = toml_number("[camera] focus_distance", cam.get("focus_distance", 1.0), gt=0, unit="m")
     overrides = {part: _camera_part(part, cam[part]) for part in _CAMERA_PARTS if part in cam}
     try:
         return Camera.seed(fd, **overrides)
     except ValueError as exc:
-        raise ValueError(f"[camera]: {exc}") from None
+        raise LftomoError(f"[camera]: {exc}") from None
 
 
-def load_scene_file(path: str | Path | None = None) -> SceneConfig:
+def load_scene_file(path: str | Path | None = None, *, allow_outside: bool = False) -> SceneConfig:
     """Read and validate a TOML scene file (default: the built-in target scene).
 
     Parameters
     ----------
     path : str or Path, optional
         The ``.toml`` file; relative paths inside it are relative to its folder.
+    allow_outside : bool
+        Let ``path =`` keys (textures, media) name files outside the scene
+        file's folder (``../x.npz``, absolute paths, links out).  Off by
+        default, so that a scene file cannot read arbitrary files.
 
     Returns
     -------
@@ -265,51 +265,56 @@ def load_scene_file(path: str | Path | None = None) -> SceneConfig:
         If the file is missing, not TOML, or any value is invalid; the message
         names the table and key, the value given and what is allowed.
     """
-    p = Path(path) if path is not None else DEFAULT_SCENE
-    if not p.is_file():
-        raise ValueError(f"scene file {str(p)!r} does not exist")
+    p = require_regular_file(path if path is not None else DEFAULT_SCENE, what="scene file")
     try:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"scene file {str(p)!r} is not valid TOML: {exc}") from None
+        raise LftomoError(f"scene file {str(p)!r} is not valid TOML: {exc}") from None
     except UnicodeDecodeError:
-        raise ValueError(f"scene file {str(p)!r} is not a text (UTF-8 TOML) file") from None
-    return scene_from_dict(data, base=p.parent, source=str(p))
+        raise LftomoError(f"scene file {str(p)!r} is not a text (UTF-8 TOML) file") from None
+    return scene_from_dict(data, base=p.parent, source=str(p), allow_outside=allow_outside)
 
 
-def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: str = "<dict>") -> SceneConfig:
+def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: str = "<dict>",
+                    allow_outside: bool = False) -> SceneConfig:
     """Validate a parsed scene mapping and build the objects.
 
     The cheap tables (``[camera]``, ``[render]``, ``[output]``) are checked
-    before the surfaces and the medium are built.
+    before the surfaces and the medium are built.  Files named by ``path =``
+    keys must lie inside ``base`` unless ``allow_outside``.
     """
+    if not isinstance(allow_outside, bool):
+        raise LftomoError(f"allow_outside must be True or False, got {allow_outside!r}")
     _check_keys("the top level", data, _TOP)
     camera = camera_from_table(data.get("camera", {}))
     r = data.get("render", {})
     _check_keys("[render]", r, _RENDER)
-    rays_per_pixel = toml_int("[render] rays_per_pixel", r.get("rays_per_pixel", 16), minimum=1)
-    seed = toml_int("[render] seed", r.get("seed", 0), minimum=0)
+    rays_per_pixel = toml_int("[render] rays_per_pixel", r.get("rays_per_pixel", 16), minimum=1,
+                              maximum=MAX_RAYS_PER_PIXEL)
+    seed = toml_int("[render] seed", r.get("seed", 0), minimum=0, maximum=MAX_SEED)
     wavelengths = _wavelengths(r.get("wavelength_nm", 650))
     out = data.get("output", {})
     _check_keys("[output]", out, _OUTPUT)
     depths_t = out.get("focal_stack_depths", [])
     if not isinstance(depths_t, list):
-        raise ValueError(
+        raise LftomoError(
             f"[output] focal_stack_depths must be a list of numbers > 0 (m), e.g. [0.95, 1.0, 1.05], got {depths_t!r}"
         )
-    depths = tuple(toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m") for i, d in enumerate(depths_t))
+    depths = tuple(check_refocus_depth(camera, toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m"),
+                                       f"[output] focal_stack_depths[{i}]") for i, d in enumerate(depths_t))
     surfaces_t = data.get("surface", [])
     if not isinstance(surfaces_t, list):
-        raise ValueError("surfaces must be given as [[surface]] tables")
-    surfaces = [_surface(k, s, base) for k, s in enumerate(surfaces_t)]
+        raise LftomoError("surfaces must be given as [[surface]] tables")
+    surfaces = [_surface(k, s, base, allow_outside) for k, s in enumerate(surfaces_t)]
     medium = None
     if "medium" in data:
         from .forward.media_config import medium_from_table
 
-        medium = medium_from_table(data["medium"], base=base, focus_distance=camera.focus_distance)
+        medium = medium_from_table(data["medium"], base=base, focus_distance=camera.focus_distance,
+                                   allow_outside=allow_outside)
     scene = Scene(surfaces=surfaces, medium=medium)
     if not surfaces and medium is None:
-        raise ValueError(f"scene file {source!r} defines no [[surface]] and no [medium]: nothing to see")
+        raise LftomoError(f"scene file {source!r} defines no [[surface]] and no [medium]: nothing to see")
     return SceneConfig(
         camera=camera,
         scene=scene,

@@ -27,9 +27,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import json
 import math
 import platform
+import shutil
 import sys
 import time
 import warnings
@@ -37,6 +39,11 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+
+from .errors import LftomoError
+
+#: Folder inside the report folder that keeps the long stages of an unfinished run.
+RESUME_DIR = ".lftomo-resume"
 
 #: Reduced camera of ``--quick``: the seed camera with a 2× coarser MLA *and*
 #: 2× larger pixels — 30 × 30 lenslets of 1 mm (every lenslet dimension doubled,
@@ -183,7 +190,7 @@ def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
     if n_data is not None and int(n_data) < 2:
         # one ray per pixel has no spread: the render's standard error is 0 and
         # the fit's χ²/m came out at 429 with a 31 % error (8³ scene file, one ray per pixel)
-        raise ValueError(f"rays per pixel of the light field is {n_data}: its Monte Carlo error (part of the noise "
+        raise LftomoError(f"rays per pixel of the light field is {n_data}: its Monte Carlo error (part of the noise "
                          "model) cannot be estimated from one ray per pixel; render with --rays-per-pixel >= 2")
     n_data = int(n_data or 1)
     n_weights = int(n_weights or n_data)
@@ -409,17 +416,52 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
     dict
         The metrics written to ``metrics.json``.
     """
+    from ._validate import require_seed
+    from .io import check_output_dir, staged_directory
+
+    seed = require_seed("seed", seed)
+    final = check_output_dir(out_dir, what="out_dir")
+    # the report is written in a staging folder and published complete: an
+    # interrupted rerun leaves the previous report and its files as they were
+    resume = final / RESUME_DIR
+    with staged_directory(final) as stage:
+        metrics = _demo_into(stage, quick=bool(quick), seed=seed, progress=progress, resume=resume)
+    shutil.rmtree(resume, ignore_errors=True)  # the run is complete: nothing left to resume
+    if progress:
+        print(summary_text(metrics, final), flush=True)
+    return metrics
+
+
+def _resumable(path: Path, load, make, save, resumed: list[str], name: str):
+    """An earlier run's complete result at ``path`` (checked by ``load``), or ``make()`` saved there atomically."""
+    if path.is_file():
+        try:
+            obj = load(path)
+            resumed.append(name)
+            return obj
+        except ValueError:  # damaged or from another version: compute again
+            path.unlink(missing_ok=True)
+    obj = make()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save(obj, path)
+    return obj
+
+
+def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Path) -> dict[str, Any]:
+    """The stages of :func:`run_demo`, writing into ``out`` (the staging folder).
+
+    The render and the weight matrix (the long stages) are also kept in
+    ``resume`` under a key of the settings, so that a rerun after an
+    interruption takes them from there (the same seeds give the same result).
+    """
     import lftomo as lt
     from .inverse.compare import compare_refocus_subaperture, effective_truth
     from .report import write_report
 
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
-    seed = int(seed)
     t_start = time.perf_counter()
     cfg = demo_settings(quick, seed)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    key = hashlib.sha256(json.dumps([cfg, lt.__version__], sort_keys=True).encode()).hexdigest()[:16]
+    resumed: list[str] = []
     st = _Stages(9, progress)
     sections: list[dict[str, Any]] = []
     metrics: dict[str, Any] = {"parameters": cfg, "environment": _environment()}
@@ -452,8 +494,11 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
         coarse = lt.phantoms.default_flame_grid(tuple(cfg["recon_shape"]), cfg["focus_distance"])
         flame = lt.phantoms.axisymmetric_flame(fine, width_base=FLAME_WIDTH_BASE)
         scene = lt.Scene(medium=flame)
-        lf = lt.render(scene, camera, rays_per_pixel=n_d, seed=cfg["seeds"]["render"], wavelengths=(wl,),
-                       progress=progress)
+        lf = _resumable(
+            resume / f"lightfield-{key}.npz", lt.LightField.load,
+            lambda: lt.render(scene, camera, rays_per_pixel=n_d, seed=cfg["seeds"]["render"], wavelengths=(wl,),
+                              progress=progress),
+            lambda obj, p: obj.save(p), resumed, "render")
         t_mc = lf.metadata.get("elapsed_s")
         files = save_lightfield_products(lf, out, FOCAL_DEPTHS)
     lit = lf.raw > 1e-3 * lf.raw.max()
@@ -484,8 +529,11 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
     # ---- 3. weight matrix on the reconstruction grid
     with st("weights", f"weight matrix on the {cfg['recon_shape']} reconstruction grid ({n_w} rays/pixel)"):
         sa_c, T_eff = effective_truth(flame, coarse, wl)
-        W = lt.weights(camera, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
-                       seed=cfg["seeds"]["weights"], progress=progress)
+        W = _resumable(
+            resume / f"weights-{key}.npz", lambda p: lt.WeightMatrix.load(p, camera, coarse, wavelength=wl),
+            lambda: lt.weights(camera, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
+                               seed=cfg["seeds"]["weights"], progress=progress),
+            lambda obj, p: obj.save(p), resumed, "weights")
     metrics["weights"] = {"recon_grid": coarse.to_dict(), "shape": list(W.shape), "nnz": W.nnz,
                           "megabytes": W.nbytes / 1e6, "rays_per_pixel": n_w, "seed": cfg["seeds"]["weights"],
                           "build_seconds": W.metadata.get("build_seconds"),
@@ -717,6 +765,7 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
     st.timings["total"] = time.perf_counter() - t_start
     metrics["timings_s"] = dict(st.timings)
     metrics["warnings"] = warned + [f"camera: {w}" for w in design["warnings"]]
+    metrics["resumed_stages"] = resumed
     metrics = _finite(metrics)
     intro = (f"lftomo {metrics['environment']['lftomo']} — {cfg['mode']} run, seed {seed}, "
              f"{st.timings['total']:.0f} s on {metrics['environment']['cpu_count']} cores. "
@@ -726,8 +775,6 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
     timing_rows = {f"{k} (s)": v for k, v in st.timings.items()}
     sections.append({"title": "Timings", "table": timing_rows})
     write_report(out, "lftomo demo: plenoptic flame temperature tomography", sections, metrics, intro=intro)
-    if progress:
-        print(summary_text(metrics, out), flush=True)
     return metrics
 
 
@@ -783,17 +830,20 @@ def summary_text(metrics: dict[str, Any], out: str | Path) -> str:
 
 # ============================================================================ lftomo reconstruct
 def _grid_of_weight_file(path: Path):
-    """The grid recorded in a weight-matrix file (read without pickle)."""
+    """The grid recorded in a weight-matrix file (read without pickle, checked)."""
     from .forward.grid import Grid
+    from .io import json_member, read_npz
 
+    what = "weight-matrix file"
+    arrays = read_npz(path, what=what, needs="expected a weight matrix written by WeightMatrix.save or "
+                      "`lftomo weights`")
+    meta = json_member(arrays, path=path, what=what)
+    if not isinstance(meta.get("grid"), dict):
+        raise LftomoError(f"{what} {str(path)!r} carries no grid metadata (not written by lftomo weights?)")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-    except (OSError, ValueError, KeyError) as exc:
-        raise ValueError(f"{str(path)!r} is not a readable lftomo weight-matrix .npz: {exc}") from None
-    if "grid" not in meta:
-        raise ValueError(f"{str(path)!r} carries no grid metadata (not written by lftomo weights?)")
-    return Grid.from_dict(meta["grid"]), meta
+        return Grid.from_dict(meta["grid"]), meta
+    except (ValueError, TypeError, KeyError) as exc:
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' grid is invalid: {exc}") from None
 
 
 def run_reconstruct(
@@ -822,6 +872,7 @@ def run_reconstruct(
     symmetry: str | None = None,
     quadrature: int = 1,
     progress: bool = True,
+    allow_outside: bool = False,
 ) -> dict[str, Any]:
     """Reconstruct a temperature field and write ``fields.npz``, ``slices.png``, ``metrics.json``.
 
@@ -850,29 +901,31 @@ def run_reconstruct(
 
     t_start = time.perf_counter()
     if scene is not None and (lightfield is not None or weights is not None):
-        raise ValueError("give either a SCENE.toml or --lightfield with --weights, not both")
+        raise LftomoError("give either a SCENE.toml or --lightfield with --weights, not both")
     if scene is None and (lightfield is None or weights is None):
         missing = [n for n, v in (("--lightfield", lightfield), ("--weights", weights)) if v is None]
-        raise ValueError(f"without a SCENE.toml, both --lightfield and --weights are needed; missing {', '.join(missing)}")
+        raise LftomoError(f"without a SCENE.toml, both --lightfield and --weights are needed; missing {', '.join(missing)}")
     if data not in ("subaperture", "refocus"):
-        raise ValueError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
+        raise LftomoError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
     if data == "subaperture" and depths:
-        raise ValueError("--depths is only used with --data refocus")
+        raise LftomoError("--depths is only used with --data refocus")
     if not (0 < bounds[0] < bounds[1]):
-        raise ValueError(f"--bounds must be T_min,T_max with 0 < T_min < T_max (K), got {bounds!r}")
+        raise LftomoError(f"--bounds must be T_min,T_max with 0 < T_min < T_max (K), got {bounds!r}")
     if not 0.0 <= min_etendue_fraction < 1.0:
-        raise ValueError(f"--min-etendue-fraction must be in [0, 1), got {min_etendue_fraction!r}")
+        raise LftomoError(f"--min-etendue-fraction must be in [0, 1), got {min_etendue_fraction!r}")
     if noise is not None and not (math.isfinite(noise) and noise > 0):
-        raise ValueError(f"--noise must be a relative noise level > 0 (0.01 = 1 %), got {noise!r}")
+        raise LftomoError(f"--noise must be a relative noise level > 0 (0.01 = 1 %), got {noise!r}")
     if symmetry not in (None, "none", "axisymmetric"):
-        raise ValueError(f"--symmetry must be 'none' or 'axisymmetric', got {symmetry!r}")
+        raise LftomoError(f"--symmetry must be 'none' or 'axisymmetric', got {symmetry!r}")
     symmetry = None if symmetry == "none" else symmetry
     if not (isinstance(quadrature, int) and quadrature >= 1):
-        raise ValueError(f"--quadrature must be an integer >= 1, got {quadrature!r}")
+        raise LftomoError(f"--quadrature must be an integer >= 1, got {quadrature!r}")
     if quadrature > 1 and posterior and posterior_basis != "field":
-        raise ValueError(f"--quadrature {quadrature} (sub-voxel emission) works with --posterior-basis field only; "
+        raise LftomoError(f"--quadrature {quadrature} (sub-voxel emission) works with --posterior-basis field only; "
                          f"the {posterior_basis!r} basis posterior needs weights on the reconstruction grid")
-    out = Path(out_dir)
+    from .io import check_output_dir, staged_directory
+
+    out = check_output_dir(out_dir, what="-o/--output")  # before the work, not after it
     st = _Stages(5 if posterior else 4, progress)
     metrics: dict[str, Any] = {"environment": _environment()}
     T_true = None
@@ -881,33 +934,33 @@ def run_reconstruct(
     # ---- inputs
     if scene is not None:
         with st("inputs", f"scene {scene}: render the truth and the weight matrix"):
-            cfg = load_scene_file(scene)
+            cfg = load_scene_file(scene, allow_outside=allow_outside)
             medium = cfg.scene.medium
             if medium is None:
-                raise ValueError(f"SCENE {str(scene)!r} has no [medium]: there is no temperature field to reconstruct")
+                raise LftomoError(f"SCENE {str(scene)!r} has no [medium]: there is no temperature field to reconstruct")
             fine = medium.grid
             shape = tuple(recon_shape) if recon_shape else tuple(n // 2 for n in fine.shape)
             if any(n < 1 or f % n for n, f in zip(shape, fine.shape)) or len(shape) != 3:
                 given = (f"--recon-shape {list(shape)}" if recon_shape else
                          f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
-                raise ValueError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
+                raise LftomoError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
                                  "an integer refinement of the reconstruction grid); give --recon-shape")
             grid = lt.Grid(shape, fine.lower, fine.upper)
             wls = cfg.wavelengths
             ch = 0 if channel is None else int(channel)
             n_ch = 1 if wls is None else len(wls)
             if not 0 <= ch < n_ch:
-                raise ValueError(f"--channel must be in 0..{n_ch - 1} for this scene's wavelengths, got {ch}")
+                raise LftomoError(f"--channel must be in 0..{n_ch - 1} for this scene's wavelengths, got {ch}")
             wl = None if wls is None else wls[ch]
             s0 = cfg.seed if seed is None else int(seed)
             n_d = int(rays_per_pixel or cfg.rays_per_pixel)
             n_w = n_d
             if n_d < 2:
-                raise ValueError(f"--rays-per-pixel / [render] rays_per_pixel is {n_d}: the render's Monte Carlo "
+                raise LftomoError(f"--rays-per-pixel / [render] rays_per_pixel is {n_d}: the render's Monte Carlo "
                                  "error (part of the noise model) cannot be estimated from one ray per pixel; "
                                  "use 2 or more")
             if medium.is_scattering:
-                raise ValueError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
+                raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
                                  "(the weight matrix is built for a known, non-scattering sigma_a)")
             lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
                            wavelengths="gray" if wl is None else (wl,), progress=progress)
@@ -929,36 +982,36 @@ def run_reconstruct(
             try:
                 lf = lt.LightField.load(lightfield)
             except ValueError as exc:
-                raise ValueError(f"--lightfield: {exc}") from None
+                raise LftomoError(f"--lightfield: {exc}") from None
             wpath = Path(weights)
             if not wpath.is_file():
-                raise ValueError(f"--weights: weight-matrix file {str(wpath)!r} does not exist")
+                raise LftomoError(f"--weights: weight-matrix file {str(wpath)!r} does not exist")
             try:
                 grid, wmeta = _grid_of_weight_file(wpath)
                 W = lt.WeightMatrix.load(wpath, lf.camera, grid)
             except ValueError as exc:
-                raise ValueError(f"--weights: {exc}") from None
+                raise LftomoError(f"--weights: {exc}") from None
             if quadrature > 1:  # the weights' grid is the quadrature grid
                 try:
                     grid = grid.coarsened(quadrature)
                 except ValueError as exc:
-                    raise ValueError(f"--quadrature {quadrature}: {exc}") from None
+                    raise LftomoError(f"--quadrature {quadrature}: {exc}") from None
             wl = W.metadata.get("wavelength")
             if lf.wavelengths is None:
                 if wl is not None:
-                    raise ValueError(f"--weights: built for {wl * 1e9:.0f} nm but the --lightfield is gray")
+                    raise LftomoError(f"--weights: built for {wl * 1e9:.0f} nm but the --lightfield is gray")
                 ch_lf = 0
             else:
                 match = [k for k, w in enumerate(lf.wavelengths) if wl is not None and abs(w - wl) <= 1e-12]
                 if channel is not None:
                     ch_lf = int(channel)
                     if not 0 <= ch_lf < lf.n_channels:
-                        raise ValueError(f"--channel must be in 0..{lf.n_channels - 1}, got {ch_lf}")
+                        raise LftomoError(f"--channel must be in 0..{lf.n_channels - 1}, got {ch_lf}")
                     if ch_lf not in match:
-                        raise ValueError(f"--channel {ch_lf} is {lf.wavelengths[ch_lf] * 1e9:.0f} nm but --weights "
+                        raise LftomoError(f"--channel {ch_lf} is {lf.wavelengths[ch_lf] * 1e9:.0f} nm but --weights "
                                          f"was built for {'gray' if wl is None else f'{wl * 1e9:.0f} nm'}")
                 elif not match:
-                    raise ValueError(f"--weights was built for {'gray' if wl is None else f'{wl * 1e9:.0f} nm'}, "
+                    raise LftomoError(f"--weights was built for {'gray' if wl is None else f'{wl * 1e9:.0f} nm'}, "
                                      f"a wavelength the --lightfield ({[round(w * 1e9) for w in lf.wavelengths]} nm) "
                                      "does not have")
                 else:
@@ -980,7 +1033,7 @@ def run_reconstruct(
     with st("measurement", f"measurement ({data})"):
         if lf.noise_std is not None:
             if noise is not None:
-                raise ValueError("--noise: the --lightfield is already noisy (it has noise_std); leave --noise out")
+                raise LftomoError("--noise: the --lightfield is already noisy (it has noise_std); leave --noise out")
             noisy = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
             noise_rule = "noise_std of the light field"
         else:
@@ -988,15 +1041,15 @@ def run_reconstruct(
             noisy, noise_rule = _noise_with_mc_error(noisy, lf, n_d, n_w, min_etendue_fraction)
         if data == "refocus":
             if not depths:
-                raise ValueError("--data refocus needs --depths (m), e.g. --depths 0.98,1.0,1.02")
+                raise LftomoError("--data refocus needs --depths (m), e.g. --depths 0.98,1.0,1.02")
             for d in depths:
                 if not (math.isfinite(d) and d > 0):
-                    raise ValueError(f"--depths must be positive depths in m, got {d!r}")
+                    raise LftomoError(f"--depths must be positive depths in m, got {d!r}")
         try:
             m = lt.Measurement.from_lightfield(noisy, data=data, depths=list(depths) if data == "refocus" else None,
                                                channel=ch_lf)
         except ValueError as exc:
-            raise ValueError(f"--data/--depths: {exc}") from None
+            raise LftomoError(f"--data/--depths: {exc}") from None
         problem, _ = problem_on_grid(m, W, grid)
     metrics["measurement"] = {"data": data, "depths": None if depths is None else list(depths), "n_data": m.size,
                               "noise_model": noise_rule, "noise": noisy.metadata.get("noise"),
@@ -1012,7 +1065,7 @@ def run_reconstruct(
             rec = lt.reconstruct(m, W, regularization=regularization, rule=rule, prior=prior, bounds=tuple(bounds),
                                  max_steps=max_steps, symmetry=symmetry, grid=grid, noise_scale=noise_scale)
         except ValueError as exc:
-            raise ValueError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
+            raise LftomoError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")
     metrics["reconstruction"] = {**rec.summary(), "lambda_note": note, "max_steps": max_steps,
                                  "bounds_K": list(bounds)}
@@ -1023,7 +1076,7 @@ def run_reconstruct(
     post = None
     if posterior and posterior_basis == "field":
         if prior == "tv":
-            raise ValueError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
+            raise LftomoError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
         with st("posterior", "posterior (full-grid Laplace, lambda by evidence)"):
             post = lt.laplace_posterior(problem, regularization="evidence", prior=prior, bounds=tuple(bounds),
                                         lambda0=rec.regularization, seed=post_seed, max_steps=max_steps,
@@ -1039,7 +1092,7 @@ def run_reconstruct(
             elif posterior_basis == "dct":
                 basis = lt.DCTBasis(grid, n_coeffs=(2, 3, 2))
             else:
-                raise ValueError(f"--posterior-basis must be 'flame' or 'dct', got {posterior_basis!r}")
+                raise LftomoError(f"--posterior-basis must be 'flame' or 'dct', got {posterior_basis!r}")
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 post = lt.sample_posterior(problem, basis=basis, n_steps=posterior_steps, seed=post_seed,
@@ -1054,8 +1107,7 @@ def run_reconstruct(
         }
 
     # ---- outputs
-    with st("outputs", f"write {out}/"):
-        out.mkdir(parents=True, exist_ok=True)
+    with st("outputs", f"write {out}/"), staged_directory(out) as stage:  # published complete, metrics.json last
         arrays = {"T": rec.T, "grid_shape": np.asarray(grid.shape), "grid_lower": np.asarray(grid.lower),
                   "grid_upper": np.asarray(grid.upper)}
         if sa is not None:
@@ -1065,7 +1117,7 @@ def run_reconstruct(
         if post is not None:
             arrays["T_posterior_mean"] = post.T_mean
             arrays["T_posterior_std"] = post.T_std
-        np.savez_compressed(out / "fields.npz", **arrays)
+        np.savez_compressed(stage / "fields.npz", **arrays)
         rows = []
         if T_true is not None:
             rows.append(("effective truth", T_true, "T"))
@@ -1074,10 +1126,10 @@ def run_reconstruct(
             rows.append(("reconstruction − truth", rec.T - T_true, "error"))
         if post is not None:
             rows.append(("posterior std", post.T_std, "std"))
-        slice_figure(rows, grid, out / "slices.png", hot=HOT, T_true=T_true,
+        slice_figure(rows, grid, stage / "slices.png", hot=HOT, T_true=T_true,
                      title=f"{data} data, λ = {rec.regularization:.3g}")
         metrics["files"] = ["fields.npz", "slices.png", "metrics.json"]
-    metrics["timings_s"] = {**st.timings, "total": time.perf_counter() - t_start}
-    metrics = _finite(metrics)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2), encoding="utf-8")
+        metrics["timings_s"] = {**st.timings, "total": time.perf_counter() - t_start}
+        metrics = _finite(metrics)
+        (stage / "metrics.json").write_text(json.dumps(metrics, indent=2), encoding="utf-8")
     return metrics

@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, PngImagePlugin
 
+from .io import atomic_path
+
 
 def write_image16(path: str | Path, image: np.ndarray) -> Path:
     """Write ``image`` (2-D, finite, >= 0 where lit) as a 16-bit grayscale PNG or TIFF.
@@ -23,18 +25,20 @@ def write_image16(path: str | Path, image: np.ndarray) -> Path:
     counts = np.round(img / scale).astype(np.uint16)
     pil = Image.fromarray(counts)  # uint16 -> mode "I;16"
     desc = f"lftomo signal = counts * {scale!r}"
-    if path.suffix.lower() == ".png":
-        info = PngImagePlugin.PngInfo()
-        info.add_text("lftomo_scale", repr(scale))
-        info.add_text("Description", desc)
-        pil.save(path, pnginfo=info)
-    else:
-        pil.save(path, description=desc)
+    with atomic_path(path) as tmp:  # never a partial image at ``path``
+        if path.suffix.lower() == ".png":
+            info = PngImagePlugin.PngInfo()
+            info.add_text("lftomo_scale", repr(scale))
+            info.add_text("Description", desc)
+            pil.save(tmp, pnginfo=info)
+        else:
+            pil.save(tmp, description=desc)
     return path
 
 
 def write_float_tiff(path: str | Path, image: np.ndarray) -> Path:
     """Write ``image`` as a 32-bit float TIFF (exact signal, NaN for unlit)."""
     path = Path(path)
-    Image.fromarray(np.asarray(image, dtype=np.float32)).save(path)  # float32 -> mode "F"
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.asarray(image, dtype=np.float32)).save(tmp)  # float32 -> mode "F"
     return path

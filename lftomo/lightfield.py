@@ -34,24 +34,29 @@ the views that contribute to it.  It is linear in ``raw``:
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.optimize
 import scipy.sparse as sp
 
+from .errors import LftomoError
 from . import __version__
-from ._validate import require_array, require_npz_file
+from ._validate import require_array
 from .forward.camera import Camera, _best_focus_z, trace_axial_point
 
 FORMAT = "lftomo-lightfield-1"
 
 
 # ---- geometry of the decode -------------------------------------------------
+
+def _require_camera(camera: Any) -> None:
+    if not isinstance(camera, Camera):
+        raise LftomoError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
+
 
 def geometric_centers(camera: Camera) -> np.ndarray:
     """Microlens-image centres (row, col) in pixel coordinates, shape (n_y, n_x, 2).
@@ -62,6 +67,7 @@ def geometric_centers(camera: Camera) -> np.ndarray:
     (:attr:`Camera.microlens_image_centers`).  Pixel ``(r, c)`` has its
     centre at coordinates ``(r, c)``.
     """
+    _require_camera(camera)
     return np.array(camera.microlens_image_centers)
 
 
@@ -107,7 +113,7 @@ def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float 
     blocks = white.reshape(ny, p, nx, p).transpose(0, 2, 1, 3)  # (i, j, dr, dc)
     tot = blocks.sum(axis=(2, 3))
     if not np.any(tot > 0):
-        raise ValueError("white image has no signal; cannot calibrate microlens centres")
+        raise LftomoError("white image has no signal; cannot calibrate microlens centres")
     dr = np.arange(p)
     with np.errstate(invalid="ignore", divide="ignore"):
         cr = (blocks.sum(axis=3) * dr).sum(axis=2) / tot + np.arange(ny)[:, None] * p
@@ -233,13 +239,33 @@ def alpha_of_depth(camera: Camera, depth: float) -> float:
     and to the MLA principal plane.  α = 1 at the focus distance; α > 1 for
     nearer depths.
     """
+    _require_camera(camera)
     z_xp, _ = camera.exit_pupil
     z_h1 = camera.z_mla - camera.mla.front_principal_plane
     return (z_xp - _image_plane_z(camera, float(depth))) / (z_xp - z_h1)
 
 
+def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
+    """``depth`` (m from the stop) as float if the main lens images it behind itself.
+
+    An object at or inside the focal length (plus the stop-to-lens distance)
+    has no real image: refocusing there would silently return zeros.
+    """
+    _require_camera(camera)
+    from ._validate import require_positive
+
+    d = require_positive(name, depth)
+    lo = camera.main_lens.focal_length * 1.02 + camera.main_lens.stop_to_vertex
+    if d <= lo:
+        raise LftomoError(f"{name} = {d!r} m is inside or too close to the main-lens focal length "
+                          f"({camera.main_lens.focal_length:.4g} m): refocus depths must be > {lo:.4g} m "
+                          "from the aperture stop")
+    return d
+
+
 def depth_of_alpha(camera: Camera, alpha: float) -> float:
     """Inverse of :func:`alpha_of_depth` (m)."""
+    _require_camera(camera)
     f = camera.main_lens.focal_length
     lo = f * 1.02 + camera.main_lens.stop_to_vertex
     hi = 1e4 * f
@@ -247,7 +273,7 @@ def depth_of_alpha(camera: Camera, alpha: float) -> float:
     g = lambda z: alpha_of_depth(camera, z) - a  # noqa: E731
     glo, ghi = g(lo), g(hi)
     if glo * ghi > 0:
-        raise ValueError(
+        raise LftomoError(
             f"alpha = {a!r} is outside the refocus range [{alpha_of_depth(camera, hi):.4g}, "
             f"{alpha_of_depth(camera, lo):.4g}] of this camera (depths {lo:.3g} m to {hi:.3g} m)"
         )
@@ -300,7 +326,7 @@ class LightField:
     def __post_init__(self) -> None:
         cam = self.camera
         if not isinstance(cam, Camera):
-            raise ValueError(f"camera must be an lftomo.Camera, got {type(cam).__name__}")
+            raise LftomoError(f"camera must be an lftomo.Camera, got {type(cam).__name__}")
         wl = self.wavelengths
         if wl is not None:
             wl = tuple(float(w) for w in np.atleast_1d(wl))
@@ -363,7 +389,7 @@ class LightField:
         """Sub-aperture image ``views[v, u]`` (n_y, n_x), masked where unlit."""
         nv, nu = self.camera.views_shape[:2]
         if not (0 <= int(u) < nu) or not (0 <= int(v) < nv):
-            raise ValueError(f"(u, v) = ({u}, {v}) is outside the views grid 0..{nu - 1} x 0..{nv - 1}")
+            raise LftomoError(f"(u, v) = ({u}, {v}) is outside the views grid 0..{nu - 1} x 0..{nv - 1}")
         views = self.views
         if self.n_channels > 1:
             return views[0 if channel is None else channel, v, u]
@@ -385,9 +411,7 @@ class LightField:
 
     def refocus_operator_at(self, depth: float) -> sp.csr_matrix:
         """Sparse matrix R (n_y*n_x, rows*cols) with ``refocus_at(depth) = (R @ raw.ravel()).reshape(n_y, n_x)``."""
-        from ._validate import require_positive
-
-        depth = require_positive("depth", depth)
+        depth = check_refocus_depth(self.camera, depth)
         shifts = view_shift_field(self.camera, self.centers, depth)
         return _shift_and_add_matrix(self.view_index, self.view_mask, shifts, self.camera.sensor_shape)
 
@@ -420,55 +444,57 @@ class LightField:
 
     # ---- persistence -------------------------------------------------------
     def save(self, path: str | Path) -> Path:
-        """Write an ``.npz`` (no pickle) with the arrays and JSON metadata."""
+        """Write an ``.npz`` (no pickle) with the arrays and JSON metadata.
+
+        The write is atomic (:func:`lftomo.io.atomic_path`): ``path`` holds
+        either its previous content or the complete new file.  The metadata
+        lists the arrays written, so that a file missing one is refused.
+        """
+        from .io import atomic_path, check_output_file
+
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
+        check_output_file(path, what="light-field file")
+        arrays = {"raw": self.raw, "etendue": self.etendue, "centers": self.centers}
+        for name in ("std_error", "noise_std", "signal"):
+            if getattr(self, name) is not None:
+                arrays[name] = getattr(self, name)
         meta = {
             "format": FORMAT,
             "lftomo_version": __version__,
             "camera": self.camera.to_dict(),
             "wavelengths": None if self.wavelengths is None else list(self.wavelengths),
+            "arrays": sorted(arrays),
             "metadata": self.metadata,
         }
-        arrays = {"raw": self.raw, "etendue": self.etendue, "centers": self.centers}
-        for name in ("std_error", "noise_std", "signal"):
-            if getattr(self, name) is not None:
-                arrays[name] = getattr(self, name)
-        np.savez_compressed(path, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
+        with atomic_path(path) as tmp:
+            np.savez_compressed(tmp, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> "LightField":
-        """Read a light field written by :meth:`save`; validates every array."""
-        path = require_npz_file(path, what="light-field file", needs="expected a light field written by "
-                                "LightField.save or `lftomo render` (lightfield.npz)")
+        """Read a light field written by :meth:`save`; validates every array and the metadata.
+
+        Raises
+        ------
+        LftomoError
+            Naming the file and the member: not an ``.npz``, corrupt or
+            truncated, missing arrays, wrong dtypes or shapes, non-finite or
+            negative values, or metadata that is not physical.
+        """
+        from .io import read_npz
+
+        what = "light-field file"
+        data = read_npz(path, what=what, needs="expected a light field written by LightField.save or "
+                        "`lftomo render` (lightfield.npz)")
+        meta = _check_lightfield_meta(data, path)
+        camera, wl = _lightfield_camera(meta, path)
+        kw = _check_lightfield_arrays(data, meta, camera, wl, path)
         try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except (ValueError, OSError, zipfile.BadZipFile) as exc:
-            raise ValueError(f"{str(path)!r} is not a readable lftomo light-field .npz: {exc}") from None
-        if "meta" not in data or data["meta"].dtype.kind != "U":
-            raise ValueError(f"{str(path)!r} has no lftomo metadata")
-        meta = json.loads(str(data["meta"]))
-        if meta.get("format") != FORMAT:
-            raise ValueError(f"{str(path)!r} has format {meta.get('format')!r}, expected {FORMAT!r}")
-        for k, v in data.items():
-            if k != "meta" and v.dtype.kind not in "fiu":
-                raise ValueError(f"array {k!r} in {str(path)!r} has dtype {v.dtype}, expected a numeric dtype")
-        camera = Camera.from_dict(meta["camera"])
-        wl = meta["wavelengths"]
-        return cls(
-            raw=data["raw"],
-            camera=camera,
-            wavelengths=None if wl is None else tuple(wl),
-            etendue=data["etendue"],
-            std_error=data.get("std_error"),
-            centers=data["centers"],
-            noise_std=data.get("noise_std"),
-            signal=data.get("signal"),
-            metadata=meta.get("metadata", {}),
-        )
+            return cls(camera=camera, wavelengths=wl, metadata=meta.get("metadata", {}), **kw)
+        except (LftomoError, ValueError) as exc:
+            raise LftomoError(f"{what} {str(path)!r}: {exc}") from None
 
     def mosaic(self, *, channel: int = 0, fill: float = 0.0) -> np.ndarray:
         """All views tiled as ``views[v, u]`` blocks: (n_v*n_y, n_u*n_x), unlit = ``fill``."""
@@ -484,7 +510,7 @@ class LightField:
         from .io_images import write_image16, write_float_tiff
 
         if fmt not in ("png", "tiff"):
-            raise ValueError(f"fmt must be 'png' or 'tiff', got {fmt!r}")
+            raise LftomoError(f"fmt must be 'png' or 'tiff', got {fmt!r}")
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         out = []
@@ -553,3 +579,70 @@ def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr
     norm = np.asarray(M.sum(axis=1)).ravel()
     inv = np.divide(1.0, norm, out=np.zeros_like(norm), where=norm > 0)
     return (sp.diags(inv) @ M).tocsr()
+
+
+# ---- validation of saved light fields ------------------------------------------
+_LF_ARRAYS = ("raw", "etendue", "centers", "std_error", "noise_std", "signal")
+
+
+def _check_lightfield_meta(data: dict, path) -> dict:
+    from .io import json_member
+
+    what = "light-field file"
+    meta = json_member(data, path=path, what=what)
+    if meta.get("format") != FORMAT:
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' has format {meta.get('format')!r}, "
+                          f"expected {FORMAT!r}")
+    unknown = sorted(set(data) - set(_LF_ARRAYS) - {"meta"})
+    if unknown:
+        raise LftomoError(f"{what} {str(path)!r}: unknown member(s) {unknown}; allowed: {list(_LF_ARRAYS)}")
+    listed = meta.get("arrays", ["raw", "etendue", "centers"])
+    if not isinstance(listed, list) or not all(isinstance(n, str) and n in _LF_ARRAYS for n in listed):
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' key 'arrays' must list array names from "
+                          f"{list(_LF_ARRAYS)}, got {listed!r}")
+    missing = sorted((set(listed) | {"raw", "etendue", "centers"}) - set(data))
+    if missing:
+        raise LftomoError(f"{what} {str(path)!r}: member(s) {missing} are missing (the file lists {listed}); "
+                          "the file is truncated or was edited")
+    if not isinstance(meta.get("metadata", {}), dict):
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' key 'metadata' must be a JSON object")
+    return meta
+
+
+def _lightfield_camera(meta: dict, path):
+    what = "light-field file"
+    cam = meta.get("camera")
+    if not isinstance(cam, dict):
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' has no camera description")
+    try:
+        camera = Camera.from_dict(cam)
+    except (LftomoError, ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' camera is invalid: {exc}") from None
+    wl = meta.get("wavelengths")
+    if wl is not None:
+        ok = isinstance(wl, list) and len(wl) > 0 and all(
+            isinstance(w, (int, float)) and not isinstance(w, bool) and np.isfinite(w) and 0 < w <= 1e-3 for w in wl)
+        if not ok:
+            raise LftomoError(f"{what} {str(path)!r}: member 'meta' wavelengths must be null (gray) or a list of "
+                              f"wavelengths in m in (0, 1e-3], got {wl!r}")
+        wl = tuple(float(w) for w in wl)
+    return camera, wl
+
+
+def _check_lightfield_arrays(data: dict, meta: dict, camera, wl, path) -> dict:
+    from .io import check_member
+
+    what = "light-field file"
+    n_ch = 1 if wl is None else len(wl)
+    shape = camera.sensor_shape if n_ch == 1 else (n_ch,) + camera.sensor_shape
+    ny, nx = camera.views_shape[2:]
+    kw = dict(path=path, what=what)
+    out = {
+        "raw": check_member(data, "raw", shape=shape, **kw),
+        "etendue": check_member(data, "etendue", shape=camera.sensor_shape, minimum=0.0, **kw),
+        "centers": check_member(data, "centers", shape=(ny, nx, 2), **kw),
+        "std_error": check_member(data, "std_error", shape=shape, minimum=0.0, required=False, **kw),
+        "noise_std": check_member(data, "noise_std", shape=shape, minimum=0.0, required=False, **kw),
+        "signal": check_member(data, "signal", shape=shape, required=False, **kw),
+    }
+    return out

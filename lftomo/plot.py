@@ -7,6 +7,8 @@ from typing import Sequence
 
 import numpy as np
 
+from .io import atomic_path
+
 
 def _plt():
     import matplotlib
@@ -42,8 +44,11 @@ def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 1
         a.set_xticks([])
         a.set_yticks([])
     path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:  # never a partial figure at ``path``
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -68,6 +73,9 @@ def focal_stack_figure(lf, depths: Sequence[float], path: str | Path, *, channel
         ax.set_title(f"z = {depths[k]:.3f} m (α = {lf.alpha_of_depth(depths[k]):.4f})")
     fig.suptitle("refocused images (shift-and-add, traced shifts)")
     path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:  # never a partial figure at ``path``
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path

@@ -57,8 +57,11 @@ def write_report(directory: str | Path, title: str, sections: Sequence[dict[str,
             parts.append(_table(sec["table"]))
     parts.append("</body></html>")
     index = d / "index.html"
-    index.write_text("\n".join(parts), encoding="utf-8")
-    (d / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default), encoding="utf-8")
+    from .io import atomic_write_text
+
+    # metrics first, the report last: a report on disk always has its metrics beside it
+    atomic_write_text(d / "metrics.json", json.dumps(metrics, indent=2, default=_json_default))
+    atomic_write_text(index, "\n".join(parts))
     return index
 
 

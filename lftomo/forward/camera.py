@@ -26,7 +26,8 @@ from typing import Any, Mapping
 import numpy as np
 from numba import njit, prange
 
-from .._validate import require_int, require_positive, require_finite_scalar
+from ..errors import LftomoError
+from .._validate import check_allocation, require_finite_scalar, require_instance, require_int, require_positive
 from . import optics as _o
 from . import sampler as _sampler
 from .sampler import DEFAULT_SAMPLER
@@ -61,16 +62,16 @@ def _sag(curv: float, r: float) -> float:
 def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: float, index: float) -> None:
     for name, r in ((f"{prefix}.r1", r1), (f"{prefix}.r2", r2)):
         if not (math.isinf(r) or (np.isfinite(r) and r != 0.0)):
-            raise ValueError(f"{name} must be a non-zero radius in m (inf for a plane), got {r!r}")
+            raise LftomoError(f"{name} must be a non-zero radius in m (inf for a plane), got {r!r}")
     require_positive(f"{prefix}.thickness", thickness)
     require_positive(f"{prefix}.diameter", diameter)
     require_finite_scalar(f"{prefix}.index", index)
     if index <= 1.0:
-        raise ValueError(f"{prefix}.index must be > 1 (glass in air), got {index!r}")
+        raise LftomoError(f"{prefix}.index must be > 1 (glass in air), got {index!r}")
     half = 0.5 * diameter
     for name, r in ((f"{prefix}.r1", r1), (f"{prefix}.r2", r2)):
         if not math.isinf(r) and abs(r) < half:
-            raise ValueError(
+            raise LftomoError(
                 f"{name} = {r!r} m is smaller than the clear radius {half!r} m "
                 f"({prefix}.diameter = {diameter!r}); |R| must be >= diameter/2"
             )
@@ -78,15 +79,20 @@ def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: f
     c2 = 0.0 if math.isinf(r2) else 1.0 / r2
     edge = thickness - _sag(c1, half) + _sag(c2, half)
     if edge <= 0.0:
-        raise ValueError(
+        raise LftomoError(
             f"{prefix}: radii {r1!r}, {r2!r} and thickness {thickness!r} m give an edge thickness of "
             f"{edge:.3g} m at the clear diameter {diameter!r} m; it must be > 0 (increase thickness or radii)"
         )
     if thick_lens_focal_length(r1, r2, thickness, index) <= 0.0:
-        raise ValueError(
+        raise LftomoError(
             f"{prefix}: radii {r1!r}, {r2!r}, thickness {thickness!r} m and index {index!r} give a "
             "non-positive focal length; a converging lens is required"
         )
+
+
+#: Bytes per sensor pixel held while rendering and decoding (raw, its error, the
+#: running sums, étendue, decode maps): the basis of the size check of a camera.
+BYTES_PER_PIXEL = 64
 
 
 @dataclass(frozen=True)
@@ -127,13 +133,16 @@ class MainLens:
         _check_lens("main_lens", self.r1, self.r2, self.thickness, self.diameter, self.index)
         require_positive("main_lens.stop_diameter", self.stop_diameter)
         if self.stop_diameter > self.diameter:
-            raise ValueError(
+            raise LftomoError(
                 f"main_lens.stop_diameter ({self.stop_diameter!r} m) is larger than the lens clear "
                 f"diameter main_lens.diameter ({self.diameter!r} m); it must be <= the clear diameter"
             )
         v = require_finite_scalar("main_lens.stop_to_vertex", self.stop_to_vertex)
         if v < 0.0:
-            raise ValueError(f"main_lens.stop_to_vertex must be >= 0 (stop in front of the lens), got {v!r}")
+            raise LftomoError(f"main_lens.stop_to_vertex must be >= 0 (stop in front of the lens), got {v!r}")
+        if not isinstance(self.ideal, (bool, np.bool_)):
+            raise LftomoError(f"main_lens.ideal must be True or False, got {self.ideal!r} "
+                              f"({type(self.ideal).__name__})")
 
     @property
     def focal_length(self) -> float:
@@ -170,12 +179,12 @@ class MicrolensArray:
         try:
             cx, cy = self.count
         except (TypeError, ValueError):
-            raise ValueError(f"mla.count must be two integers (nx, ny), got {self.count!r}") from None
+            raise LftomoError(f"mla.count must be two integers (nx, ny), got {self.count!r}") from None
         object.__setattr__(self, "count", (require_int("mla.count[0]", cx, minimum=1), require_int("mla.count[1]", cy, minimum=1)))
         require_positive("mla.pitch", self.pitch)
         _check_lens("mla", self.r1, self.r2, self.thickness, self.diameter, self.index)
         if self.diameter > self.pitch * (1 + 1e-12):
-            raise ValueError(
+            raise LftomoError(
                 f"mla.diameter ({self.diameter!r} m) is larger than mla.pitch ({self.pitch!r} m); "
                 "lenslets of a square grid must not overlap"
             )
@@ -221,7 +230,7 @@ def _pixels_per_lenslet(mla: MicrolensArray, sensor: Sensor) -> int:
     ratio = mla.pitch / sensor.pixel_pitch
     n = int(round(ratio))
     if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
-        raise ValueError(
+        raise LftomoError(
             f"mla.pitch / sensor.pixel_pitch = {mla.pitch!r} / {sensor.pixel_pitch!r} = {ratio:.6g} "
             "pixels per microlens; it must be a positive integer"
         )
@@ -344,11 +353,16 @@ class Camera:
     focus_distance: float | None = None
 
     def __post_init__(self) -> None:
+        for name, kind in (("main_lens", MainLens), ("mla", MicrolensArray), ("sensor", Sensor)):
+            require_instance(name, getattr(self, name), kind, f"an lftomo.{kind.__name__}")
         ppl = _pixels_per_lenslet(self.mla, self.sensor)
+        n_px = self.mla.count[0] * self.mla.count[1] * ppl * ppl
+        check_allocation(f"a camera of {self.mla.count[0]} x {self.mla.count[1]} microlenses ({n_px:.3g} pixels)",
+                         n_px * BYTES_PER_PIXEL, hint="use fewer microlenses (mla.count)")
         d = require_positive("mla_distance", self.mla_distance)
         g = require_finite_scalar("sensor_gap", self.sensor_gap)
         if g <= 0.0:
-            raise ValueError(
+            raise LftomoError(
                 f"sensor_gap must be > 0 (the sensor lies behind the MLA), got {g!r} m: the MLA would be "
                 "at or behind the sensor"
             )
@@ -357,7 +371,7 @@ class Camera:
         c2 = 0.0 if math.isinf(ml.r2) else 1.0 / ml.r2
         rear_extent = back_vertex - min(0.0, _sag(c2, 0.5 * ml.diameter))  # furthest glass point
         if not ml.ideal and d <= rear_extent:
-            raise ValueError(
+            raise LftomoError(
                 f"mla_distance ({d!r} m) places the MLA inside the main lens, whose glass extends to "
                 f"{rear_extent!r} m behind the stop; it must be larger"
             )
@@ -388,7 +402,7 @@ class Camera:
         fd = require_positive("focus_distance", focus_distance)
         f = main_lens.focal_length
         if fd <= f + main_lens.stop_to_vertex:
-            raise ValueError(
+            raise LftomoError(
                 f"focus_distance ({fd!r} m) is inside the main-lens focal length ({f:.6g} m): no real "
                 "image; it must be larger"
             )
@@ -426,11 +440,11 @@ class Camera:
             if isinstance(value, kind):
                 return value
             if not isinstance(value, Mapping):
-                raise ValueError(f"{kind.__name__} override must be a mapping or a {kind.__name__}, got {value!r}")
+                raise LftomoError(f"{kind.__name__} override must be a mapping or a {kind.__name__}, got {value!r}")
             names = {f.name for f in dataclasses.fields(kind)}
             unknown = sorted(set(value) - names)
             if unknown:
-                raise ValueError(f"unknown {kind.__name__} parameter(s) {unknown}; allowed: {sorted(names)}")
+                raise LftomoError(f"unknown {kind.__name__} parameter(s) {unknown}; allowed: {sorted(names)}")
             return kind(**value)
 
         return cls.focused(
@@ -876,7 +890,7 @@ class Camera:
                 focus_distance=None if d.get("focus_distance") is None else float(d["focus_distance"]),
             )
         except (KeyError, TypeError) as exc:
-            raise ValueError(f"camera description is malformed: {exc}") from None
+            raise LftomoError(f"camera description is malformed: {exc}") from None
 
     def __hash__(self) -> int:  # cached_property-friendly identity hash of the parameters
         return hash(json.dumps(self.to_dict(), sort_keys=True))

@@ -14,9 +14,17 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import require_int, require_vector
+from ..errors import LftomoError
+from .._validate import check_allocation, require_int, require_vector
 
 __all__ = ["Grid"]
+
+#: Largest number of voxels (weight-matrix columns are int32).
+MAX_VOXELS = 2**31 - 1
+#: Bytes per voxel held by a medium and its construction (T, sigma_a, sigma_s,
+#: g and the coordinate temporaries of a phantom, float64): the basis of the size
+#: check of a grid.
+BYTES_PER_VOXEL = 64
 
 
 @dataclass(frozen=True)
@@ -46,18 +54,24 @@ class Grid:
         try:
             items = list(self.shape)
         except TypeError:
-            raise ValueError(f"shape must be a sequence of 3 integers >= 1, got {self.shape!r}") from None
+            raise LftomoError(f"shape must be a sequence of 3 integers >= 1, got {self.shape!r}") from None
         if len(items) != 3:
-            raise ValueError(f"shape must have 3 components (nx, ny, nz), got {tuple(items)!r}")
+            raise LftomoError(f"shape must have 3 components (nx, ny, nz), got {tuple(items)!r}")
         shape = tuple(require_int(f"shape[{i}]", n, minimum=1) for i, n in enumerate(items))
         lower = require_vector("lower", self.lower, 3)
         upper = require_vector("upper", self.upper, 3)
         for i, (lo, hi) in enumerate(zip(lower, upper)):
             if not hi > lo:
-                raise ValueError(
+                raise LftomoError(
                     f"upper must exceed lower on every axis; on axis {'xyz'[i]} got "
                     f"lower={lo!r}, upper={hi!r}"
                 )
+        n = shape[0] * shape[1] * shape[2]
+        if n > MAX_VOXELS:
+            raise LftomoError(f"shape {shape} has {n} voxels, more than the {MAX_VOXELS} that flat voxel indices "
+                              "(int32 columns of weight matrices) allow")
+        check_allocation(f"the fields of a medium on a {shape[0]} x {shape[1]} x {shape[2]} grid", n * BYTES_PER_VOXEL,
+                         hint="use a coarser grid (fewer voxels)")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "lower", lower)
         object.__setattr__(self, "upper", upper)
@@ -114,11 +128,11 @@ class Grid:
         try:
             p = np.asarray(points, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError("points must be numeric, shape (N, 3) or (3,)") from None
+            raise LftomoError("points must be numeric, shape (N, 3) or (3,)") from None
         if p.ndim == 1 and p.shape == (3,):
             p = p[None, :]
         if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError(f"points must have shape (N, 3), got shape {p.shape}")
+            raise LftomoError(f"points must have shape (N, 3), got shape {p.shape}")
         return p
 
     def contains(self, points: Any) -> np.ndarray:
@@ -176,7 +190,7 @@ class Grid:
         """
         f = require_int("factor", factor, minimum=1)
         if any(n % f for n in self.shape):
-            raise ValueError(
+            raise LftomoError(
                 f"factor must divide every component of grid.shape {self.shape}, got {f}"
             )
         return Grid(tuple(n // f for n in self.shape), self.lower, self.upper)
@@ -191,5 +205,5 @@ class Grid:
         """Inverse of :meth:`to_dict`."""
         missing = [k for k in ("shape", "lower", "upper") if k not in d]
         if missing:
-            raise ValueError(f"grid description lacks key(s) {missing}; needs shape, lower, upper")
+            raise LftomoError(f"grid description lacks key(s) {missing}; needs shape, lower, upper")
         return cls(tuple(d["shape"]), tuple(d["lower"]), tuple(d["upper"]))

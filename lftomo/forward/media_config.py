@@ -24,12 +24,14 @@ from __future__ import annotations
 import inspect
 import numbers
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from .._validate import require_npz_file, toml_int, toml_number, toml_numbers
+from ..errors import LftomoError
+from .._validate import require_inside, require_npz_file, toml_int, toml_number, toml_numbers
 from . import phantoms
 from .grid import Grid
 from .medium import Medium
@@ -56,7 +58,7 @@ def _shape(t: Mapping[str, Any]) -> tuple[int, int, int]:
         return DEFAULT_SHAPE
     v = t["shape"]
     if not isinstance(v, list) or len(v) != 3:
-        raise ValueError(f"[medium] shape must be a list of 3 integers >= 1 [nx, ny, nz], got {v!r}")
+        raise LftomoError(f"[medium] shape must be a list of 3 integers >= 1 [nx, ny, nz], got {v!r}")
     return tuple(toml_int(f"[medium] shape[{i}]", n, minimum=1) for i, n in enumerate(v))  # type: ignore[return-value]
 
 
@@ -64,9 +66,9 @@ def _grid(t: Mapping[str, Any], shape: tuple[int, int, int], focus_distance: flo
     try:
         if "lower" in t or "upper" in t:
             if not ("lower" in t and "upper" in t):
-                raise ValueError("[medium] needs both 'lower' and 'upper' (m) or neither")
+                raise LftomoError("[medium] needs both 'lower' and 'upper' (m) or neither")
             if "focus_distance" in t:
-                raise ValueError(
+                raise LftomoError(
                     "[medium] focus_distance only places the default box and is not used with lower/upper; remove it"
                 )
             lower = toml_numbers("[medium] lower", t["lower"], length=3, hint="[x, y, z]", unit="m")
@@ -76,7 +78,7 @@ def _grid(t: Mapping[str, Any], shape: tuple[int, int, int], focus_distance: flo
         return phantoms.default_flame_grid(shape, fd)
     except ValueError as exc:
         msg = str(exc)
-        raise ValueError(msg if msg.startswith("[medium]") else f"[medium]: {msg}") from None
+        raise LftomoError(msg if msg.startswith("[medium]") else f"[medium]: {msg}") from None
 
 
 def _param_value(where: str, v: Any) -> None:
@@ -90,46 +92,48 @@ def _param_value(where: str, v: Any) -> None:
         else:
             ok = not isinstance(x, (bool, np.bool_)) and isinstance(x, (numbers.Real, np.integer, np.floating))
     if not ok or isinstance(v, list) and not v:
-        raise ValueError(f"{where} must be a number or a list of numbers, got {v!r}")
+        raise LftomoError(f"{where} must be a number or a list of numbers, got {v!r}")
 
 
-def _from_file(t: Mapping[str, Any], grid: Grid, base: Path) -> Medium:
+def _from_file(t: Mapping[str, Any], grid: Grid, base: Path, allow_outside: bool = False) -> Medium:
     path = t["path"]
     if not isinstance(path, str):
-        raise ValueError(f"[medium] path must be a file name (a string), got {path!r}")
-    p = require_npz_file((base / path).resolve(), prefix="[medium] path: ", what="medium file",
+        raise LftomoError(f"[medium] path must be a file name (a string), got {path!r}")
+    p = require_inside(base / path, base, where="[medium] path", allow_outside=allow_outside)
+    p = require_npz_file(p, prefix="[medium] path: ", what="medium file",
                          needs="phantom = 'file' needs an .npz (numpy.savez) with arrays sigma_a and T [, sigma_s, g]")
     try:
         with np.load(p, allow_pickle=False) as z:
             files = sorted(z.files)
             missing = [n for n in _FILE_ARRAYS if n not in files]
             if missing:
-                raise ValueError(f"[medium] path: {str(p)!r} has no array(s) {missing}; it holds {files}; "
+                raise LftomoError(f"[medium] path: {str(p)!r} has no array(s) {missing}; it holds {files}; "
                                  "phantom = 'file' needs sigma_a and T [, sigma_s, g]")
             shapes = {n: z[n].shape for n in _FILE_ARRAYS}
-    except (OSError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"[medium] path: cannot read {str(p)!r}: {exc}") from None
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise LftomoError(f"[medium] path: cannot read {str(p)!r}: {exc}") from None
     except ValueError as exc:
         msg = str(exc)
-        raise ValueError(msg if msg.startswith("[medium]") else
+        raise LftomoError(msg if msg.startswith("[medium]") else
                          f"[medium] path: cannot read {str(p)!r} without pickle: {msg}") from None
     for name, shp in shapes.items():
         if shp == grid.shape:
             continue
         if len(shp) != 3:
-            raise ValueError(f"[medium] path: {name} in {str(p)!r} must be a 3-D array (nx, ny, nz), got shape {shp}")
+            raise LftomoError(f"[medium] path: {name} in {str(p)!r} must be a 3-D array (nx, ny, nz), got shape {shp}")
         if "shape" in t:
-            raise ValueError(f"[medium] shape = {list(grid.shape)} does not match the shape {shp} of {name} in "
+            raise LftomoError(f"[medium] shape = {list(grid.shape)} does not match the shape {shp} of {name} in "
                              f"{str(p)!r}; set shape = {list(shp)}")
-        raise ValueError(f"[medium] path: shape of {name} {shp} in {str(p)!r} does not match the default [medium] shape "
+        raise LftomoError(f"[medium] path: shape of {name} {shp} in {str(p)!r} does not match the default [medium] shape "
                          f"{grid.shape}; add shape = {list(shp)} to [medium]")
     try:
         return Medium.from_npz(p, grid)
     except ValueError as exc:
-        raise ValueError(f"[medium] path: {exc}") from None
+        raise LftomoError(f"[medium] path: {exc}") from None
 
 
-def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_distance: float = 1.0) -> Medium:
+def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_distance: float = 1.0,
+                      allow_outside: bool = False) -> Medium:
     """Build a :class:`Medium` from a ``[medium]`` table of a scene file.
 
     Parameters
@@ -138,6 +142,8 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_dis
         The parsed ``[medium]`` table (see the module docstring).
     base : Path
         Folder that a relative ``path`` is resolved against (the scene file's).
+    allow_outside : bool
+        Let ``path`` name a file outside ``base`` (default: refused).
     focus_distance : float
         Centre z (m) of the default box when the table gives neither
         ``lower``/``upper`` nor ``focus_distance`` (scene files: the camera's).
@@ -154,38 +160,38 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_dis
         key (``[medium] path``, ``[medium.params] T``), the value and what is allowed.
     """
     if not isinstance(t, Mapping):
-        raise ValueError(f"[medium] must be a table, got {type(t).__name__}")
+        raise LftomoError(f"[medium] must be a table, got {type(t).__name__}")
     unknown = sorted(set(t) - _KEYS)
     if unknown:
-        raise ValueError(f"unknown key(s) {unknown} in [medium]; allowed: {sorted(_KEYS)}")
+        raise LftomoError(f"unknown key(s) {unknown} in [medium]; allowed: {sorted(_KEYS)}")
     kind = t.get("phantom", "axisymmetric_flame")
     if not isinstance(kind, str) or (kind not in PHANTOMS and kind != "file"):
-        raise ValueError(f"[medium] phantom must be one of {sorted(PHANTOMS) + ['file']}, got {kind!r}")
+        raise LftomoError(f"[medium] phantom must be one of {sorted(PHANTOMS) + ['file']}, got {kind!r}")
     if kind != "file" and "path" in t:
-        raise ValueError(f"[medium] path = {t['path']!r} is only used with phantom = 'file', but phantom = {kind!r}; "
+        raise LftomoError(f"[medium] path = {t['path']!r} is only used with phantom = 'file', but phantom = {kind!r}; "
                          "remove path or set phantom = 'file'")
     if "params" in t and not isinstance(t["params"], Mapping):
-        raise ValueError(f"[medium] params must be a table ([medium.params]), got {t['params']!r}")
+        raise LftomoError(f"[medium] params must be a table ([medium.params]), got {t['params']!r}")
     params = dict(t.get("params", {}))
     if kind == "file":
         if "path" not in t:
-            raise ValueError("[medium] phantom = 'file' needs 'path' (an .npz with sigma_a, T [, sigma_s, g])")
+            raise LftomoError("[medium] phantom = 'file' needs 'path' (an .npz with sigma_a, T [, sigma_s, g])")
         if params:
-            raise ValueError("[medium.params] is not used with phantom = 'file'")
+            raise LftomoError("[medium.params] is not used with phantom = 'file'")
     grid = _grid(t, _shape(t), focus_distance)
     if kind == "file":
-        return _from_file(t, grid, base)
+        return _from_file(t, grid, base, allow_outside)
     func = PHANTOMS[kind]
     sig = inspect.signature(func).parameters
     allowed = [n for n, prm in sig.items() if prm.kind == prm.KEYWORD_ONLY]
     bad = sorted(set(params) - set(allowed))
     if bad:
-        raise ValueError(f"unknown [medium.params] {bad} for phantom {kind!r}; allowed: {allowed}")
+        raise LftomoError(f"unknown [medium.params] {bad} for phantom {kind!r}; allowed: {allowed}")
     required = [n for n in allowed if sig[n].default is inspect.Parameter.empty]
     missing = [n for n in required if n not in params]
     if missing:
         optional = [n for n in allowed if n not in required]
-        raise ValueError(
+        raise LftomoError(
             f"[medium] phantom = {kind!r} needs [medium.params] {', '.join(missing)}: missing required "
             f"parameter(s) {missing} of lftomo.phantoms.{kind} (required: {required}; optional: {optional})"
         )
@@ -194,4 +200,4 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_dis
     try:
         return func(grid, **params)
     except ValueError as exc:
-        raise ValueError(f"[medium.params] of phantom {kind!r}: {exc}") from None
+        raise LftomoError(f"[medium.params] of phantom {kind!r}: {exc}") from None

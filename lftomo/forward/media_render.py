@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from .._validate import require_int
+from .._validate import MAX_TOTAL_RAYS, require_instance, require_int, require_seed
 from . import optics as _o
 from . import sampler as _smp
 from .dda import integrate_emission, ray_box, transmittance
@@ -430,12 +430,13 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
     """
     from ..lightfield import LightField
     from .render import _resolve_wavelengths
+    from .camera import Camera
     from .scene import Scene, pack_surfaces
 
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene must be an lftomo.Scene, got {type(scene).__name__}")
-    n_bundles = require_int("n_bundles", n_bundles, minimum=N_CHUNKS)
-    seed = require_int("seed", seed, minimum=0)
+    require_instance("scene", scene, Scene, "an lftomo.Scene")
+    require_instance("camera", camera, Camera, "an lftomo.Camera")
+    n_bundles = require_int("n_bundles", n_bundles, minimum=N_CHUNKS, maximum=MAX_TOTAL_RAYS)
+    seed = require_seed("seed", seed)
     wl = _resolve_wavelengths(wavelengths)
     scene.check_visible_from(camera)
     n_ch = 1 if wl is None else len(wl)

@@ -16,12 +16,14 @@ from __future__ import annotations
 import dataclasses
 import os
 import zipfile
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .._validate import require_finite_scalar, require_npz_file, require_positive
+from ..errors import LftomoError
+from .._validate import require_finite_scalar, require_positive, require_regular_file
 from ..radiation import blackbody_intensity
 from .grid import Grid
 
@@ -69,20 +71,20 @@ def _field(name: str, value: Any, grid: Grid) -> np.ndarray:
     try:
         arr = np.asarray(value)
     except Exception:  # pragma: no cover - exotic objects
-        raise ValueError(f"{name} must be a number or a numeric array of shape {grid.shape}") from None
+        raise LftomoError(f"{name} must be a number or a numeric array of shape {grid.shape}") from None
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-        raise ValueError(
+        raise LftomoError(
             f"{name} must be a real number or real array of shape {grid.shape}, got dtype {arr.dtype}"
         )
     if arr.ndim == 0:
         arr = np.full(grid.shape, float(arr), dtype=np.float64)
     elif arr.shape != grid.shape:
-        raise ValueError(f"shape of {name} {arr.shape} does not match grid.shape {grid.shape}")
+        raise LftomoError(f"shape of {name} {arr.shape} does not match grid.shape {grid.shape}")
     else:
         arr = np.array(arr, dtype=np.float64, order="C")  # copy: the medium owns its data
     if not np.all(np.isfinite(arr)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
-        raise ValueError(f"{name} must be finite, got {bad} non-finite value(s) (NaN or inf)")
+        raise LftomoError(f"{name} must be finite, got {bad} non-finite value(s) (NaN or inf)")
     arr.setflags(write=False)
     return arr
 
@@ -90,7 +92,7 @@ def _field(name: str, value: Any, grid: Grid) -> np.ndarray:
 def _check_min(name: str, arr: np.ndarray, *, strict: bool) -> None:
     m = float(arr.min())
     if (strict and m <= 0.0) or (not strict and m < 0.0):
-        raise ValueError(f"{name} must be {'>' if strict else '>='} 0 everywhere, got minimum {m!r}")
+        raise LftomoError(f"{name} must be {'>' if strict else '>='} 0 everywhere, got minimum {m!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,12 +135,12 @@ class Medium:
     def __post_init__(self) -> None:
         grid = self.grid
         if not isinstance(grid, Grid):
-            raise ValueError(f"grid must be a Grid, got {type(grid).__name__}")
+            raise LftomoError(f"grid must be a Grid, got {type(grid).__name__}")
         if isinstance(self.sigma_a, dict):
             if not self.sigma_a:
-                raise ValueError("sigma_a given as a dict must have at least one wavelength, got {}")
+                raise LftomoError("sigma_a given as a dict must have at least one wavelength, got {}")
             if self.sigma_a_rule is not None:
-                raise ValueError(
+                raise LftomoError(
                     "sigma_a_rule must be None when sigma_a is given per wavelength (dict), "
                     f"got {self.sigma_a_rule!r}"
                 )
@@ -152,12 +154,12 @@ class Medium:
             sa = _field("sigma_a", self.sigma_a, grid)
             _check_min("sigma_a", sa, strict=False)
             if self.sigma_a_rule is not None and not isinstance(self.sigma_a_rule, SootRule):
-                raise ValueError(f"sigma_a_rule must be a SootRule or None, got {self.sigma_a_rule!r}")
+                raise LftomoError(f"sigma_a_rule must be a SootRule or None, got {self.sigma_a_rule!r}")
         ss = _field("sigma_s", self.sigma_s, grid)
         _check_min("sigma_s", ss, strict=False)
         gg = _field("g", self.g, grid)
         if float(np.abs(gg).max()) >= 1.0:
-            raise ValueError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
+            raise LftomoError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
         TT = _field("T", self.T, grid)
         _check_min("T", TT, strict=True)
         object.__setattr__(self, "sigma_a", sa)
@@ -186,7 +188,7 @@ class Medium:
         if self.is_per_wavelength:
             keys = list(self.sigma_a)
             if wavelength is None:
-                raise ValueError(
+                raise LftomoError(
                     f"wavelength must be one of the sigma_a wavelengths {keys} (m); "
                     "gray mode (None) needs a single sigma_a field"
                 )
@@ -194,7 +196,7 @@ class Medium:
             for k in keys:
                 if abs(k - lam) <= _WAVELENGTH_RTOL * k:
                     return self.sigma_a[k]
-            raise ValueError(f"wavelength must be one of the sigma_a wavelengths {keys} (m), got {lam!r}")
+            raise LftomoError(f"wavelength must be one of the sigma_a wavelengths {keys} (m), got {lam!r}")
         if wavelength is None or self.sigma_a_rule is None:
             if wavelength is not None:
                 require_positive("wavelength", wavelength)
@@ -209,7 +211,7 @@ class Medium:
             return [None]
         lam = np.atleast_1d(np.asarray(wavelengths, dtype=np.float64))
         if lam.ndim != 1 or lam.size == 0:
-            raise ValueError(f"wavelengths must be None, a scalar or a non-empty 1-D sequence, got shape {lam.shape}")
+            raise LftomoError(f"wavelengths must be None, a scalar or a non-empty 1-D sequence, got shape {lam.shape}")
         return [require_positive(f"wavelengths[{i}]", w) for i, w in enumerate(lam)]
 
     # ------------------------------------------------------------------ emission, packing
@@ -306,14 +308,20 @@ class Medium:
         are not supported (ValueError).
         """
         if self.is_per_wavelength:
-            raise ValueError("save_npz supports a single sigma_a field, got a per-wavelength dict")
+            raise LftomoError("save_npz supports a single sigma_a field, got a per-wavelength dict")
         extra = {}
         if self.sigma_a_rule is not None:
             extra = {
                 "soot_reference_wavelength": np.float64(self.sigma_a_rule.reference_wavelength),
                 "soot_alpha": np.float64(self.sigma_a_rule.alpha),
             }
-        np.savez(path, sigma_a=self.sigma_a, sigma_s=self.sigma_s, g=self.g, T=self.T, **extra)
+        from ..io import atomic_path
+
+        path = Path(path)
+        if path.suffix != ".npz":  # as numpy.savez does
+            path = path.with_name(path.name + ".npz")
+        with atomic_path(path) as tmp:
+            np.savez(tmp, sigma_a=self.sigma_a, sigma_s=self.sigma_s, g=self.g, T=self.T, **extra)
 
     @classmethod
     def from_npz(cls, path: str | os.PathLike, grid: Grid) -> Medium:
@@ -324,9 +332,9 @@ class Medium:
         arrays of ``grid.shape``); ``soot_reference_wavelength`` (m) and
         ``soot_alpha`` (optional, together: a :class:`SootRule`).
         """
-        path = require_npz_file(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)")
-        with np.load(path, allow_pickle=False) as z:
-            keys = set(z.files)
+        from ..io import read_npz
+
+        keys = set(read_npz(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)"))
         kw: dict[str, Any] = {}
         for name in ("sigma_a", "T"):
             kw[name] = load_field(path, name=name, shape=grid.shape)
@@ -334,11 +342,11 @@ class Medium:
             if name in keys:
                 arr = load_field(path, name=name)
                 if arr.ndim != 0 and arr.shape != grid.shape:
-                    raise ValueError(f"shape of {name} {arr.shape} in {os.fspath(path)!r} does not match grid.shape {grid.shape}")
+                    raise LftomoError(f"shape of {name} {arr.shape} in {os.fspath(path)!r} does not match grid.shape {grid.shape}")
                 kw[name] = arr
         soot = {"soot_reference_wavelength", "soot_alpha"} & keys
         if len(soot) == 1:
-            raise ValueError(f"{os.fspath(path)!r} must hold both soot_reference_wavelength and soot_alpha, got only {soot}")
+            raise LftomoError(f"{os.fspath(path)!r} must hold both soot_reference_wavelength and soot_alpha, got only {soot}")
         if soot:
             kw["sigma_a_rule"] = SootRule(
                 float(load_field(path, name="soot_reference_wavelength", shape=())),
@@ -371,33 +379,26 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
         For object (pickled) arrays, non-real dtypes, a missing key, a wrong
         shape, or non-finite values.
     """
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise ValueError(f"{name} file {p!r} does not exist")
+    p = os.fspath(require_regular_file(path, what=f"{name} file"))
     with open(p, "rb") as f:
         magic = f.read(6)
     if magic != b"\x93NUMPY" and not zipfile.is_zipfile(p):  # else numpy reports a text file as pickled data
-        raise ValueError(f"{name} file {p!r} is neither an .npy array nor an .npz archive")
-    try:
-        data = np.load(p, allow_pickle=False)
-    except ValueError as e:  # object arrays refuse to load without pickle
-        raise ValueError(f"{name} in {p!r} cannot be loaded without pickling (object array?): {e}") from None
-    if isinstance(data, np.lib.npyio.NpzFile):
-        with data:
-            if name not in data.files:
-                raise ValueError(f"{p!r} has no array {name!r}; it holds {sorted(data.files)}")
-            try:
-                arr = data[name]
-            except ValueError as e:
-                raise ValueError(f"{name} in {p!r} cannot be loaded without pickling (object array?): {e}") from None
+        raise LftomoError(f"{name} file {p!r} is neither an .npy array nor an .npz archive")
+    from ..io import read_npy, read_npz
+
+    if zipfile.is_zipfile(p):  # every member's header checked first; objects, truncation -> LftomoError
+        data = read_npz(p, what=f"{name} file", needs="expected an .npz archive (numpy.savez)")
+        if name not in data:
+            raise LftomoError(f"{p!r} has no array {name!r}; it holds {sorted(data)}")
+        arr = data[name]
     else:
-        arr = data
+        arr = read_npy(p, what=f"{name} file")
     if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-        raise ValueError(f"{name} in {p!r} must have a real numeric dtype, got {arr.dtype}")
+        raise LftomoError(f"{name} in {p!r} must have a real numeric dtype, got {arr.dtype}")
     if shape is not None and arr.shape != tuple(shape):
-        raise ValueError(f"shape of {name} {arr.shape} in {p!r} does not match the expected shape {tuple(shape)}")
+        raise LftomoError(f"shape of {name} {arr.shape} in {p!r} does not match the expected shape {tuple(shape)}")
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
-        raise ValueError(f"{name} in {p!r} must be finite, got {bad} non-finite value(s) (NaN or inf)")
+        raise LftomoError(f"{name} in {p!r} must be finite, got {bad} non-finite value(s) (NaN or inf)")
     return arr

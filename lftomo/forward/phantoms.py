@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import LftomoError
 from .._validate import require_finite_scalar, require_nonnegative, require_positive, require_vector
 from .grid import Grid
 from .medium import Medium, SootRule
@@ -25,6 +26,17 @@ __all__ = [
     "reference_scattering",
     "reference_emitting",
 ]
+
+
+def _require_grid(grid: Any) -> None:
+    if not isinstance(grid, Grid):
+        raise LftomoError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
+
+
+def _mesh(grid: Grid):
+    """Voxel-centre coordinates of ``grid``, after checking its type."""
+    _require_grid(grid)
+    return grid.centers_mesh()
 
 
 def default_flame_grid(shape: tuple[int, int, int] = (32, 32, 32), focus_distance: float = 1.0) -> Grid:
@@ -44,7 +56,7 @@ def default_flame_grid(shape: tuple[int, int, int] = (32, 32, 32), focus_distanc
     """
     f = require_positive("focus_distance", focus_distance)
     if f <= 0.025:
-        raise ValueError(f"focus_distance must be > 0.025 m so the box lies in object space z > 0, got {f!r}")
+        raise LftomoError(f"focus_distance must be > 0.025 m so the box lies in object space z > 0, got {f!r}")
     return Grid(tuple(shape), (-0.025, -0.030, f - 0.025), (0.025, 0.030, f + 0.025))
 
 
@@ -55,6 +67,7 @@ def uniform_box(grid: Grid, *, T: float, sigma_a: float, sigma_s: float = 0.0, g
     along an axis through a thickness ``L`` without scattering it gives
     ``I = I_b(T) (1 - exp(-sigma_a L))``.
     """
+    _require_grid(grid)
     return Medium(grid, sigma_a=sigma_a, sigma_s=sigma_s, g=g, T=T)
 
 
@@ -100,13 +113,14 @@ def gaussian_blob(
     sigma_a_rule : SootRule, optional
         Spectral law attached to ``sigma_a``.
     """
+    _require_grid(grid)
     c = grid.center if center is None else np.asarray(require_vector("center", center, 3))
     w = _width3(width)
     T_peak = require_positive("T_peak", T_peak)
     T_ambient = require_positive("T_ambient", T_ambient)
     sa_pk = require_nonnegative("sigma_a_peak", sigma_a_peak)
     sa_amb = require_nonnegative("sigma_a_ambient", sigma_a_ambient)
-    X, Y, Z = grid.centers_mesh()
+    X, Y, Z = _mesh(grid)
     G = np.exp(-0.5 * (((X - c[0]) / w[0]) ** 2 + ((Y - c[1]) / w[1]) ** 2 + ((Z - c[2]) / w[2]) ** 2))
     return Medium(
         grid,
@@ -211,6 +225,7 @@ def axisymmetric_flame(
     ``width_base`` = 3 mm, widening to ≈ 6.6 mm at the top) the side faces of the
     box are within 1 K of ``T_ambient``; the plume leaves through the top face.
     """
+    _require_grid(grid)
     size = grid.size
     if axis is None:
         xc, zc = float(grid.center[0]), float(grid.center[2])
@@ -219,7 +234,7 @@ def axisymmetric_flame(
     y0 = grid.lower[1] if y_base is None else require_finite_scalar("y_base", y_base)
     hp = 0.35 * size[1] if height_peak is None else require_positive("height_peak", height_peak)
     wb = 0.06 * size[0] if width_base is None else require_positive("width_base", width_base)
-    X, Y, Z = grid.centers_mesh()
+    X, Y, Z = _mesh(grid)
     theta = _flame_shape(
         X, Y, Z,
         xc=xc, zc=zc, y_base=y0, height_peak=hp, width_base=wb,
@@ -249,7 +264,7 @@ def _flame_medium(
     T_peak = require_positive("T_peak", T_peak)
     T_ambient = require_positive("T_ambient", T_ambient)
     if T_peak <= T_ambient:
-        raise ValueError(f"T_peak must exceed T_ambient={T_ambient!r}, got {T_peak!r}")
+        raise LftomoError(f"T_peak must exceed T_ambient={T_ambient!r}, got {T_peak!r}")
     sa = require_nonnegative("sigma_a_peak", sigma_a_peak)
     p = require_nonnegative("soot_exponent", soot_exponent)
     theta = np.clip(theta, 0.0, 1.0)
@@ -303,14 +318,15 @@ def two_lobed_flame(
     default box, resolved by a 16³–24³ grid; the side faces then no longer
     stay at ``T_ambient``).
     """
+    _require_grid(grid)
     a = require_nonnegative("secondary_amplitude", secondary_amplitude)
     if a > 1.0:
-        raise ValueError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+        raise LftomoError(f"secondary_amplitude must be in [0, 1], got {a!r}")
     ws = require_positive("width_scale", width_scale)
     L = grid.size
     c = grid.center
     y0 = grid.lower[1]
-    X, Y, Z = grid.centers_mesh()
+    X, Y, Z = _mesh(grid)
     t1 = _flame_shape(
         X, Y, Z, xc=c[0] - 0.10 * L[0], zc=c[2] - 0.06 * L[2], y_base=y0,
         height_peak=0.40 * L[1], width_base=0.06 * L[0] * ws, width_growth=0.04, axial_order=2.0,
@@ -341,6 +357,7 @@ def reference_absorbing(grid: Grid, *, sigma_a: float = 20.0, T: float = 300.0) 
     ``I = L0 exp(-sigma_a L)``.  (In gray mode 300 K still emits σT⁴/π ≈ 146
     W·m⁻²·sr⁻¹; pass a smaller ``T`` if a non-emitting gray absorber is wanted.)
     """
+    _require_grid(grid)
     return uniform_box(grid, T=T, sigma_a=sigma_a, sigma_s=0.0, g=0.0)
 
 
@@ -354,6 +371,7 @@ def reference_scattering(
     §7.  ``T = 300 K`` (non-emitting at visible wavelengths, see
     :func:`reference_absorbing`).
     """
+    _require_grid(grid)
     return uniform_box(grid, T=T, sigma_a=sigma_a, sigma_s=sigma_s, g=g)
 
 
@@ -362,4 +380,5 @@ def reference_emitting(grid: Grid, *, sigma_a: float = 20.0, T: float = 1800.0) 
 
     Seen along an axis through thickness ``L``: ``I = I_b(1800 K)(1 − exp(−sigma_a L))``.
     """
+    _require_grid(grid)
     return uniform_box(grid, T=T, sigma_a=sigma_a, sigma_s=0.0, g=0.0)

@@ -18,7 +18,11 @@ import time
 from typing import Any
 
 import numpy as np
-from .._validate import require_int
+import numba
+
+from ..errors import LftomoError
+from .._validate import require_instance, require_rays, require_seed
+from .chunks import ChunkSizer
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
 
 
@@ -27,12 +31,12 @@ def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
     if wavelengths is None or (isinstance(wavelengths, str) and wavelengths.lower() == "gray"):
         return None
     if isinstance(wavelengths, str):
-        raise ValueError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
+        raise LftomoError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
     arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
     if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ValueError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
+        raise LftomoError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
     if np.any(arr > 1e-3):
-        raise ValueError(
+        raise LftomoError(
             f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
         )
     return tuple(float(a) for a in arr)
@@ -47,6 +51,7 @@ def render(
     wavelengths: Any = (650e-9,),
     sampler: str = DEFAULT_SAMPLER,
     progress: bool | None = None,
+    max_seconds: float | None = None,
 ):
     """Render the raw plenoptic image of ``scene`` by backward Monte Carlo.
 
@@ -68,6 +73,10 @@ def render(
         or independent uniform samples (the default).
     progress : bool, optional
         Show a progress bar (default: when the render is large).
+    max_seconds : float, optional
+        Refuse (:class:`lftomo.LftomoError`) a render whose estimated time
+        exceeds this.  The estimate, from a pilot of a few rows at up to 64
+        rays per pixel, is kept in ``metadata["estimated_seconds"]``.
 
     Returns
     -------
@@ -77,23 +86,30 @@ def render(
         standard error and the pixel étendue.
     """
     from ..lightfield import LightField
+    from .camera import Camera
     from .scene import Scene, pack_surfaces
 
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene must be an lftomo.Scene, got {type(scene).__name__}")
-    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    seed = require_int("seed", seed, minimum=0)
+    require_instance("scene", scene, Scene, "an lftomo.Scene")
+    require_instance("camera", camera, Camera, "an lftomo.Camera")
+    n_rays = require_rays("rays_per_pixel", rays_per_pixel, n_pixels=camera.sensor_shape[0] * camera.sensor_shape[1])
+    seed = require_seed("seed", seed)
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise LftomoError(f"progress must be True, False or None, got {progress!r}")
     wl = _resolve_wavelengths(wavelengths)
     scene.check_visible_from(camera)
     n_ch = 1 if wl is None else len(wl)
     surf, tex = pack_surfaces(scene.surfaces, wl)
     optics = camera.packed
     if sampler not in SAMPLERS:
-        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
+        raise LftomoError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
     packed_sampler, mli = camera.sampler_arrays(sampler, n_rays)
     nrows, ncols = camera.sensor_shape
     mean = np.zeros((n_ch, nrows, ncols))
     var = np.zeros((n_ch, nrows, ncols))
+    if max_seconds is not None:
+        from .._validate import require_positive
+
+        max_seconds = require_positive("max_seconds", max_seconds)
     t0 = time.perf_counter()
     from .media_render import empty_row_kernel, medium_row_kernel
 
@@ -101,15 +117,18 @@ def render(
         row_kernel = medium_row_kernel(scene.medium, wl, camera)
     else:
         row_kernel = empty_row_kernel(n_ch)
-    ppl = camera.pixels_per_lenslet
-    step = max(ppl, (nrows // 20) // ppl * ppl) if nrows >= 20 * ppl else nrows
-    chunks = [(r, min(r + step, nrows)) for r in range(0, nrows, step)]
     show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
-    bar = _progress(len(chunks) * step * ncols, show, "render")
-    for r0, r1 in chunks:
-        row_kernel(r0, r1, optics, packed_sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)
-        bar.update((r1 - r0) * ncols)
-    bar.close()
+    estimate = _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, mean.shape)
+    _check_estimate(estimate, max_seconds, bool(show))
+    # chunks of rows sized to ~0.25 s each, so that Ctrl-C is seen between two kernel calls
+    sizer = ChunkSizer(nrows, start=numba.get_num_threads())
+    bar = _progress(nrows * ncols, show, "render")
+    try:
+        for r0, r1 in sizer.ranges(nrows):
+            row_kernel(r0, r1, optics, packed_sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)
+            bar.update((r1 - r0) * ncols)
+    finally:
+        bar.close()
     elapsed = time.perf_counter() - t0
     std_error = np.sqrt(var)
     raw = mean[0] if n_ch == 1 else mean
@@ -123,8 +142,38 @@ def render(
         "wavelengths": None if wl is None else list(wl),
         "scene": scene.summary(),
         "elapsed_s": elapsed,
+        "estimated_seconds": estimate,
     }
     return LightField(raw=raw, camera=camera, wavelengths=wl, std_error=se, metadata=meta)
+
+
+def _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, shape) -> float:
+    """Seconds the render will take, from a few middle rows at up to 64 rays per pixel.
+
+    The cost grows linearly with the rays, so a pilot with few rays estimates a
+    render with any number of them without tracing them.
+    """
+    nrows, ncols = shape[1:]
+    k = max(1, min(nrows, 4 * numba.get_num_threads()))
+    r0 = (nrows - k) // 2
+    n_pilot = min(n_rays, 64)
+    scratch_m, scratch_s = np.zeros(shape), np.zeros(shape)
+    t = time.perf_counter()
+    row_kernel(r0, r0 + k, camera.packed, *camera.sampler_arrays(sampler, n_pilot), surf, tex, n_ch, n_pilot, seed,
+               scratch_m, scratch_s)
+    per_ray = (time.perf_counter() - t) / (k * ncols * n_pilot)
+    return per_ray * nrows * ncols * n_rays
+
+
+def _check_estimate(seconds: float, max_seconds: float | None, show: bool) -> None:
+    text = f"{seconds:.3g} s" if seconds < 3600 else f"{seconds / 3600:.3g} h"
+    if max_seconds is not None and seconds > max_seconds:
+        raise LftomoError(f"the render would take an estimated {text}, more than max_seconds = {max_seconds:g} s; "
+                          "use fewer rays_per_pixel or a smaller camera, or raise max_seconds")
+    if show and seconds > 30:
+        import sys
+
+        print(f"render: estimated {text} (Ctrl-C stops it)", file=sys.stderr, flush=True)
 
 
 class _NoBar:

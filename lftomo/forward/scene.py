@@ -14,6 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..errors import LftomoError
 from .._validate import require_array, require_positive, require_vector, require_int
 from .surfaces import SURF_NCOL
 
@@ -40,7 +41,7 @@ def _orthonormal_frame(normal: Sequence[float], up: Sequence[float]) -> tuple[np
     v = np.asarray(up, float)
     v = v - np.dot(v, n) * n
     if np.linalg.norm(v) < 1e-9:
-        raise ValueError(f"up direction {tuple(up)} must not be parallel to the normal {tuple(normal)}")
+        raise LftomoError(f"up direction {tuple(up)} must not be parallel to the normal {tuple(normal)}")
     v = v / np.linalg.norm(v)
     # e_u is chosen so that (e_u, e_v) looks like (+x, +y) for a camera-facing emitter
     u = np.cross(n, v)
@@ -93,16 +94,16 @@ class PlanarEmitter:
         object.__setattr__(self, "normal", require_vector("normal", self.normal, 3))
         object.__setattr__(self, "up", require_vector("up", self.up, 3))
         if np.linalg.norm(self.normal) == 0:
-            raise ValueError("normal must be a non-zero vector, got (0, 0, 0)")
+            raise LftomoError("normal must be a non-zero vector, got (0, 0, 0)")
         _orthonormal_frame(self.normal, self.up)
         if (self.radiance is None) == (self.temperature is None):
-            raise ValueError("give exactly one of radiance (W m^-2 sr^-1 [m^-1]) or temperature (K)")
+            raise LftomoError("give exactly one of radiance (W m^-2 sr^-1 [m^-1]) or temperature (K)")
         if self.radiance is not None:
             arr = require_array("radiance", self.radiance, minimum=0.0)
             if arr.ndim == 0:
                 arr = arr.reshape(1, 1)
             if arr.ndim not in (2, 3) or 0 in arr.shape:
-                raise ValueError(
+                raise LftomoError(
                     f"radiance must be a scalar, a 2-D texture (rows, cols) or a 3-D array "
                     f"(n_wavelengths, rows, cols), got shape {arr.shape}"
                 )
@@ -112,7 +113,7 @@ class PlanarEmitter:
             require_positive("temperature", self.temperature)
             e = require_positive("emissivity", self.emissivity)
             if e > 1.0:
-                raise ValueError(f"emissivity must be in (0, 1], got {e!r}")
+                raise LftomoError(f"emissivity must be in (0, 1], got {e!r}")
 
     @property
     def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -131,7 +132,7 @@ class PlanarEmitter:
         if arr.ndim == 2:
             return np.broadcast_to(arr, (n_ch,) + arr.shape).copy()
         if arr.shape[0] != n_ch:
-            raise ValueError(
+            raise LftomoError(
                 f"radiance has {arr.shape[0]} channel(s) but the render uses {n_ch} wavelength(s)"
             )
         return np.array(arr)
@@ -180,10 +181,16 @@ class Scene:
     medium: Any = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.surfaces, (PlanarEmitter, str, bytes)) or not hasattr(self.surfaces, "__iter__"):
+            raise LftomoError(f"surfaces must be a sequence of PlanarEmitter, got {type(self.surfaces).__name__}")
+        from .medium import Medium
+
+        if self.medium is not None and not isinstance(self.medium, Medium):
+            raise LftomoError(f"medium must be an lftomo.Medium or None, got {type(self.medium).__name__}")
         surfs = tuple(self.surfaces)
         for k, s in enumerate(surfs):
             if not isinstance(s, PlanarEmitter):
-                raise ValueError(f"surfaces[{k}] must be a PlanarEmitter, got {type(s).__name__}")
+                raise LftomoError(f"surfaces[{k}] must be a PlanarEmitter, got {type(s).__name__}")
         object.__setattr__(self, "surfaces", surfs)
 
     def summary(self) -> dict[str, Any]:
@@ -199,7 +206,7 @@ class Scene:
             corners = [np.asarray(s.center) + a * 0.5 * s.size[0] * u + b * 0.5 * s.size[1] * v for a in (-1, 1) for b in (-1, 1)]
             zmin = min(c[2] for c in corners)
             if zmin <= 0.0:
-                raise ValueError(
+                raise LftomoError(
                     f"surfaces[{k}] reaches z = {zmin:.4g} m; the object space of the camera is z > 0 "
                     "(the aperture stop is at z = 0): move it in front of the camera"
                 )

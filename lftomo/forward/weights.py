@@ -99,7 +99,9 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit, prange
 
-from .._validate import require_int, require_npz_file
+from ..errors import LftomoError
+from .._validate import require_int, require_rays, require_seed
+from .chunks import ChunkSizer
 from . import optics as _o
 from . import sampler as _smp
 from .sampler import DEFAULT_SAMPLER
@@ -531,7 +533,7 @@ def _memory_limit(value) -> int:
     if value is None:
         return _default_memory_limit()
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not value > 0:
-        raise ValueError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
+        raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
                          f"got {value!r}")
     return int(value)
 
@@ -542,7 +544,7 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), "
+        raise LftomoError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), "
                          f"got {type(value).__name__}") from None
     if arr.ndim == 0:
         arr = np.full(n, float(arr))
@@ -551,11 +553,11 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
         # e.g. Medium fields, would compile a second specialisation)
         arr = np.array(arr.reshape(n), dtype=np.float64, order="C", copy=True)
     else:
-        raise ValueError(f"shape of {name} {arr.shape} does not match the grid {tuple(grid.shape)} or ({n},)")
+        raise LftomoError(f"shape of {name} {arr.shape} does not match the grid {tuple(grid.shape)} or ({n},)")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {int(np.count_nonzero(~np.isfinite(arr)))} non-finite value(s)")
+        raise LftomoError(f"{name} must be finite, got {int(np.count_nonzero(~np.isfinite(arr)))} non-finite value(s)")
     if minimum is not None and arr.size and arr.min() < minimum:
-        raise ValueError(f"{name} must be >= {minimum} everywhere (m^-1), got minimum {arr.min()!r}")
+        raise LftomoError(f"{name} must be >= {minimum} everywhere (m^-1), got minimum {arr.min()!r}")
     return arr
 
 
@@ -563,12 +565,12 @@ def _wavelength(value: Any) -> float | None:
     if value is None or (isinstance(value, str) and value.lower() == "gray"):
         return None
     if isinstance(value, (str, bool)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"wavelength must be a wavelength in m (e.g. 650e-9) or 'gray', got {value!r}")
+        raise LftomoError(f"wavelength must be a wavelength in m (e.g. 650e-9) or 'gray', got {value!r}")
     v = float(value)
     if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"wavelength must be a positive wavelength in m, got {value!r}")
+        raise LftomoError(f"wavelength must be a positive wavelength in m, got {value!r}")
     if v > 1e-3:
-        raise ValueError(f"wavelength must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
+        raise LftomoError(f"wavelength must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
     return v
 
 
@@ -584,11 +586,11 @@ def _pack_surfaces(surfaces: Any, wavelength: float | None):
     try:
         surfs = list(surfaces)
     except TypeError:
-        raise ValueError(f"surfaces must be None, a Scene or a sequence of PlanarEmitter, "
+        raise LftomoError(f"surfaces must be None, a Scene or a sequence of PlanarEmitter, "
                          f"got {type(surfaces).__name__}") from None
     for k, s in enumerate(surfs):
         if not isinstance(s, PlanarEmitter):
-            raise ValueError(f"surfaces[{k}] must be a PlanarEmitter, got {type(s).__name__}")
+            raise LftomoError(f"surfaces[{k}] must be a PlanarEmitter, got {type(s).__name__}")
     surf, tex = pack_surfaces(surfs, None if wavelength is None else (wavelength,))
     return surf, tex, [s.summary() for s in surfs]
 
@@ -599,9 +601,9 @@ def _check_grid(camera, grid) -> None:
     from .media_render import check_medium_visible
 
     if not isinstance(camera, Camera):
-        raise ValueError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
+        raise LftomoError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
     if not isinstance(grid, Grid):
-        raise ValueError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
+        raise LftomoError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
     check_medium_visible(types.SimpleNamespace(grid=grid), camera)
 
 
@@ -615,9 +617,9 @@ def _decode(camera, lightfield):
             cache["lf"] = LightField(raw=np.zeros(camera.sensor_shape), camera=camera)
         lightfield = cache["lf"]
     elif not isinstance(lightfield, LightField):
-        raise ValueError(f"lightfield must be an lftomo.LightField or None, got {type(lightfield).__name__}")
+        raise LftomoError(f"lightfield must be an lftomo.LightField or None, got {type(lightfield).__name__}")
     elif lightfield.camera.to_dict() != camera.to_dict():
-        raise ValueError("lightfield was decoded for another camera than the one given; "
+        raise LftomoError("lightfield was decoded for another camera than the one given; "
                          f"differences: {_dict_diff(camera.to_dict(), lightfield.camera.to_dict())}")
     return lightfield.view_index, lightfield.view_mask
 
@@ -632,7 +634,7 @@ def _select_rows(camera, views, lightfield):
         desc: Any = "all lit view pixels"
     elif isinstance(views, np.ndarray) and views.dtype == bool:
         if views.shape != shape:
-            raise ValueError(f"shape of the views mask {views.shape} does not match the views shape {shape} "
+            raise LftomoError(f"shape of the views mask {views.shape} does not match the views shape {shape} "
                              "(n_v, n_u, n_y, n_x)")
         sel = views & (vidx >= 0)
         desc = f"pixel mask with {int(sel.sum())} pixels"
@@ -640,12 +642,12 @@ def _select_rows(camera, views, lightfield):
         try:
             pairs = [tuple(int(a) for a in vu) for vu in views]
         except (TypeError, ValueError):
-            raise ValueError(f"views must be None, a boolean mask of shape {shape} or a list of (v, u) "
+            raise LftomoError(f"views must be None, a boolean mask of shape {shape} or a list of (v, u) "
                              f"pairs, got {views!r}") from None
         sel = np.zeros(shape, bool)
         for k, vu in enumerate(pairs):
             if len(vu) != 2 or not (0 <= vu[0] < nv and 0 <= vu[1] < nu):
-                raise ValueError(f"views[{k}] = {vu!r} is not a view (v, u) with 0 <= v < {nv}, 0 <= u < {nu}")
+                raise LftomoError(f"views[{k}] = {vu!r} is not a view (v, u) with 0 <= v < {nv}, 0 <= u < {nu}")
             sel[vu] = vmask[vu]
         desc = [list(vu) for vu in sorted(set(pairs))]
     flat = np.flatnonzero(sel.ravel())
@@ -796,8 +798,12 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     n_rows = pixel_index.size
     pos = _pos_scratch(n_vox)
     pilot = _pilot_rows(n_rows)
+    sizer = ChunkSizer(max(16, _CHUNK_BYTES // (min(cap_max, 4096) * 12)), start=numba.get_num_threads())
+    t_pilot = time.perf_counter()
     if pilot.size:
-        _, _, _, cnt_p, _, _ = _run_rows(kernel_call, pixel_index[pilot], min(cap_max, 4096), cap_max, pos)
+        cnt_p = np.concatenate([  # in chunks: Ctrl-C is seen between them
+            _run_rows(kernel_call, pixel_index[pilot[a:b]], min(cap_max, 4096), cap_max, pos)[3]
+            for a, b in sizer.ranges(pilot.size)])
         mean = float(cnt_p.mean())
         se = float(cnt_p.std(ddof=1) / math.sqrt(cnt_p.size)) if cnt_p.size > 1 else 0.0
         cap = int(min(cap_max, max(64, 1.5 * cnt_p.max() + 16)))
@@ -811,10 +817,11 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12))))
     scratch = chunk_rows * cap * 12 + pos.nbytes
     est_bytes = int(nnz_est * (8 + ib) + (n_rows + 1) * ib + n_rows * 24 + scratch)
+    seconds = (time.perf_counter() - t_pilot) * n_rows / max(pilot.size, 1)
     estimate = {"nnz": nnz_est, "nnz_standard_error": se * n_rows, "bytes": est_bytes, "rows": int(n_rows),
-                "pilot_rows": int(pilot.size), "row_capacity": cap}
+                "pilot_rows": int(pilot.size), "row_capacity": cap, "seconds": seconds}
     if est_bytes > memory_limit:
-        raise ValueError(
+        raise LftomoError(
             f"the {what} needs an estimated {est_bytes / 1e9:.3g} GB ({nnz_est:.4g} non-zeros for {n_rows} "
             f"pixel rows x {n_vox} voxels, {n_rays} rays per pixel), more than memory_limit = "
             f"{memory_limit / 1e9:.3g} GB; select fewer views (views=...), use a coarser grid or fewer "
@@ -826,8 +833,8 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
     bar = _progress(n_rows, bool(show), desc)
     bufs = None
-    for r0 in range(0, n_rows, chunk_rows):
-        r1 = min(r0 + chunk_rows, n_rows)
+    sizer = ChunkSizer(chunk_rows, start=sizer.rows)  # time-sized chunks (Ctrl-C), at most chunk_rows
+    for r0, r1 in sizer.ranges(n_rows):
         buf_off, out_idx, out_val, out_cnt, out_bg, extra = _run_rows(
             kernel_call, pixel_index[r0:r1], cap, cap_max, pos, bufs)
         bufs = (out_idx, out_val)
@@ -939,7 +946,7 @@ class WeightMatrix:
         """Row range of sub-aperture ``(v, u)``."""
         nv, nu = self.views_shape[:2]
         if not (0 <= int(v) < nv and 0 <= int(u) < nu):
-            raise ValueError(f"(v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
+            raise LftomoError(f"(v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
         k = int(v) * nu + int(u)
         return slice(int(self.view_ptr[k]), int(self.view_ptr[k + 1]))
 
@@ -970,7 +977,7 @@ class WeightMatrix:
         if x.shape == grid_shape and x.ndim == 3:
             return x.reshape(n)
         if x.shape[:1] != (n,) or x.ndim > 2:
-            raise ValueError(f"shape of x {x.shape} does not match the {n} voxels of W "
+            raise LftomoError(f"shape of x {x.shape} does not match the {n} voxels of W "
                              f"(({n},), ({n}, k) or the grid shape {grid_shape})")
         return x
 
@@ -985,7 +992,7 @@ class WeightMatrix:
         """``W.T @ y`` for y of shape (n_rows,) or (n_rows, k)."""
         y = np.asarray(y)
         if y.shape[:1] != (self.n_rows,) or y.ndim > 2:
-            raise ValueError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
+            raise LftomoError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
         return self.matrix.T @ y
 
     def signal(self, Ib) -> np.ndarray:
@@ -1021,7 +1028,7 @@ class WeightMatrix:
         masked where a view pixel has no row (unlit or not selected)."""
         y = np.asarray(y, dtype=float)
         if y.shape != (self.n_rows,):
-            raise ValueError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
+            raise LftomoError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
         out = np.full(int(np.prod(self.views_shape)), float(fill))
         mask = np.ones(out.size, bool)
         out[self.view_pixel] = y
@@ -1032,7 +1039,7 @@ class WeightMatrix:
         """Scatter a row vector into a raw image (sensor_shape); pixels without a row get ``fill``."""
         y = np.asarray(y, dtype=float)
         if y.shape != (self.n_rows,):
-            raise ValueError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
+            raise LftomoError(f"shape of y {y.shape} does not match the {self.n_rows} rows of W")
         out = np.full(self.sensor_shape[0] * self.sensor_shape[1], float(fill))
         out[self.pixel_index] = y
         return out.reshape(self.sensor_shape)
@@ -1041,21 +1048,21 @@ class WeightMatrix:
         """Data vector (n_rows,) of a raw image (rows, cols): ``raw.ravel()[pixel_index]``."""
         raw = np.asarray(raw, dtype=float)
         if raw.shape != tuple(self.sensor_shape):
-            raise ValueError(f"shape of raw {raw.shape} does not match the sensor {tuple(self.sensor_shape)}")
+            raise LftomoError(f"shape of raw {raw.shape} does not match the sensor {tuple(self.sensor_shape)}")
         return raw.ravel()[self.pixel_index]
 
     def rows_from_views(self, views) -> np.ndarray:
         """Data vector (n_rows,) of a views array (n_v, n_u, n_y, n_x)."""
         v = np.ma.getdata(views)
         if v.shape != tuple(self.views_shape):
-            raise ValueError(f"shape of views {v.shape} does not match {tuple(self.views_shape)}")
+            raise LftomoError(f"shape of views {v.shape} does not match {tuple(self.views_shape)}")
         return np.asarray(v, float).ravel()[self.view_pixel]
 
     def select(self, views) -> WeightMatrix:
         """Rows of a subset: a list of ``(v, u)`` or a boolean mask of ``views_shape``."""
         if isinstance(views, np.ndarray) and views.dtype == bool:
             if views.shape != tuple(self.views_shape):
-                raise ValueError(f"shape of the views mask {views.shape} does not match {tuple(self.views_shape)}")
+                raise LftomoError(f"shape of the views mask {views.shape} does not match {tuple(self.views_shape)}")
             keep = views.ravel()[self.view_pixel]
         else:
             keep = np.zeros(self.n_rows, bool)
@@ -1081,22 +1088,33 @@ class WeightMatrix:
         """Write an ``.npz`` (no pickle): CSR arrays, row maps, background and JSON metadata.
 
         ``compressed=True`` uses ``np.savez_compressed`` (smaller, slower).
-        Returns the path written (``.npz`` appended if missing).
+        The write is atomic (:func:`lftomo.io.atomic_path`): an interrupted
+        save leaves the previous file at ``path``.  Returns the path written
+        (``.npz`` appended if missing).
         """
+        from ..io import atomic_path, check_output_file
+
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
+        check_output_file(path, what="weight-matrix file")
         meta = dict(self.metadata, format=FORMAT, shape=list(self.shape), views_shape=list(self.views_shape),
                     sensor_shape=list(self.sensor_shape))
         writer = np.savez_compressed if compressed else np.savez
-        writer(path, meta=np.array(json.dumps(meta)), data=self.data, indices=self.indices, indptr=self.indptr,
-               pixel_index=self.pixel_index, view_pixel=self.view_pixel, view_ptr=self.view_ptr,
-               background=self.background)
+        with atomic_path(path) as tmp:
+            writer(tmp, meta=np.array(json.dumps(meta)), data=self.data, indices=self.indices, indptr=self.indptr,
+                   pixel_index=self.pixel_index, view_pixel=self.view_pixel, view_ptr=self.view_ptr,
+                   background=self.background)
         return path
 
     @classmethod
     def load(cls, path: str | os.PathLike, camera, grid, *, wavelength: Any = "any") -> WeightMatrix:
         """Read a matrix written by :meth:`save` and check it was made for ``camera`` and ``grid``.
+
+        Every member is validated before use: dtypes, shapes, the CSR
+        structure (``indptr`` starts at 0, never decreases and ends at nnz;
+        column indices in range), finite non-negative weights and background,
+        row maps in range, and physical metadata.
 
         Parameters
         ----------
@@ -1110,49 +1128,134 @@ class WeightMatrix:
 
         Raises
         ------
-        ValueError
-            Unreadable file, wrong format, or a camera/grid/wavelength mismatch
-            (the message lists the differing parameters).
+        LftomoError
+            Unreadable or corrupt file (naming the member), wrong format, or a
+            camera/grid/wavelength mismatch (the message lists the differing
+            parameters).
         """
-        path = require_npz_file(path, what="weight-matrix file",
-                                needs="expected a weight matrix written by WeightMatrix.save or `lftomo weights`")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (ValueError, OSError) as exc:
-            raise ValueError(f"{str(path)!r} is not a readable lftomo weight-matrix .npz: {exc}") from None
-        need = {"meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background"}
-        if not need <= set(arrays) or arrays["meta"].dtype.kind != "U":
-            raise ValueError(f"{str(path)!r} is not an lftomo weight-matrix file "
-                             f"(missing {sorted(need - set(arrays))})")
-        meta = json.loads(str(arrays["meta"]))
-        if meta.get("format") != FORMAT:
-            raise ValueError(f"{str(path)!r} has format {meta.get('format')!r}, expected {FORMAT!r}")
-        diffs = _dict_diff(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
-        if diffs:
-            raise ValueError(f"{str(path)!r} was built for another camera (file vs camera in use): "
-                             + "; ".join(diffs))
-        diffs = _dict_diff(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
-        if diffs:
-            raise ValueError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
-        if not (isinstance(wavelength, str) and wavelength == "any"):
-            wl = _wavelength(wavelength)
-            if _dict_diff(meta.get("wavelength"), wl):
-                raise ValueError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, "
-                                 f"not {wl!r} m")
-        shape = tuple(meta["shape"])
-        W = cls(arrays["data"], arrays["indices"], arrays["indptr"], shape, arrays["pixel_index"],
-                arrays["view_pixel"], arrays["view_ptr"], tuple(meta["views_shape"]), tuple(meta["sensor_shape"]),
-                arrays["background"], {k: v for k, v in meta.items()
-                                       if k not in ("format", "shape", "views_shape", "sensor_shape")})
-        _ = W.matrix  # validates the CSR structure
-        if W.indptr.size != shape[0] + 1 or W.pixel_index.size != shape[0]:
-            raise ValueError(f"{str(path)!r} is corrupt: row arrays do not match shape {shape}")
-        return W
+        from ..io import read_npz
+
+        _check_grid_types(camera, grid)
+        arrays = read_npz(path, what=_WHAT, needs="expected a weight matrix written by WeightMatrix.save or "
+                          "`lftomo weights`")
+        meta, shape, views_shape, sensor_shape = _check_weights_meta(arrays, path)
+        _check_weights_for(meta, path, camera, grid, wavelength)
+        a = _check_weights_arrays(arrays, path, shape, views_shape, sensor_shape)
+        return cls(a["data"], a["indices"], a["indptr"], shape, a["pixel_index"], a["view_pixel"], a["view_ptr"],
+                   views_shape, sensor_shape, a["background"],
+                   {k: v for k, v in meta.items() if k not in ("format", "shape", "views_shape", "sensor_shape")})
 
     def __repr__(self) -> str:
         return (f"WeightMatrix(shape={self.shape}, nnz={self.nnz}, {self.nbytes / 1e6:.3g} MB, "
                 f"views={len(self.blocks)}, wavelength={self.metadata.get('wavelength')!r})")
+
+
+_WHAT = "weight-matrix file"
+_W_MEMBERS = ("meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background")
+
+
+def _check_grid_types(camera, grid) -> None:
+    from .camera import Camera
+    from .grid import Grid
+
+    if not isinstance(camera, Camera):
+        raise LftomoError(f"camera must be an lftomo.Camera, got {type(camera).__name__}")
+    if not isinstance(grid, Grid):
+        raise LftomoError(f"grid must be an lftomo.Grid, got {type(grid).__name__}")
+
+
+def _int_list(meta: dict, key: str, n: int, path, minimum: int = 1) -> tuple[int, ...]:
+    v = meta.get(key)
+    if not (isinstance(v, list) and len(v) == n and all(isinstance(x, int) and not isinstance(x, bool)
+                                                        and x >= minimum for x in v)):
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' key {key!r} must be a list of {n} integers "
+                          f">= {minimum}, got {v!r}")
+    return tuple(v)
+
+
+def _check_weights_meta(arrays: dict, path):
+    """The metadata of a weight-matrix file: format, shapes and physical values."""
+    from ..io import json_member
+
+    missing = [m for m in _W_MEMBERS if m not in arrays]
+    if missing:
+        raise LftomoError(f"{_WHAT} {str(path)!r} is not an lftomo weight-matrix file: member(s) {missing} are "
+                          f"missing; it holds {sorted(arrays)}")
+    unknown = sorted(set(arrays) - set(_W_MEMBERS))
+    if unknown:
+        raise LftomoError(f"{_WHAT} {str(path)!r}: unknown member(s) {unknown}; allowed: {list(_W_MEMBERS)}")
+    meta = json_member(arrays, path=path, what=_WHAT)
+    if meta.get("format") != FORMAT:
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' has format {meta.get('format')!r}, "
+                          f"expected {FORMAT!r}")
+    shape = _int_list(meta, "shape", 2, path, minimum=0)
+    views_shape = _int_list(meta, "views_shape", 4, path)
+    sensor_shape = _int_list(meta, "sensor_shape", 2, path)
+    wl = meta.get("wavelength")
+    if wl is not None and not (isinstance(wl, (int, float)) and not isinstance(wl, bool) and math.isfinite(wl)
+                               and 0 < wl <= 1e-3):
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' wavelength must be null (gray) or a wavelength "
+                          f"in m in (0, 1e-3], got {wl!r}")
+    for key, lo in (("rays_per_pixel", 1), ("seed", 0)):
+        v = meta.get(key)
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+            raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' {key} must be an integer >= {lo}, got {v!r}")
+    return meta, shape, views_shape, sensor_shape
+
+
+def _check_weights_for(meta: dict, path, camera, grid, wavelength) -> None:
+    """The file's camera, grid (and wavelength) must be those in use."""
+    diffs = _dict_diff(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
+    if diffs:
+        raise LftomoError(f"{str(path)!r} was built for another camera (file vs camera in use): " + "; ".join(diffs))
+    diffs = _dict_diff(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
+    if diffs:
+        raise LftomoError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
+    if not (isinstance(wavelength, str) and wavelength == "any"):
+        wl = _wavelength(wavelength)
+        if _dict_diff(meta.get("wavelength"), wl):
+            raise LftomoError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, not {wl!r} m")
+
+
+def _check_csr(indptr: np.ndarray, indices: np.ndarray, n_rows: int, n_cols: int, path) -> None:
+    where = f"{_WHAT} {str(path)!r}: member"
+    if indptr[0] != 0 or indptr[-1] != indices.size:
+        raise LftomoError(f"{where} 'indptr' must start at 0 and end at nnz = {indices.size}, got "
+                          f"{int(indptr[0])} ... {int(indptr[-1])}")
+    if indptr.size > 1 and np.any(np.diff(indptr) < 0):
+        k = int(np.flatnonzero(np.diff(indptr) < 0)[0])
+        raise LftomoError(f"{where} 'indptr' decreases at row {k} ({int(indptr[k])} -> {int(indptr[k + 1])}); "
+                          "a CSR row pointer never decreases")
+    if indices.size and (indices.min() < 0 or indices.max() >= n_cols):
+        raise LftomoError(f"{where} 'indices' holds column indices from {int(indices.min())} to "
+                          f"{int(indices.max())}; allowed 0 .. {n_cols - 1} (the voxels)")
+
+
+def _check_weights_arrays(arrays: dict, path, shape, views_shape, sensor_shape) -> dict:
+    """Dtypes, shapes, CSR structure and values of the arrays of a weight-matrix file."""
+    from ..io import check_member
+
+    n_rows, n_cols = shape
+    kw = dict(path=path, what=_WHAT)
+    data = check_member(arrays, "data", ndim=1, minimum=0.0, **kw)
+    indices = check_member(arrays, "indices", kinds="i", shape=data.shape, **kw)
+    indptr = check_member(arrays, "indptr", kinds="i", shape=(n_rows + 1,), **kw)
+    for name, a in (("indices", indices), ("indptr", indptr)):
+        if a.dtype not in (np.int32, np.int64):
+            raise LftomoError(f"{_WHAT} {str(path)!r}: member {name!r} has dtype {a.dtype}; expected int32 or int64")
+    _check_csr(indptr, indices, n_rows, n_cols, path)
+    nv, nu = views_shape[:2]
+    out = {"data": data, "indices": indices, "indptr": indptr.astype(indices.dtype, copy=False)}
+    out["pixel_index"] = check_member(arrays, "pixel_index", kinds="i", shape=(n_rows,), minimum=0,
+                                      maximum=sensor_shape[0] * sensor_shape[1] - 1, **kw)
+    out["view_pixel"] = check_member(arrays, "view_pixel", kinds="i", shape=(n_rows,), minimum=0,
+                                     maximum=int(np.prod(views_shape)) - 1, **kw)
+    vp = check_member(arrays, "view_ptr", kinds="i", shape=(nv * nu + 1,), minimum=0, maximum=n_rows, **kw)
+    if vp[0] != 0 or vp[-1] != n_rows or np.any(np.diff(vp) < 0):
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'view_ptr' must rise from 0 to {n_rows} (rows per view)")
+    out["view_ptr"] = vp
+    out["background"] = check_member(arrays, "background", shape=(n_rows,), minimum=0.0, **kw)
+    return out
 
 
 def _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc, extra=None):
@@ -1254,18 +1357,19 @@ def weights(
         above ``memory_limit``.
     """
     _check_grid(camera, grid)
-    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    seed = require_int("seed", seed, minimum=0)
+    n_rays = require_rays("rays_per_pixel", rays_per_pixel)
+    seed = require_seed("seed", seed)
     max_bounces = require_int("max_bounces", max_bounces, minimum=1)
     sa = _field_flat("sigma_a", sigma_a, grid)
     ss = _field_flat("sigma_s", sigma_s, grid)
     gg = _field_flat("g", g, grid, minimum=None)
     if np.any(np.abs(gg) >= 1.0):
-        raise ValueError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
+        raise LftomoError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
     wl = _wavelength(wavelength)
     limit = _memory_limit(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
+    require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
     optics = camera.packed
     if sampler not in _smp.SAMPLERS:
         raise ValueError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
@@ -1412,7 +1516,7 @@ class RaySegments:
         limit = _memory_limit(memory_limit)
         est = bound * (8 + 4 + (8 if mode == 1 else 0)) + n_rows * 32
         if est > limit:
-            raise ValueError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
+            raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
                              f"memory_limit = {limit / 1e9:.3g} GB")
         pos = _pos_scratch(self.n_voxels)
         inv_n = 1.0 / self.rays_per_pixel
@@ -1582,12 +1686,13 @@ def ray_segments(
     RaySegments
     """
     _check_grid(camera, grid)
-    n_rays = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    seed = require_int("seed", seed, minimum=0)
+    n_rays = require_rays("rays_per_pixel", rays_per_pixel)
+    seed = require_seed("seed", seed)
     wl = _wavelength(wavelength)
     limit = _memory_limit(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
+    require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
     optics = camera.packed
     if sampler not in _smp.SAMPLERS:
         raise ValueError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
@@ -1627,7 +1732,7 @@ def ray_segments(
     chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12 + n_rays * 24))))
     est_bytes = seg_est * 12 + ray_est * 32 + n_rows * 32 + chunk_rows * (cap * 12 + n_rays * 24)
     if est_bytes > limit:
-        raise ValueError(
+        raise LftomoError(
             f"the ray-segment table needs an estimated {est_bytes / 1e9:.3g} GB ({seg_est:.4g} segments of "
             f"{ray_est:.4g} rays), more than memory_limit = {limit / 1e9:.3g} GB; select fewer views, use a "
             "coarser grid or fewer rays_per_pixel, or raise memory_limit"
@@ -1641,8 +1746,7 @@ def ray_segments(
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
     bar = _progress(n_rows, bool(show), "ray segments")
     bufs = None
-    for r0 in range(0, n_rows, chunk_rows):
-        r1 = min(r0 + chunk_rows, n_rows)
+    for r0, r1 in ChunkSizer(chunk_rows, start=numba.get_num_threads()).ranges(n_rows):  # ~0.25 s: Ctrl-C
         o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl = run(pixel_index[r0:r1], cap, bufs)
         bufs = (o_sv, o_sl)
         extra = {}
@@ -1772,23 +1876,23 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
     from .camera import Camera
 
     if not isinstance(W, WeightMatrix):
-        raise ValueError(f"W must be a WeightMatrix, got {type(W).__name__}")
+        raise LftomoError(f"W must be a WeightMatrix, got {type(W).__name__}")
     if isinstance(lightfield_or_camera, Camera):
         lf = LightField(raw=np.zeros(lightfield_or_camera.sensor_shape), camera=lightfield_or_camera)
     elif isinstance(lightfield_or_camera, LightField):
         lf = lightfield_or_camera
     else:
-        raise ValueError(f"lightfield_or_camera must be a LightField or a Camera, "
+        raise LftomoError(f"lightfield_or_camera must be a LightField or a Camera, "
                          f"got {type(lightfield_or_camera).__name__}")
     diffs = _dict_diff(W.metadata.get("camera"), json.loads(json.dumps(lf.camera.to_dict())))
     if diffs:
-        raise ValueError("W was built for another camera than the light field's: " + "; ".join(diffs))
+        raise LftomoError("W was built for another camera than the light field's: " + "; ".join(diffs))
     try:
         depth_list = [float(d) for d in np.atleast_1d(np.asarray(depths, dtype=float))]
     except (TypeError, ValueError):
-        raise ValueError(f"depths must be a sequence of depths in m, got {depths!r}") from None
+        raise LftomoError(f"depths must be a sequence of depths in m, got {depths!r}") from None
     if not depth_list or not all(math.isfinite(d) and d > 0 for d in depth_list):
-        raise ValueError(f"depths must be a non-empty sequence of positive depths in m, got {depths!r}")
+        raise LftomoError(f"depths must be a non-empty sequence of positive depths in m, got {depths!r}")
     pix, first = W.raw_rows()
     have = np.zeros(W.sensor_shape[0] * W.sensor_shape[1], bool)
     have[pix] = True
@@ -1798,7 +1902,7 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
         used = np.flatnonzero(np.diff(R.indptr) > 0)
         missing = used[~have[used]]
         if missing.size:
-            raise ValueError(
+            raise LftomoError(
                 f"the refocus at depth {d!r} m uses {missing.size} raw pixels that are not rows of W "
                 f"(e.g. raw index {int(missing[0])}); build W with views=None and the same decode"
             )

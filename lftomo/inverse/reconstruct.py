@@ -13,6 +13,7 @@ transmittance in JAX.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -163,6 +164,35 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
                          background=problem.background, metadata=meta, interpolation=E), grid
 
 
+def _check_types(measurement: Any, weights: Any) -> None:
+    """Type checks at the API boundary (before any attribute is read)."""
+    import scipy.sparse as sp
+
+    from ..errors import LftomoError
+    from ..forward.weights import RaySegments, RefocusWeights, WeightMatrix
+    from .measurement import Measurement
+
+    ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
+    for k, m in enumerate(ms):
+        if not isinstance(m, Measurement):
+            where = "measurement" if len(ms) == 1 and not isinstance(measurement, (list, tuple)) else f"measurement[{k}]"
+            raise LftomoError(f"{where} must be an lftomo.Measurement, got {type(m).__name__}")
+    ws = list(weights) if isinstance(weights, (list, tuple)) else [weights]
+    for w in ws:
+        if not isinstance(w, (WeightMatrix, RaySegments, RefocusWeights)) and not sp.issparse(w):
+            raise LftomoError(f"weights must be an lftomo.WeightMatrix, RaySegments or RefocusWeights, got "
+                              f"{type(w).__name__}")
+
+
+def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
+    """Warn (UserWarning) when fewer data than unknowns are fitted: the field is
+    then fixed by the prior more than by the data, whatever the solver reports."""
+    if n_data < n_unknowns:
+        warnings.warn(f"reconstructing {n_unknowns} unknowns from only {n_data} data: the data cannot determine "
+                      "the field, the result is mostly the smoothness prior; use more views or pixels, or a "
+                      "coarser grid", UserWarning, stacklevel=3)
+
+
 def reconstruct(
     measurement,
     weights,
@@ -231,6 +261,7 @@ def reconstruct(
     """
     if unknowns not in ("T", "T+sigma_a"):
         raise ValueError(f"unknowns must be 'T' or 'T+sigma_a', got {unknowns!r}")
+    _check_types(measurement, weights)
     lo, hi = bounds
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
@@ -258,6 +289,7 @@ def reconstruct(
     if ring is not None:
         problem = ring_problem(problem, ring)
         T0 = ring_start(T0, ring)
+    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
     sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
                             method=method, rule=rule, **options)

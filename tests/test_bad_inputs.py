@@ -1,0 +1,625 @@
+"""Bad inputs over the API, the scene files, the saved files and the command line.
+
+Every case asserts the error type (:class:`lftomo.LftomoError`, a ValueError)
+and that the message names the argument, key, file or member at fault.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lftomo as lt
+from lftomo import LftomoError
+from lftomo.cli import main
+from lftomo.config import load_scene_file, scene_from_dict
+from reliability_helpers import (SCENE_MEDIUM, SCENE_SURFACE, read_arrays, rewrite, tiny_camera, tiny_grid,
+                                 tiny_lightfield, tiny_weights)
+
+
+@pytest.fixture(scope="module")
+def cam():
+    return tiny_camera()
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return tiny_grid()
+
+
+@pytest.fixture(scope="module")
+def lf():
+    return tiny_lightfield()
+
+
+@pytest.fixture(scope="module")
+def W():
+    return tiny_weights()
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, lf, W):
+    d = tmp_path_factory.mktemp("files")
+    return {"lf": lf.save(d / "lf.npz"), "W": W.save(d / "W.npz"), "dir": d}
+
+
+def plane():
+    return lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+
+
+# ============================================================== API arguments
+RENDER_CASES = {
+    "scene-dict": (dict(scene={}), "scene must be an lftomo.Scene, got dict"),
+    "camera-dict": (dict(camera={}), "camera must be an lftomo.Camera, got dict"),
+    "rays-2**63": (dict(rays_per_pixel=2**63), "rays_per_pixel must be an integer <= "),
+    "rays-0": (dict(rays_per_pixel=0), "rays_per_pixel must be an integer >= 1"),
+    "rays-float": (dict(rays_per_pixel=1.5), "rays_per_pixel must be an integer"),
+    "rays-str": (dict(rays_per_pixel="8"), "rays_per_pixel must be an integer, got '8'"),
+    "rays-bool": (dict(rays_per_pixel=True), "rays_per_pixel must be an integer"),
+    "rays-nan": (dict(rays_per_pixel=float("nan")), "rays_per_pixel must be an integer"),
+    "seed-neg": (dict(seed=-1), "seed must be an integer >= 0"),
+    "seed-2**63": (dict(seed=2**63), "seed must be an integer <= "),
+    "seed-str": (dict(seed="0"), "seed must be an integer"),
+    "wl-word": (dict(wavelengths="red"), "wavelengths"),
+    "wl-nm": (dict(wavelengths=650), "wavelengths must be in metres"),
+    "wl-neg": (dict(wavelengths=-650e-9), "wavelengths must be positive"),
+    "progress-str": (dict(progress="yes"), "progress must be True, False or None"),
+}
+
+
+@pytest.mark.parametrize("case", list(RENDER_CASES))
+def test_render_arguments(cam, case):
+    kw, match = RENDER_CASES[case]
+    args = dict(scene=plane(), camera=cam, rays_per_pixel=1, seed=0, wavelengths="gray", progress=False)
+    args.update(kw)
+    with pytest.raises(LftomoError, match=match.replace("(", r"\(").replace("*", r"\*")):
+        lt.render(args.pop("scene"), args.pop("camera"), **args)
+
+
+WEIGHTS_CASES = {
+    "camera-dict": (dict(camera={}), "camera must be an lftomo.Camera, got dict"),
+    "grid-tuple": (dict(grid=(3, 3, 3)), "grid must be an lftomo.Grid, got tuple"),
+    "sigma_a-neg": (dict(sigma_a=-1.0), "sigma_a must be >= 0"),
+    "sigma_a-nan": (dict(sigma_a=float("nan")), "sigma_a must be finite"),
+    "sigma_a-shape": (dict(sigma_a=np.ones((2, 2, 2))), "shape of sigma_a"),
+    "sigma_a-str": (dict(sigma_a="hot"), "sigma_a must be a number"),
+    "g-1": (dict(g=1.0), "g must satisfy"),
+    "rays-2**63": (dict(rays_per_pixel=2**63), "rays_per_pixel must be an integer <="),
+    "rays-neg": (dict(rays_per_pixel=-4), "rays_per_pixel must be an integer >= 1"),
+    "seed-neg": (dict(seed=-1), "seed must be an integer >= 0"),
+    "seed-float": (dict(seed=0.5), "seed must be an integer"),
+    "wl-neg": (dict(wavelength=-1e-9), "wavelength must be a positive"),
+    "wl-nm": (dict(wavelength=650), "wavelength must be in metres"),
+    "wl-str": (dict(wavelength="blue"), "wavelength must be a wavelength"),
+    "memory-neg": (dict(memory_limit=-1), "memory_limit must be a positive"),
+    "views-range": (dict(views=[(99, 0)]), r"views\[0\]"),
+    "surfaces-int": (dict(surfaces=3), "surfaces must be None"),
+}
+
+
+@pytest.mark.parametrize("case", list(WEIGHTS_CASES))
+def test_weights_arguments(cam, grid, case):
+    kw, match = WEIGHTS_CASES[case]
+    args = dict(camera=cam, grid=grid, sigma_a=5.0, wavelength="gray", rays_per_pixel=1, seed=0, progress=False)
+    args.update(kw)
+    with pytest.raises(LftomoError, match=match):
+        lt.weights(args.pop("camera"), args.pop("grid"), **args)
+
+
+OBJECT_CASES = {
+    "grid-zero": (lambda: lt.Grid((0, 1, 1), (0, 0, 1), (1, 1, 2)), r"shape\[0\] must be an integer >= 1"),
+    "grid-2d": (lambda: lt.Grid((2, 2), (0, 0, 1), (1, 1, 2)), "shape must have 3 components"),
+    "grid-upper": (lambda: lt.Grid((2, 2, 2), (0, 0, 2), (1, 1, 1)), "upper must exceed lower"),
+    "grid-nan": (lambda: lt.Grid((2, 2, 2), (0, float("nan"), 1), (1, 1, 2)), "lower must be finite"),
+    "grid-2000": (lambda: lt.Grid((2000, 2000, 2000), (0, 0, 1), (1, 1, 2)), "8000000000 voxels"),
+    "ideal-str": (lambda: lt.MainLens(ideal="false"), "main_lens.ideal must be True or False, got 'false'"),
+    "ideal-seed": (lambda: lt.Camera.seed(1.0, main_lens={"ideal": "false"}), "main_lens.ideal"),
+    "mla-count": (lambda: lt.MicrolensArray(count=(0, 5)), r"mla.count\[0\]"),
+    "mla-huge": (lambda: lt.Camera.seed(1.0, mla={"count": (20000, 20000)}), "camera of 20000 x 20000 microlenses"),
+    "sensor-neg": (lambda: lt.Sensor(pixel_pitch=-1.0), "sensor.pixel_pitch must be > 0"),
+    "camera-parts": (lambda: lt.Camera(main_lens={}), "main_lens must be an lftomo.MainLens, got dict"),
+    "focus-zero": (lambda: lt.Camera.seed(0.0), "focus"),
+    "lf-camera": (lambda: lt.LightField(raw=np.zeros((100, 100)), camera={}), "camera must be an lftomo.Camera"),
+    "lf-raw-shape": (lambda: lt.LightField(raw=np.zeros((3, 3)), camera=tiny_camera()), "shape of raw"),
+    "lf-raw-nan": (lambda: lt.LightField(raw=np.full((100, 100), np.nan), camera=tiny_camera()), "raw must be finite"),
+    "scene-surfaces-int": (lambda: lt.Scene(surfaces=3), "surfaces must be a sequence of PlanarEmitter, got int"),
+    "scene-medium-dict": (lambda: lt.Scene(medium={}), "medium must be an lftomo.Medium or None, got dict"),
+    "blob-grid-dict": (lambda: lt.phantoms.gaussian_blob({}, center=(0, 0, 1), width=0.01, T_peak=1500.0,
+                                                         sigma_a_peak=1.0), "grid must be an lftomo.Grid, got dict"),
+    "flame-grid-str": (lambda: lt.phantoms.axisymmetric_flame("grid"), "grid must be an lftomo.Grid, got str"),
+    "alpha-camera": (lambda: lt.alpha_of_depth({}, 1.0), "camera must be an lftomo.Camera, got dict"),
+    "centers-camera": (lambda: lt.geometric_centers(None), "camera must be an lftomo.Camera, got NoneType"),
+    "reconstruct-types": (lambda: lt.reconstruct("m", "w"), "measurement must be an lftomo.Measurement, got str"),
+    "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
+                                                 {}), "camera must be an lftomo.Camera, got dict"),
+    "forward-bundles": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
+                                                  tiny_camera(), n_bundles=2**63), "n_bundles must be an integer <="),
+    "forward-seed": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
+                                               tiny_camera(), seed=2**63), "seed must be an integer <="),
+}
+
+
+@pytest.mark.parametrize("case", list(OBJECT_CASES))
+def test_object_arguments(case):
+    make, match = OBJECT_CASES[case]
+    with pytest.raises(LftomoError, match=match):
+        make()
+
+
+REFOCUS_CASES = {
+    "inside-f": (lambda lf: lf.refocus_at(0.1), "depth = 0.1 m is inside"),
+    "at-f": (lambda lf: lf.refocus_at(0.30), "depth = 0.3 m is inside"),
+    "negative": (lambda lf: lf.refocus_at(-1.0), "depth must be > 0"),
+    "string": (lambda lf: lf.refocus_at("1"), "depth must be a real number"),
+    "nan": (lambda lf: lf.refocus_at(float("nan")), "depth must be finite"),
+    "stack": (lambda lf: lf.focal_stack([1.0, 0.2]), "depth = 0.2 m"),
+    "operator": (lambda lf: lf.refocus_operator_at(0.05), "depth = 0.05 m"),
+    "uv": (lambda lf: lf.subaperture(99, 0), r"\(u, v\) = \(99, 0\)"),
+}
+
+
+@pytest.mark.parametrize("case", list(REFOCUS_CASES))
+def test_refocus_arguments(lf, case):
+    call, match = REFOCUS_CASES[case]
+    with pytest.raises(LftomoError, match=match):
+        call(lf)
+
+
+def test_fewer_data_than_unknowns_warns():
+    from lftomo.inverse.reconstruct import warn_underdetermined
+
+    with pytest.warns(UserWarning, match="64 unknowns from only 1 data"):
+        warn_underdetermined(1, 64)
+
+
+# ============================================================== scene files and paths
+def _scene(tmp_path, surface="", render="", name="s.toml"):
+    p = tmp_path / name
+    p.write_text(SCENE_SURFACE.format(surface=surface, render=render))
+    return p
+
+
+SCENE_CASES = {
+    "rays-2**63": (dict(render=""), "rays_per_pixel = 9223372036854775807", r"\[render\] rays_per_pixel"),
+    "seed-neg": (dict(), "seed = -1", r"\[render\] seed must be an integer >= 0"),
+    "seed-huge": (dict(), "seed = 9223372036854775807", r"\[render\] seed must be an integer >= 0 and <="),
+}
+
+
+@pytest.mark.parametrize("case", list(SCENE_CASES))
+def test_scene_render_values(tmp_path, case):
+    _, line, match = SCENE_CASES[case]
+    text = SCENE_SURFACE.format(surface="", render="").replace("rays_per_pixel = 1", "rays_per_pixel = 1\n" + line
+                                                                if "seed" in line else line)
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    with pytest.raises(LftomoError, match=match):
+        load_scene_file(p)
+
+
+@pytest.mark.parametrize("table, match", [
+    ("[output]\nfocal_stack_depths = [0.1]", r"\[output\] focal_stack_depths\[0\] = 0.1 m is inside"),
+    ("[camera.main_lens]\nideal = \"false\"", r"\[camera.main_lens\] ideal must be true or false"),
+    ("[camera.sensor]\npixel_pitch = \"small\"", r"\[camera.sensor\] pixel_pitch must be a number"),
+])
+def test_scene_tables(tmp_path, table, match):
+    text = SCENE_SURFACE.format(surface="", render="")
+    if table.startswith("[camera."):
+        text = text.replace("[camera.mla]", table + "\n[camera.mla]")
+    else:
+        text += "\n" + table + "\n"
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    with pytest.raises(LftomoError, match=match):
+        load_scene_file(p)
+
+
+def test_scene_mla_too_large_is_refused_before_allocation(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text(SCENE_SURFACE.format(surface="", render="").replace("count = [10, 10]", "count = [20000, 20000]"))
+    with pytest.raises(LftomoError, match=r"\[camera\]: a camera of 20000 x 20000 microlenses"):
+        load_scene_file(p)
+
+
+def _texture_outside(tmp_path, kind):
+    scene_dir = tmp_path / "scene"
+    scene_dir.mkdir()
+    np.save(tmp_path / "secret.npy", np.eye(3))
+    if kind == "dotdot":
+        ref = "../secret.npy"
+    elif kind == "absolute":
+        ref = str(tmp_path / "secret.npy")
+    else:  # a link inside the folder that points out of it
+        os.symlink(tmp_path / "secret.npy", scene_dir / "link.npy")
+        ref = "link.npy"
+    return _scene(scene_dir, surface=f'texture = "file"\npath = {json.dumps(ref)}')
+
+
+@pytest.mark.parametrize("kind", ["dotdot", "absolute", "symlink"])
+def test_texture_outside_the_scene_folder(tmp_path, kind):
+    p = _texture_outside(tmp_path, kind)
+    with pytest.raises(LftomoError, match=r"\[\[surface\]\] #1 path .* points outside the scene file's folder"):
+        load_scene_file(p)
+    cfg = load_scene_file(p, allow_outside=True)  # allowed explicitly
+    assert cfg.scene.surfaces[0].radiance.shape == (3, 3)
+
+
+@pytest.mark.parametrize("kind", ["dotdot", "absolute"])
+def test_medium_outside_the_scene_folder(tmp_path, kind):
+    scene_dir = tmp_path / "scene"
+    scene_dir.mkdir()
+    ref = "../m.npz" if kind == "dotdot" else str(tmp_path / "m.npz")
+    with pytest.raises(LftomoError, match=r"\[medium\] path .* points outside the scene file's folder"):
+        scene_from_dict({"medium": {"phantom": "file", "path": ref, "shape": [2, 2, 2]}}, base=scene_dir)
+
+
+def _special(tmp_path, kind):
+    p = tmp_path / f"special_{kind}"
+    if kind == "dir":
+        p.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(p)
+    else:
+        return Path("/dev/null"), "a device"
+    return p, {"dir": "a directory", "fifo": "a FIFO"}[kind]
+
+
+@pytest.mark.parametrize("kind", ["dir", "fifo", "dev"])
+def test_scene_file_that_is_not_a_regular_file(tmp_path, kind):
+    p, what = _special(tmp_path, kind)
+    with pytest.raises(LftomoError, match=f"scene file '.*' is {what}"):
+        load_scene_file(p)
+
+
+@pytest.mark.parametrize("kind", ["dir", "fifo"])
+def test_texture_that_is_not_a_regular_file(tmp_path, kind):
+    p, what = _special(tmp_path, kind)
+    scene = _scene(tmp_path, surface=f'texture = "file"\npath = "{p.name}"')
+    with pytest.raises(LftomoError, match=rf"\[\[surface\]\] #1: texture file '.*' is {what}"):
+        load_scene_file(scene)
+
+
+@pytest.mark.parametrize("kind", ["dir", "fifo", "dev", "missing"])
+def test_loaders_name_special_files(tmp_path, cam, grid, kind):
+    if kind == "missing":
+        p, what = tmp_path / "nope.npz", "does not exist"
+    else:
+        p, what = _special(tmp_path, kind)
+        what = f"is {what}"
+    with pytest.raises(LftomoError, match=f"light-field file '.*' {what}"):
+        lt.LightField.load(p)
+    with pytest.raises(LftomoError, match=f"weight-matrix file '.*' {what}"):
+        lt.WeightMatrix.load(p, cam, grid)
+    with pytest.raises(LftomoError, match=f"sigma_a file '.*' {what}"):
+        lt.load_field(p, name="sigma_a")
+
+
+# ============================================================== saved files
+def _corrupt_W(files, tmp_path, change):
+    src = files["W"]
+    a = read_arrays(src)
+    out = tmp_path / "bad.npz"
+    if change == "indices-high":
+        a["indices"] = a["indices"].copy(); a["indices"][0] = 27
+    elif change == "indices-neg":
+        a["indices"] = a["indices"].copy(); a["indices"][-1] = -1
+    elif change == "indptr-decreasing":
+        a["indptr"] = a["indptr"].copy(); k = int(np.argmax(np.diff(a["indptr"]))); a["indptr"][k + 1] = 0
+    elif change == "indptr-end":
+        a["indptr"] = a["indptr"].copy(); a["indptr"][-1] += 5
+    elif change == "data-negated":
+        a["data"] = -a["data"]
+    elif change == "data-nan":
+        a["data"] = a["data"].copy(); a["data"][0] = np.nan
+    elif change == "data-int":
+        a["data"] = a["data"].astype(np.int64)
+    elif change == "indices-float":
+        a["indices"] = a["indices"].astype(float)
+    elif change == "indices-int8":
+        a["indices"] = a["indices"].astype(np.int8)
+    elif change == "no-background":
+        a.pop("background")
+    elif change == "background-neg":
+        a["background"] = a["background"] - 1.0
+    elif change == "pixel-index":
+        a["pixel_index"] = a["pixel_index"] + 10**6
+    elif change == "view-ptr":
+        a["view_ptr"] = a["view_ptr"][::-1].copy()
+    elif change == "extra-member":
+        a["extra"] = np.zeros(2)
+    elif change in ("meta-wavelength", "meta-shape", "meta-format", "meta-rays"):
+        m = json.loads(str(a["meta"]))
+        if change == "meta-wavelength":
+            m["wavelength"] = -650e-9
+        elif change == "meta-shape":
+            m["shape"] = [m["shape"][0], "27"]
+        elif change == "meta-format":
+            m["format"] = "something-else"
+        elif change == "meta-rays":
+            m["rays_per_pixel"] = 0
+        a["meta"] = np.array(json.dumps(m))
+    elif change == "meta-json":
+        a["meta"] = np.array("{not json")
+    elif change == "meta-list":
+        a["meta"] = np.array("[1, 2]")
+    np.savez(out, **a)
+    return out
+
+
+W_FILE_CASES = {
+    "indices-high": r"member 'indices' holds column indices from .* to 27; allowed 0 \.\. 26",
+    "indices-neg": r"member 'indices' holds column indices from -1",
+    "indptr-decreasing": r"member 'indptr' decreases at row",
+    "indptr-end": r"member 'indptr' must start at 0 and end at nnz",
+    "data-negated": r"member 'data' must be >= 0",
+    "data-nan": r"member 'data' has 1 non-finite value",
+    "data-int": r"member 'data' has dtype int64; expected a float dtype",
+    "indices-float": r"member 'indices' has dtype float64; expected an integer dtype",
+    "indices-int8": r"member 'indices' has dtype int8; expected int32 or int64",
+    "no-background": r"member\(s\) \['background'\] are missing",
+    "background-neg": r"member 'background' must be >= 0",
+    "pixel-index": r"member 'pixel_index' must be <= 9999",
+    "view-ptr": r"member 'view_ptr'",
+    "extra-member": r"unknown member\(s\) \['extra'\]",
+    "meta-wavelength": r"member 'meta' wavelength must be null \(gray\) or a wavelength",
+    "meta-shape": r"member 'meta' key 'shape' must be a list of 2 integers",
+    "meta-format": r"member 'meta' has format 'something-else'",
+    "meta-rays": r"member 'meta' rays_per_pixel must be an integer >= 1",
+    "meta-json": r"member 'meta' is not valid JSON",
+    "meta-list": r"member 'meta' must be a JSON object",
+}
+
+
+@pytest.mark.parametrize("change", list(W_FILE_CASES))
+def test_corrupt_weight_files(files, tmp_path, cam, grid, change):
+    p = _corrupt_W(files, tmp_path, change)
+    with pytest.raises(LftomoError, match=r"weight-matrix file '.*bad\.npz'.*" + W_FILE_CASES[change]):
+        lt.WeightMatrix.load(p, cam, grid)
+
+
+LF_FILE_CASES = {
+    "no-std-error": (dict(drop=("std_error",)), r"member\(s\) \['std_error'\] are missing"),
+    "raw-nan": (dict(raw=np.full((100, 100), np.nan)), r"member 'raw' has 10000 non-finite"),
+    "raw-shape": (dict(raw=np.zeros((50, 100))), r"member 'raw' has shape \(50, 100\), expected \(100, 100\)"),
+    "raw-str": (dict(raw=np.array(["a", "b"])), r"member 'raw' has dtype <U1"),
+    "etendue-neg": (dict(etendue=-np.ones((100, 100))), r"member 'etendue' must be >= 0"),
+    "std-neg": (dict(std_error=-np.ones((100, 100))), r"member 'std_error' must be >= 0"),
+    "centers-shape": (dict(centers=np.zeros((3, 3, 2))), r"member 'centers' has shape \(3, 3, 2\)"),
+    "wl-neg": (dict(meta=lambda m: {**m, "wavelengths": [-650e-9]}), r"member 'meta' wavelengths must be null"),
+    "wl-str": (dict(meta=lambda m: {**m, "wavelengths": ["650"]}), r"member 'meta' wavelengths must be null"),
+    "no-camera": (dict(meta=lambda m: {k: v for k, v in m.items() if k != "camera"}), r"no camera description"),
+    "bad-camera": (dict(meta=lambda m: {**m, "camera": {**m["camera"], "mla_distance": -1}}),
+                   r"member 'meta' camera is invalid: mla_distance must be > 0"),
+    "huge-camera": (dict(meta=lambda m: {**m, "camera": {**m["camera"], "mla": {**m["camera"]["mla"],
+                                                                                "count": [20000, 20000]}}}),
+                    r"member 'meta' camera is invalid: a camera of 20000 x 20000"),
+    "format": (dict(meta=lambda m: {**m, "format": "x"}), r"member 'meta' has format 'x'"),
+    "json": (dict(meta="{"), r"member 'meta' is not valid JSON"),
+    "arrays-list": (dict(meta=lambda m: {**m, "arrays": ["raw", "bogus"]}), r"key 'arrays' must list"),
+}
+
+
+@pytest.mark.parametrize("case", list(LF_FILE_CASES))
+def test_corrupt_lightfield_files(files, tmp_path, case):
+    kw, match = LF_FILE_CASES[case]
+    p = rewrite(files["lf"], tmp_path / "bad.npz", **kw)
+    with pytest.raises(LftomoError, match=r"light-field file '.*bad\.npz'.*" + match):
+        lt.LightField.load(p)
+
+
+@pytest.mark.parametrize("which", ["lf", "W"])
+@pytest.mark.parametrize("damage", ["truncated", "crc", "header-shape", "object", "text", "empty-zip"])
+def test_damaged_archives(files, tmp_path, cam, grid, which, damage):
+    src = files[which]
+    p = tmp_path / "bad.npz"
+    raw = src.read_bytes()
+    if damage == "truncated":
+        p.write_bytes(raw[: len(raw) // 2])
+    elif damage == "crc":  # flip bytes inside the first member's data
+        info = zipfile.ZipFile(src).infolist()[-1]
+        b = bytearray(raw)
+        start = info.header_offset + 30 + len(info.filename) + len(info.extra) + 200
+        for k in range(start, min(start + 16, len(b))):
+            b[k] ^= 0xFF
+        p.write_bytes(bytes(b))
+    elif damage == "header-shape":  # a member that announces more data than it holds
+        a = read_arrays(src)
+        a["data" if which == "W" else "raw"] = np.zeros(4)
+        np.savez(p, **a)
+        with zipfile.ZipFile(p) as z:
+            members = {n: z.read(n) for n in z.namelist()}
+        name = "data.npy" if which == "W" else "raw.npy"
+        members[name] = members[name].replace(b"(4,)", b"(9,)")
+        with zipfile.ZipFile(p, "w") as z:
+            for n, v in members.items():
+                z.writestr(n, v)
+    elif damage == "object":
+        a = read_arrays(src)
+        a["meta"] = np.array([{"a": 1}], dtype=object)
+        np.savez(p, **a)
+    elif damage == "text":
+        p.write_text("not an archive")
+    else:
+        with zipfile.ZipFile(p, "w"):
+            pass
+    what = "light-field file" if which == "lf" else "weight-matrix file"
+    with pytest.raises(LftomoError, match=f"{what} '.*bad\\.npz'|'.*bad\\.npz' is not an \\.npz archive"):
+        if which == "lf":
+            lt.LightField.load(p)
+        else:
+            lt.WeightMatrix.load(p, cam, grid)
+
+
+def test_weight_load_checks_types(files, cam, grid):
+    with pytest.raises(LftomoError, match="camera must be an lftomo.Camera, got dict"):
+        lt.WeightMatrix.load(files["W"], {}, grid)
+    with pytest.raises(LftomoError, match="grid must be an lftomo.Grid, got str"):
+        lt.WeightMatrix.load(files["W"], cam, "grid")
+    with pytest.raises(LftomoError, match="light-field file must be a path"):
+        lt.LightField.load(3)
+
+
+@pytest.mark.parametrize("target", ["folder", "missing-dir"])
+def test_save_targets_are_checked(tmp_path, lf, W, target):
+    p = tmp_path / "x.npz"
+    if target == "folder":
+        p.mkdir()
+        match = "is not a regular file"
+    else:
+        p = tmp_path / "nope" / "x.npz"
+        match = "does not exist"
+    with pytest.raises(LftomoError, match=f"light-field file.*{match}"):
+        lf.save(p)
+    with pytest.raises(LftomoError, match=f"weight-matrix file.*{match}"):
+        W.save(p)
+
+
+# ============================================================== command line
+def _run(argv, capsys):
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    return code, err
+
+
+@pytest.fixture
+def medium_scene(tmp_path):
+    p = tmp_path / "m.toml"
+    p.write_text(SCENE_MEDIUM)
+    return p
+
+
+CLI_CASES = {
+    "render-missing-scene": (lambda t, f: ["render", t / "nope.toml", "-o", t / "o"], "scene file '.*nope.toml' does not exist"),
+    "render-dir-scene": (lambda t, f: ["render", t, "-o", t / "o"], "scene file '.*' is a directory"),
+    "render-output-file": (lambda t, f: ["render", f["scene"], "-o", f["lf"]], "-o/--output '.*' is a file"),
+    "render-output-under-file": (lambda t, f: ["render", f["scene"], "-o", f["lf"] / "x"], "is a file, not a folder"),
+    "weights-no-dir": (lambda t, f: ["weights", f["scene"], "-o", t / "no" / "W.npz"], "directory '.*no' does not exist"),
+    "weights-output-dir": (lambda t, f: ["weights", f["scene"], "-o", f["dirnpz"]], "is not a regular file"),
+    "weights-no-medium": (lambda t, f: ["weights", f["surface_scene"], "-o", t / "W.npz"], "has no \\[medium\\]"),
+    "weights-memory": (lambda t, f: ["weights", f["scene"], "-o", t / "W.npz", "--memory-limit-gb", "1e-9"],
+                       "more than memory_limit"),
+    "reconstruct-bad-lf": (lambda t, f: ["reconstruct", "--lightfield", f["text"], "--weights", f["W"], "-o", t / "r"],
+                           "is not an .npz archive"),
+    "reconstruct-bad-W": (lambda t, f: ["reconstruct", "--lightfield", f["lf"], "--weights", f["badW"], "-o", t / "r"],
+                          "member 'indices'"),
+    "reconstruct-output-file": (lambda t, f: ["reconstruct", "--lightfield", f["lf"], "--weights", f["W"], "-o", f["text"]],
+                                "-o/--output .* is a file"),
+    "render-outside-texture": (lambda t, f: ["render", f["outside"], "-o", t / "o"], "points outside the scene file's folder"),
+    "render-depth-inside-f": (lambda t, f: ["render", f["depth_scene"], "-o", t / "o"], "focal_stack_depths\\[0\\] = 0.1 m"),
+    "camera-ideal-string": (lambda t, f: ["camera", f["ideal_scene"]], "\\[camera.main_lens\\] ideal must be true or false"),
+}
+
+
+@pytest.fixture
+def cli_files(tmp_path, files, medium_scene):
+    scene_dir = tmp_path / "scenes"
+    scene_dir.mkdir()
+    text = tmp_path / "text.txt"
+    text.write_text("hello")
+    (tmp_path / "dir.npz").mkdir()
+    np.save(tmp_path / "tex.npy", np.eye(3))
+    outside = scene_dir / "outside.toml"
+    outside.write_text(SCENE_SURFACE.format(render="", surface='texture = "file"\npath = "../tex.npy"'))
+    surface_scene = scene_dir / "surface.toml"
+    surface_scene.write_text(SCENE_SURFACE.format(render="", surface=""))
+    depth_scene = scene_dir / "depth.toml"
+    depth_scene.write_text(SCENE_SURFACE.format(render="", surface="") + "\n[output]\nfocal_stack_depths = [0.1]\n")
+    ideal_scene = scene_dir / "ideal.toml"
+    ideal_scene.write_text(SCENE_SURFACE.format(render="", surface="").replace(
+        "[camera.mla]", "[camera.main_lens]\nideal = \"false\"\n[camera.mla]"))
+    badW = _corrupt_W(files, tmp_path, "indices-high")
+    return {"scene": medium_scene, "lf": files["lf"], "W": files["W"], "text": text, "dirnpz": tmp_path / "dir.npz",
+            "outside": outside, "surface_scene": surface_scene, "depth_scene": depth_scene,
+            "ideal_scene": ideal_scene, "badW": badW}
+
+
+@pytest.mark.parametrize("case", list(CLI_CASES))
+def test_cli_errors(tmp_path, cli_files, capsys, case):
+    argv, match = CLI_CASES[case]
+    code, err = _run(argv(tmp_path, cli_files), capsys)
+    assert code == 2, err
+    last = err.strip().splitlines()[-1]  # before it: the command's start line, stage messages
+    assert last.startswith("lftomo: error: ") and "Traceback" not in err, err
+    assert err.count("lftomo: error") == 1, err
+    import re
+
+    assert re.search(match, last), err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["render", "s.toml", "--seed", str(2**63)], "--seed"),
+    (["render", "s.toml", "--seed", "-1"], "--seed"),
+    (["weights", "s.toml", "--rays-per-pixel", str(2**40)], "--rays-per-pixel"),
+    (["weights", "s.toml", "--rays-per-pixel", "1e3"], "--rays-per-pixel"),
+    (["demo", "--seed", "x"], "--seed"),
+    (["reconstruct", "--max-steps", str(2**40)], "--max-steps"),
+])
+def test_cli_integer_options_are_bounded(capsys, argv, option):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert f"argument {option}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("exc", ["interrupt", "badzip", "eof", "zlib", "memory", "keyerror-json", "numba"])
+def test_cli_last_guard(tmp_path, cli_files, capsys, monkeypatch, exc):
+    """Whatever escapes a command: exit 130 for Ctrl-C, 2 with one line for damaged files, no traceback."""
+    import zlib
+
+    import lftomo.forward.render as render_mod
+
+    errors = {"interrupt": KeyboardInterrupt(), "badzip": zipfile.BadZipFile("bad"), "eof": EOFError("eof"),
+              "zlib": zlib.error("Error -3"), "memory": MemoryError(), "keyerror-json": json.JSONDecodeError("x", "", 0),
+              "numba": __import__("numba").core.errors.TypingError("Cannot unify int64 and float64")}
+
+    def boom(*a, **k):
+        raise errors[exc]
+
+    monkeypatch.setattr(render_mod, "render", boom)
+    out = tmp_path / "o"
+    code, err = _run(["render", cli_files["scene"], "-o", out, "--quiet"], capsys)
+    assert code == (130 if exc == "interrupt" else 2)
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("lftomo: interrupted" if exc == "interrupt" else "lftomo: error: ") and "Traceback" not in err
+    assert [p.name for p in out.iterdir()] == []  # nothing half-written
+
+
+def test_cli_allow_outside_paths(tmp_path, cli_files, capsys):
+    code, err = _run(["camera", cli_files["outside"], "--allow-outside-paths"], capsys)
+    assert code == 0, err
+
+
+def test_error_type_is_a_value_error():
+    assert issubclass(LftomoError, ValueError)
+    assert lt.LftomoError is LftomoError
+    assert math.isfinite(1.0)
+
+
+@pytest.mark.parametrize("damage, match", [
+    ("truncated", "corrupt or truncated"),
+    ("header", "cannot be read|truncated or corrupt"),
+    ("object", "without pickling"),
+    ("text", "is not an .npy file|is neither an .npy array nor an .npz archive"),
+])
+def test_damaged_npy_files(tmp_path, damage, match):
+    """.npy files (textures, fields): damaged bytes give LftomoError naming the file and key."""
+    p = tmp_path / "t.npy"
+    if damage == "object":
+        np.save(p, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    elif damage == "text":
+        p.write_text("1 2 3")
+    else:
+        np.save(p, np.eye(8))
+        raw = p.read_bytes()
+        p.write_bytes(raw[:100] if damage == "truncated" else raw.replace(b"'shape': (8, 8)", b"'shape': (8, 8"))
+    with pytest.raises(LftomoError, match=f"sigma_a file '.*t.npy'.*({match})"):
+        lt.load_field(p, name="sigma_a")
+    scene = _scene(tmp_path, surface='texture = "file"\npath = "t.npy"')
+    with pytest.raises(LftomoError, match=rf"\[\[surface\]\] #1 path: '.*t.npy'.*({match})"):
+        load_scene_file(scene)

@@ -1,0 +1,187 @@
+"""Ctrl-C during ``lftomo render`` and ``lftomo weights``: exit 130 within about a second,
+and the output path holds either the previous file or a complete new one."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lftomo as lt
+from lftomo.cli import main
+from lftomo.config import load_scene_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# 30 x 30 lenslets (300 x 300 pixels), enough rays for a few seconds of work on 2 cores
+SCENE = """
+[camera]
+focus_distance = 1.0
+[camera.mla]
+count = [30, 30]
+[render]
+rays_per_pixel = {rays}
+wavelength_nm = "gray"
+[medium]
+phantom = "gaussian_blob"
+shape = [12, 12, 12]
+lower = [-0.006, -0.006, 0.994]
+upper = [0.006, 0.006, 1.006]
+[medium.params]
+center = [0.0, 0.0, 1.0]
+width = 0.003
+T_peak = 1800.0
+sigma_a_peak = 20.0
+"""
+
+
+def _start(argv):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "lftomo.cli", *map(str, argv)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _interrupt(proc, delay):
+    """Wait for the command's start line, then ``delay`` s, then SIGINT; returns (code, stderr, seconds to exit)."""
+    line = proc.stderr.readline()  # "lftomo render: ..." is printed before the work
+    assert line.startswith("lftomo "), line
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    t = time.perf_counter()
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, line + err, time.perf_counter() - t
+
+
+def _no_leftovers(folder: Path):
+    left = [p.name for p in folder.rglob("*") if ".tmp-" in p.name or p.name.startswith(".lftomo-partial-")]
+    assert not left, left
+
+
+@pytest.mark.parametrize("command", ["render", "weights"])
+def test_interrupt_leaves_previous_or_complete_file(tmp_path, command):
+    scene = tmp_path / "s.toml"
+    scene.write_text(SCENE.format(rays=64))
+    if command == "render":
+        out, target = tmp_path / "out", tmp_path / "out" / "lightfield.npz"
+        argv = ["render", scene, "-o", out, "--quiet"]
+    else:
+        out = target = tmp_path / "W.npz"
+        argv = ["weights", scene, "-o", out, "--quiet"]
+    # the previous good file, made in-process at 1 ray per pixel (fast)
+    assert main([str(a) for a in argv] + ["--rays-per-pixel", "1"]) == 0
+    before = target.read_bytes()
+    delay = random.Random().uniform(0.0, 1.5)
+    proc = _start(argv + ["--seed", "7"])
+    code, err, seconds = _interrupt(proc, delay)
+    # -SIGINT: the signal came after the command had finished, while Python shut down
+    assert code in (0, 130, -signal.SIGINT), err
+    assert "Traceback" not in err, err
+    if code == 130:
+        assert "lftomo: interrupted" in err
+        assert seconds < 5.0, f"took {seconds:.1f} s to stop"
+    after = target.read_bytes()
+    if after == before:
+        assert code == 130, f"a finished run must replace the file (exit {code})"
+    else:  # a complete new file
+        cfg = load_scene_file(scene)
+        if command == "render":
+            lf = lt.LightField.load(target)
+            assert lf.metadata["seed"] == 7
+        else:
+            W = lt.WeightMatrix.load(target, cfg.camera, cfg.scene.medium.grid)
+            assert W.metadata["seed"] == 7
+    _no_leftovers(tmp_path)
+
+
+@pytest.mark.heavy
+@pytest.mark.parametrize("trial", range(6))
+@pytest.mark.parametrize("command", ["render", "weights"])
+def test_interrupt_many_times(tmp_path, command, trial):
+    test_interrupt_leaves_previous_or_complete_file(tmp_path, command)
+
+
+def test_ctrl_c_between_chunks_is_prompt():
+    """The render loop checks for Ctrl-C between chunks of ~0.25 s: a SIGINT raised from a
+    timer while a render runs stops it (KeyboardInterrupt) well before the render would end."""
+    import threading
+
+    cam = lt.Camera.seed(1.0, mla={"count": (30, 30)})
+    scene = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+    lt.render(scene, cam, rays_per_pixel=1, wavelengths="gray", progress=False)  # compiled
+    timer = threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT))
+    t0 = time.perf_counter()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        lt.render(scene, cam, rays_per_pixel=4096, wavelengths="gray", progress=False)  # ~minutes
+    assert time.perf_counter() - t0 < 3.0
+    timer.cancel()
+    assert np.isfinite(0.0)
+
+
+def test_interrupted_demo_rerun_keeps_the_previous_report(tmp_path, monkeypatch):
+    """run_demo writes into a staging folder: an interrupted rerun leaves the previous report and the
+    files beside it as they were; a completed run publishes all files and the marker last."""
+    import lftomo.demo as demo
+    from lftomo.io import COMPLETE_MARKER
+
+    def fake(out, *, quick, seed, progress, resume):
+        (out / "fields.npz").write_bytes(b"new fields %d" % seed)
+        (out / "index.html").write_text(f"report of seed {seed}")
+        (out / "metrics.json").write_text("{}")
+        if seed == 2:
+            raise KeyboardInterrupt
+        return {"parameters": {"mode": "quick", "seed": seed}}
+
+    monkeypatch.setattr(demo, "_demo_into", fake)
+    out = tmp_path / "report"
+    demo.run_demo(out, quick=True, seed=1, progress=False)
+    assert (out / "index.html").read_text() == "report of seed 1"
+    assert (out / COMPLETE_MARKER).is_file()
+    with pytest.raises(KeyboardInterrupt):
+        demo.run_demo(out, quick=True, seed=2, progress=False)
+    assert (out / "index.html").read_text() == "report of seed 1"
+    assert (out / "fields.npz").read_bytes() == b"new fields 1"
+    assert (out / COMPLETE_MARKER).is_file()
+    _no_leftovers(out)
+
+
+def test_demo_resumes_complete_stages(tmp_path):
+    from lftomo.demo import _resumable
+
+    made, resumed = [], []
+    path = tmp_path / "r" / "x.npz"
+
+    def make():
+        made.append(1)
+        return np.arange(3.0)
+
+    def load(p):
+        with np.load(p, allow_pickle=False) as z:
+            return z["a"]
+
+    def save(obj, p):
+        from lftomo.io import atomic_path
+
+        with atomic_path(p) as tmp:
+            np.savez(tmp, a=obj)
+
+    assert np.array_equal(_resumable(path, load, make, save, resumed, "stage"), np.arange(3.0))
+    assert np.array_equal(_resumable(path, load, make, save, resumed, "stage"), np.arange(3.0))
+    assert len(made) == 1 and resumed == ["stage"]
+    path.write_bytes(b"damaged")  # an unreadable earlier result is computed again
+
+    def strict_load(p):
+        try:
+            return load(p)
+        except Exception as exc:
+            raise ValueError(str(exc)) from None
+
+    _resumable(path, strict_load, make, save, resumed, "stage")
+    assert len(made) == 2
