@@ -666,8 +666,8 @@ class Camera:
             Rays per pixel.
         seed : int
             Seed of the per-pixel random keys.
-        sampler : {"independent", "stratified"}
-            Pixel sampler (:mod:`lftomo.forward.sampler`).
+        sampler : {"stratified", "independent"}
+            Pixel sampler (:mod:`lftomo.forward.sampler`; default stratified).
 
         Returns
         -------
