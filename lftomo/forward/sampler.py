@@ -27,7 +27,7 @@ unbiased for ``Φ``.  Two samplers:
     sample is weighted by the mixture density, so the estimator stays
     unbiased even where the restricted region would miss light.  Groups are
     independent unbiased estimates: their spread gives an honest standard
-    error (:func:`group_std_error`).
+    error (:func:`group_variance`).
 ``"independent"``
     Uniform points on the pixel and on a disc over the lenslet's back-vertex
     plane, drawn from a per-pixel stream.
@@ -524,7 +524,9 @@ def microlens_images(optics: np.ndarray, centres: np.ndarray, radius: float, *, 
 @njit(cache=True, inline="always")
 def group_variance(gs, n_rays):
     """Estimated variance of a pixel estimate ``Σ gs / n_rays`` from its
-    group sums ``gs`` (K,) (see :func:`group_std_error`); NaN for K = 1."""
+    group sums ``gs`` (K,): sample ``m`` is in group ``m mod K``, the group
+    means ``ȳ_g = gs_g / n_g`` are independent unbiased estimates, and
+    ``Var ≈ Σ_g (gs_g − n_g ȳ)² / (N² (1 − 1/K))``.  NaN for K = 1."""
     k = gs.shape[0]
     if k < 2:
         return np.nan
@@ -551,24 +553,3 @@ def mean_variance(gs, sq, n_rays, sampler):
         mean = gs.sum() / n_rays
         return max(sq / n_rays - mean * mean, 0.0) / n_rays
     return group_variance(gs, n_rays)
-
-
-def group_std_error(group_sum: np.ndarray, n_rays: int, axis: int = -1) -> np.ndarray:
-    """Standard error of a pixel estimate from its K group sums.
-
-    ``group_sum[..., g]`` is the sum of ``w L`` over the samples of group
-    ``g`` (sample ``m`` is in group ``m mod K``).  The estimate is
-    ``Σ_g group_sum / N``; with group means ``ȳ_g = group_sum_g / n_g`` its
-    variance is estimated by ``Σ_g n_g² (ȳ_g − ȳ)² / (N² (1 − 1/K))``
-    (independent groups).  K = 1 gives NaN (no estimate).
-    """
-    gs = np.moveaxis(np.asarray(group_sum, float), axis, -1)
-    k = gs.shape[-1]
-    n = int(n_rays)
-    if k < 2:
-        return np.full(gs.shape[:-1], np.nan)
-    n_g = np.array([len(range(g, n, k)) for g in range(k)], float)
-    mean = gs.sum(axis=-1) / n
-    dev = gs - n_g * mean[..., None]
-    var = (dev ** 2).sum(axis=-1) / (n * n) * k / (k - 1)
-    return np.sqrt(var)
