@@ -158,6 +158,9 @@ def _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed
     r0 = (nrows - k) // 2
     n_pilot = min(n_rays, 64)
     scratch_m, scratch_s = np.zeros(shape), np.zeros(shape)
+    # one row with one ray first: a first call compiles the kernel, which is not render time
+    row_kernel(r0, r0 + 1, camera.packed, *camera.sampler_arrays(sampler, 1), surf, tex, n_ch, 1, seed,
+               scratch_m, scratch_s)
     t = time.perf_counter()
     row_kernel(r0, r0 + k, camera.packed, *camera.sampler_arrays(sampler, n_pilot), surf, tex, n_ch, n_pilot, seed,
                scratch_m, scratch_s)
