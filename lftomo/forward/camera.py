@@ -667,7 +667,7 @@ class Camera:
         seed : int
             Seed of the per-pixel random keys.
         sampler : {"stratified", "independent"}
-            Pixel sampler (:mod:`lftomo.forward.sampler`; default stratified).
+            Pixel sampler (:mod:`lftomo.forward.sampler`; default independent).
 
         Returns
         -------
