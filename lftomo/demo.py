@@ -447,6 +447,36 @@ def _resumable(path: Path, load, make, save, resumed: list[str], name: str):
     return obj
 
 
+@dataclasses.dataclass
+class _DemoRun:
+    """The state the stages of one :func:`run_demo` share (a work context, not data)."""
+
+    out: Path
+    resume: Path
+    cfg: dict[str, Any]
+    key: str
+    progress: bool
+    st: _Stages
+    seed: int
+    sections: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    metrics: dict[str, Any] = dataclasses.field(default_factory=dict)
+    warned: list[str] = dataclasses.field(default_factory=list)
+    resumed: list[str] = dataclasses.field(default_factory=list)
+    r: dict[str, Any] = dataclasses.field(default_factory=dict)  # stage results by name
+
+    @property
+    def n_d(self) -> int:
+        return self.cfg["rays_per_pixel_data"]
+
+    @property
+    def n_w(self) -> int:
+        return self.cfg["rays_per_pixel_weights"]
+
+    @property
+    def opts(self) -> dict[str, int]:
+        return {"max_steps": self.cfg["max_steps"], "linear_max_steps": self.cfg["linear_max_steps"]}
+
+
 def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Path) -> dict[str, Any]:
     """The stages of :func:`run_demo`, writing into ``out`` (the staging folder).
 
@@ -455,29 +485,32 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
     interruption takes them from there (the same seeds give the same result).
     """
     import lftomo as lt
-    from .inverse.compare import compare_refocus_subaperture, effective_truth
-    from .report import write_report
 
     t_start = time.perf_counter()
     cfg = demo_settings(quick, seed)
     key = hashlib.sha256(json.dumps([cfg, lt.__version__], sort_keys=True).encode()).hexdigest()[:16]
-    resumed: list[str] = []
-    st = _Stages(9, progress)
-    sections: list[dict[str, Any]] = []
-    metrics: dict[str, Any] = {"parameters": cfg, "environment": _environment()}
-    warned: list[str] = []
-    wl = WAVELENGTH
-    n_d, n_w = cfg["rays_per_pixel_data"], cfg["rays_per_pixel_weights"]
+    d = _DemoRun(out=out, resume=resume, cfg=cfg, key=key, progress=progress, st=_Stages(9, progress), seed=seed,
+                 metrics={"parameters": cfg, "environment": _environment()})
+    for stage in (_demo_camera, _demo_render, _demo_weights, _demo_measurement, _demo_reconstruct,
+                  _demo_reconstruct_axisymmetric, _demo_posterior, _demo_field_posterior, _demo_compare):
+        stage(d)
+    return _demo_finish(d, time.perf_counter() - t_start)
 
-    # ---- 1. camera
-    with st("camera", "camera design report"):
-        camera = lt.Camera.seed(cfg["focus_distance"], **cfg["camera_overrides"])
+
+def _demo_camera(d: _DemoRun) -> None:
+    """Stage 1: the camera and its design report."""
+    import lftomo as lt
+
+    with d.st("camera", "camera design report"):
+        camera = lt.Camera.seed(d.cfg["focus_distance"], **d.cfg["camera_overrides"])
         design = camera.describe(warn=False)
-    metrics["camera"] = design
+    d.r.update(camera=camera, design=design)
+    d.metrics["camera"] = design
     keys = ("main_lens_focal_length", "microlens_focal_length", "magnification", "field_of_view",
             "main_lens_working_f_number", "microlens_f_number", "microlens_image_diameter_px", "sensor_shape",
             "views_shape", "lit_views", "depth_of_field", "disparity_per_metre")
-    sections.append({
+    quick = d.cfg["mode"] == "quick"
+    d.sections.append({
         "title": "1. Camera",
         "text": ("The reference plenoptic camera (DESIGN §1): thick biconvex main lens traced surface by "
                  "surface, MLA in the traced best-focus plane of the 1 m object plane, sensor in the microlens "
@@ -488,75 +521,94 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
         "table": {k: design[k] for k in keys if k in design},
     })
 
-    # ---- 2. render the flame on the fine grid
-    with st("render", f"render the flame on the {cfg['truth_shape']} truth grid ({n_d} rays/pixel)"):
+
+def _demo_render(d: _DemoRun) -> None:
+    """Stage 2: render the flame on the fine (truth) grid."""
+    import lftomo as lt
+
+    cfg, n_d = d.cfg, d.n_d
+    with d.st("render", f"render the flame on the {cfg['truth_shape']} truth grid ({n_d} rays/pixel)"):
         fine = lt.phantoms.default_flame_grid(tuple(cfg["truth_shape"]), cfg["focus_distance"])
         coarse = lt.phantoms.default_flame_grid(tuple(cfg["recon_shape"]), cfg["focus_distance"])
         flame = lt.phantoms.axisymmetric_flame(fine, width_base=FLAME_WIDTH_BASE)
         scene = lt.Scene(medium=flame)
         lf = _resumable(
-            resume / f"lightfield-{key}.npz", lt.LightField.load,
-            lambda: lt.render(scene, camera, rays_per_pixel=n_d, seed=cfg["seeds"]["render"], wavelengths=(wl,),
-                              progress=progress),
-            lambda obj, p: obj.save(p), resumed, "render")
-        t_mc = lf.metadata.get("elapsed_s")
-        files = save_lightfield_products(lf, out, FOCAL_DEPTHS)
+            d.resume / f"lightfield-{d.key}.npz", lt.LightField.load,
+            lambda: lt.render(scene, d.r["camera"], rays_per_pixel=n_d, seed=cfg["seeds"]["render"],
+                              wavelengths=(WAVELENGTH,), progress=d.progress),
+            lambda obj, p: obj.save(p), d.resumed, "render")
+        files = save_lightfield_products(lf, d.out, FOCAL_DEPTHS)
+    d.r.update(fine=fine, coarse=coarse, flame=flame, scene=scene, lf=lf)
     lit = lf.raw > 1e-3 * lf.raw.max()
     rel_se = lf.std_error[lit] / lf.raw[lit]
-    metrics["render"] = {
+    d.metrics["render"] = {
         "truth_grid": fine.to_dict(), "rays_per_pixel": n_d, "seed": cfg["seeds"]["render"],
-        "monte_carlo_seconds": t_mc, "total_signal_W_per_m": float(lf.raw.sum()),
+        "monte_carlo_seconds": lf.metadata.get("elapsed_s"), "total_signal_W_per_m": float(lf.raw.sum()),
         "max_pixel_signal_W_per_m": float(lf.raw.max()),
         "pixels_with_signal": int(lit.sum()),
         "median_relative_mc_error": float(np.median(rel_se)),
         "rms_relative_mc_error": float(np.sqrt(np.mean(rel_se**2))),
         "files": [f.name for f in files],
     }
-    sections.append({
+    d.sections.append({
         "title": "2. Monte Carlo render of the flame",
         "text": (f"The default sooting axisymmetric flame (peak 1900 K, soot σₐ up to 10 m⁻¹ at 650 nm) on a "
                  f"{'×'.join(map(str, fine.shape))} truth grid, rendered by backward Monte Carlo (exact DDA "
                  f"transport) with {n_d} rays per pixel at 650 nm. Left: raw sensor crop (microlens images); "
                  "middle: one sub-aperture view; right: all views. Below: refocused images across the flame box. "
                  "Emission barely refocuses: a flame is a volume, not a surface."),
-        "figures": [(out / "overview.png", "raw image, a sub-aperture view, all views"),
-                    (out / "focal_stack.png", "focal stack (shift-and-add with traced shifts)")],
-        "table": {k: metrics["render"][k] for k in ("total_signal_W_per_m", "max_pixel_signal_W_per_m",
-                                                    "median_relative_mc_error", "rms_relative_mc_error",
-                                                    "monte_carlo_seconds")},
+        "figures": [(d.out / "overview.png", "raw image, a sub-aperture view, all views"),
+                    (d.out / "focal_stack.png", "focal stack (shift-and-add with traced shifts)")],
+        "table": {k: d.metrics["render"][k] for k in ("total_signal_W_per_m", "max_pixel_signal_W_per_m",
+                                                      "median_relative_mc_error", "rms_relative_mc_error",
+                                                      "monte_carlo_seconds")},
     })
 
-    # ---- 3. weight matrix on the reconstruction grid
-    with st("weights", f"weight matrix on the {cfg['recon_shape']} reconstruction grid ({n_w} rays/pixel)"):
-        sa_c, T_eff = effective_truth(flame, coarse, wl)
-        W = _resumable(
-            resume / f"weights-{key}.npz", lambda p: lt.WeightMatrix.load(p, camera, coarse, wavelength=wl),
-            lambda: lt.weights(camera, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
-                               seed=cfg["seeds"]["weights"], progress=progress),
-            lambda obj, p: obj.save(p), resumed, "weights")
-    metrics["weights"] = {"recon_grid": coarse.to_dict(), "shape": list(W.shape), "nnz": W.nnz,
-                          "megabytes": W.nbytes / 1e6, "rays_per_pixel": n_w, "seed": cfg["seeds"]["weights"],
-                          "build_seconds": W.metadata.get("build_seconds"),
-                          "sigma_a": "known: block mean of the truth's sigma_a (effective_truth)"}
 
-    # ---- 4. noisy measurement
-    with st("measurement", f"noisy measurement ({100 * NOISE:.0f} % noise + Monte Carlo error)"):
-        noisy = lt.add_noise(lf, relative_std=NOISE, seed=cfg["seeds"]["noise"])
-        noisy, noise_rule = _noise_with_mc_error(noisy, lf, n_d, n_w, MIN_ETENDUE_FRACTION)
+def _demo_weights(d: _DemoRun) -> None:
+    """Stage 3: the weight matrix on the reconstruction grid, for the known ``sigma_a``."""
+    import lftomo as lt
+    from .inverse.compare import effective_truth
+
+    cfg, n_w, coarse, wl = d.cfg, d.n_w, d.r["coarse"], WAVELENGTH
+    with d.st("weights", f"weight matrix on the {cfg['recon_shape']} reconstruction grid ({n_w} rays/pixel)"):
+        sa_c, T_eff = effective_truth(d.r["flame"], coarse, wl)
+        W = _resumable(
+            d.resume / f"weights-{d.key}.npz",
+            lambda p: lt.WeightMatrix.load(p, d.r["camera"], coarse, wavelength=wl),
+            lambda: lt.weights(d.r["camera"], coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
+                               seed=cfg["seeds"]["weights"], progress=d.progress),
+            lambda obj, p: obj.save(p), d.resumed, "weights")
+    d.r.update(sa_c=sa_c, T_eff=T_eff, W=W)
+    d.metrics["weights"] = {"recon_grid": coarse.to_dict(), "shape": list(W.shape), "nnz": W.nnz,
+                            "megabytes": W.nbytes / 1e6, "rays_per_pixel": n_w, "seed": cfg["seeds"]["weights"],
+                            "build_seconds": W.metadata.get("build_seconds"),
+                            "sigma_a": "known: block mean of the truth's sigma_a (effective_truth)"}
+
+
+def _demo_measurement(d: _DemoRun) -> None:
+    """Stage 4: the noisy measurement and its noise model."""
+    import lftomo as lt
+
+    with d.st("measurement", f"noisy measurement ({100 * NOISE:.0f} % noise + Monte Carlo error)"):
+        noisy = lt.add_noise(d.r["lf"], relative_std=NOISE, seed=d.cfg["seeds"]["noise"])
+        noisy, noise_rule = _noise_with_mc_error(noisy, d.r["lf"], d.n_d, d.n_w, MIN_ETENDUE_FRACTION)
         m = lt.Measurement.from_lightfield(noisy, data="subaperture")
-        problem = m.problem(W, coarse)
-        chi2_truth = problem.chi2(T_eff)
-    metrics["measurement"] = {
+        problem = m.problem(d.r["W"], d.r["coarse"])
+        chi2_truth = problem.chi2(d.r["T_eff"])
+    d.r.update(m=m, problem=problem, chi2_truth=chi2_truth)
+    W, coarse, n_w = d.r["W"], d.r["coarse"], d.n_w
+    d.metrics["measurement"] = {
         "data": "subaperture", "n_data": m.size, "noise": noisy.metadata.get("noise"), "noise_model": noise_rule,
         "min_etendue_fraction": MIN_ETENDUE_FRACTION,
         "median_relative_sigma": float(np.median(m.sigma / np.maximum(np.abs(m.y), 1e-300))),
         "chi2_at_effective_truth": chi2_truth,
     }
-    sections.append({
+    d.sections.append({
         "title": "3–4. Forward model and measurement",
         "text": (f"Weight matrix W (m² sr) on the {'×'.join(map(str, coarse.shape))} reconstruction grid for "
                  f"the known absorption (block mean of the truth's σₐ), built with {n_w} independent rays per "
-                 f"pixel (seed {cfg['seeds']['weights']}; the data used seed {cfg['seeds']['render']}). "
+                 f"pixel (seed {d.cfg['seeds']['weights']}; the data used seed {d.cfg['seeds']['render']}). "
                  f"Data: the lit sub-aperture pixels (étendue ≥ {100 * MIN_ETENDUE_FRACTION:.0f} % of the peak: "
                  f"the rims of the microlens images are left out) with {100 * NOISE:.0f} % Gaussian noise; their "
                  "σ also carries the Monte Carlo error of data and model. "
@@ -570,23 +622,33 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
                   "χ²/m at effective truth": chi2_truth},
     })
 
-    # ---- 5. reconstruction
-    opts = {"max_steps": cfg["max_steps"], "linear_max_steps": cfg["linear_max_steps"]}
-    with st("reconstruct", "reconstruction (optimistix LM, λ by the discrepancy rule)"):
-        rec = lt.reconstruct(m, W, regularization="auto", rule="discrepancy", noise_scale=NOISE_SCALE,
-                             prior="gradient", bounds=BOUNDS, **opts)
+
+def _error_rows(errors: dict[str, Any] | None, hot: float) -> dict[str, Any]:
+    """Report-table rows ``T>hot K <metric>`` of :func:`temperature_errors`' result."""
+    return {f"T>{hot:.0f} K {k}": v for k, v in (errors or {}).items()}
+
+
+def _demo_reconstruct(d: _DemoRun) -> None:
+    """Stage 5: the voxel reconstruction (λ by the discrepancy rule)."""
+    import lftomo as lt
+
+    coarse, T_eff = d.r["coarse"], d.r["T_eff"]
+    with d.st("reconstruct", "reconstruction (optimistix LM, λ by the discrepancy rule)"):
+        rec = lt.reconstruct(d.r["m"], d.r["W"], regularization="auto", rule="discrepancy", noise_scale=NOISE_SCALE,
+                             prior="gradient", bounds=BOUNDS, **d.opts)
+    d.r["rec"] = rec
     err = temperature_errors(rec.T, T_eff, HOT)
     err_core = temperature_errors(rec.T, T_eff, HOT_CORE)
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")
-    metrics["reconstruction"] = {**rec.summary(), "lambda_note": note, "solver_options": opts,
-                                 "errors_T_gt_800K": err, "errors_T_gt_1400K": err_core,
-                                 "T_max_true_K": float(T_eff.max()), "T_max_reconstructed_K": float(rec.T.max())}
+    d.metrics["reconstruction"] = {**rec.summary(), "lambda_note": note, "solver_options": d.opts,
+                                   "errors_T_gt_800K": err, "errors_T_gt_1400K": err_core,
+                                   "T_max_true_K": float(T_eff.max()), "T_max_reconstructed_K": float(rec.T.max())}
     fig_rec = slice_figure([("effective truth", T_eff, "T"), ("reconstruction", rec.T, "T"),
                             ("reconstruction − truth", rec.T - T_eff, "error")], coarse,
-                           out / "reconstruction_slices.png", hot=HOT, T_true=T_eff,
+                           d.out / "reconstruction_slices.png", hot=HOT, T_true=T_eff,
                            title=f"temperature on the {'×'.join(map(str, coarse.shape))} grid "
                                  f"(error shown where T > {HOT:.0f} K)")
-    sections.append({
+    d.sections.append({
         "title": "5. Reconstruction",
         "text": ("Regularised nonlinear least squares in T (optimistix Levenberg–Marquardt, gradient prior, "
                  f"bounds {BOUNDS[0]:.0f}–{BOUNDS[1]:.0f} K), λ by Morozov's discrepancy rule. "
@@ -595,25 +657,30 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
                  "that region is nearly invisible and is set by the prior."),
         "figures": [(fig_rec, "truth / reconstruction / error: x–y through the flame axis, x–z at three heights")],
         "table": {"λ": rec.regularization, "χ²/m": rec.chi2, "iterations": rec.iterations,
-                  "converged": rec.converged,
-                  **{f"T>{HOT:.0f} K {k}": v for k, v in (err or {}).items()},
-                  **{f"T>{HOT_CORE:.0f} K {k}": v for k, v in (err_core or {}).items()},
-                  "seconds": st.timings["reconstruct"]},
+                  "converged": rec.converged, **_error_rows(err, HOT), **_error_rows(err_core, HOT_CORE),
+                  "seconds": d.st.timings["reconstruct"]},
     })
 
-    # ---- 5b. axisymmetric reconstruction
-    with st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, Laplacian prior)"):
-        rec_ax = lt.reconstruct(m, W, regularization="auto", rule="discrepancy", noise_scale=NOISE_SCALE,
-                                prior="laplacian", bounds=BOUNDS, symmetry="axisymmetric", **opts)
+
+def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
+    """Stage 5b: the same data with the flame known to be axisymmetric (ring cells)."""
+    import lftomo as lt
+
+    coarse, T_eff = d.r["coarse"], d.r["T_eff"]
+    with d.st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, Laplacian prior)"):
+        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], regularization="auto", rule="discrepancy",
+                                noise_scale=NOISE_SCALE, prior="laplacian", bounds=BOUNDS, symmetry="axisymmetric",
+                                **d.opts)
+    d.r["rec_ax"] = rec_ax
     err_ax = temperature_errors(rec_ax.T, T_eff, HOT)
     err_ax_core = temperature_errors(rec_ax.T, T_eff, HOT_CORE)
-    metrics["reconstruction_axisymmetric"] = {**rec_ax.summary(), "prior": "laplacian",
-                                              "errors_T_gt_800K": err_ax, "errors_T_gt_1400K": err_ax_core}
+    d.metrics["reconstruction_axisymmetric"] = {**rec_ax.summary(), "prior": "laplacian",
+                                                "errors_T_gt_800K": err_ax, "errors_T_gt_1400K": err_ax_core}
     fig_ax = slice_figure([("effective truth", T_eff, "T"), ("axisymmetric fit", rec_ax.T, "T"),
                            ("axisymmetric fit − truth", rec_ax.T - T_eff, "error")], coarse,
-                          out / "reconstruction_axisymmetric_slices.png", hot=HOT, T_true=T_eff,
+                          d.out / "reconstruction_axisymmetric_slices.png", hot=HOT, T_true=T_eff,
                           title=f"axisymmetric fit: {rec_ax.symmetry.n_rings} rings × {coarse.shape[1]} layers")
-    sections.append({
+    d.sections.append({
         "title": "5b. Axisymmetric reconstruction",
         "text": ("The same data and weight matrix, with the prior knowledge that the flame is axisymmetric about "
                  "the vertical axis through the box centre: every horizontal layer has one temperature per ring of "
@@ -625,22 +692,27 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
                  "lateral profile at another, as in Abel inversion. Only for flames that are axisymmetric."),
         "figures": [(fig_ax, "truth / axisymmetric fit / error")],
         "table": {"λ": rec_ax.regularization, "χ²/m": rec_ax.chi2, "rings": rec_ax.symmetry.n_rings,
-                  **{f"T>{HOT:.0f} K {k}": v for k, v in (err_ax or {}).items()},
-                  **{f"T>{HOT_CORE:.0f} K {k}": v for k, v in (err_ax_core or {}).items()},
-                  "seconds": st.timings["reconstruct_axisymmetric"]},
+                  **_error_rows(err_ax, HOT), **_error_rows(err_ax_core, HOT_CORE),
+                  "seconds": d.st.timings["reconstruct_axisymmetric"]},
     })
 
-    # ---- 6. posterior
+
+def _demo_posterior(d: _DemoRun) -> None:
+    """Stage 6: emcee on the six parameters of a flame model."""
+    import lftomo as lt
+
+    cfg, coarse, T_eff = d.cfg, d.r["coarse"], d.r["T_eff"]
     n_steps = cfg["posterior_steps"]
-    with st("posterior", f"posterior: emcee, 6-parameter flame, {n_steps} steps"):
+    with d.st("posterior", f"posterior: emcee, 6-parameter flame, {n_steps} steps"):
         basis = lt.ParametricFlame(coarse)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            post = lt.sample_posterior(problem, basis=basis, n_walkers=cfg["posterior"]["n_walkers"],
+            post = lt.sample_posterior(d.r["problem"], basis=basis, n_walkers=cfg["posterior"]["n_walkers"],
                                        n_steps=n_steps, seed=cfg["seeds"]["posterior"], bounds=BOUNDS,
-                                       progress=progress)
+                                       progress=d.progress)
         post_warn = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
-        warned += post_warn
+        d.warned += post_warn
+    d.r["post"] = post
     truth_c = _flame_truth_params(coarse)
     params = {}
     for k, name in enumerate(post.names):
@@ -648,7 +720,7 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
         params[name] = {"true": truth_c[name], "mean": mean, "std": sd,
                         "z_score": (mean - truth_c[name]) / sd if sd > 0 else None,
                         "tau_steps": float(post.tau[k])}
-    metrics["posterior"] = {
+    d.metrics["posterior"] = {
         "basis": "ParametricFlame", "grid": coarse.to_dict(), "n_walkers": post.n_walkers, "n_steps": post.n_steps,
         "burn": post.burn, "seed": post.seed, "acceptance_mean": float(np.mean(post.acceptance_fraction)),
         "tau_max_steps": float(np.nanmax(post.tau)), "tau": post.tau, "n_eff": post.n_eff,
@@ -660,20 +732,21 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
     fig_post = slice_figure([("effective truth", T_eff, "T"), ("posterior mean", post.T_mean, "T"),
                              ("posterior std", post.T_std, "std"),
                              ("posterior mean − truth", post.T_mean - T_eff, "error")], coarse,
-                            out / "posterior_slices.png", hot=HOT, T_true=T_eff,
+                            d.out / "posterior_slices.png", hot=HOT, T_true=T_eff,
                             title="posterior of the 6-parameter flame model")
-    fig_trace = _posterior_trace_figure(post, out / "posterior_traces.png", truth_c)
-    sections.append({
+    fig_trace = _posterior_trace_figure(post, d.out / "posterior_traces.png", truth_c)
+    d.sections.append({
         "title": "6. Posterior (emcee)",
         "text": ("emcee's ensemble sampler on the six parameters of an axisymmetric Gaussian-plume flame "
                  "(ParametricFlame), likelihood from the same data and W (exact Gaussian sufficient statistics). "
                  f"{post.summary()}. "
                  + ("<b>The chain is short</b> (fewer than 50 τ after burn-in): means and widths are indicative. "
                     if not post.converged else "")
-                 + f"The widths reflect the stated noise model only (χ²/m of the effective truth: {chi2_truth:.3g}, "
-                   "section 3–4; well above 1, model error dominates and the intervals are too narrow). The "
-                   "six-parameter form is evaluated at the voxel centres of the reconstruction grid, while the "
-                   "data come from the finer truth grid: a narrow plume is biased towards narrower and hotter."),
+                 + f"The widths reflect the stated noise model only (χ²/m of the effective truth: "
+                   f"{d.r['chi2_truth']:.3g}, section 3–4; well above 1, model error dominates and the intervals "
+                   "are too narrow). The six-parameter form is evaluated at the voxel centres of the reconstruction "
+                   "grid, while the data come from the finer truth grid: a narrow plume is biased towards narrower "
+                   "and hotter."),
         "figures": [(fig_post, "posterior mean and standard deviation"),
                     (fig_trace, "walker traces")],
         "table": {**{f"{n} (true {v['true']:.4g})": f"{v['mean']:.4g} ± {v['std']:.2g}" for n, v in params.items()},
@@ -681,27 +754,32 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
                   "N_eff": post.n_eff, "converged": post.converged},
     })
 
-    # ---- 6b. posterior of the whole field (Laplace, λ by empirical Bayes)
-    with st("field_posterior", "posterior of the whole field: Laplace, lambda by evidence"):
-        fpost = lt.laplace_posterior(problem, regularization="evidence", lambda0=rec.regularization, T0=rec.T,
-                                     bounds=BOUNDS, seed=cfg["seeds"]["posterior"], **opts)
+
+def _demo_field_posterior(d: _DemoRun) -> None:
+    """Stage 6b: the Laplace posterior of the whole field, λ by empirical Bayes."""
+    import lftomo as lt
+
+    coarse, T_eff, rec = d.r["coarse"], d.r["T_eff"], d.r["rec"]
+    with d.st("field_posterior", "posterior of the whole field: Laplace, lambda by evidence"):
+        fpost = lt.laplace_posterior(d.r["problem"], regularization="evidence", lambda0=rec.regularization, T0=rec.T,
+                                     bounds=BOUNDS, seed=d.cfg["seeds"]["posterior"], **d.opts)
+    d.r["fpost"] = fpost
     ev = fpost.evidence
     hot_eff = T_eff > HOT
-    metrics["field_posterior"] = {
+    any_hot = bool(np.any(hot_eff))
+    fp = d.metrics["field_posterior"] = {
         **fpost.summary(),
-        "coverage_90_T_gt_800K": fpost.coverage(T_eff, hot=HOT) if np.any(hot_eff) else None,
+        "coverage_90_T_gt_800K": fpost.coverage(T_eff, hot=HOT) if any_hot else None,
         "errors_of_mean_T_gt_800K": temperature_errors(fpost.T_mean, T_eff, HOT),
-        "median_T_std_K_where_hot": float(np.median(fpost.T_std[hot_eff])) if np.any(hot_eff) else None,
-        "median_abs_error_K_where_hot": float(np.median(np.abs(fpost.T_mean - T_eff)[hot_eff]))
-        if np.any(hot_eff) else None,
+        "median_T_std_K_where_hot": float(np.median(fpost.T_std[hot_eff])) if any_hot else None,
+        "median_abs_error_K_where_hot": float(np.median(np.abs(fpost.T_mean - T_eff)[hot_eff])) if any_hot else None,
     }
-    fp = metrics["field_posterior"]
     fig_fpost = slice_figure([("effective truth", T_eff, "T"), ("posterior mean", fpost.T_mean, "T"),
                               ("posterior std", fpost.T_std, "std"),
                               ("posterior mean − truth", fpost.T_mean - T_eff, "error")], coarse,
-                             out / "field_posterior_slices.png", hot=HOT, T_true=T_eff,
+                             d.out / "field_posterior_slices.png", hot=HOT, T_true=T_eff,
                              title=f"Laplace posterior of the whole field, λ = {fpost.regularization:.3g} (evidence)")
-    sections.append({
+    d.sections.append({
         "title": "6b. Posterior of the whole field (Laplace, λ by empirical Bayes)",
         "text": ("Every voxel, with the reconstruction's smoothness term as the prior: the Gauss–Newton "
                  "(Laplace) approximation about the regularized reconstruction, precision JᵀJ + λ LᵀL/T_s² "
@@ -719,22 +797,27 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
                   "mean |ΔT|/T of the posterior mean": fp["errors_of_mean_T_gt_800K"]["mean_rel"]},
     })
 
-    # ---- 7. refocused vs sub-aperture data
-    with st("compare", "refocused vs sub-aperture data"):
+
+def _demo_compare(d: _DemoRun) -> None:
+    """Stage 7: refocused images vs sub-aperture views as data (same light field, noise draw and W)."""
+    from .inverse.compare import compare_refocus_subaperture
+
+    cfg = d.cfg
+    with d.st("compare", "refocused vs sub-aperture data"):
         extra = {"min_etendue_fraction": MIN_ETENDUE_FRACTION}
         comp = compare_refocus_subaperture(
-            scene, camera, coarse, noise=NOISE, depths=list(COMPARE_DEPTHS), seed=cfg["seeds"]["compare"],
-            rays_per_pixel=n_d, weights_rays_per_pixel=n_w, wavelength=wl, regularization="auto",
-            bounds=BOUNDS, n_singular=cfg["n_singular"], hot=HOT, progress=progress, rule="discrepancy",
-            noise_scale=NOISE_SCALE, lightfield=lf, weights=W, **extra, **opts)
-    same = bool(np.allclose(comp.subaperture.T, rec.T))
+            d.r["scene"], d.r["camera"], d.r["coarse"], noise=NOISE, depths=list(COMPARE_DEPTHS),
+            seed=cfg["seeds"]["compare"], rays_per_pixel=d.n_d, weights_rays_per_pixel=d.n_w, wavelength=WAVELENGTH,
+            regularization="auto", bounds=BOUNDS, n_singular=cfg["n_singular"], hot=HOT, progress=d.progress,
+            rule="discrepancy", noise_scale=NOISE_SCALE, lightfield=d.r["lf"], weights=d.r["W"], **extra, **d.opts)
+    same = bool(np.allclose(comp.subaperture.T, d.r["rec"].T))
     csum = comp.summary()
-    metrics["compare"] = {**csum, "depth_profile": comp.depth_profile, "singular_values": comp.singular_values,
-                          "lambda": {"subaperture": comp.subaperture.regularization,
-                                     "refocus": comp.refocus.regularization},
-                          "options": {**extra, **opts, "n_singular": cfg["n_singular"]},
-                          "same_subaperture_result_as_stage_5": same}
-    fig_cmp = _spectra_figure(comp, out / "refocus_vs_subaperture.png")
+    d.metrics["compare"] = {**csum, "depth_profile": comp.depth_profile, "singular_values": comp.singular_values,
+                            "lambda": {"subaperture": comp.subaperture.regularization,
+                                       "refocus": comp.refocus.regularization},
+                            "options": {**extra, **d.opts, "n_singular": cfg["n_singular"]},
+                            "same_subaperture_result_as_stage_5": same}
+    fig_cmp = _spectra_figure(comp, d.out / "refocus_vs_subaperture.png")
     table = {}
     for kind in ("subaperture", "refocus"):
         e = comp.errors[kind]
@@ -744,37 +827,42 @@ def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Pat
         table[f"{kind}: depth resolution (voxels)"] = comp.depth_resolution[kind]
         table[f"{kind}: singular values > 0.1/K"] = csum["effective_rank_10K"][kind]
     table["sub-aperture result identical to section 5"] = same
-    sections.append({
+    d.sections.append({
         "title": "7. Refocused images vs sub-aperture views as data",
         "text": ("The reference text asks whether a focal stack serves tomography as well as the views. Same "
                  "rendered light field and noise draw (same seeds as above), same W; only the data differ: all lit "
-                 f"view pixels, or refocused images at {', '.join(f'{d:.3f}' for d in COMPARE_DEPTHS)} m "
+                 f"view pixels, or refocused images at {', '.join(f'{x:.3f}' for x in COMPARE_DEPTHS)} m "
                  "(operator R·W). Left: singular values of the whitened operators (per K at the truth) — "
                  "how many temperature patterns each data kind resolves; right: error per depth layer."),
         "figures": [(fig_cmp, "singular spectra and per-depth errors")],
         "table": table,
     })
 
-    # ---- fields, report, metrics
-    np.savez_compressed(out / "fields.npz", T_effective_truth=T_eff, sigma_a=sa_c, T_reconstruction=rec.T,
-                        T_reconstruction_axisymmetric=rec_ax.T,
-                        T_posterior_mean=post.T_mean, T_posterior_std=post.T_std,
-                        T_field_posterior_std=fpost.T_std,
+
+def _demo_finish(d: _DemoRun, total_s: float) -> dict[str, Any]:
+    """The fields file, metrics and the report; returns the metrics."""
+    from .report import write_report
+
+    r, coarse = d.r, d.r["coarse"]
+    np.savez_compressed(d.out / "fields.npz", T_effective_truth=r["T_eff"], sigma_a=r["sa_c"],
+                        T_reconstruction=r["rec"].T, T_reconstruction_axisymmetric=r["rec_ax"].T,
+                        T_posterior_mean=r["post"].T_mean, T_posterior_std=r["post"].T_std,
+                        T_field_posterior_std=r["fpost"].T_std,
                         grid_shape=np.asarray(coarse.shape), grid_lower=np.asarray(coarse.lower),
                         grid_upper=np.asarray(coarse.upper))
-    st.timings["total"] = time.perf_counter() - t_start
-    metrics["timings_s"] = dict(st.timings)
-    metrics["warnings"] = warned + [f"camera: {w}" for w in design["warnings"]]
-    metrics["resumed_stages"] = resumed
+    d.st.timings["total"] = total_s
+    metrics = d.metrics
+    metrics["timings_s"] = dict(d.st.timings)
+    metrics["warnings"] = d.warned + [f"camera: {w}" for w in r["design"]["warnings"]]
+    metrics["resumed_stages"] = d.resumed
     metrics = _finite(metrics)
-    intro = (f"lftomo {metrics['environment']['lftomo']} — {cfg['mode']} run, seed {seed}, "
-             f"{st.timings['total']:.0f} s on {metrics['environment']['cpu_count']} cores. "
+    intro = (f"lftomo {metrics['environment']['lftomo']} — {d.cfg['mode']} run, seed {d.seed}, "
+             f"{total_s:.0f} s on {metrics['environment']['cpu_count']} cores. "
              "Synthetic data: the truth is rendered by Monte Carlo on a grid 2× finer than the reconstruction "
              "grid, with rays independent of the weight matrix's; errors are against the effective truth on "
              "the reconstruction grid. All parameters, timings and diagnostics are in <code>metrics.json</code>.")
-    timing_rows = {f"{k} (s)": v for k, v in st.timings.items()}
-    sections.append({"title": "Timings", "table": timing_rows})
-    write_report(out, "lftomo demo: plenoptic flame temperature tomography", sections, metrics, intro=intro)
+    d.sections.append({"title": "Timings", "table": {f"{k} (s)": v for k, v in d.st.timings.items()}})
+    write_report(d.out, "lftomo demo: plenoptic flame temperature tomography", d.sections, metrics, intro=intro)
     return metrics
 
 
@@ -846,6 +934,256 @@ def _grid_of_weight_file(path: Path):
         raise LftomoError(f"{what} {str(path)!r}: member 'meta' grid is invalid: {exc}") from None
 
 
+@dataclasses.dataclass
+class _ReconstructInputs:
+    """What :func:`run_reconstruct` reconstructs from: data, model, grid and (in scene mode) the truth."""
+
+    lf: Any
+    W: Any
+    grid: Any
+    wavelength: float | None
+    channel: int
+    n_data_rays: int | None
+    n_weight_rays: int | None
+    noise_seed: int
+    posterior_seed: int
+    metrics: dict[str, Any]
+    depths: Sequence[float] | None = None
+    T_true: np.ndarray | None = None
+    sigma_a: np.ndarray | None = None
+
+
+def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
+                               symmetry, quadrature, posterior, posterior_basis) -> None:
+    """LftomoError naming the ``lftomo reconstruct`` option for any bad option, before any work."""
+    if scene is not None and (lightfield is not None or weights is not None):
+        raise LftomoError("give either a SCENE.toml or --lightfield with --weights, not both")
+    if scene is None and (lightfield is None or weights is None):
+        missing = [n for n, v in (("--lightfield", lightfield), ("--weights", weights)) if v is None]
+        raise LftomoError(f"without a SCENE.toml, both --lightfield and --weights are needed; missing {', '.join(missing)}")
+    if data not in ("subaperture", "refocus"):
+        raise LftomoError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
+    if data == "subaperture" and depths:
+        raise LftomoError("--depths is only used with --data refocus")
+    if not (0 < bounds[0] < bounds[1]):
+        raise LftomoError(f"--bounds must be T_min,T_max with 0 < T_min < T_max (K), got {bounds!r}")
+    if not 0.0 <= min_etendue_fraction < 1.0:
+        raise LftomoError(f"--min-etendue-fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    if noise is not None and not (math.isfinite(noise) and noise > 0):
+        raise LftomoError(f"--noise must be a relative noise level > 0 (0.01 = 1 %), got {noise!r}")
+    if symmetry not in (None, "none", "axisymmetric"):
+        raise LftomoError(f"--symmetry must be 'none' or 'axisymmetric', got {symmetry!r}")
+    if not (isinstance(quadrature, int) and quadrature >= 1):
+        raise LftomoError(f"--quadrature must be an integer >= 1, got {quadrature!r}")
+    if quadrature > 1 and posterior and posterior_basis != "field":
+        raise LftomoError(f"--quadrature {quadrature} (sub-voxel emission) works with --posterior-basis field only; "
+                         f"the {posterior_basis!r} basis posterior needs weights on the reconstruction grid")
+
+
+def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, quadrature, data, depths, progress,
+                       allow_outside) -> _ReconstructInputs:
+    """Scene mode: render the scene's medium (the truth) and build the weights on the reconstruction grid."""
+    import lftomo as lt
+    from .config import load_scene_file
+    from .inverse.compare import effective_truth
+
+    cfg = load_scene_file(scene, allow_outside=allow_outside)
+    medium = cfg.scene.medium
+    if medium is None:
+        raise LftomoError(f"SCENE {str(scene)!r} has no [medium]: there is no temperature field to reconstruct")
+    fine = medium.grid
+    shape = tuple(recon_shape) if recon_shape else tuple(n // 2 for n in fine.shape)
+    if len(shape) != 3 or any(n < 1 or f % n for n, f in zip(shape, fine.shape)):
+        given = (f"--recon-shape {list(shape)}" if recon_shape else
+                 f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
+        raise LftomoError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
+                         "an integer refinement of the reconstruction grid); give --recon-shape")
+    grid = lt.Grid(shape, fine.lower, fine.upper)
+    wls = cfg.wavelengths
+    ch = 0 if channel is None else int(channel)
+    n_ch = 1 if wls is None else len(wls)
+    if not 0 <= ch < n_ch:
+        raise LftomoError(f"--channel must be in 0..{n_ch - 1} for this scene's wavelengths, got {ch}")
+    wl = None if wls is None else wls[ch]
+    s0 = cfg.seed if seed is None else int(seed)
+    n_d = int(rays_per_pixel or cfg.rays_per_pixel)
+    if n_d < 2:
+        raise LftomoError(f"--rays-per-pixel / [render] rays_per_pixel is {n_d}: the render's Monte Carlo "
+                         "error (part of the noise model) cannot be estimated from one ray per pixel; "
+                         "use 2 or more")
+    if medium.is_scattering:
+        raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
+                         "(the weight matrix is built for a known, non-scattering sigma_a)")
+    lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
+                   wavelengths="gray" if wl is None else (wl,), progress=progress)
+    sa, T_true = effective_truth(medium, grid, wl)
+    wgrid = grid.refined(quadrature) if quadrature > 1 else grid
+    sa_w = lt.interpolate_field(sa, grid, wgrid) if quadrature > 1 else sa
+    W = lt.weights(cfg.camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
+                   rays_per_pixel=n_d, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress)
+    if depths is None and data == "refocus":
+        depths = cfg.focal_stack_depths or None
+    metrics = {"scene": str(scene), "truth_grid": fine.to_dict(), "rays_per_pixel_data": n_d,
+               "rays_per_pixel_weights": n_d,
+               "seeds": {"render": s0, "noise": s0 + 1, "weights": s0 + 2, "posterior": s0 + 3}}
+    return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=0, n_data_rays=n_d, n_weight_rays=n_d,
+                              noise_seed=s0 + 1, posterior_seed=s0 + 3, metrics=metrics, depths=depths,
+                              T_true=T_true, sigma_a=sa)
+
+
+def _matching_channel(lf, wl: float | None, channel: int | None) -> int:
+    """The light field's channel at the weights' wavelength ``wl`` (``channel`` if given, checked)."""
+    def name(w):
+        return "gray" if w is None else f"{w * 1e9:.0f} nm"
+
+    if lf.wavelengths is None:
+        if wl is not None:
+            raise LftomoError(f"--weights: built for {name(wl)} but the --lightfield is gray")
+        return 0
+    match = [k for k, w in enumerate(lf.wavelengths) if wl is not None and abs(w - wl) <= 1e-12]
+    if channel is not None:
+        ch = int(channel)
+        if not 0 <= ch < lf.n_channels:
+            raise LftomoError(f"--channel must be in 0..{lf.n_channels - 1}, got {ch}")
+        if ch not in match:
+            raise LftomoError(f"--channel {ch} is {name(lf.wavelengths[ch])} but --weights was built for {name(wl)}")
+        return ch
+    if not match:
+        raise LftomoError(f"--weights was built for {name(wl)}, a wavelength the --lightfield "
+                         f"({[round(w * 1e9) for w in lf.wavelengths]} nm) does not have")
+    return match[0]
+
+
+def _inputs_from_files(lightfield, weights, *, quadrature, channel, seed, depths) -> _ReconstructInputs:
+    """File mode: a saved light field and a saved weight matrix (the truth unknown)."""
+    import lftomo as lt
+
+    try:
+        lf = lt.LightField.load(lightfield)
+    except ValueError as exc:
+        raise LftomoError(f"--lightfield: {exc}") from None
+    wpath = Path(weights)
+    if not wpath.is_file():
+        raise LftomoError(f"--weights: weight-matrix file {str(wpath)!r} does not exist")
+    try:
+        grid, _ = _grid_of_weight_file(wpath)
+        W = lt.WeightMatrix.load(wpath, lf.camera, grid)
+    except ValueError as exc:
+        raise LftomoError(f"--weights: {exc}") from None
+    if quadrature > 1:  # the weights' grid is the quadrature grid
+        try:
+            grid = grid.coarsened(quadrature)
+        except ValueError as exc:
+            raise LftomoError(f"--quadrature {quadrature}: {exc}") from None
+    wl = W.metadata.get("wavelength")
+    ch = _matching_channel(lf, wl, channel)
+    s_d, s_w = lf.metadata.get("seed"), W.metadata.get("seed")
+    if s_d is not None and s_d == s_w:
+        warnings.warn(f"--lightfield and --weights were made with the same seed ({s_d}): the model "
+                      "shares the data's rays (an inverse crime); build W with another --seed", UserWarning)
+    s0 = 0 if seed is None else int(seed)
+    n_d, n_w = lf.metadata.get("rays_per_pixel"), W.metadata.get("rays_per_pixel")
+    metrics = {"lightfield": str(lightfield), "weights": str(weights), "rays_per_pixel_data": n_d,
+               "rays_per_pixel_weights": n_w, "seed_data": s_d, "seed_weights": s_w, "noise_seed": s0 + 1}
+    return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=ch, n_data_rays=n_d, n_weight_rays=n_w,
+                              noise_seed=s0 + 1, posterior_seed=s0 + 3, metrics=metrics, depths=depths)
+
+
+def _reconstruct_measurement(inp: _ReconstructInputs, *, noise, data, min_etendue_fraction):
+    """The measurement (noise added to a noise-free light field) and its problem on the grid."""
+    import lftomo as lt
+    from .inverse.reconstruct import problem_on_grid
+
+    lf, depths = inp.lf, inp.depths
+    if lf.noise_std is not None:
+        if noise is not None:
+            raise LftomoError("--noise: the --lightfield is already noisy (it has noise_std); leave --noise out")
+        noisy = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
+        noise_rule = "noise_std of the light field"
+    else:
+        noisy = lt.add_noise(lf, relative_std=NOISE if noise is None else noise, seed=inp.noise_seed)
+        noisy, noise_rule = _noise_with_mc_error(noisy, lf, inp.n_data_rays, inp.n_weight_rays, min_etendue_fraction)
+    if data == "refocus":
+        if not depths:
+            raise LftomoError("--data refocus needs --depths (m), e.g. --depths 0.98,1.0,1.02")
+        for x in depths:
+            if not (math.isfinite(x) and x > 0):
+                raise LftomoError(f"--depths must be positive depths in m, got {x!r}")
+    try:
+        m = lt.Measurement.from_lightfield(noisy, data=data, depths=list(depths) if data == "refocus" else None,
+                                           channel=inp.channel)
+    except ValueError as exc:
+        raise LftomoError(f"--data/--depths: {exc}") from None
+    problem, _ = problem_on_grid(m, inp.W, inp.grid)
+    metrics = {"data": data, "depths": None if depths is None else list(depths), "n_data": m.size,
+               "noise_model": noise_rule, "noise": noisy.metadata.get("noise"),
+               "min_etendue_fraction": min_etendue_fraction, "wavelength": inp.wavelength}
+    if inp.T_true is not None:
+        metrics["chi2_at_effective_truth"] = problem.chi2(inp.T_true)
+    return m, problem, metrics
+
+
+def _reconstruct_posterior(problem, rec, inp: _ReconstructInputs, *, basis_name, prior, bounds, n_steps, max_steps,
+                           symmetry, progress):
+    """The posterior of ``lftomo reconstruct --posterior`` and its metrics."""
+    import lftomo as lt
+
+    if basis_name == "field":
+        if prior == "tv":
+            raise LftomoError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
+        post = lt.laplace_posterior(problem, regularization="evidence", prior=prior, bounds=tuple(bounds),
+                                    lambda0=rec.regularization, seed=inp.posterior_seed, max_steps=max_steps,
+                                    symmetry=symmetry)
+        metrics = {"basis": "field", **post.summary()}
+        if inp.T_true is not None:
+            metrics["coverage_90"] = post.coverage(inp.T_true, hot=HOT)
+            metrics["errors_T_gt_800K"] = post.errors(inp.T_true, hot=HOT)
+        return post, metrics
+    if basis_name == "flame":
+        basis = lt.ParametricFlame(inp.grid)
+    elif basis_name == "dct":
+        basis = lt.DCTBasis(inp.grid, n_coeffs=(2, 3, 2))
+    else:
+        raise LftomoError(f"--posterior-basis must be 'flame' or 'dct', got {basis_name!r}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        post = lt.sample_posterior(problem, basis=basis, n_steps=n_steps, seed=inp.posterior_seed,
+                                   bounds=tuple(bounds), T_start=None, progress=progress)
+    metrics = {
+        "basis": basis_name, "names": list(post.names), "mean": post.coeff_mean, "std": post.coeff_std,
+        "acceptance_mean": float(np.mean(post.acceptance_fraction)), "tau": post.tau,
+        "n_eff": post.n_eff, "converged": post.converged, "n_steps": post.n_steps, "n_walkers": post.n_walkers,
+        "likelihood": post.likelihood, "likelihood_note": post.likelihood_note,
+        "importance_ess": post.importance_ess,
+        "warnings": [str(w.message) for w in caught if issubclass(w.category, UserWarning)],
+    }
+    return post, metrics
+
+
+def _write_reconstruct_outputs(stage: Path, inp: _ReconstructInputs, rec, post, data: str) -> list[str]:
+    """``fields.npz`` and ``slices.png`` into the staging folder; returns the file names (metrics.json last)."""
+    grid, T_true = inp.grid, inp.T_true
+    arrays = {"T": rec.T, "grid_shape": np.asarray(grid.shape), "grid_lower": np.asarray(grid.lower),
+              "grid_upper": np.asarray(grid.upper)}
+    if inp.sigma_a is not None:
+        arrays["sigma_a"] = inp.sigma_a
+    if T_true is not None:
+        arrays["T_true"] = T_true
+    if post is not None:
+        arrays["T_posterior_mean"] = post.T_mean
+        arrays["T_posterior_std"] = post.T_std
+    np.savez_compressed(stage / "fields.npz", **arrays)
+    rows = [("effective truth", T_true, "T")] if T_true is not None else []
+    rows.append(("reconstruction", rec.T, "T"))
+    if T_true is not None:
+        rows.append(("reconstruction − truth", rec.T - T_true, "error"))
+    if post is not None:
+        rows.append(("posterior std", post.T_std, "std"))
+    slice_figure(rows, grid, stage / "slices.png", hot=HOT, T_true=T_true,
+                 title=f"{data} data, λ = {rec.regularization:.3g}")
+    return ["fields.npz", "slices.png", "metrics.json"]
+
+
 def run_reconstruct(
     out_dir: str | Path,
     *,
@@ -895,240 +1233,56 @@ def run_reconstruct(
     at fault.
     """
     import lftomo as lt
-    from .config import load_scene_file
-    from .inverse.compare import effective_truth
-    from .inverse.reconstruct import problem_on_grid
-
-    t_start = time.perf_counter()
-    if scene is not None and (lightfield is not None or weights is not None):
-        raise LftomoError("give either a SCENE.toml or --lightfield with --weights, not both")
-    if scene is None and (lightfield is None or weights is None):
-        missing = [n for n, v in (("--lightfield", lightfield), ("--weights", weights)) if v is None]
-        raise LftomoError(f"without a SCENE.toml, both --lightfield and --weights are needed; missing {', '.join(missing)}")
-    if data not in ("subaperture", "refocus"):
-        raise LftomoError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
-    if data == "subaperture" and depths:
-        raise LftomoError("--depths is only used with --data refocus")
-    if not (0 < bounds[0] < bounds[1]):
-        raise LftomoError(f"--bounds must be T_min,T_max with 0 < T_min < T_max (K), got {bounds!r}")
-    if not 0.0 <= min_etendue_fraction < 1.0:
-        raise LftomoError(f"--min-etendue-fraction must be in [0, 1), got {min_etendue_fraction!r}")
-    if noise is not None and not (math.isfinite(noise) and noise > 0):
-        raise LftomoError(f"--noise must be a relative noise level > 0 (0.01 = 1 %), got {noise!r}")
-    if symmetry not in (None, "none", "axisymmetric"):
-        raise LftomoError(f"--symmetry must be 'none' or 'axisymmetric', got {symmetry!r}")
-    symmetry = None if symmetry == "none" else symmetry
-    if not (isinstance(quadrature, int) and quadrature >= 1):
-        raise LftomoError(f"--quadrature must be an integer >= 1, got {quadrature!r}")
-    if quadrature > 1 and posterior and posterior_basis != "field":
-        raise LftomoError(f"--quadrature {quadrature} (sub-voxel emission) works with --posterior-basis field only; "
-                         f"the {posterior_basis!r} basis posterior needs weights on the reconstruction grid")
     from .io import check_output_dir, staged_directory
 
+    t_start = time.perf_counter()
+    _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
+                               symmetry, quadrature, posterior, posterior_basis)
+    symmetry = None if symmetry == "none" else symmetry
     out = check_output_dir(out_dir, what="-o/--output")  # before the work, not after it
     st = _Stages(5 if posterior else 4, progress)
     metrics: dict[str, Any] = {"environment": _environment()}
-    T_true = None
-    sa = None
 
-    # ---- inputs
     if scene is not None:
         with st("inputs", f"scene {scene}: render the truth and the weight matrix"):
-            cfg = load_scene_file(scene, allow_outside=allow_outside)
-            medium = cfg.scene.medium
-            if medium is None:
-                raise LftomoError(f"SCENE {str(scene)!r} has no [medium]: there is no temperature field to reconstruct")
-            fine = medium.grid
-            shape = tuple(recon_shape) if recon_shape else tuple(n // 2 for n in fine.shape)
-            if any(n < 1 or f % n for n, f in zip(shape, fine.shape)) or len(shape) != 3:
-                given = (f"--recon-shape {list(shape)}" if recon_shape else
-                         f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
-                raise LftomoError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
-                                 "an integer refinement of the reconstruction grid); give --recon-shape")
-            grid = lt.Grid(shape, fine.lower, fine.upper)
-            wls = cfg.wavelengths
-            ch = 0 if channel is None else int(channel)
-            n_ch = 1 if wls is None else len(wls)
-            if not 0 <= ch < n_ch:
-                raise LftomoError(f"--channel must be in 0..{n_ch - 1} for this scene's wavelengths, got {ch}")
-            wl = None if wls is None else wls[ch]
-            s0 = cfg.seed if seed is None else int(seed)
-            n_d = int(rays_per_pixel or cfg.rays_per_pixel)
-            n_w = n_d
-            if n_d < 2:
-                raise LftomoError(f"--rays-per-pixel / [render] rays_per_pixel is {n_d}: the render's Monte Carlo "
-                                 "error (part of the noise model) cannot be estimated from one ray per pixel; "
-                                 "use 2 or more")
-            if medium.is_scattering:
-                raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
-                                 "(the weight matrix is built for a known, non-scattering sigma_a)")
-            lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
-                           wavelengths="gray" if wl is None else (wl,), progress=progress)
-            sa, T_true = effective_truth(medium, grid, wl)
-            wgrid = grid.refined(quadrature) if quadrature > 1 else grid
-            sa_w = lt.interpolate_field(sa, grid, wgrid) if quadrature > 1 else sa
-            W = lt.weights(cfg.camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
-                           rays_per_pixel=n_w, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress)
-            ch_lf = 0
-            if depths is None and data == "refocus":
-                depths = cfg.focal_stack_depths or None
-            metrics["inputs"] = {"scene": str(scene), "truth_grid": fine.to_dict(), "rays_per_pixel_data": n_d,
-                                 "rays_per_pixel_weights": n_w,
-                                 "seeds": {"render": s0, "noise": s0 + 1, "weights": s0 + 2, "posterior": s0 + 3}}
-            noise_seed = s0 + 1
-            post_seed = s0 + 3
+            inp = _inputs_from_scene(scene, recon_shape=recon_shape, channel=channel, seed=seed,
+                                     rays_per_pixel=rays_per_pixel, quadrature=quadrature, data=data, depths=depths,
+                                     progress=progress, allow_outside=allow_outside)
     else:
         with st("inputs", f"load {lightfield} and {weights}"):
-            try:
-                lf = lt.LightField.load(lightfield)
-            except ValueError as exc:
-                raise LftomoError(f"--lightfield: {exc}") from None
-            wpath = Path(weights)
-            if not wpath.is_file():
-                raise LftomoError(f"--weights: weight-matrix file {str(wpath)!r} does not exist")
-            try:
-                grid, wmeta = _grid_of_weight_file(wpath)
-                W = lt.WeightMatrix.load(wpath, lf.camera, grid)
-            except ValueError as exc:
-                raise LftomoError(f"--weights: {exc}") from None
-            if quadrature > 1:  # the weights' grid is the quadrature grid
-                try:
-                    grid = grid.coarsened(quadrature)
-                except ValueError as exc:
-                    raise LftomoError(f"--quadrature {quadrature}: {exc}") from None
-            wl = W.metadata.get("wavelength")
-            if lf.wavelengths is None:
-                if wl is not None:
-                    raise LftomoError(f"--weights: built for {wl * 1e9:.0f} nm but the --lightfield is gray")
-                ch_lf = 0
-            else:
-                match = [k for k, w in enumerate(lf.wavelengths) if wl is not None and abs(w - wl) <= 1e-12]
-                if channel is not None:
-                    ch_lf = int(channel)
-                    if not 0 <= ch_lf < lf.n_channels:
-                        raise LftomoError(f"--channel must be in 0..{lf.n_channels - 1}, got {ch_lf}")
-                    if ch_lf not in match:
-                        raise LftomoError(f"--channel {ch_lf} is {lf.wavelengths[ch_lf] * 1e9:.0f} nm but --weights "
-                                         f"was built for {'gray' if wl is None else f'{wl * 1e9:.0f} nm'}")
-                elif not match:
-                    raise LftomoError(f"--weights was built for {'gray' if wl is None else f'{wl * 1e9:.0f} nm'}, "
-                                     f"a wavelength the --lightfield ({[round(w * 1e9) for w in lf.wavelengths]} nm) "
-                                     "does not have")
-                else:
-                    ch_lf = match[0]
-            n_d = lf.metadata.get("rays_per_pixel")
-            n_w = W.metadata.get("rays_per_pixel")
-            s_d, s_w = lf.metadata.get("seed"), W.metadata.get("seed")
-            if s_d is not None and s_d == s_w:
-                warnings.warn(f"--lightfield and --weights were made with the same seed ({s_d}): the model "
-                              "shares the data's rays (an inverse crime); build W with another --seed", UserWarning)
-            s0 = 0 if seed is None else int(seed)
-            noise_seed = s0 + 1
-            post_seed = s0 + 3
-            metrics["inputs"] = {"lightfield": str(lightfield), "weights": str(weights),
-                                 "rays_per_pixel_data": n_d, "rays_per_pixel_weights": n_w,
-                                 "seed_data": s_d, "seed_weights": s_w, "noise_seed": noise_seed}
+            inp = _inputs_from_files(lightfield, weights, quadrature=quadrature, channel=channel, seed=seed,
+                                     depths=depths)
+    metrics["inputs"] = inp.metrics
 
-    # ---- measurement
     with st("measurement", f"measurement ({data})"):
-        if lf.noise_std is not None:
-            if noise is not None:
-                raise LftomoError("--noise: the --lightfield is already noisy (it has noise_std); leave --noise out")
-            noisy = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
-            noise_rule = "noise_std of the light field"
-        else:
-            noisy = lt.add_noise(lf, relative_std=NOISE if noise is None else noise, seed=noise_seed)
-            noisy, noise_rule = _noise_with_mc_error(noisy, lf, n_d, n_w, min_etendue_fraction)
-        if data == "refocus":
-            if not depths:
-                raise LftomoError("--data refocus needs --depths (m), e.g. --depths 0.98,1.0,1.02")
-            for d in depths:
-                if not (math.isfinite(d) and d > 0):
-                    raise LftomoError(f"--depths must be positive depths in m, got {d!r}")
-        try:
-            m = lt.Measurement.from_lightfield(noisy, data=data, depths=list(depths) if data == "refocus" else None,
-                                               channel=ch_lf)
-        except ValueError as exc:
-            raise LftomoError(f"--data/--depths: {exc}") from None
-        problem, _ = problem_on_grid(m, W, grid)
-    metrics["measurement"] = {"data": data, "depths": None if depths is None else list(depths), "n_data": m.size,
-                              "noise_model": noise_rule, "noise": noisy.metadata.get("noise"),
-                              "min_etendue_fraction": min_etendue_fraction,
-                              "wavelength": wl}
-    if T_true is not None:
-        metrics["measurement"]["chi2_at_effective_truth"] = problem.chi2(T_true)
+        m, problem, metrics["measurement"] = _reconstruct_measurement(inp, noise=noise, data=data,
+                                                                      min_etendue_fraction=min_etendue_fraction)
 
-    # ---- reconstruction
     sym_text = ", axisymmetric" if symmetry else ""
     with st("reconstruct", f"reconstruct ({rule} rule, {prior} prior{sym_text})"):
         try:
-            rec = lt.reconstruct(m, W, regularization=regularization, rule=rule, prior=prior, bounds=tuple(bounds),
-                                 max_steps=max_steps, symmetry=symmetry, grid=grid, noise_scale=noise_scale)
+            rec = lt.reconstruct(m, inp.W, regularization=regularization, rule=rule, prior=prior, bounds=tuple(bounds),
+                                 max_steps=max_steps, symmetry=symmetry, grid=inp.grid, noise_scale=noise_scale)
         except ValueError as exc:
             raise LftomoError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")
     metrics["reconstruction"] = {**rec.summary(), "lambda_note": note, "max_steps": max_steps,
                                  "bounds_K": list(bounds)}
-    if T_true is not None:
-        metrics["reconstruction"]["errors_T_gt_800K"] = temperature_errors(rec.T, T_true, HOT)
-        metrics["reconstruction"]["errors_T_gt_1400K"] = temperature_errors(rec.T, T_true, HOT_CORE)
+    if inp.T_true is not None:
+        metrics["reconstruction"]["errors_T_gt_800K"] = temperature_errors(rec.T, inp.T_true, HOT)
+        metrics["reconstruction"]["errors_T_gt_1400K"] = temperature_errors(rec.T, inp.T_true, HOT_CORE)
 
     post = None
-    if posterior and posterior_basis == "field":
-        if prior == "tv":
-            raise LftomoError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
-        with st("posterior", "posterior (full-grid Laplace, lambda by evidence)"):
-            post = lt.laplace_posterior(problem, regularization="evidence", prior=prior, bounds=tuple(bounds),
-                                        lambda0=rec.regularization, seed=post_seed, max_steps=max_steps,
-                                        symmetry=symmetry)
-        metrics["posterior"] = {"basis": "field", **post.summary()}
-        if T_true is not None:
-            metrics["posterior"]["coverage_90"] = post.coverage(T_true, hot=HOT)
-            metrics["posterior"]["errors_T_gt_800K"] = post.errors(T_true, hot=HOT)
-    elif posterior:
-        with st("posterior", f"posterior ({posterior_basis} basis, {posterior_steps} steps)"):
-            if posterior_basis == "flame":
-                basis = lt.ParametricFlame(grid)
-            elif posterior_basis == "dct":
-                basis = lt.DCTBasis(grid, n_coeffs=(2, 3, 2))
-            else:
-                raise LftomoError(f"--posterior-basis must be 'flame' or 'dct', got {posterior_basis!r}")
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                post = lt.sample_posterior(problem, basis=basis, n_steps=posterior_steps, seed=post_seed,
-                                           bounds=tuple(bounds), T_start=None, progress=progress)
-        metrics["posterior"] = {
-            "basis": posterior_basis, "names": list(post.names), "mean": post.coeff_mean, "std": post.coeff_std,
-            "acceptance_mean": float(np.mean(post.acceptance_fraction)), "tau": post.tau,
-            "n_eff": post.n_eff, "converged": post.converged, "n_steps": post.n_steps, "n_walkers": post.n_walkers,
-            "likelihood": post.likelihood, "likelihood_note": post.likelihood_note,
-            "importance_ess": post.importance_ess,
-            "warnings": [str(w.message) for w in caught if issubclass(w.category, UserWarning)],
-        }
+    if posterior:
+        what = ("full-grid Laplace, lambda by evidence" if posterior_basis == "field"
+                else f"{posterior_basis} basis, {posterior_steps} steps")
+        with st("posterior", f"posterior ({what})"):
+            post, metrics["posterior"] = _reconstruct_posterior(
+                problem, rec, inp, basis_name=posterior_basis, prior=prior, bounds=bounds, n_steps=posterior_steps,
+                max_steps=max_steps, symmetry=symmetry, progress=progress)
 
-    # ---- outputs
     with st("outputs", f"write {out}/"), staged_directory(out) as stage:  # published complete, metrics.json last
-        arrays = {"T": rec.T, "grid_shape": np.asarray(grid.shape), "grid_lower": np.asarray(grid.lower),
-                  "grid_upper": np.asarray(grid.upper)}
-        if sa is not None:
-            arrays["sigma_a"] = sa
-        if T_true is not None:
-            arrays["T_true"] = T_true
-        if post is not None:
-            arrays["T_posterior_mean"] = post.T_mean
-            arrays["T_posterior_std"] = post.T_std
-        np.savez_compressed(stage / "fields.npz", **arrays)
-        rows = []
-        if T_true is not None:
-            rows.append(("effective truth", T_true, "T"))
-        rows.append(("reconstruction", rec.T, "T"))
-        if T_true is not None:
-            rows.append(("reconstruction − truth", rec.T - T_true, "error"))
-        if post is not None:
-            rows.append(("posterior std", post.T_std, "std"))
-        slice_figure(rows, grid, stage / "slices.png", hot=HOT, T_true=T_true,
-                     title=f"{data} data, λ = {rec.regularization:.3g}")
-        metrics["files"] = ["fields.npz", "slices.png", "metrics.json"]
+        metrics["files"] = _write_reconstruct_outputs(stage, inp, rec, post, data)
         metrics["timings_s"] = {**st.timings, "total": time.perf_counter() - t_start}
         metrics = _finite(metrics)
         (stage / "metrics.json").write_text(json.dumps(metrics, indent=2), encoding="utf-8")
