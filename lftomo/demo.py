@@ -868,6 +868,7 @@ def run_reconstruct(
     seed: int | None = None,
     channel: int | None = None,
     max_steps: int = 50,
+    sampler: str | None = None,
     min_etendue_fraction: float = MIN_ETENDUE_FRACTION,
     symmetry: str | None = None,
     quadrature: int = 1,
@@ -887,7 +888,9 @@ def run_reconstruct(
     ``noise_scale="estimated"`` lets the discrepancy rule estimate the noise
     scale from the residual (:func:`lftomo.inverse.solvers.solve_temperature`).
     ``symmetry="axisymmetric"`` fits ring cells about the grid's vertical axis
-    (reconstruction and field posterior).  ``quadrature`` K > 1 turns on
+    (reconstruction and field posterior).  ``sampler`` (scene mode) is the
+    pixel sampler of the render and the weights (default the scene's
+    ``[render] sampler``).  ``quadrature`` K > 1 turns on
     sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene mode builds the
     weights on a grid K× finer than the reconstruction grid (for the known
     ``sigma_a`` interpolated to it); file mode reconstructs on the weights'
@@ -905,6 +908,9 @@ def run_reconstruct(
     if scene is None and (lightfield is None or weights is None):
         missing = [n for n, v in (("--lightfield", lightfield), ("--weights", weights)) if v is None]
         raise LftomoError(f"without a SCENE.toml, both --lightfield and --weights are needed; missing {', '.join(missing)}")
+    if scene is None and sampler is not None:
+        raise LftomoError("--sampler only applies to scene mode; with --lightfield and --weights the rays are those "
+                          "of the files")
     if data not in ("subaperture", "refocus"):
         raise LftomoError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
     if data == "subaperture" and depths:
@@ -962,18 +968,20 @@ def run_reconstruct(
             if medium.is_scattering:
                 raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
                                  "(the weight matrix is built for a known, non-scattering sigma_a)")
+            smp = cfg.sampler if sampler is None else sampler
             lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
-                           wavelengths="gray" if wl is None else (wl,), progress=progress)
+                           wavelengths="gray" if wl is None else (wl,), progress=progress, sampler=smp)
             sa, T_true = effective_truth(medium, grid, wl)
             wgrid = grid.refined(quadrature) if quadrature > 1 else grid
             sa_w = lt.interpolate_field(sa, grid, wgrid) if quadrature > 1 else sa
             W = lt.weights(cfg.camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
-                           rays_per_pixel=n_w, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress)
+                           rays_per_pixel=n_w, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress,
+                           sampler=smp)
             ch_lf = 0
             if depths is None and data == "refocus":
                 depths = cfg.focal_stack_depths or None
             metrics["inputs"] = {"scene": str(scene), "truth_grid": fine.to_dict(), "rays_per_pixel_data": n_d,
-                                 "rays_per_pixel_weights": n_w,
+                                 "rays_per_pixel_weights": n_w, "sampler": smp,
                                  "seeds": {"render": s0, "noise": s0 + 1, "weights": s0 + 2, "posterior": s0 + 3}}
             noise_seed = s0 + 1
             post_seed = s0 + 3
