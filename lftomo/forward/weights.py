@@ -1694,10 +1694,11 @@ class RaySegments:
             nonempty = np.diff(self.ray_ptr) > 0
             tau[nonempty] = np.add.reduceat(sa[self.voxel] * self.length, self.ray_ptr[:-1][nonempty])
         score = self.ray_weight * -np.expm1(-tau)
-        kind = self.metadata.get("sampler", DEFAULT_SAMPLER)
         n = self.rays_per_pixel
-        sampler = _smp.pack_sampler(kind, n)
-        k = int(sampler[_smp.S_GROUPS])
+        k = _smp.group_count(n)
+        sampler = np.zeros(_smp.S_SIZE)  # what mean_variance reads: the kind and K
+        sampler[_smp.S_KIND] = 1.0 if self.metadata.get("sampler", DEFAULT_SAMPLER) == "stratified" else 0.0
+        sampler[_smp.S_GROUPS] = k
         gs = np.bincount(self.ray_row * k + self.ray_sample % k, weights=score,
                          minlength=self.n_rows * k).reshape(self.n_rows, k)
         sq = np.bincount(self.ray_row, weights=score * score, minlength=self.n_rows)
