@@ -68,6 +68,12 @@ every voxel a path crosses and never ends a path on absorption.  Optics rays
 are the renderer's (same stream); the transport uses stream
 ``TRANSPORT_STREAM + pixel``.
 
+Both estimators are Monte Carlo over the pixel's rays (the non-scattering one
+is exact per ray, not per pixel): ``W.row_std_error`` is the standard error of
+each row sum ``Σ_j W[i, j]`` from the build's own rays (the groups of the
+stratified sampler, the per-ray variance of the independent one), kept with
+the matrix and its file (:class:`WeightMatrix`, :meth:`WeightMatrix.model_std`).
+
 Surfaces only occlude and add an attenuated background: the segments end at
 the nearest surface hit, and ``background[i]`` is the signal of row ``i`` with
 ``I_b = 0`` (W or W/m like the render).

@@ -63,7 +63,7 @@ def _pooled_ratio(sums, ses):
 
 @pytest.mark.parametrize("sampler", ["stratified", "independent"])
 def test_row_std_error_matches_the_seed_spread(cam, grid, sigma_a, sampler):
-    sums, ses, Ws = _builds(cam, grid, sampler, sigma_a=sigma_a)
+    sums, ses, _ = _builds(cam, grid, sampler, sigma_a=sigma_a)
     assert np.all(np.isfinite(ses)) and ses.min() >= 0.0
     rho, se_rho, n_lit = _pooled_ratio(sums, ses)
     assert n_lit > 1000
