@@ -50,10 +50,12 @@ def cmd_render(args) -> int:
     out = check_output_dir(args.output, what="-o/--output")  # before the work, not after it
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
+    sampler = cfg.sampler if args.sampler is None else args.sampler
     t0 = time.perf_counter()
-    print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel, seed {seed})", file=sys.stderr)
+    print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel, seed {seed}, {sampler} sampler)",
+          file=sys.stderr)
     lf = render(cfg.scene, cfg.camera, rays_per_pixel=rpp, seed=seed, wavelengths=cfg.wavelengths or "gray",
-                progress=not args.quiet)
+                progress=not args.quiet, sampler=sampler)
     t_render = time.perf_counter() - t0
     from .demo import save_lightfield_products
 
@@ -64,6 +66,7 @@ def cmd_render(args) -> int:
             "scene": cfg.source,
             "rays_per_pixel": rpp,
             "seed": seed,
+            "sampler": sampler,
             "render_seconds": t_render,
             "total_signal": float(np.sum(lf.raw)),
             "files": [str(f) for f in files],
@@ -85,6 +88,7 @@ def cmd_weights(args) -> int:
         raise LftomoError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
+    sampler = cfg.sampler if args.sampler is None else args.sampler
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
     out = Path(args.output)
     if out.suffix != ".npz":
@@ -95,10 +99,12 @@ def cmd_weights(args) -> int:
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
     for wl, path in zip(channels, paths):
         band = "gray" if wl is None else f"{wl * 1e9:.0f} nm"
-        print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {band})", file=sys.stderr)
+        print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {sampler} sampler, {band})",
+              file=sys.stderr)
         W = weights(cfg.camera, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
                     wavelength="gray" if wl is None else wl, rays_per_pixel=rpp, seed=seed,
-                    surfaces=cfg.scene.surfaces or None, memory_limit=limit, progress=not args.quiet)
+                    surfaces=cfg.scene.surfaces or None, memory_limit=limit, progress=not args.quiet,
+                    sampler=sampler)
         W.save(path)
         est = W.metadata["estimate"]
         print(f"{W.shape[0]} pixel rows x {W.shape[1]} voxels in {len(W.blocks)} views: nnz {W.nnz} "
@@ -130,15 +136,16 @@ def cmd_reconstruct(args) -> int:
     if not args.posterior:
         _refuse_given(args, ("posterior_steps", "posterior_basis"), "with --posterior")
     if args.scene is None:
-        _refuse_given(args, ("recon_shape", "rays_per_pixel"), "to scene mode (a TOML scene file); with --lightfield "
-                      "and --weights the grid and rays are those of the files")
+        _refuse_given(args, ("recon_shape", "rays_per_pixel", "sampler"), "to scene mode (a TOML scene file); with "
+                      "--lightfield and --weights the grid and rays are those of the files")
     m = run_reconstruct(
         args.output, scene=args.scene, lightfield=args.lightfield, weights=args.weights, noise=args.noise,
         data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule,
         noise_scale=args.noise_scale, prior=args.prior,
         bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis or "flame",
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
-        rays_per_pixel=args.rays_per_pixel, seed=args.seed, channel=args.channel, max_steps=args.max_steps,
+        rays_per_pixel=args.rays_per_pixel, seed=args.seed, sampler=args.sampler, channel=args.channel,
+        max_steps=args.max_steps,
         min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, quadrature=args.quadrature,
         progress=not args.quiet, allow_outside=args.allow_outside_paths)
     r = m["reconstruction"]
@@ -336,6 +343,14 @@ def _add_allow_outside(p: argparse.ArgumentParser) -> None:
                    help="let the scene file's path = keys (textures, media) name files outside its folder")
 
 
+def _add_sampler(p: argparse.ArgumentParser, what: str) -> None:
+    from .forward.sampler import DEFAULT_SAMPLER, SAMPLERS
+
+    p.add_argument("--sampler", choices=SAMPLERS, default=None,
+                   help=f"pixel sampler (lftomo.forward.sampler): {what}; default the scene's [render] sampler, "
+                        f"else {DEFAULT_SAMPLER!r}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -349,6 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", default="lftomo-render", help="output directory")
     r.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     r.add_argument("--seed", type=_seed, default=None, help="override render.seed")
+    _add_sampler(r, "override render.sampler")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(r)
     r.set_defaults(func=cmd_render)
@@ -357,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("-o", "--output", default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
     w.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     w.add_argument("--seed", type=_seed, default=None, help="override render.seed")
+    _add_sampler(w, "override render.sampler (the rays are those of lftomo render with the same seed and sampler)")
     w.add_argument("--memory-limit-gb", type=_pos_float, default=None,
                    help="refuse a build estimated above this size (default: half the machine's memory)")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -417,6 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--seed", type=_seed, default=None,
                     help="seed s: scene mode renders with s, noise s+1, weights s+2 (default render.seed); "
                          "file mode: noise s+1")
+    _add_sampler(rc, "scene mode: override render.sampler (the render and the weights)")
     rc.add_argument("--channel", type=_nonneg_int, default=None, help="wavelength channel (default: the first / "
                                                                       "the one matching --weights)")
     rc.add_argument("--quiet", action="store_true", help="no progress bars")

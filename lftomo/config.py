@@ -14,6 +14,7 @@ Format (lengths in m, temperatures in K, radiance in W m^-2 sr^-1 [m^-1])::
     rays_per_pixel = 16
     seed = 0
     wavelength_nm = 650        # a number, a list, or "gray"
+    sampler = "independent"    # pixel sampler: "independent" (default) or "stratified"
 
     [output]
     focal_stack_depths = [0.95, 1.0, 1.05]
@@ -55,6 +56,7 @@ from .errors import LftomoError
 from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, require_inside, require_regular_file, toml_int, toml_number,
                         toml_numbers)
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
+from .forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 from .forward.scene import PlanarEmitter, Scene, checkerboard
 from .lightfield import check_refocus_depth
 
@@ -63,7 +65,7 @@ DEFAULT_SCENE = Path(__file__).parent / "data" / "targets.toml"
 _TOP = {"camera", "render", "output", "surface", "medium"}
 _CAMERA = {"preset", "focus_distance", "main_lens", "mla", "sensor"}
 _CAMERA_PARTS = {"main_lens": MainLens, "mla": MicrolensArray, "sensor": Sensor}
-_RENDER = {"rays_per_pixel", "seed", "wavelength_nm"}
+_RENDER = {"rays_per_pixel", "seed", "wavelength_nm", "sampler"}
 _OUTPUT = {"focal_stack_depths"}
 _SURFACE = {"center", "size", "texture", "radiance", "low", "squares", "path", "temperature", "emissivity", "normal", "up"}
 _TEXTURES = ("uniform", "checkerboard", "file")
@@ -84,6 +86,7 @@ class SceneConfig:
     focal_stack_depths: tuple = ()
     source: str = "<built-in>"
     raw: dict = field(default_factory=dict)
+    sampler: str = DEFAULT_SAMPLER
 
 
 def _check_keys(label: str, table: Any, allowed: set[str]) -> None:
@@ -293,6 +296,10 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
                               maximum=MAX_RAYS_PER_PIXEL)
     seed = toml_int("[render] seed", r.get("seed", 0), minimum=0, maximum=MAX_SEED)
     wavelengths = _wavelengths(r.get("wavelength_nm", 650))
+    sampler = r.get("sampler", DEFAULT_SAMPLER)
+    if not (isinstance(sampler, str) and sampler in SAMPLERS):
+        raise LftomoError(f"[render] sampler must be one of {list(SAMPLERS)} (lftomo.forward.sampler), "
+                          f"got {sampler!r}")
     out = data.get("output", {})
     _check_keys("[output]", out, _OUTPUT)
     depths_t = out.get("focal_stack_depths", [])
@@ -324,4 +331,5 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
         focal_stack_depths=depths,
         source=source,
         raw=dict(data),
+        sampler=sampler,
     )

@@ -954,13 +954,16 @@ class _ReconstructInputs:
 
 
 def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
-                               symmetry, quadrature, posterior, posterior_basis) -> None:
+                               symmetry, quadrature, posterior, posterior_basis, sampler) -> None:
     """LftomoError naming the ``lftomo reconstruct`` option for any bad option, before any work."""
     if scene is not None and (lightfield is not None or weights is not None):
         raise LftomoError("give either a SCENE.toml or --lightfield with --weights, not both")
     if scene is None and (lightfield is None or weights is None):
         missing = [n for n, v in (("--lightfield", lightfield), ("--weights", weights)) if v is None]
         raise LftomoError(f"without a SCENE.toml, both --lightfield and --weights are needed; missing {', '.join(missing)}")
+    if scene is None and sampler is not None:
+        raise LftomoError("--sampler only applies to scene mode; with --lightfield and --weights the rays are those "
+                          "of the files")
     if data not in ("subaperture", "refocus"):
         raise LftomoError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
     if data == "subaperture" and depths:
@@ -981,7 +984,7 @@ def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds,
 
 
 def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, quadrature, data, depths, progress,
-                       allow_outside) -> _ReconstructInputs:
+                       allow_outside, sampler) -> _ReconstructInputs:
     """Scene mode: render the scene's medium (the truth) and build the weights on the reconstruction grid."""
     import lftomo as lt
     from .config import load_scene_file
@@ -1014,17 +1017,19 @@ def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, qua
     if medium.is_scattering:
         raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
                          "(the weight matrix is built for a known, non-scattering sigma_a)")
+    smp = cfg.sampler if sampler is None else sampler
     lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
-                   wavelengths="gray" if wl is None else (wl,), progress=progress)
+                   wavelengths="gray" if wl is None else (wl,), progress=progress, sampler=smp)
     sa, T_true = effective_truth(medium, grid, wl)
     wgrid = grid.refined(quadrature) if quadrature > 1 else grid
     sa_w = lt.interpolate_field(sa, grid, wgrid) if quadrature > 1 else sa
     W = lt.weights(cfg.camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
-                   rays_per_pixel=n_d, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress)
+                   rays_per_pixel=n_d, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress,
+                   sampler=smp)
     if depths is None and data == "refocus":
         depths = cfg.focal_stack_depths or None
     metrics = {"scene": str(scene), "truth_grid": fine.to_dict(), "rays_per_pixel_data": n_d,
-               "rays_per_pixel_weights": n_d,
+               "rays_per_pixel_weights": n_d, "sampler": smp,
                "seeds": {"render": s0, "noise": s0 + 1, "weights": s0 + 2, "posterior": s0 + 3}}
     return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=0, n_data_rays=n_d, n_weight_rays=n_d,
                               noise_seed=s0 + 1, posterior_seed=s0 + 3, metrics=metrics, depths=depths,
@@ -1206,6 +1211,7 @@ def run_reconstruct(
     seed: int | None = None,
     channel: int | None = None,
     max_steps: int = 50,
+    sampler: str | None = None,
     min_etendue_fraction: float = MIN_ETENDUE_FRACTION,
     symmetry: str | None = None,
     quadrature: int = 1,
@@ -1225,7 +1231,9 @@ def run_reconstruct(
     ``noise_scale="estimated"`` lets the discrepancy rule estimate the noise
     scale from the residual (:func:`lftomo.inverse.solvers.solve_temperature`).
     ``symmetry="axisymmetric"`` fits ring cells about the grid's vertical axis
-    (reconstruction and field posterior).  ``quadrature`` K > 1 turns on
+    (reconstruction and field posterior).  ``sampler`` (scene mode) is the
+    pixel sampler of the render and the weights (default the scene's
+    ``[render] sampler``).  ``quadrature`` K > 1 turns on
     sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene mode builds the
     weights on a grid K× finer than the reconstruction grid (for the known
     ``sigma_a`` interpolated to it); file mode reconstructs on the weights'
@@ -1237,7 +1245,7 @@ def run_reconstruct(
 
     t_start = time.perf_counter()
     _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
-                               symmetry, quadrature, posterior, posterior_basis)
+                               symmetry, quadrature, posterior, posterior_basis, sampler)
     symmetry = None if symmetry == "none" else symmetry
     out = check_output_dir(out_dir, what="-o/--output")  # before the work, not after it
     st = _Stages(5 if posterior else 4, progress)
@@ -1247,7 +1255,7 @@ def run_reconstruct(
         with st("inputs", f"scene {scene}: render the truth and the weight matrix"):
             inp = _inputs_from_scene(scene, recon_shape=recon_shape, channel=channel, seed=seed,
                                      rays_per_pixel=rays_per_pixel, quadrature=quadrature, data=data, depths=depths,
-                                     progress=progress, allow_outside=allow_outside)
+                                     progress=progress, allow_outside=allow_outside, sampler=sampler)
     else:
         with st("inputs", f"load {lightfield} and {weights}"):
             inp = _inputs_from_files(lightfield, weights, quadrature=quadrature, channel=channel, seed=seed,

@@ -257,24 +257,10 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     i = row // ppl
     j = col // ppl
     psel = 1.0
-    rings = int(optics[_o.O_RINGS])
-    if rings > 0:
-        us = _hash_uniform(key, m, 0x5E1EC7)
-        p_own = optics[_o.O_P_OWN]
-        if us >= p_own:
-            n_nb = (2 * rings + 1) * (2 * rings + 1) - 1
-            kk = int((us - p_own) / (1.0 - p_own) * n_nb)
-            if kk >= n_nb:
-                kk = n_nb - 1
-            if kk >= n_nb // 2:
-                kk += 1
-            i += kk // (2 * rings + 1) - rings
-            j += kk % (2 * rings + 1) - rings
-            psel = (1.0 - p_own) / n_nb
-            if i < 0 or j < 0 or i >= int(optics[_o.O_M_NY]) or j >= int(optics[_o.O_M_NX]):
-                return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
-        else:
-            psel = p_own
+    if int(optics[_o.O_RINGS]) > 0:
+        inside, i, j, psel = _o.select_lenslet(i, j, _hash_uniform(key, m, 0x5E1EC7), optics)
+        if not inside:
+            return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     # restricted pixel region: box of pixel ∩ microlens image disc
     r0 = row + off_r
     c0 = col + off_c
@@ -304,7 +290,7 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     bx = cx + sampler[S_KAPPA] * (sx - cx)
     by = cy + sampler[S_KAPPA] * (sy - cy)
     ax, ay = concentric_disc(a1, a2)
-    if use_full or rho <= 0.0:
+    if use_full:
         hx = cx + rc * ax
         hy = cy + rc * ay
     else:
@@ -322,26 +308,15 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     nx = curv * lx
     ny = curv * ly
     nz = root
-    # mixture density per unit pixel-coordinate area and m² of projected surface
+    # mixture density per unit pixel-coordinate area and m² of projected
+    # surface (rho > 0: pack_sampler requires it)
     dens = alpha / (math.pi * rc * rc)
-    if rho > 0.0 and has_box and rlo <= fr <= rhi and clo <= fc <= chi:
+    if has_box and rlo <= fr <= rhi and clo <= fc <= chi:
         ddx = hx - bx
         ddy = hy - by
         if ddx * ddx + ddy * ddy <= rho * rho:
             dens += (1.0 - alpha) / (a_box * math.pi * rho * rho)
-    elif rho <= 0.0:
-        dens = 1.0 / (math.pi * rc * rc) * (alpha + ((1.0 - alpha) / a_box if has_box and rlo <= fr <= rhi and clo <= fc <= chi else 0.0))
-    ex = hx - sx
-    ey = hy - sy
-    ez = hz - sz
-    r2 = ex * ex + ey * ey + ez * ez
-    inv = 1.0 / math.sqrt(r2)
-    dx = ex * inv
-    dy = ey * inv
-    dz = ez * inv
-    # dω = dA_xy |n·d| / (|n_z| r²) for a surface patch of projected area dA_xy
-    cos_h = abs(nx * dx + ny * dy + nz * dz)
-    w = (sp * sp) * dz * cos_h / (nz * r2) / (dens * psel)
+    dx, dy, dz, w = _o.sample_direction_weight(sx, sy, sz, hx, hy, hz, nx, ny, nz, 1.0 / (dens * psel), optics)
     ok, x, y, dx, dy, dz = _o.trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics)
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
@@ -359,9 +334,17 @@ def group_count(n_rays: int) -> int:
 
 
 def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0) -> np.ndarray:
-    """Packed sampler (``S_*`` layout) for ``n_rays`` samples per pixel."""
+    """Packed sampler (``S_*`` layout) for ``n_rays`` samples per pixel.
+
+    ``kappa`` and ``rho`` (m) are the lenslet sampling disc of
+    :func:`lenslet_disc`; the stratified sampler needs ``rho > 0`` (its
+    restricted component would have zero measure otherwise).
+    """
     if kind not in SAMPLERS:
         raise ValueError(f"sampler must be one of {SAMPLERS}, got {kind!r}")
+    if kind == "stratified" and not (math.isfinite(rho) and rho > 0.0 and math.isfinite(kappa)):
+        raise ValueError(f"the stratified sampler needs the lenslet sampling disc (kappa, rho) of "
+                         f":func:`lenslet_disc`, with rho > 0 m; got kappa = {kappa!r}, rho = {rho!r}")
     s = np.zeros(S_SIZE)
     s[S_KIND] = 1.0 if kind == "stratified" else 0.0
     s[S_GROUPS] = group_count(n_rays)

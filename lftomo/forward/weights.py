@@ -68,6 +68,12 @@ every voxel a path crosses and never ends a path on absorption.  Optics rays
 are the renderer's (same stream); the transport uses stream
 ``TRANSPORT_STREAM + pixel``.
 
+Both estimators are Monte Carlo over the pixel's rays (the non-scattering one
+is exact per ray, not per pixel): ``W.row_std_error`` is the standard error of
+each row sum ``Σ_j W[i, j]`` from the build's own rays (the groups of the
+stratified sampler, the per-ray variance of the independent one), kept with
+the matrix and its file (:class:`WeightMatrix`, :meth:`WeightMatrix.model_std`).
+
 Surfaces only occlude and add an attenuated background: the segments end at
 the nearest surface hit, and ``background[i]`` is the signal of row ``i`` with
 ``I_b = 0`` (W or W/m like the render).
@@ -148,12 +154,16 @@ def _finish_row(out_idx, out_val, o, cnt, pos):
 
 @njit(cache=True, parallel=True)
 def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                    sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, pos):
+                    sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos):
     """Exact weight rows of the pixels ``pix`` (flat raw indices), no scattering.
 
     Row ``k`` is written at ``out_idx/out_val[buf_off[k]:]`` (capacity
     ``buf_off[k+1] - buf_off[k]``), sorted by voxel; ``out_cnt[k]`` entries;
-    ``out_bg[k]`` the background signal.  A row that would exceed its capacity
+    ``out_bg[k]`` the background signal; ``out_var[k]`` the estimated
+    variance of the row sum (m⁴ sr²): each ray scores its response to a unit
+    uniform source, ``w (1 − T_exit)``, into its group ``ray mod K``, and
+    :func:`lftomo.forward.sampler.mean_variance` turns the group sums and the
+    sum of squares into the variance of their mean, as the renderer does.  A row that would exceed its capacity
     is abandoned with ``out_cnt[k] = -1`` (the caller recomputes it with the
     bound ``min(n_vox, n_rays * max_segments)``).  ``pos`` (n_threads, n_vox)
     int32 scratch, all -1 on entry and exit.
@@ -163,11 +173,14 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
     inv_n = 1.0 / n_rays
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
+    k_groups = int(sampler[_smp.S_GROUPS])
     for k in prange(n):
         p = pos[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
         Ls = np.zeros(1)
+        gs = np.zeros(k_groups)
+        sq = 0.0
         r = pix[k] // ncols
         c = pix[k] - r * ncols
         key = rng_init(seed, pix[k])
@@ -209,26 +222,32 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
                 break
             if t_s < math.inf:
                 bg += wn * T * Ls[0]
+            score = w * (1.0 - T)  # Σ_j of this ray's W_ij terms, times N
+            gs[ray % k_groups] += score
+            sq += score * score
         if overflow:
             for q in range(cnt):
                 p[out_idx[o + q]] = -1
             out_cnt[k] = -1
             out_bg[k] = 0.0
+            out_var[k] = 0.0
         else:
             _finish_row(out_idx, out_val, o, cnt, p)
             out_cnt[k] = cnt
             out_bg[k] = bg
+            out_var[k] = _smp.mean_variance(gs, sq, n_rays, sampler)
 
 
 @njit(cache=True, parallel=True)
 def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                     sigma_a, sigma_s, g, max_bounces, buf_off, out_idx, out_val, out_cnt, out_bg, pos):
+                     sigma_a, sigma_s, g, max_bounces, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos):
     """Monte Carlo weight rows with scattering (see the module docstring):
     expected-value emission along each flight, next scattering vertex sampled
     exactly from ``sigma_s`` along the DDA segments, absorption carried as a
     weight.
 
-    Same layout as :func:`_rows_absorbing`; a row that would exceed its
+    Same layout as :func:`_rows_absorbing` (a ray's score for ``out_var`` is
+    the sum of its emission terms over the whole path); a row that would exceed its
     capacity is abandoned with ``out_cnt[k] = -1`` (the caller recomputes it
     with a larger capacity: the random streams make it reproducible).
     """
@@ -240,11 +259,14 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
     x1 = x0 + nx * hx
     y1 = y0 + ny * hy
     z1 = z0 + nz * hz
+    k_groups = int(sampler[_smp.S_GROUPS])
     for k in prange(n):
         p = pos[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
         Ls = np.zeros(1)
+        gs = np.zeros(k_groups)
+        sq = 0.0
         r = pix[k] // ncols
         c = pix[k] - r * ncols
         key = rng_init(seed, pix[k])
@@ -264,6 +286,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
             wp = w0
             px, py, pz = ox, oy, oz
             n_scatter = 0
+            path_sum = 0.0  # Σ_j of this path's W_ij terms
             while True:
                 t_s = math.inf
                 if n_surf > 0:
@@ -288,6 +311,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
                         em = -math.expm1(-st * ell)
                         val = wp * T * (sa / st) * em
                         T -= T * em
+                        path_sum += val
                         if val != 0.0:
                             q = p[j]
                             if q < 0:
@@ -341,23 +365,29 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
                 tstate, u1 = rng_uniform(tstate)
                 tstate, u2 = rng_uniform(tstate)
                 dx, dy, dz = sample_hg_direction(dx, dy, dz, g[hit], u1, u2)
+            score = path_sum * n_rays
+            gs[ray % k_groups] += score
+            sq += score * score
         if overflow:
             for q in range(cnt):
                 p[out_idx[o + q]] = -1
             out_cnt[k] = -1
             out_bg[k] = 0.0
+            out_var[k] = 0.0
         else:
             _finish_row(out_idx, out_val, o, cnt, p)
             out_cnt[k] = cnt
             out_bg[k] = bg
+            out_var[k] = _smp.mean_variance(gs, sq, n_rays, sampler)
 
 
 @njit(cache=True, parallel=True)
 def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                   o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl):
+                   o_rw, o_rL, o_rns, o_rm, o_nr, seg_off, o_sv, o_sl):
     """Ray–segment table of the pixels ``pix``: per row ``k`` the kept rays
     (``o_nr[k]`` of them: weight ``o_rw[k, q]`` m² sr, surface radiance
-    ``o_rL[k, q]``, segment count ``o_rns[k, q]``) and their segments in order
+    ``o_rL[k, q]``, segment count ``o_rns[k, q]``, sample index ``o_rm[k, q]``
+    among the pixel's ``n_rays``) and their segments in order
     along each ray at ``o_sv/o_sl[seg_off[k]:]``.  A ray is kept when it has a
     segment or sees a surface.  A row whose segments exceed its capacity
     ``seg_off[k+1] - seg_off[k]`` gets ``o_nr[k] = -1`` (recompute it with the
@@ -399,6 +429,7 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
             o_rw[k, nr] = w
             o_rL[k, nr] = L
             o_rns[k, nr] = ns
+            o_rm[k, nr] = ray
             nr += 1
         o_nr[k] = nr
 
@@ -493,6 +524,14 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
             _finish_row(out_idx, out_val, o, cnt, p)
         out_cnt[k] = cnt
         out_sig[k] = sig
+
+
+@njit(cache=True, parallel=True)
+def _rows_mean_variance(gs, sq, n_rays, sampler, out):
+    """``out[k]`` = :func:`lftomo.forward.sampler.mean_variance` of row ``k``'s
+    group sums ``gs[k]`` (K,) and sum of squares ``sq[k]``."""
+    for k in prange(out.shape[0]):
+        out[k] = _smp.mean_variance(gs[k], sq[k], n_rays, sampler)
 
 
 @njit(cache=True, parallel=True)
@@ -756,8 +795,9 @@ def _run_rows(kernel_call, rows: np.ndarray, cap: int, cap_max: int, pos: np.nda
     overflow (count -1) are recomputed one by one with capacity ``cap_max``
     (a hard bound).  ``bufs``: reusable (out_idx, out_val) of size >= n*cap.
 
-    Returns (buf_off, out_idx, out_val, out_cnt, out_bg, extra) with ``extra``
-    {k: (indices, values)} for the recomputed rows (their out_cnt is final).
+    Returns (buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra) with
+    ``extra`` {k: (indices, values)} for the recomputed rows (their out_cnt is
+    final) and ``out_var`` the variance of each row sum.
     """
     n = rows.size
     buf_off = np.arange(n + 1, dtype=np.int64) * cap
@@ -766,7 +806,8 @@ def _run_rows(kernel_call, rows: np.ndarray, cap: int, cap_max: int, pos: np.nda
     out_idx, out_val = bufs
     out_cnt = np.zeros(n, np.int64)
     out_bg = np.zeros(n)
-    kernel_call(rows, buf_off, out_idx, out_val, out_cnt, out_bg, pos)
+    out_var = np.zeros(n)
+    kernel_call(rows, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos)
     extra = {}
     for k in np.flatnonzero(out_cnt < 0):
         bo = np.array([0, cap_max], np.int64)
@@ -774,13 +815,15 @@ def _run_rows(kernel_call, rows: np.ndarray, cap: int, cap_max: int, pos: np.nda
         vv = np.empty(cap_max)
         cc = np.zeros(1, np.int64)
         bb = np.zeros(1)
-        kernel_call(rows[k:k + 1], bo, ii, vv, cc, bb, pos)
+        var = np.zeros(1)
+        kernel_call(rows[k:k + 1], bo, ii, vv, cc, bb, var, pos)
         if cc[0] < 0:  # pragma: no cover - cap_max is a hard bound
             raise RuntimeError(f"row of pixel {int(rows[k])} exceeds the hard bound of {cap_max} entries")
         extra[int(k)] = (ii[:cc[0]].copy(), vv[:cc[0]].copy())
         out_cnt[k] = cc[0]
         out_bg[k] = bb[0]
-    return buf_off, out_idx, out_val, out_cnt, out_bg, extra
+        out_var[k] = var[0]
+    return buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra
 
 
 def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *, memory_limit: int,
@@ -793,7 +836,7 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     above it are recomputed with ``cap_max``), one reused scratch buffer of at
     most ``_CHUNK_BYTES``, and output arrays pre-sized from the estimate.
 
-    Returns (data, indices, indptr, background, estimate dict).
+    Returns (data, indices, indptr, background, row_std_error, estimate dict).
     """
     n_rows = pixel_index.size
     pos = _pos_scratch(n_vox)
@@ -830,12 +873,13 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     store = _Growable(nnz_hi, idx_dtype)
     indptr = np.zeros(n_rows + 1, dtype=np.int64)
     background = np.zeros(n_rows)
+    row_var = np.zeros(n_rows)
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
     bar = _progress(n_rows, bool(show), desc)
     bufs = None
     sizer = ChunkSizer(chunk_rows, start=sizer.rows)  # time-sized chunks (Ctrl-C), at most chunk_rows
     for r0, r1 in sizer.ranges(n_rows):
-        buf_off, out_idx, out_val, out_cnt, out_bg, extra = _run_rows(
+        buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra = _run_rows(
             kernel_call, pixel_index[r0:r1], cap, cap_max, pos, bufs)
         bufs = (out_idx, out_val)
         tot = int(out_cnt.sum())
@@ -852,12 +896,13 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
         indptr[r0 + 1:r1 + 1] = store.n + ends
         store.n += tot
         background[r0:r1] = out_bg
+        row_var[r0:r1] = out_var
         bar.update(r1 - r0)
     bar.close()
     bufs = out_idx = out_val = None  # free the scratch before shrinking the result
     indices, data = store.finish()
     indptr = indptr.astype(idx_dtype)
-    return data, indices, indptr, background, estimate
+    return data, indices, indptr, background, np.sqrt(row_var), estimate
 
 
 # ===========================================================================
@@ -898,7 +943,33 @@ class WeightMatrix:
         JSON-able: ``camera``, ``grid``, ``wavelength`` (m or None for gray),
         ``rays_per_pixel``, ``seed``, ``lftomo_version``, ``estimator``,
         ``sigma_a``/``sigma_s``/``g`` summaries, ``surfaces``, ``views``,
-        ``estimate`` (pilot nnz/bytes), ``build_seconds``.
+        ``estimate`` (pilot nnz/bytes), ``build_seconds``, ``sampler``.
+    row_std_error : ndarray, shape (n_rows,), or None
+        Monte Carlo standard error (m² sr) of the row sum
+        ``s_i = Σ_j W[i, j]``, the row's signal for a unit uniform source
+        (``I_b = 1`` W m⁻² sr⁻¹ in every voxel, background excluded), estimated
+        from the build's own rays with the convention of
+        :attr:`lftomo.LightField.std_error`: each ray of pixel ``i`` scores its
+        share of ``s_i`` times ``N`` (``w (1 − T_exit)`` without scattering;
+        the sum of its emission terms along the whole path with scattering);
+        for the ``"stratified"`` sampler the error comes from the spread of
+        the K independent randomization groups
+        (:func:`lftomo.forward.sampler.group_variance`), for the
+        ``"independent"`` sampler from the sample variance of the ``N`` scores
+        over ``N`` (:func:`lftomo.forward.sampler.mean_variance`).  It is the
+        standard deviation of ``s_i`` over build seeds, estimated from one
+        build (itself uncertain: with K = 8 groups, by about ``1/√(2(K−1))`` ≈
+        27 % per row).  ``None`` for a matrix read from a file written before
+        it was kept, or derived without it.
+
+        Use: ``r_i = row_std_error_i / s_i`` is the relative Monte Carlo error
+        of row ``i``.  For a field ``x`` that is smooth over the voxels a
+        pixel's rays cross, the error of ``(W x)_i`` is approximately the
+        same relative error, ``σ_model,i ≈ r_i |(W x)_i|``
+        (:meth:`model_std`); this is an approximation — exact for ``x``
+        constant along the row's rays, and neither an upper nor a lower bound
+        when ``x`` varies across the pixel's ray bundle.  Add it to the
+        measurement noise in quadrature: ``σ_i² = σ_noise,i² + σ_model,i²``.
     """
 
     data: np.ndarray
@@ -912,6 +983,7 @@ class WeightMatrix:
     sensor_shape: tuple
     background: np.ndarray
     metadata: dict = field(default_factory=dict)
+    row_std_error: np.ndarray | None = None
 
     # ---- sparse views --------------------------------------------------------
     @cached_property
@@ -939,8 +1011,9 @@ class WeightMatrix:
     @property
     def nbytes(self) -> int:
         """Bytes held by the matrix and its row maps."""
-        return int(sum(a.nbytes for a in (self.data, self.indices, self.indptr, self.pixel_index,
-                                          self.view_pixel, self.view_ptr, self.background)))
+        extra = 0 if self.row_std_error is None else self.row_std_error.nbytes
+        return extra + int(sum(a.nbytes for a in (self.data, self.indices, self.indptr, self.pixel_index,
+                                                  self.view_pixel, self.view_ptr, self.background)))
 
     def rows_of_view(self, v: int, u: int) -> slice:
         """Row range of sub-aperture ``(v, u)``."""
@@ -998,6 +1071,50 @@ class WeightMatrix:
     def signal(self, Ib) -> np.ndarray:
         """Predicted signal ``W @ Ib + background`` (n_rows,), W or W/m."""
         return self @ Ib + self.background
+
+    def model_std(self, x) -> np.ndarray:
+        """Monte Carlo standard error of ``W @ x`` per row, by the relative rule.
+
+        ``σ_model,i = (row_std_error_i / s_i) |(W x)_i|`` with
+        ``s_i = Σ_j W[i, j]`` (0 for an empty row): the relative error of the
+        row's response to a uniform source carried over to ``x``.  An
+        approximation, valid when ``x`` is smooth over the voxels the pixel's
+        rays cross (see :attr:`row_std_error`).  The background's own Monte
+        Carlo error is not included.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n_voxels,) or the grid shape
+            Field (e.g. ``I_b``, W m⁻² sr⁻¹ [m⁻¹]).
+
+        Returns
+        -------
+        ndarray, shape (n_rows,)
+            Standard error in the units of ``W @ x`` (W or W/m for ``I_b``).
+
+        Raises
+        ------
+        LftomoError
+            The matrix has no ``row_std_error`` (an old file), or ``x`` has
+            the wrong shape or non-finite values.
+        """
+        if self.row_std_error is None:
+            raise LftomoError("this WeightMatrix has no row_std_error (read from a file written before it was "
+                              "kept, or derived without it): rebuild it with lftomo.weights to get model_std")
+        x = self._as_x(x)
+        if x.ndim != 1:
+            raise LftomoError(f"x must be one field of shape ({self.n_voxels},) or the grid shape, got {x.shape}")
+        x = np.asarray(x, dtype=float)
+        if not np.all(np.isfinite(x)):
+            raise LftomoError(f"x must be finite, got {int(np.count_nonzero(~np.isfinite(x)))} non-finite value(s)")
+        s = self.row_sums
+        rel = np.divide(self.row_std_error, s, out=np.zeros(self.n_rows), where=s > 0)
+        return rel * np.abs(self @ x)
+
+    @cached_property
+    def row_sums(self) -> np.ndarray:
+        """``s_i = Σ_j W[i, j]`` (n_rows,), m² sr: each row's signal for ``I_b = 1`` everywhere."""
+        return np.asarray(self.matrix.sum(axis=1)).ravel()
 
     def as_linear_operator(self):
         """scipy ``LinearOperator`` with matvec, rmatvec and matmat."""
@@ -1076,7 +1193,8 @@ class WeightMatrix:
         meta = dict(self.metadata, views=f"subset of {rows.size} rows")
         return WeightMatrix(sub.data, sub.indices, sub.indptr, (rows.size, self.n_voxels), self.pixel_index[rows],
                             self.view_pixel[rows], view_ptr, self.views_shape, self.sensor_shape,
-                            self.background[rows], meta)
+                            self.background[rows], meta,
+                            None if self.row_std_error is None else self.row_std_error[rows])
 
     def raw_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Unique raw pixels of the rows and, for each, its first row index."""
@@ -1085,7 +1203,8 @@ class WeightMatrix:
 
     # ---- persistence ---------------------------------------------------------
     def save(self, path: str | os.PathLike, *, compressed: bool = False) -> Path:
-        """Write an ``.npz`` (no pickle): CSR arrays, row maps, background and JSON metadata.
+        """Write an ``.npz`` (no pickle): CSR arrays, row maps, background,
+        ``row_std_error`` (when known) and JSON metadata.
 
         ``compressed=True`` uses ``np.savez_compressed`` (smaller, slower).
         The write is atomic (:func:`lftomo.io.atomic_path`): an interrupted
@@ -1101,10 +1220,11 @@ class WeightMatrix:
         meta = dict(self.metadata, format=FORMAT, shape=list(self.shape), views_shape=list(self.views_shape),
                     sensor_shape=list(self.sensor_shape))
         writer = np.savez_compressed if compressed else np.savez
+        extra = {} if self.row_std_error is None else {"row_std_error": self.row_std_error}
         with atomic_path(path) as tmp:
             writer(tmp, meta=np.array(json.dumps(meta)), data=self.data, indices=self.indices, indptr=self.indptr,
                    pixel_index=self.pixel_index, view_pixel=self.view_pixel, view_ptr=self.view_ptr,
-                   background=self.background)
+                   background=self.background, **extra)
         return path
 
     @classmethod
@@ -1113,8 +1233,10 @@ class WeightMatrix:
 
         Every member is validated before use: dtypes, shapes, the CSR
         structure (``indptr`` starts at 0, never decreases and ends at nnz;
-        column indices in range), finite non-negative weights and background,
-        row maps in range, and physical metadata.
+        column indices in range), finite non-negative weights, background and
+        ``row_std_error``, row maps in range, and physical metadata.  A file
+        without ``row_std_error`` (written before it was kept) loads with
+        ``row_std_error = None``.
 
         Parameters
         ----------
@@ -1143,7 +1265,8 @@ class WeightMatrix:
         a = _check_weights_arrays(arrays, path, shape, views_shape, sensor_shape)
         return cls(a["data"], a["indices"], a["indptr"], shape, a["pixel_index"], a["view_pixel"], a["view_ptr"],
                    views_shape, sensor_shape, a["background"],
-                   {k: v for k, v in meta.items() if k not in ("format", "shape", "views_shape", "sensor_shape")})
+                   {k: v for k, v in meta.items() if k not in ("format", "shape", "views_shape", "sensor_shape")},
+                   a["row_std_error"])
 
     def __repr__(self) -> str:
         return (f"WeightMatrix(shape={self.shape}, nnz={self.nnz}, {self.nbytes / 1e6:.3g} MB, "
@@ -1152,6 +1275,7 @@ class WeightMatrix:
 
 _WHAT = "weight-matrix file"
 _W_MEMBERS = ("meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background")
+_W_OPTIONAL = ("row_std_error",)  # absent from files written before it was kept
 
 
 def _check_grid_types(camera, grid) -> None:
@@ -1181,9 +1305,10 @@ def _check_weights_meta(arrays: dict, path):
     if missing:
         raise LftomoError(f"{_WHAT} {str(path)!r} is not an lftomo weight-matrix file: member(s) {missing} are "
                           f"missing; it holds {sorted(arrays)}")
-    unknown = sorted(set(arrays) - set(_W_MEMBERS))
+    unknown = sorted(set(arrays) - set(_W_MEMBERS) - set(_W_OPTIONAL))
     if unknown:
-        raise LftomoError(f"{_WHAT} {str(path)!r}: unknown member(s) {unknown}; allowed: {list(_W_MEMBERS)}")
+        raise LftomoError(f"{_WHAT} {str(path)!r}: unknown member(s) {unknown}; allowed: "
+                          f"{list(_W_MEMBERS + _W_OPTIONAL)}")
     meta = json_member(arrays, path=path, what=_WHAT)
     if meta.get("format") != FORMAT:
         raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' has format {meta.get('format')!r}, "
@@ -1255,6 +1380,7 @@ def _check_weights_arrays(arrays: dict, path, shape, views_shape, sensor_shape) 
         raise LftomoError(f"{_WHAT} {str(path)!r}: member 'view_ptr' must rise from 0 to {n_rows} (rows per view)")
     out["view_ptr"] = vp
     out["background"] = check_member(arrays, "background", shape=(n_rows,), minimum=0.0, **kw)
+    out["row_std_error"] = check_member(arrays, "row_std_error", shape=(n_rows,), minimum=0.0, required=False, **kw)
     return out
 
 
@@ -1348,7 +1474,8 @@ def weights(
     Returns
     -------
     WeightMatrix
-        Shape ``(n_rows, grid.n_voxels)``.
+        Shape ``(n_rows, grid.n_voxels)``; ``row_std_error`` holds the
+        Monte Carlo standard error of each row sum (see :class:`WeightMatrix`).
 
     Raises
     ------
@@ -1382,21 +1509,22 @@ def weights(
     if not scattering:
         cap_max = int(min(n_vox, n_rays * m))
 
-        def call(pix, buf_off, oi, ov, oc, ob, pos):
-            _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, buf_off, oi, ov, oc, ob, pos)
+        def call(pix, buf_off, oi, ov, oc, ob, var, pos):
+            _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, buf_off, oi, ov, oc, ob, var,
+                            pos)
 
         estimator = "exact DDA per ray (same rays as render)"
     else:
         cap_max = n_vox  # paths may scatter anywhere
 
-        def call(pix, buf_off, oi, ov, oc, ob, pos):
-            _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi, ov,
-                             oc, ob, pos)
+        def call(pix, buf_off, oi, ov, oc, ob, var, pos):
+            _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi,
+                             ov, oc, ob, var, pos)
 
         estimator = ("Monte Carlo: expected-value emission along each flight, scattering vertices sampled from "
                      "sigma_s with absorption as a weight, HG phase function")
     t0 = time.perf_counter()
-    data, indices, indptr, background, est = _build_csr(
+    data, indices, indptr, background, row_se, est = _build_csr(
         call, pixel_index, n_vox, cap_max, memory_limit=limit, progress=progress, desc="weights",
         what="weight matrix", n_rays=n_rays)
     elapsed = time.perf_counter() - t0
@@ -1405,7 +1533,7 @@ def weights(
                   "sampler": sampler_name})
     return WeightMatrix(data, indices, indptr, (int(pixel_index.size), n_vox), pixel_index, view_pixel, view_ptr,
                         tuple(int(a) for a in camera.views_shape), tuple(int(a) for a in camera.sensor_shape),
-                        background, meta)
+                        background, meta, row_std_error=row_se)
 
 
 # ===========================================================================
@@ -1448,6 +1576,10 @@ class RaySegments:
         Chord length in the voxel (m), > 0.
     pixel_index, view_pixel, view_ptr, views_shape, sensor_shape, metadata
         As in :class:`WeightMatrix`.
+    ray_sample : ndarray of int32, shape (n_rays,), or None
+        Sample index ``m`` of each ray among its pixel's ``rays_per_pixel``
+        (its randomization group is ``m mod K``); gives the matrices built
+        from the table their ``row_std_error``.  None: they get none.
     """
 
     ray_row: np.ndarray
@@ -1464,6 +1596,7 @@ class RaySegments:
     views_shape: tuple
     sensor_shape: tuple
     metadata: dict = field(default_factory=dict)
+    ray_sample: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -1483,9 +1616,10 @@ class RaySegments:
 
     @property
     def nbytes(self) -> int:
-        return int(sum(a.nbytes for a in (self.ray_row, self.ray_weight, self.ray_radiance, self.ray_ptr,
-                                          self.row_ray_ptr, self.voxel, self.length, self.pixel_index,
-                                          self.view_pixel, self.view_ptr)))
+        extra = 0 if self.ray_sample is None else self.ray_sample.nbytes
+        return extra + int(sum(a.nbytes for a in (self.ray_row, self.ray_weight, self.ray_radiance, self.ray_ptr,
+                                                  self.row_ray_ptr, self.voxel, self.length, self.pixel_index,
+                                                  self.view_pixel, self.view_ptr)))
 
     @property
     def seg_ray(self) -> np.ndarray:
@@ -1555,6 +1689,29 @@ class RaySegments:
             a.resize(max(nnz, 0), refcheck=False)  # shrink in place
         return idx_all, val_all, (val2_all if mode == 1 else None), indptr, sig, sa
 
+    def row_std_error(self, sigma_a) -> np.ndarray | None:
+        """``row_std_error`` (n_rows,) m² sr of ``W(sigma_a)`` (see :class:`WeightMatrix`), or None
+        without ``ray_sample``: each kept ray scores ``w (1 − e^{−Σ σ ℓ})``."""
+        if self.ray_sample is None:
+            return None
+        sa = self._sigma(sigma_a)
+        tau = np.zeros(self.n_rays)
+        if self.n_segments:
+            nonempty = np.diff(self.ray_ptr) > 0
+            tau[nonempty] = np.add.reduceat(sa[self.voxel] * self.length, self.ray_ptr[:-1][nonempty])
+        score = self.ray_weight * -np.expm1(-tau)
+        n = self.rays_per_pixel
+        k = _smp.group_count(n)
+        sampler = np.zeros(_smp.S_SIZE)  # what mean_variance reads: the kind and K
+        sampler[_smp.S_KIND] = 1.0 if self.metadata.get("sampler", DEFAULT_SAMPLER) == "stratified" else 0.0
+        sampler[_smp.S_GROUPS] = k
+        gs = np.bincount(self.ray_row * k + self.ray_sample % k, weights=score,
+                         minlength=self.n_rows * k).reshape(self.n_rows, k)
+        sq = np.bincount(self.ray_row, weights=score * score, minlength=self.n_rows)
+        var = np.zeros(self.n_rows)
+        _rows_mean_variance(gs, sq, n, sampler, var)
+        return np.sqrt(var)
+
     def _wm(self, data, indices, indptr, background, sa, extra):
         if indptr[-1] < 2**31 - 1:
             indptr = indptr.astype(np.int32)
@@ -1562,7 +1719,8 @@ class RaySegments:
         meta["sigma_a"] = _field_summary(sa)
         meta.update(extra)
         return WeightMatrix(data, indices, indptr, (self.n_rows, self.n_voxels), self.pixel_index, self.view_pixel,
-                            self.view_ptr, self.views_shape, self.sensor_shape, background, meta)
+                            self.view_ptr, self.views_shape, self.sensor_shape, background, meta,
+                            self.row_std_error(sa))
 
     def weights(self, sigma_a, *, memory_limit: float | None = None) -> WeightMatrix:
         """The exact weight matrix for ``sigma_a`` (float or grid-shaped array, m⁻¹).
@@ -1677,7 +1835,7 @@ def ray_segments(
     media): :meth:`RaySegments.weights`, :meth:`RaySegments.jacobian`,
     :meth:`RaySegments.forward_jax`.  Arguments as in :func:`weights`.
 
-    Memory: 12 bytes per segment (int32 voxel, float64 length) plus 32 bytes
+    Memory: 12 bytes per segment (int32 voxel, float64 length) plus 36 bytes
     per ray; refused past ``memory_limit`` (default half the physical memory)
     from a pilot estimate.
 
@@ -1708,18 +1866,20 @@ def ray_segments(
         o_rw = np.zeros((n, n_rays))
         o_rL = np.zeros((n, n_rays))
         o_rns = np.zeros((n, n_rays), np.int64)
+        o_rm = np.zeros((n, n_rays), np.int64)
         o_nr = np.zeros(n, np.int64)
         seg_off = np.arange(n + 1, dtype=np.int64) * cap
         if bufs is None or bufs[0].size < n * cap:
             bufs = (np.empty(max(n * cap, 1), np.int32), np.empty(max(n * cap, 1)))
         o_sv, o_sl = bufs
-        _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl)
-        return o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl
+        _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, o_rw, o_rL, o_rns, o_rm, o_nr, seg_off,
+                       o_sv, o_sl)
+        return o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl, o_rm
 
     t0 = time.perf_counter()
     pilot = _pilot_rows(n_rows)
     if pilot.size:
-        _, _, p_rns, p_nr, _, _, _ = run(pixel_index[pilot], cap_max)
+        _, _, p_rns, p_nr, _, _, _, _ = run(pixel_index[pilot], cap_max)
         per_row = p_rns.sum(axis=1)
         seg_mean = float(per_row.mean())
         ray_mean = float(p_nr.mean())
@@ -1729,8 +1889,8 @@ def ray_segments(
         cap = 64
     seg_est = int(math.ceil(seg_mean * n_rows))
     ray_est = int(math.ceil(ray_mean * n_rows))
-    chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12 + n_rays * 24))))
-    est_bytes = seg_est * 12 + ray_est * 32 + n_rows * 32 + chunk_rows * (cap * 12 + n_rays * 24)
+    chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12 + n_rays * 32))))
+    est_bytes = seg_est * 12 + ray_est * 36 + n_rows * 32 + chunk_rows * (cap * 12 + n_rays * 32)
     if est_bytes > limit:
         raise LftomoError(
             f"the ray-segment table needs an estimated {est_bytes / 1e9:.3g} GB ({seg_est:.4g} segments of "
@@ -1741,18 +1901,19 @@ def ray_segments(
     ray_w = np.empty(max(int(ray_est * 1.03) + 16, 1))
     ray_L = np.empty_like(ray_w)
     ray_ns = np.empty(ray_w.size, np.int64)
+    ray_m = np.empty(ray_w.size, np.int32)
     row_ray_ptr = np.zeros(n_rows + 1, np.int64)
     n_r = 0
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
     bar = _progress(n_rows, bool(show), "ray segments")
     bufs = None
     for r0, r1 in ChunkSizer(chunk_rows, start=numba.get_num_threads()).ranges(n_rows):  # ~0.25 s: Ctrl-C
-        o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl = run(pixel_index[r0:r1], cap, bufs)
+        o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl, o_rm = run(pixel_index[r0:r1], cap, bufs)
         bufs = (o_sv, o_sl)
         extra = {}
         for k in np.flatnonzero(o_nr < 0):  # rows above the pilot capacity: recompute with the bound
             e = run(pixel_index[r0 + k:r0 + k + 1], cap_max)
-            o_rw[k], o_rL[k], o_rns[k], o_nr[k] = e[0][0], e[1][0], e[2][0], e[3][0]
+            o_rw[k], o_rL[k], o_rns[k], o_nr[k], o_rm[k] = e[0][0], e[1][0], e[2][0], e[3][0], e[7][0]
             ns_k = int(e[2][0].sum())
             extra[int(k)] = (e[5][:ns_k].copy(), e[6][:ns_k].copy())
         cnt = o_rns.sum(axis=1)
@@ -1772,7 +1933,9 @@ def ray_segments(
         if n_r + k > ray_w.size:
             new = max(n_r + k, int(ray_w.size * 1.25))
             ray_w, ray_L, ray_ns = np.resize(ray_w, new), np.resize(ray_L, new), np.resize(ray_ns, new)
+            ray_m = np.resize(ray_m, new)
         ray_w[n_r:n_r + k] = o_rw[keep]
+        ray_m[n_r:n_r + k] = o_rm[keep]
         ray_L[n_r:n_r + k] = o_rL[keep]
         ray_ns[n_r:n_r + k] = o_rns[keep]
         row_ray_ptr[r0 + 1:r1 + 1] = n_r + np.cumsum(o_nr)
@@ -1783,6 +1946,7 @@ def ray_segments(
     voxel, length = seg_store.finish()
     ray_w = ray_w[:n_r].copy()
     ray_L = ray_L[:n_r].copy()
+    ray_m = ray_m[:n_r].copy()
     ray_ptr = np.concatenate([[0], np.cumsum(ray_ns[:n_r])]).astype(np.int64)
     ray_row = np.repeat(np.arange(n_rows, dtype=np.int64), np.diff(row_ray_ptr))
     zeros = np.zeros(grid.n_voxels)
@@ -1792,7 +1956,7 @@ def ray_segments(
     del meta["sigma_a"]
     return RaySegments(ray_row, ray_w, ray_L, ray_ptr, row_ray_ptr, voxel, length, grid.n_voxels, pixel_index,
                        view_pixel, view_ptr, tuple(int(a) for a in camera.views_shape),
-                       tuple(int(a) for a in camera.sensor_shape), meta)
+                       tuple(int(a) for a in camera.sensor_shape), meta, ray_sample=ray_m)
 
 
 # ===========================================================================
@@ -1821,6 +1985,12 @@ class RefocusWeights:
         ``(n_y, n_x)``.
     metadata : dict
         The metadata of ``W`` plus ``depths``.
+    row_std_error : ndarray, shape (n_depths, n_y, n_x), or None
+        Monte Carlo standard error (m² sr) of each refocused row's sum
+        ``Σ_j matrices[d][p, j]`` (definition and use as in
+        :attr:`WeightMatrix.row_std_error`): with ``R`` the refocus operator,
+        ``sqrt(R² @ W.row_std_error²)`` — raw pixels use independent random
+        streams, so their errors add in quadrature.  None when ``W`` has none.
     """
 
     depths: tuple
@@ -1828,6 +1998,7 @@ class RefocusWeights:
     background: np.ndarray
     image_shape: tuple
     metadata: dict = field(default_factory=dict)
+    row_std_error: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -1896,7 +2067,7 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
     pix, first = W.raw_rows()
     have = np.zeros(W.sensor_shape[0] * W.sensor_shape[1], bool)
     have[pix] = True
-    mats, bgs = [], []
+    mats, bgs, ses = [], [], []
     for d in depth_list:
         R = lf.refocus_operator_at(d).tocsc()
         used = np.flatnonzero(np.diff(R.indptr) > 0)
@@ -1911,8 +2082,11 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
         M.sort_indices()
         mats.append(M)
         bgs.append((Rr @ W.background[first]).reshape(lf.camera.views_shape[2:]))
+        if W.row_std_error is not None:
+            Rr2 = Rr.multiply(Rr).tocsr()
+            ses.append(np.sqrt(Rr2 @ W.row_std_error[first] ** 2).reshape(lf.camera.views_shape[2:]))
     return RefocusWeights(tuple(depth_list), mats, np.stack(bgs), tuple(lf.camera.views_shape[2:]),
-                          dict(W.metadata, depths=depth_list))
+                          dict(W.metadata, depths=depth_list), np.stack(ses) if ses else None)
 
 
 # ===========================================================================
