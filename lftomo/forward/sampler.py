@@ -528,13 +528,15 @@ def group_variance(gs, n_rays):
 def mean_variance(gs, sq, n_rays, sampler):
     """Estimated variance of a pixel's mean ``Σ gs / n_rays``.
 
-    Independent sampler: the sample variance of the ``n_rays`` scores
-    (``sq`` their sum of squares) over ``n_rays``.  Stratified sampler: from
+    Independent sampler: the unbiased sample variance of the ``n_rays``
+    scores (``sq`` their sum of squares; divisor ``n_rays − 1``) over ``n_rays``.  Stratified sampler: from
     the spread of the K independent group sums ``gs``
     (:func:`group_variance`); with K = 1 (one ray) there is no estimate and 0
     is returned, as the independent sampler's one-sample variance is.
     """
     if sampler[S_KIND] == 0.0 or gs.shape[0] < 2:
+        if n_rays < 2:
+            return 0.0
         mean = gs.sum() / n_rays
-        return max(sq / n_rays - mean * mean, 0.0) / n_rays
+        return max(sq - n_rays * mean * mean, 0.0) / ((n_rays - 1) * n_rays)
     return group_variance(gs, n_rays)
