@@ -49,8 +49,8 @@ def _collect_rays(optics, packed, mli, n_rows, n_cols, n_rays, seed, out_o, out_
         r = k // n_cols
         c = k % n_cols
         for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
-                                                                 optics, packed, mli)
+            state, ok, ox, oy, oz, dx, dy, dz, _w = smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+                                                                  optics, packed, mli)
             i = k * n_rays + m
             ok_flag[i] = ok
             out_o[i, 0] = ox
@@ -71,8 +71,8 @@ def _sample_only(optics, packed, mli, n_rows, n_cols, n_rays, seed, out):
         c = k % n_cols
         acc = 0.0
         for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
-                                                                 optics, packed, mli)
+            state, ok, _ox, _oy, _oz, dx, _dy, _dz, w = smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
+                                                                      optics, packed, mli)
             if ok:
                 acc += w * dx
         out[k] = acc
