@@ -28,6 +28,7 @@ import time
 from typing import Any
 
 import numpy as np
+import numba
 from numba import njit, prange
 
 from .._validate import MAX_TOTAL_RAYS, require_instance, require_int, require_seed
@@ -80,71 +81,102 @@ def pack_medium(medium, wavelengths) -> dict[str, Any]:
     return p
 
 
+def _pixel_blocks(row0, row1, optics):
+    """Number of interleaved pixel blocks of a row-kernel call: one per thread.
+
+    Block ``b`` takes pixels ``b, b + n_blk, b + 2 n_blk, …`` of rows
+    [row0, row1), so that every thread gets an even share of bright and dark
+    pixels (numba's ``prange`` gives each thread one contiguous range, and a
+    contiguous half of a few rows of a plenoptic image can hold twice as many
+    microlens-image centres as the other half), and the per-pixel scratch is
+    allocated once per block, not once per pixel.  Computed here, not in the
+    kernel: ``numba.get_num_threads`` inside a kernel stops it being cached.
+    """
+    n_pix = (row1 - row0) * int(optics[_o.O_NCOLS])
+    return max(1, min(n_pix, numba.get_num_threads()))
+
+
+@njit(cache=True, inline="always")
+def _store_pixel(r, c, gs, sq, n_ch, rays_per_pixel, sampler, mean, var):
+    """Write pixel (r, c)'s mean and the variance of the mean from its group sums."""
+    inv_n = 1.0 / rays_per_pixel
+    for ch in range(n_ch):
+        mean[ch, r, c] = gs[ch].sum() * inv_n
+        var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], rays_per_pixel, sampler)
+
+
 @njit(cache=True, parallel=True)
-def _rows_absorbing(row0, row1, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
+def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
                     x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, mean, var):
     ncols = int(optics[_o.O_NCOLS])
     n_pix = (row1 - row0) * ncols
-    inv_n = 1.0 / rays_per_pixel
     k_groups = int(sampler[_smp.S_GROUPS])
-    for k in prange(n_pix):
-        r = row0 + k // ncols
-        c = k % ncols
-        key = rng_init(seed, r * ncols + c)
-        state = key
+    for b in prange(n_blk):
         L = np.zeros(n_ch)
         gs = np.zeros((n_ch, k_groups))
         sq = np.zeros(n_ch)
-        for m in range(rays_per_pixel):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
-                                                                  optics, sampler, mli)
-            if not ok:
-                continue
-            integrate_emission(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, surf, tex, L)
-            for ch in range(n_ch):
-                v = w * L[ch]
-                gs[ch, m % k_groups] += v
-                sq[ch] += v * v
-        for ch in range(n_ch):
-            mean[ch, r, c] = gs[ch].sum() * inv_n
-            var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], rays_per_pixel, sampler)
+        for k in range(b, n_pix, n_blk):
+            r = row0 + k // ncols
+            c = k % ncols
+            key = rng_init(seed, r * ncols + c)
+            state = key
+            gs[:, :] = 0.0
+            sq[:] = 0.0
+            g = 0  # group of sample m: m mod k_groups
+            for m in range(rays_per_pixel):
+                gm = g
+                g = g + 1 if g + 1 < k_groups else 0
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
+                                                                      optics, sampler, mli)
+                if not ok:
+                    continue
+                integrate_emission(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, surf, tex,
+                                   L)
+                for ch in range(n_ch):
+                    v = w * L[ch]
+                    gs[ch, gm] += v
+                    sq[ch] += v * v
+            _store_pixel(r, c, gs, sq, n_ch, rays_per_pixel, sampler, mean, var)
 
 
 @njit(cache=True, parallel=True)
-def _rows_scattering(row0, row1, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
+def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
                      x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, sigma_s, g, Ib, majorant,
                      max_bounces, mean, var):
     ncols = int(optics[_o.O_NCOLS])
     n_pix = (row1 - row0) * ncols
-    inv_n = 1.0 / rays_per_pixel
     k_groups = int(sampler[_smp.S_GROUPS])
-    for k in prange(n_pix):
-        r = row0 + k // ncols
-        c = k % ncols
-        key = rng_init(seed, r * ncols + c)
-        state = key
-        # transport draws from its own stream, so the optics samples are the
-        # same as in any other render with this seed (common random numbers)
-        tstate = rng_init(seed, TRANSPORT_STREAM + r * ncols + c)
+    for b in prange(n_blk):
         L = np.zeros(n_ch)
         gs = np.zeros((n_ch, k_groups))
         sq = np.zeros(n_ch)
-        for m in range(rays_per_pixel):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
-                                                                  optics, sampler, mli)
-            if not ok:
-                continue
-            for ch in range(n_ch):
-                L[ch] = 0.0
-            tstate = trace_radiance(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                                   sigma_a, sigma_s, g, Ib, majorant, surf, tex, tstate, L, max_bounces)
-            for ch in range(n_ch):
-                v = w * L[ch]
-                gs[ch, m % k_groups] += v
-                sq[ch] += v * v
-        for ch in range(n_ch):
-            mean[ch, r, c] = gs[ch].sum() * inv_n
-            var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], rays_per_pixel, sampler)
+        for k in range(b, n_pix, n_blk):
+            r = row0 + k // ncols
+            c = k % ncols
+            key = rng_init(seed, r * ncols + c)
+            state = key
+            # transport draws from its own stream, so the optics samples are the
+            # same as in any other render with this seed (common random numbers)
+            tstate = rng_init(seed, TRANSPORT_STREAM + r * ncols + c)
+            gs[:, :] = 0.0
+            sq[:] = 0.0
+            grp = 0  # group of sample m: m mod k_groups
+            for m in range(rays_per_pixel):
+                gm = grp
+                grp = grp + 1 if grp + 1 < k_groups else 0
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
+                                                                      optics, sampler, mli)
+                if not ok:
+                    continue
+                for ch in range(n_ch):
+                    L[ch] = 0.0
+                tstate = trace_radiance(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+                                       sigma_a, sigma_s, g, Ib, majorant, surf, tex, tstate, L, max_bounces)
+                for ch in range(n_ch):
+                    v = w * L[ch]
+                    gs[ch, gm] += v
+                    sq[ch] += v * v
+            _store_pixel(r, c, gs, sq, n_ch, rays_per_pixel, sampler, mean, var)
 
 
 def medium_row_kernel(medium, wavelengths, camera):
@@ -158,11 +190,11 @@ def medium_row_kernel(medium, wavelengths, camera):
     nx, ny, nz = (int(v) for v in p["shape"])
     if not medium.is_scattering:
         def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
-            _rows_absorbing(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
+            _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
                             x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["Ib"], mean, var)
     else:
         def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
-            _rows_scattering(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
+            _rows_scattering(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
                              x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["sigma_s"], p["g"], p["Ib"],
                              p["majorant"], MAX_BOUNCES, mean, var)
     return run
@@ -174,7 +206,7 @@ def empty_row_kernel(n_ch):
     sigma = np.zeros((n_ch, 1))
 
     def run(r0, r1, optics, sampler, mli, surf, tex, n_ch_, n_rays, seed, mean, var):
-        _rows_absorbing(r0, r1, optics, sampler, mli, surf, tex, n_ch_, n_rays, seed,
+        _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch_, n_rays, seed,
                         0.0, 0.0, -10.0, 1e-9, 1e-9, 1e-9, 1, 1, 1, sigma, sigma, mean, var)
     return run
 
