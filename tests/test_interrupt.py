@@ -125,6 +125,56 @@ def test_ctrl_c_between_chunks_is_prompt():
     assert np.isfinite(0.0)
 
 
+def _interrupt_after(seconds, call):
+    """Run ``call`` with a SIGINT sent ``seconds`` after its start; returns the seconds until it stopped."""
+    import threading
+
+    timer = threading.Timer(seconds, lambda: os.kill(os.getpid(), signal.SIGINT))
+    t0 = time.perf_counter()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            call()
+    finally:
+        timer.cancel()
+    return time.perf_counter() - t0
+
+
+def _emitter_scene():
+    return lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+
+
+def test_ctrl_c_stops_the_forward_render_between_parts():
+    """render_forward emits each batch's bundles in parts of ~0.25 s: SIGINT stops a run of minutes
+    within a few seconds (one kernel call of all the bundles would run to its end)."""
+    cam = lt.Camera.seed(1.0, mla={"count": (10, 10)})
+    lt.render_forward(_emitter_scene(), cam, n_bundles=16 * 64, wavelengths="gray")  # compiled
+    seconds = _interrupt_after(0.5, lambda: lt.render_forward(_emitter_scene(), cam, n_bundles=10**11,
+                                                              wavelengths="gray"))
+    assert seconds < 4.0
+
+
+def test_forward_render_does_not_depend_on_the_part_sizes(monkeypatch):
+    """The parts continue each batch's random stream: one part per batch or one bundle per part give the
+    same image, bit for bit."""
+    import functools
+
+    import lftomo.forward.media_render as mr
+    from lftomo.forward.chunks import ChunkSizer
+
+    cam = lt.Camera.seed(1.0, mla={"count": (10, 10)})
+    grid = lt.Grid(shape=(3, 3, 3), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    scene = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.02), size=(0.02, 0.02), radiance=1e9)],
+                     medium=lt.phantoms.uniform_box(grid, T=1500.0, sigma_a=30.0, sigma_s=70.0, g=0.5))
+    images = []
+    for sizer in (functools.partial(ChunkSizer, start=10**9), functools.partial(ChunkSizer, start=1, target=0.0)):
+        monkeypatch.setattr(mr, "ChunkSizer", sizer)
+        lf = lt.render_forward(scene, cam, n_bundles=16 * 64, seed=5, wavelengths=(650e-9, 900e-9))
+        images.append((lf.raw, lf.std_error))
+    assert images[0][0].sum() > 0
+    assert np.array_equal(images[0][0], images[1][0]) and np.array_equal(images[0][1], images[1][1])
+
+
 def test_interrupted_demo_rerun_keeps_the_previous_report(tmp_path, monkeypatch):
     """run_demo writes into a staging folder: an interrupted rerun leaves the previous report and the
     files beside it as they were; a completed run publishes all files and the marker last."""
@@ -185,3 +235,24 @@ def test_demo_resumes_complete_stages(tmp_path):
 
     _resumable(path, strict_load, make, save, resumed, "stage")
     assert len(made) == 2
+
+
+def test_interruptible_turns_a_kernel_systemerror_into_keyboardinterrupt():
+    """A SIGINT inside a numba callback reaches Python as SystemError caused by KeyboardInterrupt."""
+    from lftomo.forward.chunks import interruptible
+
+    @interruptible
+    def kernel_interrupted():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from exc
+
+    @interruptible
+    def other_error():
+        raise SystemError("something else")
+
+    with pytest.raises(KeyboardInterrupt):
+        kernel_interrupted()
+    with pytest.raises(SystemError, match="something else"):
+        other_error()

@@ -22,7 +22,7 @@ import numba
 
 from ..errors import LftomoError
 from .._validate import require_instance, require_rays, require_seed
-from .chunks import ChunkSizer
+from .chunks import ChunkSizer, interruptible
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
 
 
@@ -42,6 +42,7 @@ def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
     return tuple(float(a) for a in arr)
 
 
+@interruptible
 def render(
     scene,
     camera,
