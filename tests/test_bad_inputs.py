@@ -19,8 +19,8 @@ import lftomo as lt
 from lftomo import LftomoError
 from lftomo.cli import main
 from lftomo.config import load_scene_file, scene_from_dict
-from reliability_helpers import (SCENE_MEDIUM, SCENE_SURFACE, read_arrays, rewrite, tiny_camera, tiny_grid,
-                                 tiny_lightfield, tiny_weights)
+from reliability_helpers import (SCENE_MEDIUM, SCENE_SURFACE, TINY_GRID, read_arrays, rewrite, tiny_camera,
+                                 tiny_grid, tiny_lightfield, tiny_weights)
 
 
 @pytest.fixture(scope="module")
@@ -176,6 +176,24 @@ def test_fewer_data_than_unknowns_warns():
 
     with pytest.warns(UserWarning, match="64 unknowns from only 1 data"):
         warn_underdetermined(1, 64)
+
+
+def test_joint_fit_with_fewer_data_than_unknowns_warns_before_the_fit():
+    """unknowns="T+sigma_a" (T and sigma_a per voxel) warns like the T-only fit, before any solve: here the
+    joint fit's own argument check (rule="gcv") comes after the warning."""
+    cam = tiny_camera()
+    grid = lt.Grid(shape=(6, 6, 6), lower=TINY_GRID["lower"], upper=TINY_GRID["upper"])
+    flame = lt.phantoms.uniform_box(grid, T=1500.0, sigma_a=5.0)
+    lf = lt.add_noise(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=1, wavelengths=(650e-9, 900e-9),
+                                progress=False), relative_std=0.01, seed=1)
+    S = lt.ray_segments(cam, grid, rays_per_pixel=1, seed=2, progress=False)
+    view = (cam.views_shape[0] // 2, cam.views_shape[1] // 2)
+    ms = [lt.Measurement.from_lightfield(lf, views=[view], channel=c) for c in (0, 1)]
+    m = sum(x.size for x in ms)
+    assert m < 2 * grid.n_voxels
+    with pytest.warns(UserWarning, match=f"reconstructing {2 * grid.n_voxels} unknowns from only {m} data"):
+        with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
+            lt.reconstruct(ms, S, unknowns="T+sigma_a", rule="gcv")
 
 
 # ============================================================== scene files and paths

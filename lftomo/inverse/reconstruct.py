@@ -273,6 +273,11 @@ def reconstruct(
             )
         from .joint import solve_temperature_absorption
 
+        if isinstance(getattr(weights, "metadata", None), dict) and weights.metadata.get("grid") is not None:
+            g = grid if grid is not None else _grid_of(weights)
+            ring = resolve_symmetry(symmetry, g)
+            # unknowns: T and σ_ref per voxel (or ring cell)
+            warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
         return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
                                             bounds=bounds, method=method, rule=rule, T0=T0,
                                             symmetry=symmetry, grid=grid, **options)
