@@ -186,3 +186,18 @@ def test_render_time_estimate_and_refusal():
     assert time.perf_counter() - t0 < 5.0
     with pytest.raises(LftomoError, match="max_seconds must be > 0"):
         lt.render(scene, cam, rays_per_pixel=1, wavelengths="gray", progress=False, max_seconds=-1)
+
+
+def test_posterior_chain_refused_before_emcee_allocates_it(small_limit):
+    """emcee allocates the whole chain up front: 10**7 steps of 32 walkers used to be killed for memory."""
+    import scipy.sparse as sp
+
+    from lftomo.inverse.basis import DCTBasis
+    from lftomo.inverse.problem import LinearProblem
+
+    g = lt.Grid((4, 4, 4), (-0.02, -0.03, 0.98), (0.02, 0.03, 1.02))
+    A = sp.random(150, g.n_voxels, density=0.3, random_state=2, format="csr")
+    prob = LinearProblem(A, np.ones(150), np.ones(150), g, wavelength=None, background=np.zeros(150))
+    _refused_fast(lambda: lt.sample_posterior(prob, basis=DCTBasis(g, (2, 2, 2)), emission="linear", bounds=None,
+                                              prior_std=200.0, n_walkers=32, n_steps=10**7, progress=False),
+                  r"a chain of n_steps = 10000000 x n_walkers = 32 x 8 coefficients needs an estimated 46.1 GB")

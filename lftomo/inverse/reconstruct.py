@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..forward.grid import Grid
+from ..interrupt import stop_between_steps
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 
@@ -278,9 +279,10 @@ def reconstruct(
             ring = resolve_symmetry(symmetry, g)
             # unknowns: T and σ_ref per voxel (or ring cell)
             warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
-        return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
-                                            bounds=bounds, method=method, rule=rule, T0=T0,
-                                            symmetry=symmetry, grid=grid, **options)
+        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+            return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
+                                                bounds=bounds, method=method, rule=rule, T0=T0,
+                                                symmetry=symmetry, grid=grid, **options)
     from .solvers import solve_temperature
 
     if method not in ("levenberg-marquardt", "gauss-newton"):
@@ -296,8 +298,9 @@ def reconstruct(
         T0 = ring_start(T0, ring)
     warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
-    sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
-                            method=method, rule=rule, **options)
+    with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+        sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
+                                method=method, rule=rule, **options)
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items()}}
     return Reconstruction(
         T=sol.T if ring is None else ring.expand(sol.T),
