@@ -21,7 +21,7 @@ import logging
 import signal
 import sys
 import threading
-from typing import Iterator
+from collections.abc import Iterator
 
 __all__ = ["Interrupted", "check_interrupt", "stop_between_steps"]
 
