@@ -161,6 +161,11 @@ REFOCUS_CASES = {
     "stack": (lambda lf: lf.focal_stack([1.0, 0.2]), "depth = 0.2 m"),
     "operator": (lambda lf: lf.refocus_operator_at(0.05), "depth = 0.05 m"),
     "uv": (lambda lf: lf.subaperture(99, 0), r"\(u, v\) = \(99, 0\)"),
+    "uv-type": (lambda lf: lf.subaperture("a", 0), "u must be an integer, got 'a'"),
+    "uv-float": (lambda lf: lf.subaperture(0, 2.5), "v must be an integer, got 2.5"),
+    "channel": (lambda lf: lf.subaperture(0, 0, channel=3), r"channel must be an integer <= 0, got 3"),
+    "stack-scalar": (lambda lf: lf.focal_stack(1.0), "depths must be a non-empty sequence of depths in m, got 1.0"),
+    "stack-text": (lambda lf: lf.focal_stack(["near"]), "depths must be a non-empty sequence"),
 }
 
 
@@ -169,6 +174,13 @@ def test_refocus_arguments(lf, case):
     call, match = REFOCUS_CASES[case]
     with pytest.raises(LftomoError, match=match):
         call(lf)
+
+
+def test_reconstruct_bounds_must_be_two_numbers(lf):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    for bad in ("300,3000", (300.0,), None):
+        with pytest.raises(ValueError, match=r"bounds must be \(T_min, T_max\) in K, two numbers, got"):
+            lt.reconstruct(m, tiny_weights(), bounds=bad)
 
 
 def test_fewer_data_than_unknowns_warns():

@@ -188,9 +188,16 @@ def test_render_time_estimate_and_refusal():
         lt.render(scene, cam, rays_per_pixel=1, wavelengths="gray", progress=False, max_seconds=-1)
 
 
-def test_posterior_chain_refused_before_emcee_allocates_it(small_limit):
-    """emcee allocates the whole chain up front: 10**7 steps of 32 walkers used to be killed for memory."""
+def test_posterior_chain_refused_before_emcee_allocates_it(small_limit, monkeypatch):
+    """emcee allocates the whole chain up front: 10**7 steps of 32 walkers used to be killed for memory.
+    The refusal comes before the sampler exists."""
+    import emcee
     import scipy.sparse as sp
+
+    def no_sampler(*args, **kwargs):
+        raise AssertionError("the sampler was built")
+
+    monkeypatch.setattr(emcee, "EnsembleSampler", no_sampler)
 
     from lftomo.inverse.basis import DCTBasis
     from lftomo.inverse.problem import LinearProblem
@@ -198,6 +205,21 @@ def test_posterior_chain_refused_before_emcee_allocates_it(small_limit):
     g = lt.Grid((4, 4, 4), (-0.02, -0.03, 0.98), (0.02, 0.03, 1.02))
     A = sp.random(150, g.n_voxels, density=0.3, random_state=2, format="csr")
     prob = LinearProblem(A, np.ones(150), np.ones(150), g, wavelength=None, background=np.zeros(150))
-    _refused_fast(lambda: lt.sample_posterior(prob, basis=DCTBasis(g, (2, 2, 2)), emission="linear", bounds=None,
-                                              prior_std=200.0, n_walkers=32, n_steps=10**7, progress=False),
-                  r"a chain of n_steps = 10000000 x n_walkers = 32 x 8 coefficients needs an estimated 46.1 GB")
+    with pytest.raises(LftomoError, match=r"a chain of n_steps = 10000000 x n_walkers = 32 x 8 coefficients needs "
+                                          r"an estimated 46.1 GB"):
+        lt.sample_posterior(prob, basis=DCTBasis(g, (2, 2, 2)), emission="linear", bounds=None, prior_std=200.0,
+                            n_walkers=32, n_steps=10**7, progress=False)
+
+
+def test_image_stacks_refused_before_allocation(small_limit):
+    """Many wavelengths or focal-stack depths multiply the image size: refused up front (200000 wavelengths
+    on a 100 x 100 camera used to be killed for memory)."""
+    cam = tiny_camera()
+    scene = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+    _refused_fast(lambda: lt.render(scene, cam, rays_per_pixel=1, wavelengths=[650e-9] * 200, progress=False),
+                  r"a render of 200 channel\(s\) x 100 x 100 pixels needs an estimated 0.08 GB")
+    _refused_fast(lambda: lt.render_forward(scene, cam, n_bundles=16, wavelengths=[650e-9] * 200),
+                  r"a forward render of 200 channel\(s\) x 100 x 100 pixels needs an estimated")
+    lf = tiny_lightfield()
+    _refused_fast(lambda: lf.focal_stack(np.linspace(0.9, 1.1, 10**4)),
+                  r"a focal stack of 10000 depths x 10 x 10 pixels x 1 channel\(s\) needs an estimated 0.016 GB")

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from .._validate import MAX_TOTAL_RAYS, require_instance, require_int, require_positive, require_seed
+from .._validate import MAX_TOTAL_RAYS, check_allocation, require_instance, require_int, require_positive, require_seed
 from ..errors import LftomoError
 from . import optics as _o
 from . import sampler as _smp
@@ -494,6 +494,9 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
         sa = ss = Ib = np.zeros((n_ch, 1))
         g = np.zeros(1)
     nrows, ncols = camera.sensor_shape
+    # the image and its error per channel, and one channel's batch images
+    check_allocation(f"a forward render of {n_ch} channel(s) x {nrows} x {ncols} pixels",
+                     (2.0 * n_ch + N_CHUNKS) * nrows * ncols * 8, hint="use fewer wavelengths or a smaller camera")
     raw = np.zeros((n_ch, nrows, ncols))
     se = np.zeros((n_ch, nrows, ncols))
     per_chunk = max(1, n_bundles // N_CHUNKS)

@@ -263,7 +263,10 @@ def reconstruct(
     if unknowns not in ("T", "T+sigma_a"):
         raise ValueError(f"unknowns must be 'T' or 'T+sigma_a', got {unknowns!r}")
     _check_types(measurement, weights)
-    lo, hi = bounds
+    try:
+        lo, hi = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     if unknowns == "T+sigma_a":
