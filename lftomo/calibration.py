@@ -65,7 +65,7 @@ import scipy.sparse as sp
 from . import __version__
 from ._validate import require_array, require_nonnegative, require_npz_file, require_positive
 from .radiation import dplanck_dT, planck
-from .rawio import write_atomically
+from .io import atomic_path, check_output_file
 
 __all__ = ["MicrolensGrid", "calibrate_grid", "decode_operator", "decode_views", "refocus_views",
            "RadiometricCalibration", "radiometric_calibration", "save_calibration", "load_calibration",
@@ -823,7 +823,10 @@ def save_calibration(path: str | Path, grid: MicrolensGrid, *, radiometric: Radi
                                ("rel_std_temperature", "temperature", "temperature_std", "wavelength", "emissivity")}
         arrays.update({k: getattr(radiometric, k) for k in _RADIO_ARRAYS})
     meta_arr = np.array(json.dumps(meta))
-    return write_atomically(p, lambda fh: np.savez_compressed(fh, meta=meta_arr, **arrays))
+    check_output_file(p, what="calibration file")
+    with atomic_path(p) as tmp:
+        np.savez_compressed(tmp, meta=meta_arr, **arrays)
+    return p
 
 
 def _expect(cond: bool, path: Path, what: str) -> None:
@@ -914,6 +917,10 @@ def calibration_figure(path: str | Path, grid: MicrolensGrid, white: Any, *, zoo
     ax[2].set_title("devignetting map (white / 99.9th percentile)")
     fig.colorbar(im, ax=ax[2])
     fig.tight_layout()
-    out = write_atomically(Path(path), lambda fh: fig.savefig(fh, format="png", dpi=90))
-    plt.close(fig)
+    out = check_output_file(path, what="calibration figure")
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, format="png", dpi=90)
+    finally:
+        plt.close(fig)
     return out

@@ -45,7 +45,7 @@ import scipy.sparse as sp
 
 from .errors import LftomoError
 from . import __version__
-from ._validate import require_array
+from ._validate import check_allocation, require_array, require_int
 from .forward.camera import Camera, _best_focus_z, trace_axial_point
 
 FORMAT = "lftomo-lightfield-1"
@@ -388,8 +388,11 @@ class LightField:
     def subaperture(self, u: int, v: int, *, channel: int | None = None) -> np.ma.MaskedArray:
         """Sub-aperture image ``views[v, u]`` (n_y, n_x), masked where unlit."""
         nv, nu = self.camera.views_shape[:2]
-        if not (0 <= int(u) < nu) or not (0 <= int(v) < nv):
+        u, v = require_int("u", u), require_int("v", v)
+        if not (0 <= u < nu) or not (0 <= v < nv):
             raise LftomoError(f"(u, v) = ({u}, {v}) is outside the views grid 0..{nu - 1} x 0..{nv - 1}")
+        if channel is not None:
+            channel = require_int("channel", channel, minimum=0, maximum=self.n_channels - 1)
         views = self.views
         if self.n_channels > 1:
             return views[0 if channel is None else channel, v, u]
@@ -439,8 +442,21 @@ class LightField:
         return self.refocus_at(self.depth_of_alpha(alpha))
 
     def focal_stack(self, depths: Sequence[float]) -> np.ndarray:
-        """Refocused images at several depths (m), shape (n_depths, n_y, n_x) [channel axis after depth]."""
-        return np.stack([self.refocus_at(d) for d in depths])
+        """Refocused images at several depths (m), shape (n_depths, n_y, n_x) [channel axis after depth].
+
+        The size of the stack is checked against the memory limit before any
+        image is made (:func:`lftomo._validate.check_allocation`).
+        """
+        try:
+            d = np.asarray(depths, dtype=float)
+        except (TypeError, ValueError):
+            d = None
+        if d is None or d.ndim != 1 or d.size == 0:
+            raise LftomoError(f"depths must be a non-empty sequence of depths in m, got {depths!r}"[:300])
+        n_y, n_x = (int(a) for a in self.camera.views_shape[2:])
+        check_allocation(f"a focal stack of {d.size} depths x {n_y} x {n_x} pixels x {self.n_channels} channel(s)",
+                         2.0 * d.size * n_y * n_x * self.n_channels * 8, hint="use fewer depths")
+        return np.stack([self.refocus_at(float(x)) for x in d])
 
     # ---- persistence -------------------------------------------------------
     def save(self, path: str | Path) -> Path:

@@ -25,19 +25,18 @@ per frame (a filtered monochrome sensor, as in flame pyrometry).
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
 from ._validate import toml_int, toml_number, toml_numbers
+from .io import atomic_path, check_output_file
 
 __all__ = ["RawFrame", "read_raw", "write_raw", "subtract_dark", "CameraDescription", "load_camera_description",
-           "write_atomically", "RAW_SUFFIXES"]
+           "RAW_SUFFIXES"]
 
 #: File suffixes :func:`read_raw` accepts.
 RAW_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
@@ -182,28 +181,6 @@ def read_raw(path: str | Path, *, bit_depth: int | None = None, allow_float: boo
     return RawFrame(counts=arr, bit_depth=int(bits), source=str(p))
 
 
-def write_atomically(path: str | Path, write: Callable[[Any], None], *, binary: bool = True) -> Path:
-    """Write ``path`` through a temporary file in the same folder and ``os.replace``.
-
-    A reader never sees a half-written file, and an interrupted write leaves
-    the old file in place.  ``write(fh)`` writes to the open temporary file.
-    """
-    p = Path(path)
-    if not p.parent.is_dir():
-        raise ValueError(f"output directory {str(p.parent)!r} of {str(p)!r} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    try:
-        os.close(fd)
-        with open(tmp, "wb" if binary else "w") as fh:  # by name: some writers (tifffile) need fh.name
-            write(fh)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return p
-
-
 def write_raw(path: str | Path, counts: Any, *, bit_depth: int) -> Path:
     """Write integer counts as a raw frame: 8/16-bit PNG or TIFF, or ``.npy`` (atomically).
 
@@ -229,15 +206,19 @@ def write_raw(path: str | Path, counts: Any, *, bit_depth: int) -> Path:
     suffix = p.suffix.lower()
     if suffix not in RAW_SUFFIXES:
         raise ValueError(f"raw output {str(p)!r}: unknown suffix {p.suffix!r}; allowed: {', '.join(RAW_SUFFIXES)}")
-    if suffix == ".npy":
-        return write_atomically(p, lambda fh: np.save(fh, a, allow_pickle=False))
-    if suffix == ".png":
-        from PIL import Image
+    check_output_file(p, what="raw output")
+    with atomic_path(p) as tmp:  # the temporary name keeps the suffix
+        if suffix == ".npy":
+            np.save(tmp, a, allow_pickle=False)
+        elif suffix == ".png":
+            from PIL import Image
 
-        return write_atomically(p, lambda fh: Image.fromarray(a).save(fh, format="PNG"))
-    import tifffile
+            Image.fromarray(a).save(tmp, format="PNG")
+        else:
+            import tifffile
 
-    return write_atomically(p, lambda fh: tifffile.imwrite(fh, a, photometric="minisblack"))
+            tifffile.imwrite(tmp, a, photometric="minisblack")
+    return p
 
 
 def subtract_dark(frame: RawFrame, dark: RawFrame | None) -> np.ndarray:

@@ -19,8 +19,8 @@ import lftomo as lt
 from lftomo import LftomoError
 from lftomo.cli import main
 from lftomo.config import load_scene_file, scene_from_dict
-from reliability_helpers import (SCENE_MEDIUM, SCENE_SURFACE, read_arrays, rewrite, tiny_camera, tiny_grid,
-                                 tiny_lightfield, tiny_weights)
+from reliability_helpers import (SCENE_MEDIUM, SCENE_SURFACE, TINY_GRID, read_arrays, rewrite, tiny_camera,
+                                 tiny_grid, tiny_lightfield, tiny_weights)
 
 
 @pytest.fixture(scope="module")
@@ -161,6 +161,11 @@ REFOCUS_CASES = {
     "stack": (lambda lf: lf.focal_stack([1.0, 0.2]), "depth = 0.2 m"),
     "operator": (lambda lf: lf.refocus_operator_at(0.05), "depth = 0.05 m"),
     "uv": (lambda lf: lf.subaperture(99, 0), r"\(u, v\) = \(99, 0\)"),
+    "uv-type": (lambda lf: lf.subaperture("a", 0), "u must be an integer, got 'a'"),
+    "uv-float": (lambda lf: lf.subaperture(0, 2.5), "v must be an integer, got 2.5"),
+    "channel": (lambda lf: lf.subaperture(0, 0, channel=3), r"channel must be an integer <= 0, got 3"),
+    "stack-scalar": (lambda lf: lf.focal_stack(1.0), "depths must be a non-empty sequence of depths in m, got 1.0"),
+    "stack-text": (lambda lf: lf.focal_stack(["near"]), "depths must be a non-empty sequence"),
 }
 
 
@@ -171,11 +176,36 @@ def test_refocus_arguments(lf, case):
         call(lf)
 
 
+def test_reconstruct_bounds_must_be_two_numbers(lf):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    for bad in ("300,3000", (300.0,), None):
+        with pytest.raises(ValueError, match=r"bounds must be \(T_min, T_max\) in K, two numbers, got"):
+            lt.reconstruct(m, tiny_weights(), bounds=bad)
+
+
 def test_fewer_data_than_unknowns_warns():
     from lftomo.inverse.reconstruct import warn_underdetermined
 
     with pytest.warns(UserWarning, match="64 unknowns from only 1 data"):
         warn_underdetermined(1, 64)
+
+
+def test_joint_fit_with_fewer_data_than_unknowns_warns_before_the_fit():
+    """unknowns="T+sigma_a" (T and sigma_a per voxel) warns like the T-only fit, before any solve: here the
+    joint fit's own argument check (rule="gcv") comes after the warning."""
+    cam = tiny_camera()
+    grid = lt.Grid(shape=(6, 6, 6), lower=TINY_GRID["lower"], upper=TINY_GRID["upper"])
+    flame = lt.phantoms.uniform_box(grid, T=1500.0, sigma_a=5.0)
+    lf = lt.add_noise(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=1, wavelengths=(650e-9, 900e-9),
+                                progress=False), relative_std=0.01, seed=1)
+    S = lt.ray_segments(cam, grid, rays_per_pixel=1, seed=2, progress=False)
+    view = (cam.views_shape[0] // 2, cam.views_shape[1] // 2)
+    ms = [lt.Measurement.from_lightfield(lf, views=[view], channel=c) for c in (0, 1)]
+    m = sum(x.size for x in ms)
+    assert m < 2 * grid.n_voxels
+    with pytest.warns(UserWarning, match=f"reconstructing {2 * grid.n_voxels} unknowns from only {m} data"):
+        with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
+            lt.reconstruct(ms, S, unknowns="T+sigma_a", rule="gcv")
 
 
 # ============================================================== scene files and paths

@@ -8,6 +8,7 @@ import pytest
 import lftomo as lt
 from lftomo.cli import main
 from lftomo.config import load_scene_file, scene_from_dict
+from reliability_helpers import SCENE_MEDIUM
 
 
 def test_camera_command_json(capsys):
@@ -84,9 +85,7 @@ def test_cli_option_and_file_errors_are_clean(tmp_path, capsys):
         main(["weights", "scene.toml", "--memory-limit-gb", "-1"])
     assert "argument --memory-limit-gb" in capsys.readouterr().err
     scene = tmp_path / "m.toml"
-    scene.write_text("[camera]\nfocus_distance = 1.0\n[camera.mla]\ncount = [10, 10]\n[render]\nrays_per_pixel = 2\n"
-                     "[medium]\nphantom = \"uniform_box\"\nshape = [2, 2, 2]\n"
-                     "[medium.params]\nT = 1500.0\nsigma_a = 5.0\n")
+    scene.write_text(SCENE_MEDIUM)
     assert main(["weights", str(scene), "-o", str(tmp_path / "nodir" / "W.npz"), "--quiet"]) == 2
     assert "does not exist" in capsys.readouterr().err
     blocker = tmp_path / "file.txt"

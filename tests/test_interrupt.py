@@ -125,6 +125,56 @@ def test_ctrl_c_between_chunks_is_prompt():
     assert np.isfinite(0.0)
 
 
+def _interrupt_after(seconds, call):
+    """Run ``call`` with a SIGINT sent ``seconds`` after its start; returns the seconds until it stopped."""
+    import threading
+
+    timer = threading.Timer(seconds, lambda: os.kill(os.getpid(), signal.SIGINT))
+    t0 = time.perf_counter()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            call()
+    finally:
+        timer.cancel()
+    return time.perf_counter() - t0
+
+
+def _emitter_scene():
+    return lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+
+
+def test_ctrl_c_stops_the_forward_render_between_parts():
+    """render_forward emits each batch's bundles in parts of ~0.25 s: SIGINT stops a run of minutes
+    within a few seconds (one kernel call of all the bundles would run to its end)."""
+    cam = lt.Camera.seed(1.0, mla={"count": (10, 10)})
+    lt.render_forward(_emitter_scene(), cam, n_bundles=16 * 64, wavelengths="gray")  # compiled
+    seconds = _interrupt_after(0.5, lambda: lt.render_forward(_emitter_scene(), cam, n_bundles=10**11,
+                                                              wavelengths="gray"))
+    assert seconds < 4.0
+
+
+def test_forward_render_does_not_depend_on_the_part_sizes(monkeypatch):
+    """The parts continue each batch's random stream: one part per batch or one bundle per part give the
+    same image, bit for bit."""
+    import functools
+
+    import lftomo.forward.media_render as mr
+    from lftomo.forward.chunks import ChunkSizer
+
+    cam = lt.Camera.seed(1.0, mla={"count": (10, 10)})
+    grid = lt.Grid(shape=(3, 3, 3), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    scene = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.02), size=(0.02, 0.02), radiance=1e9)],
+                     medium=lt.phantoms.uniform_box(grid, T=1500.0, sigma_a=30.0, sigma_s=70.0, g=0.5))
+    images = []
+    for sizer in (functools.partial(ChunkSizer, start=10**9), functools.partial(ChunkSizer, start=1, target=0.0)):
+        monkeypatch.setattr(mr, "ChunkSizer", sizer)
+        lf = lt.render_forward(scene, cam, n_bundles=16 * 64, seed=5, wavelengths=(650e-9, 900e-9))
+        images.append((lf.raw, lf.std_error))
+    assert images[0][0].sum() > 0
+    assert np.array_equal(images[0][0], images[1][0]) and np.array_equal(images[0][1], images[1][1])
+
+
 def test_interrupted_demo_rerun_keeps_the_previous_report(tmp_path, monkeypatch):
     """run_demo writes into a staging folder: an interrupted rerun leaves the previous report and the
     files beside it as they were; a completed run publishes all files and the marker last."""
@@ -185,3 +235,121 @@ def test_demo_resumes_complete_stages(tmp_path):
 
     _resumable(path, strict_load, make, save, resumed, "stage")
     assert len(made) == 2
+
+
+def test_interruptible_turns_a_kernel_systemerror_into_keyboardinterrupt():
+    """A SIGINT inside a numba callback reaches Python as SystemError caused by KeyboardInterrupt."""
+    from lftomo.forward.chunks import interruptible
+
+    @interruptible
+    def kernel_interrupted():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from exc
+
+    @interruptible
+    def other_error():
+        raise SystemError("something else")
+
+    with pytest.raises(KeyboardInterrupt):
+        kernel_interrupted()
+    with pytest.raises(SystemError, match="something else"):
+        other_error()
+
+
+# ---------------------------------------------------------------- iterative solvers (lftomo.interrupt)
+def test_ctrl_c_is_deferred_to_the_next_check():
+    """Under stop_between_steps the first SIGINT only records the request; check_interrupt raises
+    Interrupted (a KeyboardInterrupt); a second SIGINT raises at once; outside, nothing is deferred."""
+    from lftomo.interrupt import Interrupted, check_interrupt, stop_between_steps
+
+    with pytest.raises(Interrupted, match="Ctrl-C: the test stopped between two steps"):
+        with stop_between_steps("the test"):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the handler has run: no KeyboardInterrupt so far
+            check_interrupt()
+    with pytest.raises(KeyboardInterrupt) as exc:
+        with stop_between_steps("the test"):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+    assert type(exc.value) is KeyboardInterrupt
+    with pytest.raises(Interrupted, match="after its last step"):  # pressed during the last step
+        with stop_between_steps("the test"):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+    check_interrupt()  # the request was cleared
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_ctrl_c_inside_a_jax_host_callback_stops_the_computation(caplog):
+    """A check in a host callback ends the JAX computation; its runtime error becomes Interrupted and JAX's
+    logged traceback of the callback is dropped."""
+    import jax
+    import jax.numpy as jnp
+
+    from lftomo.interrupt import Interrupted, check_interrupt, stop_between_steps
+
+    def host(x):
+        check_interrupt()
+        return np.asarray(x) * 2.0
+
+    f = jax.jit(lambda x: jax.pure_callback(host, jax.ShapeDtypeStruct((3,), jnp.float64), x))
+    assert np.allclose(f(jnp.ones(3)), 2.0)
+    with pytest.raises(Interrupted):
+        with stop_between_steps("the test"):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            np.asarray(f(jnp.ones(3)))
+    assert not [r for r in caplog.records if r.exc_info], "JAX logged the callback's traceback"
+
+
+def test_ctrl_c_stops_posterior_sampling_between_steps():
+    """emcee's loop checks for Ctrl-C before every ensemble step: a chain of minutes stops within seconds."""
+    from lftomo.inverse.basis import DCTBasis
+    from lftomo.inverse.problem import LinearProblem
+    import scipy.sparse as sp
+
+    g = lt.Grid((4, 4, 4), (-0.02, -0.03, 0.98), (0.02, 0.03, 1.02))
+    A = sp.random(150, g.n_voxels, density=0.3, random_state=2, format="csr")
+    basis = DCTBasis(g, (2, 2, 2))
+    y = A @ basis.T(np.array([1500.0, 100, -50, 30, 20, -10, 5, 40]))
+    prob = LinearProblem(A, y, np.full(150, 3.0), g, wavelength=None, background=np.zeros(150))
+    kw = dict(basis=basis, emission="linear", bounds=None, prior_std=200.0, n_walkers=32, seed=0, progress=False)
+    lt.sample_posterior(prob, n_steps=20, **kw)  # compiled
+    seconds = _interrupt_after(1.0, lambda: lt.sample_posterior(prob, n_steps=50_000, **kw))  # minutes
+    assert seconds < 5.0
+
+
+def test_ctrl_c_during_lftomo_reconstruct_exits_130(tmp_path):
+    """Ctrl-C in the solve: the message, exit 130, no traceback, no crash (it used to end in a segmentation
+    fault while Python shut down with a JAX computation still running), no output folder."""
+    from reliability_helpers import SCENE_MEDIUM
+
+    scene = tmp_path / "m.toml"
+    scene.write_text(SCENE_MEDIUM.replace('wavelength_nm = "gray"', "wavelength_nm = 650")
+                     .replace("shape = [3, 3, 3]", "shape = [5, 5, 5]").replace("rays_per_pixel = 1", "rays_per_pixel = 2"))
+    assert main(["render", str(scene), "-o", str(tmp_path / "r"), "--quiet"]) == 0
+    assert main(["weights", str(scene), "-o", str(tmp_path / "W.npz"), "--quiet", "--seed", "1"]) == 0
+    out = tmp_path / "rec"
+    proc = _start(["reconstruct", "--lightfield", tmp_path / "r" / "lightfield.npz", "--weights", tmp_path / "W.npz",
+                   "--noise", "0.01", "-o", out, "--max-steps", "2000"])
+    err = ""
+    for line in proc.stderr:  # wait for the solve to start
+        err += line
+        if line.startswith("[3/4] reconstruct"):
+            break
+    time.sleep(random.Random().uniform(1.0, 3.0))
+    proc.send_signal(signal.SIGINT)
+    t = time.perf_counter()
+    _, rest = proc.communicate(timeout=120)
+    err += rest
+    assert proc.returncode == 130, err
+    assert "lftomo: Ctrl-C: stopping the reconstruction after the current step" in err
+    assert err.rstrip().endswith("lftomo: interrupted; no output file was left half-written"), err
+    assert "Traceback" not in err, err
+    assert time.perf_counter() - t < 30.0
+    assert not (out / "fields.npz").exists()
+    _no_leftovers(tmp_path)

@@ -5,14 +5,22 @@ returns.  The Python loops around the kernels (render rows, weight-matrix
 rows) therefore take chunks sized from the measured time per row, aiming at
 :data:`TARGET_SECONDS` per call; a pending KeyboardInterrupt is raised
 between two chunks.
+
+A SIGINT that arrives while a kernel calls back into Python (numba does so to
+build some constants) surfaces as ``SystemError: ... returned a result with an
+exception set`` caused by the KeyboardInterrupt; :func:`interruptible` turns it
+back into a KeyboardInterrupt.
 """
 
 from __future__ import annotations
 
+import functools
 import time
-from typing import Iterator
+from typing import Callable, Iterator, TypeVar
 
-__all__ = ["ChunkSizer", "TARGET_SECONDS"]
+__all__ = ["ChunkSizer", "TARGET_SECONDS", "interruptible"]
+
+F = TypeVar("F", bound=Callable)
 
 #: Aimed duration of one kernel call (s).
 TARGET_SECONDS = 0.25
@@ -61,3 +69,25 @@ class ChunkSizer:
             yield r0, r1
             self.update(r1 - r0, time.perf_counter() - t)
             r0 = r1
+
+
+def interruptible(func: F) -> F:
+    """Decorate a function that calls numba kernels: Ctrl-C raises KeyboardInterrupt, never SystemError.
+
+    Examples
+    --------
+    >>> @interruptible
+    ... def build():
+    ...     pass  # loops of kernel calls
+    """
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except SystemError as exc:
+            if isinstance(exc.__cause__, KeyboardInterrupt) or isinstance(exc.__context__, KeyboardInterrupt):
+                raise KeyboardInterrupt from None
+            raise
+
+    return wrapper  # type: ignore[return-value]

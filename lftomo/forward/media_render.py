@@ -31,9 +31,11 @@ import numpy as np
 import numba
 from numba import njit, prange
 
-from .._validate import MAX_TOTAL_RAYS, require_instance, require_int, require_seed
+from .._validate import MAX_TOTAL_RAYS, check_allocation, require_instance, require_int, require_positive, require_seed
+from ..errors import LftomoError
 from . import optics as _o
 from . import sampler as _smp
+from .chunks import ChunkSizer, interruptible
 from .dda import integrate_emission, ray_box, transmittance
 from .rng import rng_init, rng_uniform
 from .scattering import hg_phase, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance
@@ -263,12 +265,13 @@ def _pick(cdf, u):
 
 
 @njit(cache=True, parallel=True)
-def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _forward_kernel(n_chunks, n_bundles, W, states, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, sigma_s, g, majorant, scattering, vox_cdf, surf, tex, surf_cdf, p_volume,
-                    power_total, ch, images):
-    """Emit ``bundles_per_chunk`` bundles in each of ``n_chunks`` independent
-    chunks (random stream = chunk index); chunk k accumulates into images[k].
-    Every bundle carries ``power_total / (n_chunks * bundles_per_chunk)``."""
+                    ch, images):
+    """Emit ``n_bundles`` more bundles of power ``W`` in each of ``n_chunks``
+    independent batches; batch k continues the random stream ``states[k]``
+    (updated in place) and accumulates into images[k].  Calling it repeatedly
+    with parts of a batch's bundles gives exactly the result of one call."""
     n_vox = nx * ny * nz
     sig_t1 = np.empty((1, n_vox))
     for v in range(n_vox):
@@ -277,13 +280,12 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
     bxs = -(-nx // mx)
     bys = -(-ny // my)
     bzs = -(-nz // mz)
-    W = power_total / (n_chunks * bundles_per_chunk)
     for k in prange(n_chunks):
-        state = rng_init(seed, k)
+        state = states[k]
         img = images[k]
         Lbuf = np.zeros(1)  # surfaces_hit needs a radiance buffer; only distances are used here
         tbuf = np.zeros(1)
-        for b in range(bundles_per_chunk):
+        for b in range(n_bundles):
             state, u = rng_uniform(state)
             if u < p_volume:
                 # ---- volume emission: voxel by power, point uniform in it, isotropic
@@ -416,7 +418,17 @@ def _forward_kernel(n_chunks, bundles_per_chunk, seed, optics, x0, y0, z0, hx, h
                 state, h1 = rng_uniform(state)
                 state, h2 = rng_uniform(state)
                 dx, dy, dz = sample_hg_direction(dx, dy, dz, g[vv], h1, h2)
+        states[k] = state
     return images
+
+
+@njit(cache=True)
+def _batch_states(seed, n_chunks):
+    """Initial random states of the ``n_chunks`` batches (stream = batch index)."""
+    states = np.empty(n_chunks, np.uint64)
+    for k in range(n_chunks):
+        states[k] = rng_init(seed, k)
+    return states
 
 
 @njit(cache=True, inline="always")
@@ -433,8 +445,18 @@ def _cell_exit(qx, qy, qz, dx, dy, dz, cx0, cy0, cz0, sx, sy, sz):
 N_CHUNKS = 16
 
 
+
+
+def _check_forward_estimate(seconds: float, max_seconds: float | None) -> None:
+    if max_seconds is not None and seconds > max_seconds:
+        text = f"{seconds:.3g} s" if seconds < 3600 else f"{seconds / 3600:.3g} h"
+        raise LftomoError(f"the forward render would take an estimated {text}, more than max_seconds = "
+                          f"{max_seconds:g} s; use fewer n_bundles or wavelengths, or raise max_seconds")
+
+
+@interruptible
 def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, wavelengths: Any = (650e-9,),
-                   progress: bool | None = None):
+                   progress: bool | None = None, max_seconds: float | None = None):
     """Forward (emission) Monte Carlo render of the raw image, the reference text's method.
 
     Energy bundles are emitted from voxels (in proportion to ``4π σ_a I_b V``)
@@ -454,11 +476,24 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
         batches whose spread gives the standard error).
     seed : int
     wavelengths : as in :func:`lftomo.render`
+    progress : bool, optional
+        Accepted for symmetry with :func:`lftomo.render`; no bar is shown.
+    max_seconds : float, optional
+        Refuse (:class:`lftomo.LftomoError`) a render whose estimated time
+        exceeds this.  The estimate, from the time of the first small part of
+        the bundles (``64`` per batch), is kept in ``metadata["estimated_seconds"]``.
 
     Returns
     -------
     LightField
         ``metadata["renderer"] == "forward"``; ``std_error`` from the batches.
+
+    Notes
+    -----
+    The bundles of every batch are emitted in parts sized to about 0.25 s
+    (:class:`lftomo.forward.chunks.ChunkSizer`), each continuing its batch's
+    random stream, so Ctrl-C stops the call within about a second and the
+    image does not depend on the part sizes.
     """
     from ..lightfield import LightField
     from .render import _resolve_wavelengths
@@ -491,9 +526,16 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
         sa = ss = Ib = np.zeros((n_ch, 1))
         g = np.zeros(1)
     nrows, ncols = camera.sensor_shape
+    # the image and its error per channel, and one channel's batch images
+    check_allocation(f"a forward render of {n_ch} channel(s) x {nrows} x {ncols} pixels",
+                     (2.0 * n_ch + N_CHUNKS) * nrows * ncols * 8, hint="use fewer wavelengths or a smaller camera")
     raw = np.zeros((n_ch, nrows, ncols))
     se = np.zeros((n_ch, nrows, ncols))
     per_chunk = max(1, n_bundles // N_CHUNKS)
+    if max_seconds is not None:
+        max_seconds = require_positive("max_seconds", max_seconds)
+    sizer = ChunkSizer(per_chunk, start=64)
+    estimate = None
     t0 = time.perf_counter()
     for c in range(n_ch):
         pv = 4.0 * math.pi * sa[c] * Ib[c] * vol  # emitted power per voxel
@@ -513,8 +555,19 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
         vox_cdf = np.cumsum(pv) / P_vol if P_vol > 0 else np.ones(1)
         surf_cdf = np.cumsum(ps) / P_surf if P_surf > 0 else np.ones(max(1, len(ps)))
         images = np.zeros((N_CHUNKS, nrows, ncols))
-        _forward_kernel(N_CHUNKS, per_chunk, seed + 7919 * c, camera.packed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                        sa, ss, g, maj, scattering, vox_cdf, surf, tex, surf_cdf, P_vol / total, total, c, images)
+        states = _batch_states(seed + 7919 * c, N_CHUNKS)
+        args = (camera.packed, x0, y0, z0, hx, hy, hz, nx, ny, nz, sa, ss, g, maj, scattering, vox_cdf, surf, tex,
+                surf_cdf, P_vol / total, c, images)
+        w_bundle = total / (N_CHUNKS * per_chunk)
+        _forward_kernel(N_CHUNKS, 0, w_bundle, states, *args)  # compiles (not timed): no bundles
+        # bundles of each batch in parts sized to ~0.25 s (Ctrl-C is seen between them); the first part
+        # times the kernel for the estimate and the max_seconds refusal
+        for b0, b1 in sizer.ranges(per_chunk):
+            t = time.perf_counter()
+            _forward_kernel(N_CHUNKS, b1 - b0, w_bundle, states, *args)
+            if estimate is None:  # kernel time of the whole render
+                estimate = (time.perf_counter() - t) / (b1 - b0) * per_chunk * (n_ch - c)
+                _check_forward_estimate(estimate, max_seconds)
         raw[c] = images.sum(axis=0)
         se[c] = np.sqrt(N_CHUNKS) * images.std(axis=0, ddof=1)
     meta = {
@@ -524,6 +577,7 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
         "wavelengths": None if wl is None else list(wl),
         "scene": scene.summary(),
         "elapsed_s": time.perf_counter() - t0,
+        "estimated_seconds": estimate,
     }
     return LightField(raw=raw[0] if n_ch == 1 else raw, camera=camera, wavelengths=wl,
                       std_error=se[0] if n_ch == 1 else se, metadata=meta)

@@ -21,8 +21,8 @@ import numpy as np
 import numba
 
 from ..errors import LftomoError
-from .._validate import require_instance, require_rays, require_seed
-from .chunks import ChunkSizer
+from .._validate import check_allocation, require_instance, require_rays, require_seed
+from .chunks import ChunkSizer, interruptible
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
 
 
@@ -42,6 +42,7 @@ def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
     return tuple(float(a) for a in arr)
 
 
+@interruptible
 def render(
     scene,
     camera,
@@ -104,6 +105,9 @@ def render(
         raise LftomoError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
     packed_sampler, mli = camera.sampler_arrays(sampler, n_rays)
     nrows, ncols = camera.sensor_shape
+    # mean, variance, the pilot's two scratch images and the standard error, each (n_ch, rows, cols)
+    check_allocation(f"a render of {n_ch} channel(s) x {nrows} x {ncols} pixels", 5.0 * n_ch * nrows * ncols * 8,
+                     hint="use fewer wavelengths or a smaller camera")
     mean = np.zeros((n_ch, nrows, ncols))
     var = np.zeros((n_ch, nrows, ncols))
     if max_seconds is not None:

@@ -106,8 +106,8 @@ import scipy.sparse as sp
 from numba import njit, prange
 
 from ..errors import LftomoError
-from .._validate import require_int, require_rays, require_seed
-from .chunks import ChunkSizer
+from .._validate import require_int, require_positive, require_rays, require_seed
+from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
 from .sampler import DEFAULT_SAMPLER
@@ -826,9 +826,45 @@ def _run_rows(kernel_call, rows: np.ndarray, cap: int, cap_max: int, pos: np.nda
     return buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra
 
 
+def _max_seconds(max_seconds: Any) -> float | None:
+    return None if max_seconds is None else require_positive("max_seconds", max_seconds)
+
+
+def _check_seconds(what: str, seconds: float, max_seconds: float | None) -> None:
+    """Refuse a build whose estimated time ``seconds`` exceeds ``max_seconds`` (None: no limit)."""
+    if max_seconds is not None and seconds > max_seconds:
+        text = f"{seconds:.3g} s" if seconds < 3600 else f"{seconds / 3600:.3g} h"
+        raise LftomoError(f"the {what} would take an estimated {text}, more than max_seconds = {max_seconds:g} s; "
+                          "select fewer views (views=...), use a coarser grid or fewer rays_per_pixel, or raise "
+                          "max_seconds")
+
+
+def _timed_pilot(run_part, pilot_size: int, n_rows: int, sizer: ChunkSizer, what: str,
+                 max_seconds: float | None) -> tuple[list, float]:
+    """Run the pilot rows in time-sized parts (Ctrl-C between them) and estimate the build time.
+
+    ``run_part(a, b)`` runs pilot rows ``a:b`` and returns its result.  The
+    first row is run once untimed (a first call loads or compiles the kernel);
+    after the first timed part the whole build's time is estimated and refused
+    above ``max_seconds`` before the rest of the pilot runs.
+
+    Returns (the parts' results, estimated seconds of the whole build).
+    """
+    if pilot_size == 0:
+        return [], 0.0
+    run_part(0, 1)  # not timed: numba's start-up
+    parts, t = [], time.perf_counter()
+    for a, b in sizer.ranges(pilot_size):
+        t_part = time.perf_counter()
+        parts.append(run_part(a, b))
+        if a == 0:
+            _check_seconds(what, (time.perf_counter() - t_part) / (b - a) * n_rows, max_seconds)
+    return parts, (time.perf_counter() - t) * n_rows / pilot_size
+
+
 def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *, memory_limit: int,
-               progress, desc: str, what: str, n_rays: int):
-    """Pilot estimate, memory check, chunked build.
+               progress, desc: str, what: str, n_rays: int, max_seconds: float | None = None):
+    """Pilot estimate, memory and time checks, chunked build.
 
     ``cap_max`` is a hard bound on the entries of one row.  The pilot (about
     1 % of the rows, evenly spread) gives the mean and the largest row size;
@@ -842,11 +878,11 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     pos = _pos_scratch(n_vox)
     pilot = _pilot_rows(n_rows)
     sizer = ChunkSizer(max(16, _CHUNK_BYTES // (min(cap_max, 4096) * 12)), start=numba.get_num_threads())
-    t_pilot = time.perf_counter()
+    parts, seconds = _timed_pilot(
+        lambda a, b: _run_rows(kernel_call, pixel_index[pilot[a:b]], min(cap_max, 4096), cap_max, pos)[3],
+        pilot.size, n_rows, sizer, what, max_seconds)
     if pilot.size:
-        cnt_p = np.concatenate([  # in chunks: Ctrl-C is seen between them
-            _run_rows(kernel_call, pixel_index[pilot[a:b]], min(cap_max, 4096), cap_max, pos)[3]
-            for a, b in sizer.ranges(pilot.size)])
+        cnt_p = np.concatenate(parts)
         mean = float(cnt_p.mean())
         se = float(cnt_p.std(ddof=1) / math.sqrt(cnt_p.size)) if cnt_p.size > 1 else 0.0
         cap = int(min(cap_max, max(64, 1.5 * cnt_p.max() + 16)))
@@ -860,7 +896,6 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12))))
     scratch = chunk_rows * cap * 12 + pos.nbytes
     est_bytes = int(nnz_est * (8 + ib) + (n_rows + 1) * ib + n_rows * 24 + scratch)
-    seconds = (time.perf_counter() - t_pilot) * n_rows / max(pilot.size, 1)
     estimate = {"nnz": nnz_est, "nnz_standard_error": se * n_rows, "bytes": est_bytes, "rows": int(n_rows),
                 "pilot_rows": int(pilot.size), "row_capacity": cap, "seconds": seconds}
     if est_bytes > memory_limit:
@@ -870,6 +905,7 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
             f"{memory_limit / 1e9:.3g} GB; select fewer views (views=...), use a coarser grid or fewer "
             "rays_per_pixel, or raise memory_limit"
         )
+    _check_seconds(what, seconds, max_seconds)
     store = _Growable(nnz_hi, idx_dtype)
     indptr = np.zeros(n_rows + 1, dtype=np.int64)
     background = np.zeros(n_rows)
@@ -1404,6 +1440,7 @@ def _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, v
     return d
 
 
+@interruptible
 def weights(
     camera,
     grid,
@@ -1421,6 +1458,7 @@ def weights(
     progress: bool | None = None,
     max_bounces: int = _MAX_BOUNCES,
     sampler: str = DEFAULT_SAMPLER,
+    max_seconds: float | None = None,
 ) -> WeightMatrix:
     """Ray–voxel weight matrix ``W`` of the camera for a medium on ``grid``.
 
@@ -1470,6 +1508,11 @@ def weights(
     sampler : {"stratified", "independent"}
         Pixel sampler (:mod:`lftomo.forward.sampler`); the rays are those of
         :func:`lftomo.render` with the same seed and sampler.
+    max_seconds : float, optional
+        Refuse (:class:`lftomo.LftomoError`) a build whose estimated time
+        exceeds this.  The estimate comes from the first part of the pilot
+        rows (refused before the rest of the pilot) and again from the whole
+        pilot (``metadata["estimate"]["seconds"]``).
 
     Returns
     -------
@@ -1487,6 +1530,7 @@ def weights(
     n_rays = require_rays("rays_per_pixel", rays_per_pixel)
     seed = require_seed("seed", seed)
     max_bounces = require_int("max_bounces", max_bounces, minimum=1)
+    max_seconds = _max_seconds(max_seconds)
     sa = _field_flat("sigma_a", sigma_a, grid)
     ss = _field_flat("sigma_s", sigma_s, grid)
     gg = _field_flat("g", g, grid, minimum=None)
@@ -1526,7 +1570,7 @@ def weights(
     t0 = time.perf_counter()
     data, indices, indptr, background, row_se, est = _build_csr(
         call, pixel_index, n_vox, cap_max, memory_limit=limit, progress=progress, desc="weights",
-        what="weight matrix", n_rays=n_rays)
+        what="weight matrix", n_rays=n_rays, max_seconds=max_seconds)
     elapsed = time.perf_counter() - t0
     meta = _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc,
                  {"estimate": est, "build_seconds": elapsed, "max_bounces": max_bounces if scattering else None,
@@ -1812,6 +1856,7 @@ class RaySegments:
         return self._jax.forward(Ib, sigma_a)
 
 
+@interruptible
 def ray_segments(
     camera,
     grid,
@@ -1825,6 +1870,7 @@ def ray_segments(
     memory_limit: float | None = None,
     progress: bool | None = None,
     sampler: str = DEFAULT_SAMPLER,
+    max_seconds: float | None = None,
 ) -> RaySegments:
     """Ray–segment table (pixel row, ray, voxel, chord length) of the camera's rays.
 
@@ -1837,7 +1883,8 @@ def ray_segments(
 
     Memory: 12 bytes per segment (int32 voxel, float64 length) plus 36 bytes
     per ray; refused past ``memory_limit`` (default half the physical memory)
-    from a pilot estimate.
+    from a pilot estimate.  Time: refused above ``max_seconds`` from the
+    pilot's estimate (``metadata["estimate"]["seconds"]``), as in :func:`weights`.
 
     Returns
     -------
@@ -1846,6 +1893,7 @@ def ray_segments(
     _check_grid(camera, grid)
     n_rays = require_rays("rays_per_pixel", rays_per_pixel)
     seed = require_seed("seed", seed)
+    max_seconds = _max_seconds(max_seconds)
     wl = _wavelength(wavelength)
     limit = _memory_limit(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
@@ -1878,11 +1926,14 @@ def ray_segments(
 
     t0 = time.perf_counter()
     pilot = _pilot_rows(n_rows)
+    # pilot in parts of bounded scratch memory and ~0.25 s (Ctrl-C), timed for the estimate
+    sizer = ChunkSizer(max(1, _CHUNK_BYTES // (cap_max * 12 + n_rays * 24)), start=numba.get_num_threads())
+    parts, seconds = _timed_pilot(lambda a, b: run(pixel_index[pilot[a:b]], cap_max)[2:4], pilot.size, n_rows, sizer,
+                                  "ray-segment table", max_seconds)
     if pilot.size:
-        _, _, p_rns, p_nr, _, _, _, _ = run(pixel_index[pilot], cap_max)
-        per_row = p_rns.sum(axis=1)
+        per_row = np.concatenate([p[0] for p in parts]).sum(axis=1)
         seg_mean = float(per_row.mean())
-        ray_mean = float(p_nr.mean())
+        ray_mean = float(np.concatenate([p[1] for p in parts]).mean())
         cap = int(min(cap_max, max(64, 1.5 * per_row.max() + 16)))
     else:
         seg_mean = ray_mean = 0.0
@@ -1897,6 +1948,7 @@ def ray_segments(
             f"{ray_est:.4g} rays), more than memory_limit = {limit / 1e9:.3g} GB; select fewer views, use a "
             "coarser grid or fewer rays_per_pixel, or raise memory_limit"
         )
+    _check_seconds("ray-segment table", seconds, max_seconds)
     seg_store = _Growable(int(seg_est * 1.03) + 16)
     ray_w = np.empty(max(int(ray_est * 1.03) + 16, 1))
     ray_L = np.empty_like(ray_w)
@@ -1952,7 +2004,8 @@ def ray_segments(
     zeros = np.zeros(grid.n_voxels)
     meta = _meta(camera, grid, wl, n_rays, seed, "exact DDA per ray (same rays as render)", zeros, zeros, zeros,
                  surf_summary, views_desc, {"build_seconds": time.perf_counter() - t0, "sampler": sampler_name,
-                                            "estimate": {"segments": seg_est, "rays": ray_est, "bytes": est_bytes}})
+                                            "estimate": {"segments": seg_est, "rays": ray_est, "bytes": est_bytes,
+                                                         "seconds": seconds}})
     del meta["sigma_a"]
     return RaySegments(ray_row, ray_w, ray_L, ray_ptr, row_ray_ptr, voxel, length, grid.n_voxels, pixel_index,
                        view_pixel, view_ptr, tuple(int(a) for a in camera.views_shape),

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from ..interrupt import check_interrupt
+
 __all__ = ["DenseLMResult", "levenberg_marquardt_dense"]
 
 
@@ -201,6 +203,7 @@ def levenberg_marquardt_dense(
     message = f"max_steps ({max_steps}) reached"
     converged = False
     while steps < max_steps:
+        check_interrupt()
         diag = np.diag(G).copy()
         d_max = np.maximum(d_max, diag)
         D = np.maximum(d_max, 1e-12 * max(float(d_max.max()), 1e-300))

@@ -57,6 +57,7 @@ import scipy.sparse as sp
 from scipy.special import ndtri
 
 from .._validate import require_int, require_positive
+from ..interrupt import stop_between_steps
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
 from .regularizers import prior_operator
@@ -437,7 +438,8 @@ def laplace_posterior(
 
     def solve(reg, T0=None):
         t = time.perf_counter()
-        sol = solve_temperature(problem, regularization=reg, prior=prior, bounds=bounds, T0=T0, **options)
+        with stop_between_steps("the field posterior"):  # Ctrl-C: between two steps (lftomo.interrupt)
+            sol = solve_temperature(problem, regularization=reg, prior=prior, bounds=bounds, T0=T0, **options)
         clock["solve_s"] += time.perf_counter() - t
         return sol
 

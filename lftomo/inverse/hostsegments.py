@@ -39,6 +39,7 @@ import numpy as np
 import scipy.sparse as sp
 from jax.custom_derivatives import SymbolicZero, linear_call
 
+from ..interrupt import check_interrupt
 from .hostsparse import _LOCK, csr_product
 
 __all__ = ["host_forward"]
@@ -65,6 +66,7 @@ class _Point:
 
 
 def _point(handle: int, Ib, sa) -> _Point:
+    check_interrupt()  # Ctrl-C: ends the JAX computation that called back here (lftomo.interrupt)
     Ib = np.ascontiguousarray(Ib, dtype=np.float64)
     sa = np.ascontiguousarray(sa, dtype=np.float64)
     key = hashlib.blake2b(Ib.tobytes() + sa.tobytes(), digest_size=16).digest()

@@ -37,6 +37,8 @@ import scipy.sparse as sp
 from jax.custom_derivatives import linear_call
 from numba import get_num_threads, njit, prange
 
+from ..interrupt import check_interrupt
+
 __all__ = ["HostCSR", "host_csr", "projected_normal_equations"]
 
 _REGISTRY: dict[int, tuple[sp.csr_matrix, sp.csr_matrix]] = {}
@@ -72,6 +74,7 @@ def csr_weighted_norms(indptr, indices, data, w, X, out):
 
 def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
     """``M x`` (float64) by :func:`csr_matvec` under the module's lock."""
+    check_interrupt()  # Ctrl-C: ends the JAX computation that called back here (lftomo.interrupt)
     out = np.empty(M.shape[0], dtype=np.float64)
     with _LOCK:
         csr_matvec(M.indptr, M.indices, M.data, np.ascontiguousarray(x, dtype=np.float64), out)

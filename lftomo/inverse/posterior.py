@@ -57,12 +57,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import (
+    check_allocation,
     require_array,
     require_finite_scalar,
     require_int,
     require_nonnegative,
     require_positive,
 )
+from ..interrupt import check_interrupt, stop_between_steps
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
 from .basis import MAX_COEFFS, TemperatureBasis
 from .hostsparse import csr_weighted_sq_norms
@@ -1162,6 +1164,9 @@ def sample_posterior(
     burn = n_steps // 4 if burn is None else require_int("burn", burn, minimum=0)
     if burn >= n_steps:
         raise ValueError(f"burn must be < n_steps = {n_steps}, got {burn}")
+    # emcee allocates the whole chain and its log-posterior up front; the results copy them
+    check_allocation(f"a chain of n_steps = {n_steps} x n_walkers = {n_walkers} x {K} coefficients",
+                     2.0 * n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
     init_scale = require_positive("init_scale", init_scale)
     level = require_finite_scalar("credible_level", credible_level)
     if not 0.0 < level < 1.0:
@@ -1235,10 +1240,15 @@ def sample_posterior(
                 note += f" (auto: pilot importance ESS {ess:.1f} of {n_ok})"
     if moves is None:
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
-    sampler = emcee.EnsembleSampler(n_walkers, K, target, vectorize=True, moves=moves)
+    def checked_target(Z, _target=target):  # Ctrl-C is honoured between two ensemble steps
+        check_interrupt()
+        return _target(Z)
+
+    sampler = emcee.EnsembleSampler(n_walkers, K, checked_target, vectorize=True, moves=moves)
     sampler.random_state = np.random.RandomState(int(rng.integers(2**32 - 1))).get_state()
     t0 = time.perf_counter()
-    sampler.run_mcmc(p0, n_steps, progress=progress)
+    with stop_between_steps("the posterior sampling"):  # Ctrl-C: between two ensemble steps
+        sampler.run_mcmc(p0, n_steps, progress=progress)
     elapsed = time.perf_counter() - t0
 
     chain = sampler.get_chain()

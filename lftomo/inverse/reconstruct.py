@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..forward.grid import Grid
+from ..interrupt import stop_between_steps
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 
@@ -262,7 +263,10 @@ def reconstruct(
     if unknowns not in ("T", "T+sigma_a"):
         raise ValueError(f"unknowns must be 'T' or 'T+sigma_a', got {unknowns!r}")
     _check_types(measurement, weights)
-    lo, hi = bounds
+    try:
+        lo, hi = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     if unknowns == "T+sigma_a":
@@ -273,9 +277,15 @@ def reconstruct(
             )
         from .joint import solve_temperature_absorption
 
-        return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
-                                            bounds=bounds, method=method, rule=rule, T0=T0,
-                                            symmetry=symmetry, grid=grid, **options)
+        if isinstance(getattr(weights, "metadata", None), dict) and weights.metadata.get("grid") is not None:
+            g = grid if grid is not None else _grid_of(weights)
+            ring = resolve_symmetry(symmetry, g)
+            # unknowns: T and σ_ref per voxel (or ring cell)
+            warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
+        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+            return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
+                                                bounds=bounds, method=method, rule=rule, T0=T0,
+                                                symmetry=symmetry, grid=grid, **options)
     from .solvers import solve_temperature
 
     if method not in ("levenberg-marquardt", "gauss-newton"):
@@ -291,8 +301,9 @@ def reconstruct(
         T0 = ring_start(T0, ring)
     warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
-    sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
-                            method=method, rule=rule, **options)
+    with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+        sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
+                                method=method, rule=rule, **options)
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items()}}
     return Reconstruction(
         T=sol.T if ring is None else ring.expand(sol.T),

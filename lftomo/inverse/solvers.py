@@ -159,6 +159,7 @@ from .._validate import (  # noqa: E402
 )
 from ..forward.render import _NoBar, _progress  # noqa: E402
 from .hostsparse import host_csr  # noqa: E402
+from ..interrupt import check_interrupt  # noqa: E402
 from .problem import LinearProblem  # noqa: E402
 from .regularizers import PRIORS, prior_operator, tv_residuals  # noqa: E402
 
@@ -639,6 +640,7 @@ def _scaled_chunks(residual, solver, args: dict, column_scale, theta, max_steps:
     zeros = jnp.zeros(theta.shape)
     steps = 0
     while steps < max_steps:
+        check_interrupt()  # Ctrl-C under lftomo.interrupt.stop_between_steps: stop between two chunks
         D = column_scale(theta)
         args["theta_c"], args["D"] = jnp.asarray(theta), jnp.asarray(D)
         sol = optx.least_squares(residual, solver, zeros, args=args, max_steps=min(chunk, max_steps - steps),
