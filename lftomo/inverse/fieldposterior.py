@@ -57,10 +57,11 @@ import scipy.sparse as sp
 from scipy.special import ndtri
 
 from .._validate import require_int, require_positive
+from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
 from .regularizers import prior_operator
-from .solvers import _check_bounds, _dblackbody_np, solve_temperature
+from .solvers import _check_bounds, solve_temperature
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 _PRIORS = ("gradient", "laplacian", "curvature")
@@ -200,7 +201,7 @@ def _whitened_jacobian(problem: Any, T: np.ndarray) -> sp.csr_matrix:
     ``Σ^{-1/2} A diag(∂I_b/∂T (E T)) E``.
     """
     Tm = problem.model_temperature(T)
-    J = problem.whitened()[0] @ sp.diags(_dblackbody_np(Tm, problem.wavelength))
+    J = problem.whitened()[0] @ sp.diags(dblackbody_dT(Tm, problem.wavelength))
     if problem.interpolation is not None:
         J = J @ problem.interpolation
     return J.tocsr()

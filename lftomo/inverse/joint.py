@@ -64,6 +64,7 @@ import scipy.sparse as sp
 from ..forward.grid import Grid
 from ..forward.render import _progress
 from ..forward.weights import RaySegments
+from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
 from .hostsparse import projected_normal_equations
 from .problem import LinearProblem
@@ -72,10 +73,8 @@ from .regularizers import prior_operator, to_bcoo
 from .solvers import (
     NOISE_SCALES,
     _baseline_start,
-    _blackbody_np,
     _branch_corner,
     _check_choice,
-    _dblackbody_np,
     _Eval,
     _influence_probes,
     _jacobi_scale,
@@ -83,7 +82,6 @@ from .solvers import (
     _nl_solver,
     _on_lcurve,
     _scaled_chunks,
-    planck_jax,
 )
 from .subvoxel import _m, interpolate_field, resolve_quadrature
 from .symmetry import resolve_symmetry
@@ -152,8 +150,8 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
     order = np.argsort(wls)
     a, b = int(order[0]), int(order[-1])
     T_tab = np.linspace(lo, hi, 4001)
-    ratio_tab = (np.log(factors[a] * _blackbody_np(T_tab, wls[a]))
-                 - np.log(factors[b] * _blackbody_np(T_tab, wls[b])))
+    ratio_tab = (np.log(factors[a] * blackbody(T_tab, wls[a]))
+                 - np.log(factors[b] * blackbody(T_tab, wls[b])))
     ok = (S[a] > 0.05 * S[a].max()) & (S[b] > 0.05 * S[b].max())
     T = np.empty(S[a].size)
     if ok.any():
@@ -165,7 +163,7 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
         T[:] = 0.5 * (lo + hi)
     T = np.clip(T, lo + 1e-3 * (hi - lo), hi - 1e-3 * (hi - lo))
     sref = np.full(T.size, 1e-3 * sigma_a_max)
-    sref[ok] = S[0][ok] / _blackbody_np(T[ok], wls[0])
+    sref[ok] = S[0][ok] / blackbody(T[ok], wls[0])
     sref = np.clip(sref, 1e-3 * sigma_a_max, 0.99 * sigma_a_max)
     return T, sref
 
@@ -553,8 +551,8 @@ def solve_temperature_absorption(
             sa_c = sv * factors[c]
             # ∂F/∂T_unknown = W(σ) diag(I_b'(T_seg)) (E) P: exact, also through the interpolation
             Wc = per_unknown(whiten[c] @ sp.csr_matrix(segments.weights(sa_c).matrix)[rows_np[c]]
-                             @ sp.diags(_dblackbody_np(Tv, wls[c])))
-            dF_ds = sp.csr_matrix(segments.jacobian(_blackbody_np(Tv, wls[c]), sa_c)[1])
+                             @ sp.diags(dblackbody_dT(Tv, wls[c])))
+            dF_ds = sp.csr_matrix(segments.jacobian(blackbody(Tv, wls[c]), sa_c)[1])
             Jc = per_unknown(whiten[c] @ dF_ds[rows_np[c]])
             c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * dT ** 2
             c2[n_u:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (factors[c] * ds) ** 2
@@ -632,7 +630,7 @@ def solve_temperature_absorption(
             g = np.zeros(2 * n_u)
         for c in range(len(ms)):
             sa_c = sv * factors[c]
-            Ib = _blackbody_np(Tv, wls[c])
+            Ib = blackbody(Tv, wls[c])
             key = hashlib.blake2b(Ib.tobytes() + sa_c.tobytes(), digest_size=16).digest()
             hit = sig_cache.get(c)
             if hit is not None and hit[0] == key:
@@ -645,7 +643,7 @@ def solve_temperature_absorption(
             if with_jacobian:
                 # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ_ref, summed per
                 # unknown (E P) inside the normal-equations kernel; ∂σ_ref/∂u is applied below
-                Wc = data_rows(segments.weights(sa_c).matrix, c, _dblackbody_np(Tv, wls[c]) * (hi - lo))
+                Wc = data_rows(segments.weights(sa_c).matrix, c, dblackbody_dT(Tv, wls[c]) * (hi - lo))
                 Jc = data_rows(dF_ds, c, factors[c])
                 Gc, gc = projected_normal_equations(Wc, Jc, to_seg_csr, res)
                 G += Gc

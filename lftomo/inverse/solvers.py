@@ -147,10 +147,17 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
-from scipy import constants as _c  # noqa: E402
 from scipy.optimize import lsq_linear  # noqa: E402
 
-from .. import radiation as _rad  # noqa: E402
+from ..radiation import (  # noqa: E402  (re-exported: the JAX laws used to live here)
+    blackbody,
+    blackbody_inverse,
+    blackbody_jax,
+    dblackbody_dT,
+    dplanck_dT_jax,
+    gray_intensity_jax,
+    planck_jax,
+)
 from .._validate import (  # noqa: E402
     require_finite_scalar,
     require_int,
@@ -185,72 +192,11 @@ RULES = ("discrepancy", "gcv", "lcurve")
 PENALIZE = ("temperature", "intensity")
 NOISE_SCALES = ("given", "estimated")
 
-_C1 = 2.0 * _c.h * _c.c**2  # W m² sr⁻¹
-_C2 = _c.h * _c.c / _c.k  # m K
-_SIGMA = _c.Stefan_Boltzmann
 _CHUNK = 10
 
 #: ``progress=None`` shows a progress bar when the operator has more nonzeros
 #: than this (24³ with sub-voxel quadrature 2: 26 M, about 8 min on 2 cores).
 PROGRESS_MIN_NNZ = 5_000_000
-
-
-# --------------------------------------------------------------------------- Planck (JAX)
-def planck_jax(T: Any, wavelength: Any) -> jax.Array:
-    """Spectral blackbody radiance in JAX (differentiable).
-
-    Parameters
-    ----------
-    T : array_like
-        Temperature (K), > 0.
-    wavelength : float or array_like
-        Wavelength in vacuum (m), > 0, broadcast against ``T``.
-
-    Returns
-    -------
-    jax.Array
-        ``I_b = C1 λ⁻⁵ e^{−x} / (1 − e^{−x})``, ``x = C2/(λT)``
-        (W·m⁻²·sr⁻¹·m⁻¹), broadcast shape; ``1 − e^{−x}`` as ``−expm1(−x)``.
-        No input checks (traced code); see :func:`lftomo.planck` for those.
-    """
-    T = jnp.asarray(T, dtype=jnp.float64)
-    lam = jnp.asarray(wavelength, dtype=jnp.float64)
-    x = _C2 / (lam * T)
-    return _C1 / lam**5 * jnp.exp(-x) / (-jnp.expm1(-x))
-
-
-def dplanck_dT_jax(T: Any, wavelength: Any) -> jax.Array:
-    """Analytic ``∂I_b/∂T = I_b x / (T (1 − e^{−x}))`` in JAX (W·m⁻²·sr⁻¹·m⁻¹·K⁻¹)."""
-    T = jnp.asarray(T, dtype=jnp.float64)
-    lam = jnp.asarray(wavelength, dtype=jnp.float64)
-    x = _C2 / (lam * T)
-    one_minus = -jnp.expm1(-x)
-    return _C1 / lam**5 * jnp.exp(-x) / one_minus * x / (T * one_minus)
-
-
-def gray_intensity_jax(T: Any) -> jax.Array:
-    """Band-integrated blackbody radiance ``σ T⁴ / π`` in JAX (W·m⁻²·sr⁻¹)."""
-    T = jnp.asarray(T, dtype=jnp.float64)
-    return _SIGMA * T**4 / jnp.pi
-
-
-def blackbody_jax(T: Any, wavelength: float | None) -> jax.Array:
-    """Planck radiance at ``wavelength`` (m), or the gray radiance if it is None."""
-    return gray_intensity_jax(T) if wavelength is None else planck_jax(T, wavelength)
-
-
-def _blackbody_np(T: np.ndarray, wavelength: float | None) -> np.ndarray:
-    return np.asarray(_rad.gray_intensity(T) if wavelength is None else _rad.planck(T, wavelength), dtype=np.float64)
-
-
-def _dblackbody_np(T: np.ndarray, wavelength: float | None) -> np.ndarray:
-    if wavelength is None:
-        return 4.0 * _SIGMA * np.asarray(T, dtype=np.float64) ** 3 / np.pi
-    return np.asarray(_rad.dplanck_dT(T, wavelength), dtype=np.float64)
-
-
-def _inverse_np(I: np.ndarray, wavelength: float | None) -> np.ndarray:
-    return np.asarray(_rad.gray_inverse(I) if wavelength is None else _rad.planck_inverse(I, wavelength), dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- results
@@ -484,9 +430,9 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     d_all = w * (problem.y - problem.background)
     nnz_row = np.diff(A.indptr)
     used = nnz_row > 0
-    I_scale = float(_blackbody_np(np.float64(T_ref), wl))
+    I_scale = float(blackbody(np.float64(T_ref), wl))
     T_scale = tmax - tmin
-    I_reg = float(_dblackbody_np(np.float64(T_ref), wl)) * T_scale
+    I_reg = float(dblackbody_dT(np.float64(T_ref), wl)) * T_scale
     scale = sp.diags(w[used] * I_scale)
     A_s = (scale @ problem.linear_operator()[used]).tocsr()
     A_q = E = None
@@ -696,7 +642,7 @@ class _Runner:
         sig = 1.0 / (1.0 + np.exp(-theta))
         T = s.tmin + (s.tmax - s.tmin) * sig
         dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
-        dI = _dblackbody_np(T, s.wavelength) / s.I_scale
+        dI = dblackbody_dT(T, s.wavelength) / s.I_scale
         reg_f = dT / s.T_scale if s.penalize == "temperature" else dI * dT * s.I_scale / s.I_reg
         return _jacobi_scale(self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * reg_f**2)
 
@@ -768,7 +714,7 @@ def _balanced_lambda(s: _Setup, T: np.ndarray) -> float:
     """trace(JᵀJ) of the data term / trace(RᵀR) of the prior at temperature ``T`` (flat)."""
     frac = (T - s.tmin) / (s.tmax - s.tmin)
     dT = (s.tmax - s.tmin) * frac * (1.0 - frac)
-    dI = _dblackbody_np(T, s.wavelength) / s.I_scale
+    dI = dblackbody_dT(T, s.wavelength) / s.I_scale
     col_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
     col_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
     data = float(np.sum(col_A * (dI * dT) ** 2))
@@ -1449,7 +1395,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
     t_end = time.perf_counter()
 
     T = run.T_of(e.theta)
-    Ib = _blackbody_np(T, s.wavelength)
+    Ib = blackbody(T, s.wavelength)
     return TemperatureSolution(
         T=T.reshape(grid.shape),
         I_b=Ib.reshape(grid.shape),
@@ -1562,7 +1508,7 @@ def _baseline_core(s: _Setup, lam: float, *, method: str, atol: float, btol: flo
     chi2 = (float(r @ r) + s.chi2_empty) / s.m_total
     reg = float(np.linalg.norm(s.L @ b) * s.I_scale / s.I_reg)
     tiny = np.finfo(np.float64).tiny
-    T_raw = _inverse_np(np.maximum(Ib, tiny), s.wavelength)
+    T_raw = blackbody_inverse(np.maximum(Ib, tiny), s.wavelength)
     T = np.clip(T_raw, s.tmin, s.tmax)
     shape = s.grid.shape
     return BaselineSolution(
