@@ -60,11 +60,10 @@ from .._validate import require_int, require_positive
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
-from .regularizers import prior_operator
+from .regularizers import prior_operator, resolve_prior
 from .solvers import _check_bounds, solve_temperature
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
-_PRIORS = ("gradient", "laplacian", "curvature")
 _METHODS = ("auto", "dense", "sampled")
 
 
@@ -388,8 +387,7 @@ def laplace_posterior(
         For a bad argument (before any solve).
     """
     t_start = time.perf_counter()
-    if prior not in _PRIORS:
-        raise ValueError(f"prior must be one of {_PRIORS} (a Gaussian prior), got {prior!r}")
+    prior = resolve_prior(prior, quadratic_only=True, where="laplace_posterior (a Gaussian prior)").name
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     if not (isinstance(credible_level, (int, float)) and 0.0 < float(credible_level) < 1.0):

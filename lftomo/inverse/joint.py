@@ -69,7 +69,7 @@ from .denselm import levenberg_marquardt_dense
 from .hostsparse import projected_normal_equations
 from .problem import LinearProblem
 from .reconstruct import Reconstruction
-from .regularizers import prior_operator, to_bcoo
+from .regularizers import resolve_prior, to_bcoo
 from .solvers import (
     NOISE_SCALES,
     _baseline_start,
@@ -144,8 +144,7 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
             A = (A @ E).tocsr()
         problem = LinearProblem(A, np.asarray(m.y, float), np.asarray(m.sigma, float), grid,
                                 wavelength=wl, background=bg0[rr] * valid)
-        st = _make_setup(problem, bounds=(lo, hi), prior="gradient" if prior == "tv" else prior,
-                         penalize="temperature", tv_eps=1e-3, T_ref=None)
+        st = _make_setup(problem, bounds=(lo, hi), prior=prior, penalize="temperature", tv_eps=1e-3, T_ref=None)
         S.append(_baseline_start(st).I_b.ravel())
     order = np.argsort(wls)
     a, b = int(order[0]), int(order[-1])
@@ -364,6 +363,9 @@ def solve_temperature_absorption(
     t_start = time.perf_counter()
     if method not in JOINT_METHODS:
         raise ValueError(f"method must be one of {', '.join(map(repr, JOINT_METHODS))} for the joint fit, got {method!r}")
+    # R = L x is what the σ terms, the Jacobi scaling and the dense normal equations are built on:
+    # a non-quadratic prior (TV) is refused, never replaced by another one
+    prior = resolve_prior(prior, quadratic_only=True, where="the joint T + sigma_a fit (unknowns='T+sigma_a')")
     if not isinstance(segments, RaySegments):
         raise ValueError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, ...)) "
                          f"as its forward model, got {type(segments).__name__}: a weight matrix is built for one "
@@ -452,7 +454,7 @@ def solve_temperature_absorption(
     rows_j = [jnp.asarray(np.maximum(r, 0)) for r in rows]
     valid = [jnp.asarray(r >= 0) for r in rows]
     factors = [(wls[0] / w) ** alpha for w in wls]
-    L_sp = prior_operator(grid if ring is None else ring, prior)
+    L_sp = prior.operator(grid if ring is None else ring)
     L = to_bcoo(L_sp)
     if engine == "host":
         from .hostsegments import host_forward

@@ -167,7 +167,7 @@ from .._validate import (  # noqa: E402
 from ..forward.render import _NoBar, _progress  # noqa: E402
 from .hostsparse import host_csr  # noqa: E402
 from .problem import LinearProblem  # noqa: E402
-from .regularizers import PRIORS, prior_operator, tv_residuals  # noqa: E402
+from .regularizers import Prior, resolve_prior  # noqa: E402
 
 __all__ = [
     "METHODS",
@@ -397,6 +397,7 @@ class _Setup:
     # A_s is then A_q @ E (I_b interpolated linearly: baseline, λ scales, Jacobi scaling)
     A_q: sp.csr_matrix | None = None
     E: sp.csr_matrix | None = None
+    prior_model: Prior | None = None  # the Prior whose name is ``prior``
 
     def jax_args(self) -> dict:
         """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding)."""
@@ -438,7 +439,9 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     A_q = E = None
     if problem.interpolation is not None:
         A_q, E = (scale @ A[used]).tocsr(), problem.interpolation
-    L = prior_operator(problem.grid, prior, dimensionless=True)
+    model = resolve_prior(prior, tv_eps=tv_eps)
+    tv_eps = getattr(model, "eps", tv_eps)
+    L = model.operator(problem.grid, dimensionless=True)
     s = _Setup(
         problem=problem,
         grid=problem.grid,
@@ -449,7 +452,7 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         I_scale=I_scale,
         I_reg=I_reg,
         T_scale=T_scale,
-        prior=prior,
+        prior=model.name,
         penalize=penalize,
         tv_eps=tv_eps,
         A_s=A_s,
@@ -459,16 +462,18 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         L=L,
         A_q=A_q,
         E=E,
+        prior_model=model,
     )
     return s
 
 
 # --------------------------------------------------------------------------- residuals (JAX)
 @functools.lru_cache(maxsize=None)
-def _functions(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+def _functions(gray: bool, prior_type: type, penalize: str, subvoxel: bool = False):
     """Residual functions for one static configuration (cached: same objects -> jit cache hits).
 
-    ``subvoxel``: the data term interpolates T to the quadrature grid
+    ``prior_type``: the :class:`~lftomo.inverse.regularizers.Prior` subclass
+    whose ``residual_fn`` gives the prior's residual.  ``subvoxel``: the data term interpolates T to the quadrature grid
     (``args["E"]``) before Planck's law.
     """
 
@@ -490,9 +495,7 @@ def _functions(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
         T = temperature(theta, args)
         u = T if penalize == "temperature" else scaled_intensity(T, args)
         u = u * args["reg_scale"]
-        if tv:
-            return tv_residuals(u, args["L"], args["eps"])
-        return args["L"] @ u
+        return prior_type.residual_fn(u, args["L"], args["eps"])
 
     def residual(psi, args):
         # Jacobi-scaled variables: theta = theta_c + D * psi (D = 1 / column norms at theta_c)
@@ -607,12 +610,11 @@ class _Runner:
 
     def __init__(self, s: _Setup, *, method, rtol, atol, max_steps, linear_rtol, linear_max_steps):
         self.s = s
-        self.f = _functions(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
+        self.f = _functions(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
         self._args = s.jax_args()
         self.colsq_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
         self.colsq_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
-        if s.prior == "tv":
-            self.colsq_L = self.colsq_L / (2.0 * s.tv_eps)
+        self.colsq_L = self.colsq_L / s.prior_model.curvature_divisor
         self.solver = _nl_solver(method, rtol, atol, linear_rtol, linear_max_steps)
         self.rtol, self.atol, self.max_steps = rtol, atol, max_steps
         self.evals: list[_Eval] = []
@@ -722,8 +724,7 @@ def _balanced_lambda(s: _Setup, T: np.ndarray) -> float:
         reg = float(np.sum(col_L * (dT / s.T_scale) ** 2))
     else:
         reg = float(np.sum(col_L * (dI * dT * s.I_scale / s.I_reg) ** 2))
-    if s.prior == "tv":
-        reg /= 2.0 * s.tv_eps
+    reg /= s.prior_model.curvature_divisor
     if not (np.isfinite(data) and np.isfinite(reg)) or data <= 0 or reg <= 0:
         return 1.0
     return data / reg
@@ -952,9 +953,9 @@ def _influence_probes(op, Jd, D, zero, ls, probes, on_probe=None):
 
 
 @functools.lru_cache(maxsize=None)
-def _dof_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+def _dof_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = False):
     """Jitted Hutchinson samples of ``tr(2H − H²)``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ``, at ``theta`` (cached)."""
-    f = _functions(gray, tv, penalize, subvoxel)
+    f = _functions(gray, prior_type, penalize, subvoxel)
     ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
 
     @jax.jit
@@ -977,7 +978,7 @@ def _fit_dof(run: _Runner, e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[
     their standard error (3–8) of it."""
     s = run.s
     probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
-    fn = _dof_function(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
+    fn = _dof_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
     scale = jnp.asarray(run.column_scale(np.asarray(e.theta), e.lam))
     q = np.asarray(fn(jnp.asarray(e.theta), run.args(e.lam), jnp.asarray(e.lam), scale, probes), dtype=float)
     n = s.A_s.shape[1]
@@ -986,9 +987,9 @@ def _fit_dof(run: _Runner, e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[
 
 
 @functools.lru_cache(maxsize=None)
-def _gcv_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+def _gcv_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = False):
     """Jitted GCV pieces of the problem linearised about ``theta`` (cached per configuration)."""
-    f = _functions(gray, tv, penalize, subvoxel)
+    f = _functions(gray, prior_type, penalize, subvoxel)
     ls = lx.LSMR(rtol=1e-7, atol=1e-7, max_steps=1000)
 
     @jax.jit
@@ -1009,7 +1010,7 @@ def _rule_gcv(run: _Runner, theta0, lam_ref, lambda_range, n_lambda, probes_n, s
     m_used = s.d.size
     rng = np.random.default_rng(seed)
     probes = jnp.asarray(rng.choice([-1.0, 1.0], size=(probes_n, m_used)))
-    gcv_eval = _gcv_function(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
+    gcv_eval = _gcv_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
     lam_lin = lam_ref * 1e-2
     e = run.solve(lam_lin, theta0)
     cands, chi2s, regs, crit = [], [], [], []
@@ -1274,7 +1275,9 @@ def solve_temperature(
             search_rtol=search_rtol, noise_scale=noise_scale, progress=progress,
         )
     bounds = _check_bounds(bounds)
-    prior = _check_choice("prior", prior, PRIORS)
+    tv_eps = require_positive("tv_eps", tv_eps)
+    prior_model = resolve_prior(prior, tv_eps=tv_eps)
+    prior = prior_model.name
     method = _check_choice("method", method, METHODS)
     rule = _check_choice("rule", rule, RULES)
     penalize = _check_choice("penalize", penalize, PENALIZE)
@@ -1287,7 +1290,6 @@ def solve_temperature(
     atol = require_nonnegative("atol", atol)
     if rtol == 0 and atol == 0:
         raise ValueError("rtol and atol must not both be 0")
-    tv_eps = require_positive("tv_eps", tv_eps)
     safety = require_nonnegative("discrepancy_safety", discrepancy_safety)
     try:
         lr = (require_positive("lambda_range[0]", lambda_range[0]), require_positive("lambda_range[1]", lambda_range[1]))
@@ -1328,7 +1330,7 @@ def solve_temperature(
         T0_arr = arr.ravel()
 
     # ---- setup
-    s = _make_setup(problem, bounds=bounds, prior=prior, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
+    s = _make_setup(problem, bounds=bounds, prior=prior_model, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
     run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
                   linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
     show = progress if progress is not None else s.A_s.nnz > PROGRESS_MIN_NNZ
@@ -1575,7 +1577,7 @@ def solve_linear_baseline(
     """
     problem = _check_problem(problem)
     lam = _check_regularization(regularization, allow_auto=False)
-    prior = _check_choice("prior", prior, ("gradient", "laplacian", "curvature"))
+    prior = resolve_prior(prior, quadratic_only=True, where="the linear baseline")
     method = _check_choice("method", method, ("lsqr", "bounded"))
     bounds = _check_bounds(bounds)
     atol = require_nonnegative("atol", atol)
