@@ -22,6 +22,7 @@ import numba
 
 from ..errors import LftomoError
 from .._validate import require_instance, require_rays, require_seed
+from ..progress import NoBar, progress_bar
 from .chunks import ChunkSizer
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
 
@@ -179,21 +180,5 @@ def _check_estimate(seconds: float, max_seconds: float | None, show: bool) -> No
         print(f"render: estimated {text} (Ctrl-C stops it)", file=sys.stderr, flush=True)
 
 
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def set_postfix_str(self, s):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress(total: int | None, show: bool, desc: str, unit: str = "px"):
-    """A tqdm bar (stderr; ``total`` None: a counter without an end), or a silent stand-in."""
-    if not show:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit=unit, unit_scale=unit == "px", leave=False)
+# the shared progress bar (moved to lftomo.progress; the names stay for forward/weights.py)
+_NoBar, _progress = NoBar, progress_bar

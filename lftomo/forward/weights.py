@@ -704,7 +704,7 @@ from .render import _progress  # noqa: E402  (shared progress bar)
 
 
 def _version() -> str:
-    from .. import __version__
+    from ..version import __version__
 
     return __version__
 

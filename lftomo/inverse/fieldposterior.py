@@ -56,12 +56,12 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import ndtri
 
-from .._validate import require_int, require_positive
+from .._validate import require_bounds, require_int, require_positive
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
 from .regularizers import prior_operator, resolve_prior
-from .solvers import _check_bounds, solve_temperature
+from .solvers import solve_temperature
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 _METHODS = ("auto", "dense", "sampled")
@@ -397,7 +397,7 @@ def laplace_posterior(
             raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {regularization!r}")
     else:
         regularization = require_positive("regularization", regularization)
-    bounds = _check_bounds(bounds)
+    bounds = require_bounds(bounds)
     if options.get("penalize", "temperature") != "temperature":
         raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
     if isinstance(measurement, (list, tuple)):
