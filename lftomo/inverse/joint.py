@@ -20,14 +20,22 @@ optically thin limit, the per-voxel ratio of two channels giving ``T``
 (e.g. the two-colour method of soot pyrometry, Hottel & Broughton 1932, applied to
 tomographic fields) and the level giving ``σ_a``.
 
+Structure: :class:`JointModel` holds the channels, the unknowns' maps and the
+residual; :class:`MatrixFreePath` (optimistix) and :class:`DenseLMPath` solve
+it at one λ and are the :class:`~lftomo.inverse.lambdarules.SolvePath` the λ
+rules search on; :func:`solve_temperature_absorption` checks the arguments,
+builds them and hands the result over.
+
 Sub-voxel emission (``grid=`` coarser than the segment table's grid): the
 unknowns live at the centres of ``grid``'s voxels and are interpolated
 trilinearly (``E``, :func:`lftomo.interpolation_matrix`) to the table's voxels
 before Planck's law and the transmittance, ``T_q = E T``, ``σ_q = E σ_ref``
 (with symmetry ``E P``), as in the T-only solver.
 
-λ rule (``regularization="auto"``): ``rule="discrepancy"`` (default), the
-discrepancy principle (Morozov), the largest λ with ``χ²/m ≤ 1``: bracketed by
+λ rule (``regularization="auto"``; the searches live in
+:mod:`lftomo.inverse.lambdarules`): ``rule="discrepancy-bracket"`` (default;
+``"discrepancy"`` is its deprecated name), the discrepancy principle (Morozov),
+the largest λ with ``χ²/m ≤ 1``: bracketed by
 factors of 10 from λ = 10⁻² up to 10⁴ (each solve warm-started from the
 nearest λ solved), refined by two bisections in log λ.  ``rule="lcurve"``:
 the corner (largest curvature) of the L-curve of the solves at λ = 10⁻² … 10⁴.

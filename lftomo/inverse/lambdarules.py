@@ -582,8 +582,14 @@ def decade_lcurve_search(path: Any, theta0: Any, *, lam_first: float, lam_max: f
     lam = (ok[-1] if ok else bad[0]) if found is None else found[0].lam
     note = ("lcurve: " + (found[1] if found is not None else "too few solutions on the L-curve "
                           "for a curvature: discrepancy") + f" ({len(front)} of {len(evals)} solves "
-            f"on the L-curve, λ = {lam_first:.3g} … {lam_max:.3g})")
+            f"on the L-curve, λ = {_power_of_ten(lam_first)} … {lam_max:.3g})")
     return next(e for e in evals if e.lam == lam), note
+
+
+def _power_of_ten(x: float) -> str:
+    """``1e-2`` for 0.01 (a power of ten as written in the docs), else ``{x:.3g}``."""
+    k = round(math.log10(x))
+    return f"1e{k}" if math.isclose(x, 10.0**k, rel_tol=1e-12) else f"{x:.3g}"
 
 
 # --------------------------------------------------------------------------- rule objects

@@ -54,6 +54,11 @@ bound, which optimistix's Cauchy test in ``θ`` would never accept.
 
 Choice of λ (``regularization="auto"``)
 ----------------------------------------
+The searches are implemented in :mod:`lftomo.inverse.lambdarules`
+(:class:`~lftomo.inverse.lambdarules.Discrepancy`, ``GCV``, ``LCurve``) on the
+solve path of this module (``_Runner``); the optimistix chunks they run are in
+:mod:`lftomo.inverse.lsq`.
+
 ``λ_ref`` is the *balanced* weight at the initial guess: trace of ``JᵀJ`` of the
 data term over trace of ``RᵀR`` of the prior (equal average curvature).
 Candidate λ are multiples of it.
