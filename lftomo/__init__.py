@@ -3,7 +3,7 @@
 Public API (re-exported names only; see the README for a walk-through).
 """
 
-__version__ = "0.1.0"
+from .version import __version__
 
 from .errors import LftomoError
 

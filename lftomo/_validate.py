@@ -76,6 +76,28 @@ def require_int(name: str, value: Any, *, minimum: int | None = None, maximum: i
     return v
 
 
+def require_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
+    """``value`` if it is one of the strings ``allowed``, else ValueError naming ``name``."""
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+    return value
+
+
+def require_bounds(bounds: Any) -> tuple[float, float]:
+    """Temperature bounds ``(T_min, T_max)`` in K with ``0 < T_min < T_max``, as floats."""
+    try:
+        items = list(bounds)
+    except TypeError:
+        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}") from None
+    if len(items) != 2:
+        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}")
+    lo = require_positive("bounds[0] (T_min)", items[0])
+    hi = require_finite_scalar("bounds[1] (T_max)", items[1])
+    if not hi > lo:
+        raise ValueError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
+    return lo, hi
+
+
 def require_seed(name: str, value: Any) -> int:
     """A random seed: an integer in ``[0, MAX_SEED]``."""
     return require_int(name, value, minimum=0, maximum=MAX_SEED)

@@ -62,7 +62,7 @@ import scipy.ndimage
 import scipy.optimize
 import scipy.sparse as sp
 
-from . import __version__
+from .version import __version__
 from ._validate import require_array, require_nonnegative, require_npz_file, require_positive
 from .radiation import dplanck_dT, planck
 from .io import atomic_path, check_output_file

@@ -152,7 +152,7 @@ def _finite(obj: Any) -> Any:
 def _environment() -> dict[str, Any]:
     import os
 
-    from . import __version__
+    from .version import __version__
 
     env = {"lftomo": __version__, "python": platform.python_version(), "platform": platform.platform(),
            "cpu_count": os.cpu_count()}

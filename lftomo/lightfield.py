@@ -44,7 +44,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from .errors import LftomoError
-from . import __version__
+from .version import __version__
 from ._validate import check_allocation, require_array, require_int
 from .forward.camera import Camera, _best_focus_z, trace_axial_point
 

@@ -15,6 +15,15 @@ Gray (total) radiance::
 
 The medium emits ``sigma_a · I_b(T)`` (local thermodynamic equilibrium), see
 ``DESIGN.md`` §1.
+
+The same laws are here twice, once per array library: the numpy functions
+check their inputs (:func:`planck`, :func:`dplanck_dT`, ...), the ``*_jax``
+functions are differentiable, traceable JAX code without checks (for the
+residuals of the inverse solvers).  ``blackbody``, ``dblackbody_dT`` and
+``blackbody_inverse`` (numpy) and ``blackbody_jax`` select Planck at a
+wavelength or the gray band for ``wavelength=None``.  The JAX functions
+compute in float64 only when JAX's ``jax_enable_x64`` is on (importing
+:mod:`lftomo.inverse.solvers` turns it on); JAX is imported on first use.
 """
 
 from __future__ import annotations
@@ -35,6 +44,13 @@ __all__ = [
     "gray_intensity",
     "gray_inverse",
     "blackbody_intensity",
+    "blackbody",
+    "dblackbody_dT",
+    "blackbody_inverse",
+    "planck_jax",
+    "dplanck_dT_jax",
+    "gray_intensity_jax",
+    "blackbody_jax",
 ]
 
 #: First radiation constant for radiance, 2 h c² (W·m²·sr⁻¹).
@@ -220,3 +236,74 @@ def blackbody_intensity(T: Any, wavelengths: Any = None) -> np.ndarray:
         raise ValueError(f"wavelengths must be a scalar or 1-D, got shape {lam.shape}")
     lam_b = lam.reshape((lam.size,) + (1,) * T.ndim)
     return np.asarray(planck(T[None, ...], lam_b), dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- gray or spectral (numpy)
+def blackbody(T: Any, wavelength: float | None) -> np.ndarray:
+    """Planck radiance at ``wavelength`` (m), or the gray radiance if it is None.
+
+    Returns a float64 array of ``T``'s shape (W·m⁻²·sr⁻¹·m⁻¹, or W·m⁻²·sr⁻¹ for gray).
+    """
+    return np.asarray(gray_intensity(T) if wavelength is None else planck(T, wavelength), dtype=np.float64)
+
+
+def dblackbody_dT(T: Any, wavelength: float | None) -> np.ndarray:
+    """``∂I_b/∂T`` of :func:`blackbody`: :func:`dplanck_dT`, or ``4 σ T³ / π`` for gray (float64 array)."""
+    if wavelength is None:
+        return 4.0 * _SIGMA * np.asarray(T, dtype=np.float64) ** 3 / np.pi
+    return np.asarray(dplanck_dT(T, wavelength), dtype=np.float64)
+
+
+def blackbody_inverse(I: Any, wavelength: float | None) -> np.ndarray:
+    """Temperature (K) of the radiance ``I``: the inverse of :func:`blackbody` (float64 array)."""
+    return np.asarray(gray_inverse(I) if wavelength is None else planck_inverse(I, wavelength), dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- the same laws in JAX
+def planck_jax(T: Any, wavelength: Any) -> Any:
+    """Spectral blackbody radiance in JAX (differentiable).
+
+    Parameters
+    ----------
+    T : array_like
+        Temperature (K), > 0.
+    wavelength : float or array_like
+        Wavelength in vacuum (m), > 0, broadcast against ``T``.
+
+    Returns
+    -------
+    jax.Array
+        ``I_b = C1 λ⁻⁵ e^{−x} / (1 − e^{−x})``, ``x = C2/(λT)``
+        (W·m⁻²·sr⁻¹·m⁻¹), broadcast shape; ``1 − e^{−x}`` as ``−expm1(−x)``.
+        No input checks (traced code); see :func:`planck` for those.
+    """
+    import jax.numpy as jnp
+
+    T = jnp.asarray(T, dtype=jnp.float64)
+    lam = jnp.asarray(wavelength, dtype=jnp.float64)
+    x = C2 / (lam * T)
+    return C1 / lam**5 * jnp.exp(-x) / (-jnp.expm1(-x))
+
+
+def dplanck_dT_jax(T: Any, wavelength: Any) -> Any:
+    """Analytic ``∂I_b/∂T = I_b x / (T (1 − e^{−x}))`` in JAX (W·m⁻²·sr⁻¹·m⁻¹·K⁻¹)."""
+    import jax.numpy as jnp
+
+    T = jnp.asarray(T, dtype=jnp.float64)
+    lam = jnp.asarray(wavelength, dtype=jnp.float64)
+    x = C2 / (lam * T)
+    one_minus = -jnp.expm1(-x)
+    return C1 / lam**5 * jnp.exp(-x) / one_minus * x / (T * one_minus)
+
+
+def gray_intensity_jax(T: Any) -> Any:
+    """Band-integrated blackbody radiance ``σ T⁴ / π`` in JAX (W·m⁻²·sr⁻¹)."""
+    import jax.numpy as jnp
+
+    T = jnp.asarray(T, dtype=jnp.float64)
+    return _SIGMA * T**4 / jnp.pi
+
+
+def blackbody_jax(T: Any, wavelength: float | None) -> Any:
+    """Planck radiance at ``wavelength`` (m), or the gray radiance if it is None (JAX)."""
+    return gray_intensity_jax(T) if wavelength is None else planck_jax(T, wavelength)

@@ -22,6 +22,7 @@ import numba
 
 from ..errors import LftomoError
 from .._validate import check_allocation, require_instance, require_rays, require_seed
+from ..progress import progress_bar
 from .chunks import ChunkSizer, interruptible
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
 
@@ -126,7 +127,7 @@ def render(
     _check_estimate(estimate, max_seconds, bool(show))
     # chunks of rows sized to ~0.25 s each, so that Ctrl-C is seen between two kernel calls
     sizer = ChunkSizer(nrows, start=numba.get_num_threads())
-    bar = _progress(nrows * ncols, show, "render")
+    bar = progress_bar(nrows * ncols, show, "render")
     try:
         for r0, r1 in sizer.ranges(nrows):
             row_kernel(r0, r1, optics, packed_sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)
@@ -182,22 +183,3 @@ def _check_estimate(seconds: float, max_seconds: float | None, show: bool) -> No
 
         print(f"render: estimated {text} (Ctrl-C stops it)", file=sys.stderr, flush=True)
 
-
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def set_postfix_str(self, s):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress(total: int | None, show: bool, desc: str, unit: str = "px"):
-    """A tqdm bar (stderr; ``total`` None: a counter without an end), or a silent stand-in."""
-    if not show:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit=unit, unit_scale=unit == "px", leave=False)

@@ -739,11 +739,11 @@ def _pos_scratch(n_vox: int) -> np.ndarray:
     return np.full((numba.get_num_threads(), n_vox), -1, dtype=np.int32)
 
 
-from .render import _progress  # noqa: E402  (shared progress bar)
+from ..progress import progress_bar  # noqa: E402  (shared progress bar)
 
 
 def _version() -> str:
-    from .. import __version__
+    from ..version import __version__
 
     return __version__
 
@@ -911,7 +911,7 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     background = np.zeros(n_rows)
     row_var = np.zeros(n_rows)
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
-    bar = _progress(n_rows, bool(show), desc)
+    bar = progress_bar(n_rows, bool(show), desc)
     bufs = None
     sizer = ChunkSizer(chunk_rows, start=sizer.rows)  # time-sized chunks (Ctrl-C), at most chunk_rows
     for r0, r1 in sizer.ranges(n_rows):
@@ -1957,7 +1957,7 @@ def ray_segments(
     row_ray_ptr = np.zeros(n_rows + 1, np.int64)
     n_r = 0
     show = progress if progress is not None else (n_rows * n_rays > 2_000_000)
-    bar = _progress(n_rows, bool(show), "ray segments")
+    bar = progress_bar(n_rows, bool(show), "ray segments")
     bufs = None
     for r0, r1 in ChunkSizer(chunk_rows, start=numba.get_num_threads()).ranges(n_rows):  # ~0.25 s: Ctrl-C
         o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl, o_rm = run(pixel_index[r0:r1], cap, bufs)

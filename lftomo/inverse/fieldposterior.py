@@ -56,15 +56,15 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import ndtri
 
-from .._validate import require_int, require_positive
+from .._validate import require_bounds, require_int, require_positive
 from ..interrupt import stop_between_steps
+from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
-from .regularizers import prior_operator
-from .solvers import _check_bounds, _dblackbody_np, solve_temperature
+from .regularizers import prior_operator, resolve_prior
+from .solvers import solve_temperature
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
-_PRIORS = ("gradient", "laplacian", "curvature")
 _METHODS = ("auto", "dense", "sampled")
 
 
@@ -201,7 +201,7 @@ def _whitened_jacobian(problem: Any, T: np.ndarray) -> sp.csr_matrix:
     ``Σ^{-1/2} A diag(∂I_b/∂T (E T)) E``.
     """
     Tm = problem.model_temperature(T)
-    J = problem.whitened()[0] @ sp.diags(_dblackbody_np(Tm, problem.wavelength))
+    J = problem.whitened()[0] @ sp.diags(dblackbody_dT(Tm, problem.wavelength))
     if problem.interpolation is not None:
         J = J @ problem.interpolation
     return J.tocsr()
@@ -388,8 +388,7 @@ def laplace_posterior(
         For a bad argument (before any solve).
     """
     t_start = time.perf_counter()
-    if prior not in _PRIORS:
-        raise ValueError(f"prior must be one of {_PRIORS} (a Gaussian prior), got {prior!r}")
+    prior = resolve_prior(prior, quadratic_only=True, where="laplace_posterior (a Gaussian prior)").name
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     if not (isinstance(credible_level, (int, float)) and 0.0 < float(credible_level) < 1.0):
@@ -399,7 +398,7 @@ def laplace_posterior(
             raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {regularization!r}")
     else:
         regularization = require_positive("regularization", regularization)
-    bounds = _check_bounds(bounds)
+    bounds = require_bounds(bounds)
     if options.get("penalize", "temperature") != "temperature":
         raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
     if isinstance(measurement, (list, tuple)):

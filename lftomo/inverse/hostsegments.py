@@ -40,7 +40,7 @@ import scipy.sparse as sp
 from jax.custom_derivatives import SymbolicZero, linear_call
 
 from ..interrupt import check_interrupt
-from .hostsparse import _LOCK, csr_product
+from .hostsparse import SCIPY_LOCK, csr_product
 
 __all__ = ["host_forward"]
 
@@ -73,7 +73,7 @@ def _point(handle: int, Ib, sa) -> _Point:
     cache = _CACHES[handle]
     p = cache.get(key)
     if p is None:
-        with _LOCK:
+        with SCIPY_LOCK:
             p = _Point(_TABLES[handle], Ib, sa)
         cache[key] = p
         while len(cache) > _CACHE_POINTS:

@@ -39,13 +39,14 @@ from numba import get_num_threads, njit, prange
 
 from ..interrupt import check_interrupt
 
-__all__ = ["HostCSR", "host_csr", "projected_normal_equations"]
+__all__ = ["HostCSR", "host_csr", "projected_normal_equations", "SCIPY_LOCK"]
 
 _REGISTRY: dict[int, tuple[sp.csr_matrix, sp.csr_matrix]] = {}
 _COUNTER = itertools.count(1)
 
 
-_LOCK = threading.Lock()
+#: Serialises the host kernels' calls into scipy / numba (held by hostsegments too).
+SCIPY_LOCK = threading.Lock()
 
 
 @njit(cache=True, parallel=True)
@@ -76,7 +77,7 @@ def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
     """``M x`` (float64) by :func:`csr_matvec` under the module's lock."""
     check_interrupt()  # Ctrl-C: ends the JAX computation that called back here (lftomo.interrupt)
     out = np.empty(M.shape[0], dtype=np.float64)
-    with _LOCK:
+    with SCIPY_LOCK:
         csr_matvec(M.indptr, M.indices, M.data, np.ascontiguousarray(x, dtype=np.float64), out)
     return out
 
@@ -85,7 +86,7 @@ def csr_weighted_sq_norms(M: sp.csr_matrix, w: np.ndarray, X: Any) -> np.ndarray
     """``Σ_i w_i (M x)_i²`` for every row ``x`` of ``X`` (W, n), by :func:`csr_weighted_norms` under the lock."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     out = np.empty(X.shape[0], dtype=np.float64)
-    with _LOCK:
+    with SCIPY_LOCK:
         csr_weighted_norms(M.indptr, M.indices, M.data, w, X, out)
     return out
 
@@ -247,7 +248,7 @@ def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_mat
     n_parts = max(1, min(get_num_threads(), A.shape[0]))
     G_parts = np.zeros((n_parts, 2 * n_u, 2 * n_u))
     g_parts = np.zeros((n_parts, 2 * n_u))
-    with _LOCK:
+    with SCIPY_LOCK:
         _normal_equations_kernel(A.indptr, A.indices, A.data, B.indptr, B.indices, B.data, M.indptr, M.indices,
                                  M.data, np.ascontiguousarray(res, dtype=np.float64), n_u, G_parts, g_parts)
     G = G_parts[0]

@@ -1185,59 +1185,9 @@ def sample_posterior(
         likelihood = "taylor" if (large and _basis_is_linear(logpost)) else "exact"
 
     rng = np.random.default_rng(seed)
-    lap = None
-    if optimize:
-        lap = _laplace(logpost, T_start, None, 500, 1e-8)
-        c_start, cov = lap.c_map, lap.cov
-    else:
-        if T_start is None:
-            raise ValueError("optimize=False needs T_start (the field to start the walkers around), got None")
-        c_start = basis.fit(T_start)
-        if not np.isfinite(logpost(c_start)):
-            raise ValueError(
-                f"the basis fit of T_start lies outside the bounds {logpost.T_bounds} K or the basis bounds; "
-                "widen bounds or smooth T_start"
-            )
-        logpost.recenter(c_start)
-        _, _, G = logpost.gauss_newton(c_start)
-        try:
-            cov = np.linalg.inv(G)
-        except np.linalg.LinAlgError:
-            cov = np.linalg.pinv(G)
-    try:
-        chol = np.linalg.cholesky(0.5 * (cov + cov.T))
-    except np.linalg.LinAlgError:
-        chol = np.diag(1e-3 * (np.abs(c_start) + 1.0))
-
-    # walker ball, redrawing infeasible walkers (shrinking the ball if needed)
-    p0 = c_start + init_scale * rng.standard_normal((n_walkers, K)) @ chol.T
-    scale = init_scale
-    for _ in range(60):
-        bad = ~np.isfinite(logpost(p0))
-        if not bad.any():
-            break
-        scale *= 0.7
-        p0[bad] = c_start + scale * rng.standard_normal((int(bad.sum()), K)) @ chol.T
-    else:
-        raise ValueError("could not place the walkers inside the bounds around the starting point; widen bounds")
-
-    target = logpost
-    note = "exact likelihood" + (" (auto: grid within dense_max, or a nonlinear basis)" if auto else "")
-    if likelihood == "taylor":
-        from .surrogate import TaylorLogPosterior
-
-        T_std = None if lap is None else lap.T_std.ravel()
-        target = TaylorLogPosterior(logpost, c_start, T_std=T_std)
-        note = "Taylor likelihood, corrected by importance weights"
-        if auto:  # pilot: weights of 64 draws from the start's Gaussian; keep the model only if they are even
-            Z = c_start + rng.standard_normal((64, K)) @ chol.T
-            ess, n_ok = _pilot_ess(logpost(Z), target(Z))
-            if n_ok == 0 or ess < 0.5 * n_ok:
-                likelihood, target = "exact", logpost
-                note = (f"exact likelihood (auto: the Taylor model's pilot importance ESS was {ess:.1f} of {n_ok} "
-                        "draws from the Laplace approximation, < 50 %)")
-            else:
-                note += f" (auto: pilot importance ESS {ess:.1f} of {n_ok})"
+    c_start, chol, lap = _sampler_start(logpost, basis, optimize=optimize, T_start=T_start)
+    p0 = _walker_ball(logpost, c_start, chol, n_walkers, init_scale, rng)
+    likelihood, target, note = _sampling_target(logpost, likelihood, auto, c_start, chol, lap, rng)
     if moves is None:
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
     def checked_target(Z, _target=target):  # Ctrl-C is honoured between two ensemble steps
@@ -1294,6 +1244,76 @@ def sample_posterior(
         thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
         likelihood_note=note,
     )
+
+
+def _sampler_start(logpost: Any, basis: Any, *, optimize: bool, T_start: Any):
+    """The walkers' centre ``c_start``, the Cholesky factor of its Gauss–Newton covariance and the
+    Laplace approximation (None without ``optimize``) of :func:`sample_posterior`."""
+    lap = None
+    if optimize:
+        lap = _laplace(logpost, T_start, None, 500, 1e-8)
+        c_start, cov = lap.c_map, lap.cov
+    else:
+        if T_start is None:
+            raise ValueError("optimize=False needs T_start (the field to start the walkers around), got None")
+        c_start = basis.fit(T_start)
+        if not np.isfinite(logpost(c_start)):
+            raise ValueError(
+                f"the basis fit of T_start lies outside the bounds {logpost.T_bounds} K or the basis bounds; "
+                "widen bounds or smooth T_start"
+            )
+        logpost.recenter(c_start)
+        _, _, G = logpost.gauss_newton(c_start)
+        try:
+            cov = np.linalg.inv(G)
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(G)
+    try:
+        chol = np.linalg.cholesky(0.5 * (cov + cov.T))
+    except np.linalg.LinAlgError:
+        chol = np.diag(1e-3 * (np.abs(c_start) + 1.0))
+    return c_start, chol, lap
+
+
+def _walker_ball(logpost: Any, c_start: np.ndarray, chol: np.ndarray, n_walkers: int, init_scale: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Walkers ``c_start + init_scale · chol z``, redrawing infeasible ones (shrinking the ball if needed)."""
+    K = c_start.size
+    p0 = c_start + init_scale * rng.standard_normal((n_walkers, K)) @ chol.T
+    scale = init_scale
+    for _ in range(60):
+        bad = ~np.isfinite(logpost(p0))
+        if not bad.any():
+            break
+        scale *= 0.7
+        p0[bad] = c_start + scale * rng.standard_normal((int(bad.sum()), K)) @ chol.T
+    else:
+        raise ValueError("could not place the walkers inside the bounds around the starting point; widen bounds")
+    return p0
+
+
+def _sampling_target(logpost: Any, likelihood: str, auto: bool, c_start, chol, lap, rng: np.random.Generator):
+    """``(likelihood, log density to sample, note)``: the exact posterior, or its Taylor model (kept with
+    ``likelihood="auto"`` only if a 64-draw pilot's importance weights are even: ESS ≥ 50 %)."""
+    K = np.size(c_start)
+    target = logpost
+    note = "exact likelihood" + (" (auto: grid within dense_max, or a nonlinear basis)" if auto else "")
+    if likelihood == "taylor":
+        from .surrogate import TaylorLogPosterior
+
+        T_std = None if lap is None else lap.T_std.ravel()
+        target = TaylorLogPosterior(logpost, c_start, T_std=T_std)
+        note = "Taylor likelihood, corrected by importance weights"
+        if auto:  # pilot: weights of 64 draws from the start's Gaussian; keep the model only if they are even
+            Z = c_start + rng.standard_normal((64, K)) @ chol.T
+            ess, n_ok = _pilot_ess(logpost(Z), target(Z))
+            if n_ok == 0 or ess < 0.5 * n_ok:
+                likelihood, target = "exact", logpost
+                note = (f"exact likelihood (auto: the Taylor model's pilot importance ESS was {ess:.1f} of {n_ok} "
+                        "draws from the Laplace approximation, < 50 %)")
+            else:
+                note += f" (auto: pilot importance ESS {ess:.1f} of {n_ok})"
+    return likelihood, target, note
 
 
 def _importance_weights(lp: np.ndarray, lq: np.ndarray) -> tuple[np.ndarray, float] | None:

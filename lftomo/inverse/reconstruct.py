@@ -14,117 +14,14 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
+from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
 from .symmetry import resolve_symmetry, ring_problem, ring_start
-
-
-@dataclass(frozen=True, eq=False)
-class Reconstruction:
-    """Result of :func:`reconstruct`.
-
-    Attributes
-    ----------
-    T : ndarray, shape grid.shape
-        Temperature (K).
-    sigma_a : ndarray or None, shape grid.shape
-        Absorption coefficient (m⁻¹) at the first wavelength when fitted.
-    grid : Grid
-        Reconstruction grid.
-    regularization : float
-        λ used; ``lambda_rule`` says how it was chosen.
-    chi2 : float
-        Whitened ``χ²/m`` at the solution.
-    residual_norm, regularization_norm : float
-        ``‖r‖`` of the whitened data and ``‖R‖`` of the prior, the norm that λ
-        weighs (the objective is ``‖r‖² + λ ‖R‖²``); for ``"T+sigma_a"`` ``R``
-        holds the ``T`` and ``σ_a`` terms (and the ridge).
-    iterations : int
-    converged : bool
-    timing : dict
-        Seconds per stage.
-    unknowns, data_kind : str
-    details : Any
-        The solver's own result object (for an axisymmetric fit its fields
-        live on the ring cells).
-    symmetry : RingGrid or None
-        The ring grid of an axisymmetric reconstruction (``T`` is then
-        ``symmetry.expand`` of the ring-cell solution), else None.
-    """
-
-    T: np.ndarray
-    sigma_a: np.ndarray | None
-    grid: Grid
-    regularization: float
-    lambda_rule: str
-    chi2: float
-    residual_norm: float
-    regularization_norm: float
-    iterations: int
-    converged: bool
-    timing: dict
-    unknowns: str
-    data_kind: str
-    details: Any = None
-    metadata: dict = field(default_factory=dict)
-    symmetry: Any = None
-
-    def __repr__(self) -> str:  # the default would print the fields and the solver's whole result
-        return (f"Reconstruction(unknowns={self.unknowns!r}, data={self.data_kind!r}, grid={tuple(self.grid.shape)}, "
-                f"T={float(np.min(self.T)):.0f}..{float(np.max(self.T)):.0f} K, lambda={self.regularization:.3g} "
-                f"({self.lambda_rule}), chi2/m={self.chi2:.4g}, iterations={self.iterations}, "
-                f"converged={self.converged}, symmetry={'axisymmetric' if self.symmetry is not None else None})")
-
-    def errors(self, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
-        """Relative temperature errors against ``T_true`` (same grid) where ``T_true > hot`` (K).
-
-        Returns ``{"mean_rel": mean |ΔT|/T, "max_rel": max |ΔT|/T, "rms_K": rms ΔT,
-        "n_voxels": count}``.
-        """
-        T_true = np.asarray(T_true, dtype=float)
-        if T_true.shape != self.T.shape:
-            raise ValueError(f"shape of T_true {T_true.shape} does not match the reconstruction {self.T.shape}")
-        return temperature_errors(self.T, T_true, hot=hot)
-
-    def summary(self) -> dict[str, Any]:
-        return {
-            "unknowns": self.unknowns,
-            "data": self.data_kind,
-            "grid_shape": list(self.grid.shape),
-            "regularization": self.regularization,
-            "lambda_rule": self.lambda_rule,
-            "chi2_per_datum": self.chi2,
-            "iterations": self.iterations,
-            "converged": self.converged,
-            "timing_s": self.timing,
-            "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
-            "quadrature_grid": self.metadata.get("quadrature_grid"),
-        }
-
-
-def temperature_errors(T: np.ndarray, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
-    """Relative errors of ``T`` against ``T_true`` (same shape, K) where ``T_true > hot``.
-
-    Returns ``{"mean_rel", "max_rel", "rms_K", "n_voxels"}``; raises ValueError
-    when no voxel is that hot.
-    """
-    T = np.asarray(T, dtype=float)
-    T_true = np.asarray(T_true, dtype=float)
-    sel = T_true > hot
-    if not sel.any():
-        raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
-    rel = np.abs(T[sel] - T_true[sel]) / T_true[sel]
-    return {
-        "mean_rel": float(rel.mean()),
-        "max_rel": float(rel.max()),
-        "rms_K": float(np.sqrt(np.mean((T[sel] - T_true[sel]) ** 2))),
-        "n_voxels": int(sel.sum()),
-    }
 
 
 def _grid_of(W) -> Grid:
@@ -203,7 +100,7 @@ def reconstruct(
     prior: str = "gradient",
     bounds: tuple[float, float] = (300.0, 3000.0),
     method: str = "levenberg-marquardt",
-    rule: str = "discrepancy",
+    rule: str | None = None,
     T0: Any = None,
     symmetry: Any = None,
     grid: Grid | None = None,
@@ -229,8 +126,10 @@ def reconstruct(
         optimistix's matrix-free solvers; ``"dense-lm"``: Levenberg–Marquardt on
         exact dense normal equations, for joint fits with few unknowns
         (:func:`lftomo.inverse.joint.solve_temperature_absorption`).
-    rule : {"discrepancy", "gcv", "lcurve"}
-        (``"T+sigma_a"``: "discrepancy" or "lcurve".)
+    rule : {"discrepancy", "gcv", "lcurve"}, optional
+        λ rule (:mod:`lftomo.inverse.lambdarules`); default each fit's own:
+        ``"discrepancy"`` for ``"T"``, ``"discrepancy-bracket"`` for
+        ``"T+sigma_a"`` (which takes it or ``"lcurve"``).
     T0 : ndarray, optional
         Initial temperature field (default: from the linear baseline).
     symmetry : None, "axisymmetric" or RingGrid
@@ -282,10 +181,11 @@ def reconstruct(
             ring = resolve_symmetry(symmetry, g)
             # unknowns: T and σ_ref per voxel (or ring cell)
             warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
+        rule_kw = {} if rule is None else {"rule": rule}
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
             return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
-                                                bounds=bounds, method=method, rule=rule, T0=T0,
-                                                symmetry=symmetry, grid=grid, **options)
+                                                bounds=bounds, method=method, T0=T0,
+                                                symmetry=symmetry, grid=grid, **rule_kw, **options)
     from .solvers import solve_temperature
 
     if method not in ("levenberg-marquardt", "gauss-newton"):
@@ -303,7 +203,7 @@ def reconstruct(
     t_setup = time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
-                                method=method, rule=rule, **options)
+                                method=method, rule="discrepancy" if rule is None else rule, **options)
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items()}}
     return Reconstruction(
         T=sol.T if ring is None else ring.expand(sol.T),

@@ -35,6 +35,19 @@ everywhere and tends to ``Σ_j |(D x)_j|`` as ``ε → 0``.
 which is how a least-squares solver (Gauss–Newton, Levenberg–Marquardt) uses
 TV.
 
+Prior classes
+-------------
+Each prior is one class, the one place where its operator, its residual and
+its curvature weight are defined: :class:`GradientPrior`,
+:class:`LaplacianPrior`, :class:`CurvaturePrior` (quadratic: ``R(x) = L x``)
+and :class:`TotalVariationPrior` (``R(x)`` = :func:`tv_residuals` of ``L x``
+with ``L`` the gradient).  The solvers use them through :func:`resolve_prior`,
+which also maps the names of :data:`PRIORS` to the classes and refuses, naming
+the argument, a prior a fit cannot use (the joint T + σₐ fit and the Laplace
+posterior need a quadratic prior).  A prior acts on any dimensionless field:
+``T/(T_max − T_min)``, ``I_b/I_s``, ``σ_ref/scale`` or ``ln σ_ref/scale``.
+docs/howto_prior.md says how to add one.
+
 JAX
 ---
 Importing this module enables float64 in JAX
@@ -63,6 +76,12 @@ from .symmetry import RingGrid  # noqa: E402
 
 __all__ = [
     "PRIORS",
+    "Prior",
+    "GradientPrior",
+    "LaplacianPrior",
+    "CurvaturePrior",
+    "TotalVariationPrior",
+    "resolve_prior",
     "gradient_operator",
     "laplacian_operator",
     "curvature_operator",
@@ -187,8 +206,211 @@ def curvature_operator(grid: Any) -> sp.csr_matrix:
     return _per_axis(grid, _second_diff_1d)
 
 
+class Prior:
+    """A smoothness prior: a residual ``R(x)`` of a dimensionless field ``x``, penalty ``‖R(x)‖²``.
+
+    Subclasses define :attr:`name`, :attr:`quadratic`, :meth:`operator` (the
+    sparse matrix ``L`` the residual is built on) and, when not quadratic,
+    :meth:`residual_fn` and :attr:`curvature_divisor`.  Instances are immutable
+    and hashable (they key the solvers' caches of compiled functions).
+
+    Attributes
+    ----------
+    name : str
+        The string that selects the prior (one of :data:`PRIORS` for the built-in ones).
+    quadratic : bool
+        ``R(x) = L x``: the penalty is quadratic, its Gauss–Newton matrix ``LᵀL`` constant.
+    """
+
+    name: str = ""
+    quadratic: bool = True
+
+    def operator(self, grid: Any, *, dimensionless: bool = True) -> sp.csr_matrix:
+        """The sparse operator ``L`` of the prior on ``grid``.
+
+        Parameters
+        ----------
+        grid : Grid or RingGrid
+            Reconstruction grid.  For a :class:`~lftomo.inverse.symmetry.RingGrid`
+            the voxel grid's operator restricted to axisymmetric fields, ``L P``
+            (rows of the voxel grid, columns = ring cells).
+        dimensionless : bool, keyword-only
+            Scale by ``h̄^k`` (``h̄ = (dx dy dz)^{1/3}``, ``k`` the order of the
+            differences) so that ``L x`` holds differences between voxels, not
+            derivatives per m: a λ then does not depend on the size of the box.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape (rows, n)
+        """
+        if isinstance(grid, RingGrid):
+            return (self.operator(grid.grid, dimensionless=dimensionless) @ grid.expansion).tocsr()
+        _, h = _check_grid(grid)
+        L = self._raw_operator(grid)
+        if not dimensionless:
+            return L
+        hbar = float(np.prod(h) ** (1.0 / 3.0))
+        return (L * hbar**self.order).tocsr()
+
+    #: Order of the differences (the power of h̄ of the dimensionless operator).
+    order: int = 1
+
+    def _raw_operator(self, grid: Any) -> sp.csr_matrix:
+        raise NotImplementedError
+
+    @staticmethod
+    def residual_fn(x: Any, L: Any, eps: Any) -> jax.Array:
+        """``R(x)`` from ``L`` (BCOO, HostCSR or anything with ``@``) in traced JAX code.
+
+        A static function of the prior's class so that compiled solver code
+        depends on the class only; ``eps`` (TV smoothing) is passed as an
+        array and ignored by quadratic priors.
+        """
+        return L @ x
+
+    def residual(self, x: Any, L: Any) -> jax.Array:
+        """``R(x)`` with this instance's parameters (see :meth:`residual_fn`)."""
+        return self.residual_fn(x, L, getattr(self, "eps", 0.0))
+
+    @property
+    def curvature_divisor(self) -> float:
+        """The squared column norms of ``L`` divided by this are the diagonal of the Gauss–Newton
+        matrix of ``‖R‖²`` at a flat field: 1 for a quadratic prior, ``2ε`` for TV (the solvers'
+        Jacobi scaling and balanced λ use it)."""
+        return 1.0
+
+    def value(self, x: Any, grid: Any) -> float:
+        """The penalty ``‖R(x)‖²`` of a field ``x`` (shape grid.shape or (n,)) on ``grid``."""
+        L = to_bcoo(self.operator(grid))
+        r = self.residual(jnp.asarray(x, dtype=jnp.float64).reshape(-1), L)
+        return float(jnp.sum(r * r))
+
+    def gradient(self, x: Any, grid: Any) -> np.ndarray:
+        """``∇ₓ ‖R(x)‖²`` (JAX autodiff), flat (n,)."""
+        L = to_bcoo(self.operator(grid))
+
+        def penalty(v):
+            r = self.residual(v, L)
+            return jnp.sum(r * r)
+
+        return np.asarray(jax.grad(penalty)(jnp.asarray(x, dtype=jnp.float64).reshape(-1)))
+
+    def __eq__(self, other: Any) -> bool:
+        return type(self) is type(other) and self.__dict__ == other.__dict__
+
+    def __hash__(self) -> int:
+        return hash((type(self), tuple(sorted(self.__dict__.items()))))
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v!r}" for k, v in sorted(self.__dict__.items()))
+        return f"{type(self).__name__}({params})"
+
+
+class GradientPrior(Prior):
+    """First differences, Neumann faces: ``R = h̄ D x`` (:func:`gradient_operator`), shape (3n,)."""
+
+    name = "gradient"
+    order = 1
+
+    def _raw_operator(self, grid: Any) -> sp.csr_matrix:
+        return gradient_operator(grid)
+
+
+class LaplacianPrior(Prior):
+    """The 7-point Neumann Laplacian: ``R = h̄² Δ x`` (:func:`laplacian_operator`), shape (n,)."""
+
+    name = "laplacian"
+    order = 2
+
+    def _raw_operator(self, grid: Any) -> sp.csr_matrix:
+        return laplacian_operator(grid)
+
+
+class CurvaturePrior(Prior):
+    """Second differences per axis, no boundary condition: ``R = h̄² C x`` (:func:`curvature_operator`)."""
+
+    name = "curvature"
+    order = 2
+
+    def _raw_operator(self, grid: Any) -> sp.csr_matrix:
+        return curvature_operator(grid)
+
+
+class TotalVariationPrior(Prior):
+    """Smoothed isotropic total variation: ``‖R‖² = Σ_j (sqrt(|g_j|² + ε²) − ε)``, ``g = h̄ D x``.
+
+    Parameters
+    ----------
+    eps : float
+        Smoothing ε > 0, in the units of ``g`` (differences of the dimensionless field).
+    """
+
+    name = "tv"
+    order = 1
+    quadratic = False
+
+    def __init__(self, eps: float = 1e-3) -> None:
+        self.eps = require_positive("eps", eps)
+
+    def _raw_operator(self, grid: Any) -> sp.csr_matrix:
+        return gradient_operator(grid)
+
+    @staticmethod
+    def residual_fn(x: Any, L: Any, eps: Any) -> jax.Array:
+        return tv_residuals(x, L, eps)
+
+    @property
+    def curvature_divisor(self) -> float:
+        return 2.0 * self.eps
+
+
+_PRIOR_CLASSES = {c.name: c for c in (GradientPrior, LaplacianPrior, TotalVariationPrior, CurvaturePrior)}
+
+
+def resolve_prior(prior: Any, *, argument: str = "prior", quadratic_only: bool = False, where: str = "",
+                  tv_eps: float | None = None) -> Prior:
+    """The :class:`Prior` for a name of :data:`PRIORS` or a :class:`Prior` instance.
+
+    Parameters
+    ----------
+    prior : str or Prior
+        ``"gradient"``, ``"laplacian"``, ``"tv"``, ``"curvature"``, or an instance.
+    argument : str, keyword-only
+        The argument's name, for the error message.
+    quadratic_only : bool, keyword-only
+        Refuse a non-quadratic prior (TV) — for fits whose algebra needs ``R = L x``.
+    where : str, keyword-only
+        Which fit refuses it, for the error message (e.g. ``"the joint T + sigma_a fit"``).
+    tv_eps : float, optional, keyword-only
+        ε of the :class:`TotalVariationPrior` made for the name ``"tv"`` (default 1e-3).
+
+    Returns
+    -------
+    Prior
+
+    Raises
+    ------
+    ValueError
+        An unknown name, or a non-quadratic prior with ``quadratic_only``.
+    """
+    allowed = tuple(n for n in PRIORS if not quadratic_only or _PRIOR_CLASSES[n].quadratic)
+    if isinstance(prior, Prior):
+        obj = prior
+    elif isinstance(prior, str) and prior in _PRIOR_CLASSES:
+        cls = _PRIOR_CLASSES[prior]
+        obj = cls(1e-3 if tv_eps is None else tv_eps) if cls is TotalVariationPrior else cls()
+    else:
+        raise ValueError(f"{argument} must be one of {allowed if quadratic_only else PRIORS} or an "
+                         f"lftomo.inverse.regularizers.Prior, got {prior!r}")
+    if quadratic_only and not obj.quadratic:
+        raise ValueError(f"{argument} must be one of {allowed}" + (f" for {where}" if where else "")
+                         + f", got {getattr(prior, 'name', prior)!r}: {type(obj).__name__} is not quadratic "
+                         "(R = L x), which this fit's algebra needs")
+    return obj
+
+
 def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.csr_matrix:
-    """Sparse matrix of a quadratic prior (TV uses the gradient).
+    """Sparse matrix of a prior (TV uses the gradient): ``resolve_prior(prior).operator(grid)``.
 
     Parameters
     ----------
@@ -196,15 +418,16 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
         Reconstruction grid.  For a :class:`~lftomo.inverse.symmetry.RingGrid`
         the operator is the voxel grid's, restricted to axisymmetric fields:
         ``L P`` (rows of the voxel grid, columns = ring cells).
-    prior : {"gradient", "laplacian", "tv", "curvature"}
+    prior : {"gradient", "laplacian", "tv", "curvature"} or Prior
         ``"gradient"`` and ``"tv"`` give :func:`gradient_operator`,
         ``"laplacian"`` gives :func:`laplacian_operator`, ``"curvature"``
         :func:`curvature_operator`.
     dimensionless : bool, keyword-only
         If True (default) scale the operator by ``h̄`` (gradient, TV) or
-        ``h̄²`` (Laplacian), ``h̄ = (dx dy dz)^{1/3}``, so that it returns
-        differences of the field between voxels rather than derivatives per m:
-        then a regularization weight does not depend on the size of the box.
+        ``h̄²`` (Laplacian, curvature), ``h̄ = (dx dy dz)^{1/3}``, so that it
+        returns differences of the field between voxels rather than
+        derivatives per m: then a regularization weight does not depend on
+        the size of the box.
 
     Returns
     -------
@@ -214,20 +437,11 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
     Raises
     ------
     ValueError
-        If ``prior`` is not one of :data:`PRIORS`.
+        If ``prior`` is not one of :data:`PRIORS` or a Prior.
     """
-    if prior not in PRIORS:
+    if isinstance(prior, str) and prior not in PRIORS:
         raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
-    if isinstance(grid, RingGrid):
-        # the voxel grid's prior restricted to axisymmetric fields: L P
-        return (prior_operator(grid.grid, prior, dimensionless=dimensionless) @ grid.expansion).tocsr()
-    _, h = _check_grid(grid)
-    hbar = float(np.prod(h) ** (1.0 / 3.0))
-    if prior in ("laplacian", "curvature"):
-        L = laplacian_operator(grid) if prior == "laplacian" else curvature_operator(grid)
-        return (L * hbar**2).tocsr() if dimensionless else L
-    D = gradient_operator(grid)
-    return (D * hbar).tocsr() if dimensionless else D
+    return resolve_prior(prior).operator(grid, dimensionless=dimensionless)
 
 
 def to_bcoo(matrix: Any) -> jsparse.BCOO:
@@ -356,10 +570,9 @@ def jax_operator(
     ValueError
         Unknown ``prior`` or ``eps`` not > 0.
     """
-    if prior not in PRIORS:
+    if isinstance(prior, str) and prior not in PRIORS:
         raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
     eps = require_positive("eps", eps)
-    B = to_bcoo(prior_operator(grid, prior, dimensionless=dimensionless))
-    if prior == "tv":
-        return (lambda x: tv_residuals(x, B, eps)), B
-    return (lambda x: B @ x), B
+    obj = resolve_prior(prior, tv_eps=eps)
+    B = to_bcoo(obj.operator(grid, dimensionless=dimensionless))
+    return (lambda x: obj.residual(x, B)), B

@@ -54,6 +54,11 @@ bound, which optimistix's Cauchy test in ``θ`` would never accept.
 
 Choice of λ (``regularization="auto"``)
 ----------------------------------------
+The searches are implemented in :mod:`lftomo.inverse.lambdarules`
+(:class:`~lftomo.inverse.lambdarules.Discrepancy`, ``GCV``, ``LCurve``) on the
+solve path of this module (``_Runner``); the optimistix chunks they run are in
+:mod:`lftomo.inverse.lsq`.
+
 ``λ_ref`` is the *balanced* weight at the initial guess: trace of ``JᵀJ`` of the
 data term over trace of ``RᵀR`` of the prior (equal average curvature).
 Candidate λ are multiples of it.
@@ -147,21 +152,42 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
-from scipy import constants as _c  # noqa: E402
 from scipy.optimize import lsq_linear  # noqa: E402
 
-from .. import radiation as _rad  # noqa: E402
+from ..radiation import (  # noqa: E402  (re-exported: the JAX laws used to live here)
+    blackbody,
+    blackbody_inverse,
+    blackbody_jax,
+    dblackbody_dT,
+    dplanck_dT_jax,
+    gray_intensity_jax,
+    planck_jax,
+)
 from .._validate import (  # noqa: E402
-    require_finite_scalar,
+    require_bounds,
+    require_choice,
     require_int,
     require_nonnegative,
     require_positive,
 )
-from ..forward.render import _NoBar, _progress  # noqa: E402
+from ..progress import NoBar, progress_bar  # noqa: E402
 from .hostsparse import host_csr  # noqa: E402
-from ..interrupt import check_interrupt  # noqa: E402
+from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks  # noqa: E402
+from .lambdarules import (  # noqa: E402
+    DISCREPANCY_JUMP,
+    GCV,
+    NOISE_SCALES,
+    Discrepancy,
+    Eval,
+    LambdaChoice,
+    LCurve,
+    discrepancy_choice,
+    discrepancy_local_minimum,
+    objective,
+    resolve_rule,
+)
 from .problem import LinearProblem  # noqa: E402
-from .regularizers import PRIORS, prior_operator, tv_residuals  # noqa: E402
+from .regularizers import Prior, resolve_prior  # noqa: E402
 
 __all__ = [
     "METHODS",
@@ -176,6 +202,7 @@ __all__ = [
     "BaselineSolution",
     "solve_temperature",
     "solve_linear_baseline",
+    "baseline_start",
 ]
 
 #: Nonlinear least-squares methods of :func:`solve_temperature`.
@@ -184,115 +211,15 @@ METHODS = ("levenberg-marquardt", "gauss-newton")
 RULES = ("discrepancy", "gcv", "lcurve")
 #: What the prior acts on.
 PENALIZE = ("temperature", "intensity")
-NOISE_SCALES = ("given", "estimated")
 
-_C1 = 2.0 * _c.h * _c.c**2  # W m² sr⁻¹
-_C2 = _c.h * _c.c / _c.k  # m K
-_SIGMA = _c.Stefan_Boltzmann
-_CHUNK = 10
+CHUNK = 10
 
 #: ``progress=None`` shows a progress bar when the operator has more nonzeros
 #: than this (24³ with sub-voxel quadrature 2: 26 M, about 8 min on 2 cores).
 PROGRESS_MIN_NNZ = 5_000_000
 
 
-# --------------------------------------------------------------------------- Planck (JAX)
-def planck_jax(T: Any, wavelength: Any) -> jax.Array:
-    """Spectral blackbody radiance in JAX (differentiable).
-
-    Parameters
-    ----------
-    T : array_like
-        Temperature (K), > 0.
-    wavelength : float or array_like
-        Wavelength in vacuum (m), > 0, broadcast against ``T``.
-
-    Returns
-    -------
-    jax.Array
-        ``I_b = C1 λ⁻⁵ e^{−x} / (1 − e^{−x})``, ``x = C2/(λT)``
-        (W·m⁻²·sr⁻¹·m⁻¹), broadcast shape; ``1 − e^{−x}`` as ``−expm1(−x)``.
-        No input checks (traced code); see :func:`lftomo.planck` for those.
-    """
-    T = jnp.asarray(T, dtype=jnp.float64)
-    lam = jnp.asarray(wavelength, dtype=jnp.float64)
-    x = _C2 / (lam * T)
-    return _C1 / lam**5 * jnp.exp(-x) / (-jnp.expm1(-x))
-
-
-def dplanck_dT_jax(T: Any, wavelength: Any) -> jax.Array:
-    """Analytic ``∂I_b/∂T = I_b x / (T (1 − e^{−x}))`` in JAX (W·m⁻²·sr⁻¹·m⁻¹·K⁻¹)."""
-    T = jnp.asarray(T, dtype=jnp.float64)
-    lam = jnp.asarray(wavelength, dtype=jnp.float64)
-    x = _C2 / (lam * T)
-    one_minus = -jnp.expm1(-x)
-    return _C1 / lam**5 * jnp.exp(-x) / one_minus * x / (T * one_minus)
-
-
-def gray_intensity_jax(T: Any) -> jax.Array:
-    """Band-integrated blackbody radiance ``σ T⁴ / π`` in JAX (W·m⁻²·sr⁻¹)."""
-    T = jnp.asarray(T, dtype=jnp.float64)
-    return _SIGMA * T**4 / jnp.pi
-
-
-def blackbody_jax(T: Any, wavelength: float | None) -> jax.Array:
-    """Planck radiance at ``wavelength`` (m), or the gray radiance if it is None."""
-    return gray_intensity_jax(T) if wavelength is None else planck_jax(T, wavelength)
-
-
-def _blackbody_np(T: np.ndarray, wavelength: float | None) -> np.ndarray:
-    return np.asarray(_rad.gray_intensity(T) if wavelength is None else _rad.planck(T, wavelength), dtype=np.float64)
-
-
-def _dblackbody_np(T: np.ndarray, wavelength: float | None) -> np.ndarray:
-    if wavelength is None:
-        return 4.0 * _SIGMA * np.asarray(T, dtype=np.float64) ** 3 / np.pi
-    return np.asarray(_rad.dplanck_dT(T, wavelength), dtype=np.float64)
-
-
-def _inverse_np(I: np.ndarray, wavelength: float | None) -> np.ndarray:
-    return np.asarray(_rad.gray_inverse(I) if wavelength is None else _rad.planck_inverse(I, wavelength), dtype=np.float64)
-
-
 # --------------------------------------------------------------------------- results
-@dataclass(frozen=True, eq=False)
-class LambdaChoice:
-    """How the regularization weight λ was chosen.
-
-    Attributes
-    ----------
-    rule : str
-        ``"fixed"`` (given by the caller), ``"discrepancy"``, ``"gcv"`` or ``"lcurve"``.
-    value : float
-        λ used (dimensionless, see the module docstring).
-    candidates : ndarray, shape (k,)
-        Every λ evaluated, in the order evaluated.
-    chi2 : ndarray, shape (k,)
-        ``χ²/m`` at each candidate (for GCV: of the linearised problem).
-    regularization_norms : ndarray, shape (k,)
-        ``‖R‖`` at each candidate (prior residual norm, without √λ).
-    criterion : ndarray, shape (k,)
-        Rule's criterion per candidate: discrepancy ``χ²/m − target``; GCV
-        value; L-curve curvature (NaN at the ends).
-    target : float or None
-        Discrepancy target ``χ²/m`` (None for other rules).
-    reference : float
-        ``λ_ref``, the balanced weight that scales the candidates.
-    note : str
-        Human-readable summary (bracketing, end reached, passes...).
-    """
-
-    rule: str
-    value: float
-    candidates: np.ndarray
-    chi2: np.ndarray
-    regularization_norms: np.ndarray
-    criterion: np.ndarray
-    target: float | None = None
-    reference: float = float("nan")
-    note: str = ""
-
-
 @dataclass(frozen=True, eq=False)
 class TemperatureSolution:
     """Result of :func:`solve_temperature`.
@@ -399,26 +326,6 @@ def _check_problem(problem: Any) -> LinearProblem:
     return problem
 
 
-def _check_bounds(bounds: Any) -> tuple[float, float]:
-    try:
-        items = list(bounds)
-    except TypeError:
-        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}") from None
-    if len(items) != 2:
-        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}")
-    lo = require_positive("bounds[0] (T_min)", items[0])
-    hi = require_finite_scalar("bounds[1] (T_max)", items[1])
-    if not hi > lo:
-        raise ValueError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
-    return lo, hi
-
-
-def _check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
-    if not isinstance(value, str) or value not in allowed:
-        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
-    return value
-
-
 def _check_regularization(value: Any, *, allow_auto: bool) -> float | None:
     if isinstance(value, str):
         if allow_auto and value == "auto":
@@ -452,6 +359,7 @@ class _Setup:
     # A_s is then A_q @ E (I_b interpolated linearly: baseline, λ scales, Jacobi scaling)
     A_q: sp.csr_matrix | None = None
     E: sp.csr_matrix | None = None
+    prior_model: Prior | None = None  # the Prior whose name is ``prior``
 
     def jax_args(self) -> dict:
         """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding)."""
@@ -485,15 +393,17 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     d_all = w * (problem.y - problem.background)
     nnz_row = np.diff(A.indptr)
     used = nnz_row > 0
-    I_scale = float(_blackbody_np(np.float64(T_ref), wl))
+    I_scale = float(blackbody(np.float64(T_ref), wl))
     T_scale = tmax - tmin
-    I_reg = float(_dblackbody_np(np.float64(T_ref), wl)) * T_scale
+    I_reg = float(dblackbody_dT(np.float64(T_ref), wl)) * T_scale
     scale = sp.diags(w[used] * I_scale)
     A_s = (scale @ problem.linear_operator()[used]).tocsr()
     A_q = E = None
     if problem.interpolation is not None:
         A_q, E = (scale @ A[used]).tocsr(), problem.interpolation
-    L = prior_operator(problem.grid, prior, dimensionless=True)
+    model = resolve_prior(prior, tv_eps=tv_eps)
+    tv_eps = getattr(model, "eps", tv_eps)
+    L = model.operator(problem.grid, dimensionless=True)
     s = _Setup(
         problem=problem,
         grid=problem.grid,
@@ -504,7 +414,7 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         I_scale=I_scale,
         I_reg=I_reg,
         T_scale=T_scale,
-        prior=prior,
+        prior=model.name,
         penalize=penalize,
         tv_eps=tv_eps,
         A_s=A_s,
@@ -514,16 +424,18 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         L=L,
         A_q=A_q,
         E=E,
+        prior_model=model,
     )
     return s
 
 
 # --------------------------------------------------------------------------- residuals (JAX)
 @functools.lru_cache(maxsize=None)
-def _functions(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+def _functions(gray: bool, prior_type: type, penalize: str, subvoxel: bool = False):
     """Residual functions for one static configuration (cached: same objects -> jit cache hits).
 
-    ``subvoxel``: the data term interpolates T to the quadrature grid
+    ``prior_type``: the :class:`~lftomo.inverse.regularizers.Prior` subclass
+    whose ``residual_fn`` gives the prior's residual.  ``subvoxel``: the data term interpolates T to the quadrature grid
     (``args["E"]``) before Planck's law.
     """
 
@@ -545,9 +457,7 @@ def _functions(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
         T = temperature(theta, args)
         u = T if penalize == "temperature" else scaled_intensity(T, args)
         u = u * args["reg_scale"]
-        if tv:
-            return tv_residuals(u, args["L"], args["eps"])
-        return args["L"] @ u
+        return prior_type.residual_fn(u, args["L"], args["eps"])
 
     def residual(psi, args):
         # Jacobi-scaled variables: theta = theta_c + D * psi (D = 1 / column norms at theta_c)
@@ -563,117 +473,21 @@ def _functions(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
     return {"temperature": temperature, "data": data_res, "reg": reg_res, "residual": residual, "terms": terms}
 
 
-class _TruncatedLSMR(lx.AbstractLinearSolver):
-    """``lineax.LSMR`` whose step cap counts as success (truncated / inexact Newton step).
-
-    LSMR with ``max_steps`` reports ``max_steps_reached``, which optimistix
-    would turn into a failed solve; inside a trust-region method an inexact
-    step is fine, so the cap is reported as success.  Other results
-    (e.g. ``conlim``) are passed through.
-    """
-
-    inner: lx.LSMR
-
-    def init(self, operator, options):
-        return self.inner.init(operator, options)
-
-    def compute(self, state, vector, options):
-        x, result, stats = self.inner.compute(state, vector, options)
-        result = lx.RESULTS.where(result == lx.RESULTS.max_steps_reached, lx.RESULTS.successful, result)
-        return x, result, stats
-
-    def transpose(self, state, options):
-        return self.inner.transpose(state, options)
-
-    def conj(self, state, options):
-        return self.inner.conj(state, options)
-
-    def assume_full_rank(self):
-        return False
-
-
-@functools.lru_cache(maxsize=None)
-def _linear_solver(linear_rtol: float, linear_max_steps: int) -> lx.AbstractLinearSolver:
-    return _TruncatedLSMR(lx.LSMR(rtol=linear_rtol, atol=linear_rtol, max_steps=linear_max_steps))
-
-
-@functools.lru_cache(maxsize=None)
-def _nl_solver(method: str, rtol: float, atol: float, linear_rtol: float, linear_max_steps: int):
-    ls = _linear_solver(linear_rtol, linear_max_steps)
-    if method == "levenberg-marquardt":
-        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm, linear_solver=ls)
-    return optx.GaussNewton(rtol=rtol, atol=atol, norm=optx.rms_norm, linear_solver=ls)
-
-
-@dataclass
-class _Eval:
-    lam: float
-    theta: np.ndarray
-    chi2: float  # chi²/m (all rows)
-    reg: float  # ‖R‖
-    steps: int
-    converged: bool
-    message: str
-
-
-def _jacobi_scale(c2: np.ndarray) -> np.ndarray:
-    """``D = 1/‖column‖`` from the squared column norms ``c2`` of a Jacobian,
-    the norms floored at 1e-3 of their RMS (a column the data barely see must
-    not get an enormous step per unit of the scaled variable)."""
-    c = np.sqrt(np.maximum(c2, 0.0))
-    rms = float(np.sqrt(np.mean(c2))) if c.size and np.isfinite(c2).all() and c2.max() > 0 else 1.0
-    return 1.0 / np.maximum(c, 1e-3 * rms)
-
-
-def _scaled_chunks(residual, solver, args: dict, column_scale, theta, max_steps: int, bar, chunk: int = _CHUNK):
-    """Chunks of Jacobi-scaled optimistix steps from ``theta`` (the T-only and joint solves).
-
-    Each chunk rescales the unknowns about the current point, ``θ = θ_c + D ψ``
-    with ``D = column_scale(θ_c)``, and runs up to ``chunk`` steps of ``solver``
-    on ``residual(ψ, args)`` from ``ψ = 0`` (``args["theta_c"]``, ``args["D"]``
-    set here), so that the damping sees unknowns of comparable scale.  Yields
-    ``(θ, n_steps, result)`` after every chunk until ``max_steps`` steps are
-    spent; the caller decides when to stop.  A chunk that ends in a
-    non-finite iterate yields ``θ = None``.
-    """
-    theta = np.asarray(theta, dtype=np.float64)
-    zeros = jnp.zeros(theta.shape)
-    steps = 0
-    while steps < max_steps:
-        check_interrupt()  # Ctrl-C under lftomo.interrupt.stop_between_steps: stop between two chunks
-        D = column_scale(theta)
-        args["theta_c"], args["D"] = jnp.asarray(theta), jnp.asarray(D)
-        sol = optx.least_squares(residual, solver, zeros, args=args, max_steps=min(chunk, max_steps - steps),
-                                 throw=False)
-        n = int(sol.stats["num_steps"])
-        steps += n
-        bar.update(n)
-        theta_new = theta + D * np.asarray(sol.value)
-        if not np.all(np.isfinite(theta_new)):
-            yield None, n, sol.result
-            return
-        theta = theta_new
-        yield theta, n, sol.result
-        if n == 0:
-            return
-
-
 class _Runner:
     """Nonlinear solves at given λ with warm starts; keeps every evaluation."""
 
     def __init__(self, s: _Setup, *, method, rtol, atol, max_steps, linear_rtol, linear_max_steps):
         self.s = s
-        self.f = _functions(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
+        self.f = _functions(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
         self._args = s.jax_args()
         self.colsq_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
         self.colsq_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
-        if s.prior == "tv":
-            self.colsq_L = self.colsq_L / (2.0 * s.tv_eps)
-        self.solver = _nl_solver(method, rtol, atol, linear_rtol, linear_max_steps)
+        self.colsq_L = self.colsq_L / s.prior_model.curvature_divisor
+        self.solver = nonlinear_solver(method, rtol, atol, linear_rtol, linear_max_steps)
         self.rtol, self.atol, self.max_steps = rtol, atol, max_steps
-        self.evals: list[_Eval] = []
+        self.evals: list[Eval] = []
         self.total_steps = 0
-        self.bar = _NoBar()  # progress: one tick per nonlinear step, λ and χ²/m in the postfix
+        self.bar = NoBar()  # progress: one tick per nonlinear step, λ and χ²/m in the postfix
 
     def args(self, lam: float) -> dict:
         a = dict(self._args)
@@ -698,11 +512,11 @@ class _Runner:
         sig = 1.0 / (1.0 + np.exp(-theta))
         T = s.tmin + (s.tmax - s.tmin) * sig
         dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
-        dI = _dblackbody_np(T, s.wavelength) / s.I_scale
+        dI = dblackbody_dT(T, s.wavelength) / s.I_scale
         reg_f = dT / s.T_scale if s.penalize == "temperature" else dI * dT * s.I_scale / s.I_reg
-        return _jacobi_scale(self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * reg_f**2)
+        return jacobi_scale(self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * reg_f**2)
 
-    def solve(self, lam: float, theta0, max_steps: int | None = None, objective_rtol: float | None = None) -> _Eval:
+    def solve(self, lam: float, theta0, max_steps: int | None = None, objective_rtol: float | None = None) -> Eval:
         """Nonlinear solve at ``lam`` from ``theta0``.
 
         With ``objective_rtol`` the solve also stops (``converged``) as soon as
@@ -719,7 +533,7 @@ class _Runner:
         # already at the solution stops after one chunk instead of two.
         c0, r0 = self.terms(theta, lam)
         obj_prev = c0 * self.s.m_total + lam * r0 * r0
-        chunks = _scaled_chunks(self.f["residual"], self.solver, args, lambda th: self.column_scale(th, lam), theta,
+        chunks = scaled_chunks(self.f["residual"], self.solver, args, lambda th: self.column_scale(th, lam), theta,
                                 max_steps, self.bar)
         for theta_new, n, result in chunks:
             steps += n
@@ -749,9 +563,38 @@ class _Runner:
         self.total_steps += steps
         chi2, reg = self.terms(theta, lam)
         self.bar.set_postfix_str(f"λ={lam:.3g} χ²/m={chi2:.4g} ({len(self.evals) + 1} solves)")
-        e = _Eval(float(lam), np.asarray(theta), chi2, reg, steps, converged, message)
+        e = Eval(float(lam), np.asarray(theta), chi2, reg, steps, converged, message)
         self.evals.append(e)
         return e
+
+    @property
+    def m_total(self) -> int:
+        """Number of data (rows of ``A``, empty ones included)."""
+        return self.s.m_total
+
+    @property
+    def n_unknowns(self) -> int:
+        return self.s.A_s.shape[1]
+
+    @property
+    def m_used(self) -> int:
+        """Number of non-empty rows (the data the JAX residual holds)."""
+        return self.s.d.size
+
+    @property
+    def chi2_empty(self) -> float:
+        return self.s.chi2_empty
+
+    def fit_dof(self, e: Eval) -> tuple[float, float]:
+        """Residual degrees of freedom of the fit ``e`` (:func:`_fit_dof`)."""
+        return _fit_dof(self, e)
+
+    def gcv_terms(self, theta, lam: float, probes) -> tuple:
+        """``(‖r_d‖², ‖R‖², mean zᵀHz)`` of the problem linearised at ``theta`` with the regularized
+        Gauss–Newton step at ``lam`` (:func:`_gcv_function`)."""
+        s = self.s
+        fn = _gcv_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
+        return fn(jnp.asarray(theta), self.args(lam), jnp.asarray(lam), probes)
 
     def nearest(self, lam: float, default) -> np.ndarray:
         if not self.evals:
@@ -770,7 +613,7 @@ def _balanced_lambda(s: _Setup, T: np.ndarray) -> float:
     """trace(JᵀJ) of the data term / trace(RᵀR) of the prior at temperature ``T`` (flat)."""
     frac = (T - s.tmin) / (s.tmax - s.tmin)
     dT = (s.tmax - s.tmin) * frac * (1.0 - frac)
-    dI = _dblackbody_np(T, s.wavelength) / s.I_scale
+    dI = dblackbody_dT(T, s.wavelength) / s.I_scale
     col_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
     col_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
     data = float(np.sum(col_A * (dI * dT) ** 2))
@@ -778,199 +621,10 @@ def _balanced_lambda(s: _Setup, T: np.ndarray) -> float:
         reg = float(np.sum(col_L * (dT / s.T_scale) ** 2))
     else:
         reg = float(np.sum(col_L * (dI * dT * s.I_scale / s.I_reg) ** 2))
-    if s.prior == "tv":
-        reg /= 2.0 * s.tv_eps
+    reg /= s.prior_model.curvature_divisor
     if not (np.isfinite(data) and np.isfinite(reg)) or data <= 0 or reg <= 0:
         return 1.0
     return data / reg
-
-
-#: A discrepancy search whose bracket closes with χ²/m further than this
-#: fraction from the target has met a jump (two branches of solutions).
-_DISCREPANCY_JUMP = 0.02
-
-
-def _structured_branch(path: list) -> list:
-    """The solutions (sorted by λ) before the jump to the nearly flat branch.
-
-    The flat branch starts at the first λ whose ‖R‖ falls below a quarter of
-    both its predecessor's and the path's largest (measured paths: ‖R‖ 2.2 →
-    0.41 at the standard flame 24³, 1.5 → 0.009 in the quick demo, where the
-    flat branch's χ²/m stays below the target and an L-curve over the whole
-    path found its "corner" on the flat branch, λ = 3.5e6).
-
-    A drop of ‖R‖ alone is not a jump: from an under-regularised, noisy
-    solution at the smallest λ ‖R‖ also falls steeply (measured: the
-    curvature prior at 24³, ‖R‖ 3.8 → 0.91 from λ 4.4 to 44 with χ²/m 0.8033
-    → 0.8037, which took the whole path for the flat branch and λ = 4.4).  The
-    flat branch also fits worse, so χ²/m must rise by more than 1 % too.
-    """
-    if not path:
-        return path
-    r_max = max(x.reg for x in path)
-    for k in range(1, len(path)):
-        drop = path[k].reg < 0.25 * path[k - 1].reg and path[k].reg < 0.25 * r_max
-        if drop and path[k].chi2 > 1.01 * path[k - 1].chi2:
-            return path[:k]
-    return path
-
-
-def _on_lcurve(evals: list) -> list:
-    """The solves that lie on the L-curve: those not dominated by another.
-
-    A solve with both a larger χ² and a larger ‖R‖ than another one is not a
-    minimiser of its own objective χ² + λ‖R‖² (it stopped at its step budget
-    or in a worse local minimum), so it is no point of the L-curve.
-    """
-    return [e for e in evals
-            if not any(o is not e and o.chi2 <= e.chi2 and o.reg <= e.reg
-                       and (o.chi2 < e.chi2 or o.reg < e.reg) for o in evals)]
-
-
-def _branch_corner(evals: list, lam_max: float, target: float):
-    """The λ to use when the discrepancy equation has no solution on the
-    structured branch of solutions (:func:`_structured_branch` of those
-    computed at λ ≤ ``lam_max`` that lie on the L-curve, :func:`_on_lcurve`):
-    the L-curve corner of that branch, or with too few points for a curvature
-    Morozov's largest λ with χ²/m ≤ target.  Returns ``(eval, how)`` or None."""
-    path = _structured_branch(sorted(_on_lcurve([x for x in evals if x.lam <= lam_max * (1 + 1e-12)]),
-                                     key=lambda x: x.lam))
-    kappa = _lcurve_curvature(path) if len(path) >= 4 else np.array([np.nan])
-    if np.any(np.isfinite(kappa)):
-        best = path[int(np.nanargmax(kappa))]
-        return best, f"L-curve corner of the {len(path)} structured solutions, λ = {best.lam:.3g}"
-    below = [x for x in path if x.chi2 <= target]
-    if below:
-        best = max(below, key=lambda x: x.lam)
-        return best, f"largest λ with chi²/m ≤ target, λ = {best.lam:.3g}"
-    return None
-
-
-def _rule_discrepancy(run: _Runner, theta0, lam_ref: float, safety: float, search_steps: int | None,
-                      search_rtol: float, *, estimate_scale: bool = False):
-    target = 1.0 + safety
-    lo_lim, hi_lim = lam_ref * 1e-10, lam_ref * 1e4
-    m = run.s.m_total
-    # Illinois regula falsi in log λ on g (increasing), to the precision of the
-    # target itself: χ²/m of the noise has standard deviation √(2/m).
-    tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
-
-    def g(e: _Eval) -> float:
-        return math.log(max(e.chi2, 1e-300) / target)
-
-    def solve(lam, start):
-        # χ² of a candidate must be converged to the search tolerance: a solve
-        # stopped early overstates χ² (measured, standard flame 24³: 2.39 after
-        # 25 steps vs 0.80 converged at λ = 41), which sent the search to a λ
-        # 100× too small.
-        return run.solve(lam, start, search_steps, objective_rtol=search_rtol)
-
-    lam = lam_ref * 1e-2
-    e = solve(lam, theta0)
-    note = ""
-    scale_note = ""
-    if estimate_scale:
-        # σ known up to a factor: estimate it from this least-regularized fit
-        # (s² = χ²_s/(m − ν), ν its residual degrees of freedom).  The target
-        # then sits ν/(m − ν) above χ²_s; what fixes λ is the rise of χ²
-        # above that fit, whose own spread is √(2ν) in total: the tolerance.
-        n_unknowns = run.s.A_s.shape[1]
-        if m - n_unknowns < 1:
-            raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
-                             f"{n_unknowns} unknowns")
-        dof, dof_se = _fit_dof(run, e)
-        s2 = e.chi2 * m / (m - dof)
-        target = (1.0 + safety) * s2
-        tol = min(tol, max(math.sqrt(2.0 * max(dof, 1.0)) / (m - dof), 1e-6))
-        scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
-                      f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
-                      f"target chi²/m = {target:.5g}; ")
-    if g(e) < 0:  # too little misfit: increase λ
-        lo = e
-        hi = None
-        while lam < hi_lim:
-            lam *= 10.0
-            e = solve(lam, lo.theta)
-            if g(e) >= 0:
-                hi = e
-                break
-            lo = e
-        if hi is None:
-            # χ² below the target everywhere: the noise σ is overestimated (e.g. a
-            # conservative Monte Carlo error model), and the largest λ would give a
-            # featureless field.  Fall back on the corner of the L-curve of the
-            # structured branch of the solutions already computed (λ_ref·1e-2 …
-            # λ_ref·1e4, factors of 10).
-            found = _branch_corner(run.evals, math.inf, target)
-            if found is not None:
-                note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
-                return found[0], target, scale_note + note
-            note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
-            return lo, target, scale_note + note
-    else:
-        hi = e
-        lo = None
-        while lam > lo_lim:
-            lam /= 10.0
-            e = solve(lam, hi.theta)
-            if g(e) < 0:
-                lo = e
-                break
-            hi = e
-        if lo is None:
-            # χ² above the target everywhere: σ underestimated or a model error
-            # (a coarse grid, Monte Carlo data without their error in σ).  The
-            # smallest λ would give an unregularized field at the bounds
-            # (measured: 4³ from an 8³ flame, 74.7 % gray, 33.5 % at 650 nm);
-            # take the L-curve corner of the solutions computed on the way down.
-            found = _branch_corner(run.evals, math.inf, target)
-            if found is not None:
-                note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
-                        f"model error?): {found[1]}")
-                return found[0], target, scale_note + note
-            note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
-            return hi, target, scale_note + note
-    glo, ghi = g(lo), g(hi)
-    xlo, xhi = math.log(lo.lam), math.log(hi.lam)
-    best = lo if abs(glo) < abs(ghi) else hi
-    side = 0
-    for _ in range(20):
-        if abs(math.exp(g(best)) - 1.0) <= tol or xhi - xlo < math.log(1.1):
-            break
-        x = xhi - ghi * (xhi - xlo) / (ghi - glo) if ghi != glo else 0.5 * (xlo + xhi)
-        x = min(max(x, xlo + 0.05 * (xhi - xlo)), xhi - 0.05 * (xhi - xlo))
-        lam = math.exp(x)
-        e = solve(lam, run.nearest(lam, theta0))
-        ge = g(e)
-        if abs(ge) < abs(g(best)):
-            best = e
-        if ge < 0:
-            xlo, glo = x, ge
-            if side == -1:
-                ghi *= 0.5
-            side = -1
-        else:
-            xhi, ghi = x, ge
-            if side == 1:
-                glo *= 0.5
-            side = 1
-    miss = abs(math.exp(g(best)) - 1.0)
-    if miss > _DISCREPANCY_JUMP:
-        # The bracket closed on a jump of χ² across the target: two branches of
-        # solutions (a structured one below, a nearly flat one above; the
-        # problem is non-convex), so no λ attains the target and the equation
-        # has no solution (in practice: σ misestimated, e.g. a Monte Carlo
-        # noise model or discretisation error).  Take the L-curve corner of
-        # the structured branch (λ up to the lower end of the bracket);
-        # Morozov's "largest λ with χ² ≤ target" when it has too few points.
-        lo_lam = math.exp(xlo)
-        jump = (f"chi²/m jumps across the target between λ = {lo_lam:.3g} and {math.exp(xhi):.3g} "
-                f"(no λ attains it within {_DISCREPANCY_JUMP:.0%}; σ misestimated?)")
-        found = _branch_corner(run.evals, lo_lam, target)
-        if found is not None:
-            return found[0], target, scale_note + f"{jump}: {found[1]}"
-    note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
-    return best, target, scale_note + note
 
 
 def _linearised(f: dict, theta, args, lam, scale=None):
@@ -986,44 +640,23 @@ def _linearised(f: dict, theta, args, lam, scale=None):
     return rd0, rr0, Jd, Jr, D, op
 
 
-def _influence_probes(op, Jd, D, zero, ls, probes, on_probe=None):
-    """``(zᵀHz, ‖Hz‖²)`` for each probe ``z``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` (one LSMR solve each).
-
-    ``on_probe``, if given, is called on the host with the number of probes
-    done (1, 2, …) after each solve: progress for a slow step.  Leave it
-    ``None`` inside a cached jitted function (the T-only rule's).
-    """
-
-    def quad(kz):
-        k, z = kz
-        x = lx.linear_solve(op, (z, zero), ls, throw=False).value
-        hz = Jd(D(x))
-        out = jnp.vdot(z, hz), jnp.vdot(hz, hz)
-        if on_probe is not None:
-            # ordered: the calls follow the loop; the result feeds it so it runs after the solve
-            jax.debug.callback(lambda k_, _: on_probe(int(k_) + 1), k, out[0], ordered=True)
-        return out
-
-    return jax.lax.map(quad, (jnp.arange(probes.shape[0]), probes))  # a loop: HostCSR has no batching rule
-
-
 @functools.lru_cache(maxsize=None)
-def _dof_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+def _dof_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = False):
     """Jitted Hutchinson samples of ``tr(2H − H²)``, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ``, at ``theta`` (cached)."""
-    f = _functions(gray, tv, penalize, subvoxel)
+    f = _functions(gray, prior_type, penalize, subvoxel)
     ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
 
     @jax.jit
     def dof(theta, args, lam, scale, probes):
         # columns scaled by D (tr H does not depend on it; LSMR converges faster)
         _, rr0, Jd, _, D, op = _linearised(f, theta, args, lam, scale)
-        zhz, hz2 = _influence_probes(op, Jd, D, jnp.zeros_like(rr0), ls, probes)
+        zhz, hz2 = influence_probes(op, Jd, D, jnp.zeros_like(rr0), ls, probes)
         return 2.0 * zhz - hz2  # zᵀ (2H − H²) z
 
     return dof
 
 
-def _fit_dof(run: _Runner, e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
+def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
     """Degrees of freedom of the residual of the fit ``e``: ``tr(2H − H²)``, ``H``
     the influence matrix of the problem linearised at its solution, so that
     ``E‖r‖² = σ² (m − tr(2H − H²)) + bias²`` (a linear smoother's residual).
@@ -1033,7 +666,7 @@ def _fit_dof(run: _Runner, e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[
     their standard error (3–8) of it."""
     s = run.s
     probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
-    fn = _dof_function(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
+    fn = _dof_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
     scale = jnp.asarray(run.column_scale(np.asarray(e.theta), e.lam))
     q = np.asarray(fn(jnp.asarray(e.theta), run.args(e.lam), jnp.asarray(e.lam), scale, probes), dtype=float)
     n = s.A_s.shape[1]
@@ -1042,9 +675,9 @@ def _fit_dof(run: _Runner, e: _Eval, n_probes: int = 8, seed: int = 0) -> tuple[
 
 
 @functools.lru_cache(maxsize=None)
-def _gcv_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
+def _gcv_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = False):
     """Jitted GCV pieces of the problem linearised about ``theta`` (cached per configuration)."""
-    f = _functions(gray, tv, penalize, subvoxel)
+    f = _functions(gray, prior_type, penalize, subvoxel)
     ls = lx.LSMR(rtol=1e-7, atol=1e-7, max_steps=1000)
 
     @jax.jit
@@ -1054,129 +687,10 @@ def _gcv_function(gray: bool, tv: bool, penalize: str, subvoxel: bool = False):
         delta = lx.linear_solve(op, (-rd0, -sq * rr0), ls, throw=False).value
         rd = rd0 + Jd(delta)
         rr = rr0 + Jr(delta)
-        zhz, _ = _influence_probes(op, Jd, D, jnp.zeros_like(rr0), ls, probes)  # zᵀ H z
+        zhz, _ = influence_probes(op, Jd, D, jnp.zeros_like(rr0), ls, probes)  # zᵀ H z
         return jnp.sum(rd * rd), jnp.sum(rr * rr), jnp.mean(zhz)
 
     return gcv_eval
-
-
-def _rule_gcv(run: _Runner, theta0, lam_ref, lambda_range, n_lambda, probes_n, seed):
-    s = run.s
-    m_used = s.d.size
-    rng = np.random.default_rng(seed)
-    probes = jnp.asarray(rng.choice([-1.0, 1.0], size=(probes_n, m_used)))
-    gcv_eval = _gcv_function(s.wavelength is None, s.prior == "tv", s.penalize, s.E is not None)
-    lam_lin = lam_ref * 1e-2
-    e = run.solve(lam_lin, theta0)
-    cands, chi2s, regs, crit = [], [], [], []
-    notes = []
-    for npass in range(2):
-        grid = lam_ref * np.logspace(np.log10(lambda_range[0]), np.log10(lambda_range[1]), n_lambda)
-        vals = []
-        for lam in grid:
-            c, r, tr = gcv_eval(jnp.asarray(e.theta), run.args(lam), jnp.asarray(lam), probes)
-            c, r, tr = float(c), float(r), float(tr)
-            G = m_used * c / max(m_used - tr, 1e-12) ** 2
-            vals.append(G)
-            cands.append(lam)
-            chi2s.append((c + s.chi2_empty) / s.m_total)
-            regs.append(math.sqrt(max(r, 0.0)))
-            crit.append(G)
-        vals = np.asarray(vals)
-        k = int(np.argmin(vals))
-        x = np.log(grid)
-        lam_star = grid[k]
-        if 0 < k < n_lambda - 1:
-            y0, y1, y2 = np.log(vals[k - 1 : k + 2])
-            den = y0 - 2 * y1 + y2
-            if den > 0:
-                h = x[k + 1] - x[k]
-                lam_star = float(np.exp(x[k] + 0.5 * h * (y0 - y2) / den))
-        else:
-            notes.append(f"pass {npass + 1}: GCV minimum at the end of the λ range")
-        moved = abs(math.log(lam_star / lam_lin))
-        e = run.solve(lam_star, e.theta)
-        notes.append(f"pass {npass + 1}: linearised at λ={lam_lin:.3g}, GCV minimum λ={lam_star:.3g}")
-        if moved <= math.log(3.0):
-            break
-        lam_lin = lam_star
-    return e, np.array(cands), np.array(chi2s), np.array(regs), np.array(crit), "; ".join(notes)
-
-
-def _rule_lcurve(run: _Runner, theta0, lam_ref, lambda_range, n_lambda):
-    grid = lam_ref * np.logspace(np.log10(lambda_range[1]), np.log10(lambda_range[0]), n_lambda)
-    theta = theta0
-    evals = []
-    for lam in grid:
-        e = run.solve(lam, theta)
-        theta = e.theta
-        evals.append(e)
-    kappa = _lcurve_curvature(evals)
-    k = int(np.nanargmax(kappa)) if np.any(np.isfinite(kappa)) else n_lambda // 2
-    return evals[k], grid, np.array([e.chi2 for e in evals]), np.array([e.reg for e in evals]), kappa
-
-
-def _lcurve_curvature(evals: list) -> np.ndarray:
-    """Curvature of ``(log ‖r‖, log ‖R‖)`` (axes normalised to [0, 1]) against ``log λ``; NaN at the ends
-    and on plateaus.  ``evals`` (with ``lam``, ``chi2`` = χ²/m and ``reg`` = ‖R‖) sorted by λ (either
-    direction); ``log ‖r‖ = ½ log(χ²/m) + const``, and the constant goes with the normalisation."""
-    t = np.log([e.lam for e in evals])
-    x = 0.5 * np.log(np.maximum([e.chi2 for e in evals], 1e-300))
-    y = np.log(np.maximum([e.reg for e in evals], 1e-300))
-    xn = (x - x.min()) / max(x.max() - x.min(), 1e-300)
-    yn = (y - y.min()) / max(y.max() - y.min(), 1e-300)
-    dx, dy = np.gradient(xn, t), np.gradient(yn, t)
-    ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
-    speed2 = dx * dx + dy * dy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        kappa = (dx * ddy - dy * ddx) / speed2**1.5
-    # plateaus (the solution no longer changes with λ) give curvature from rounding noise
-    kappa[speed2 < 1e-4] = np.nan
-    kappa[0] = kappa[-1] = np.nan
-    return kappa
-
-
-def _objective(run: _Runner, x: _Eval) -> float:
-    """``χ²·m + λ‖R‖²`` of an evaluation (the minimised objective)."""
-    return x.chi2 * run.s.m_total + x.lam * x.reg**2
-
-
-def _discrepancy_choice(run: _Runner, e: _Eval, target: float, reference: float, note: str) -> LambdaChoice:
-    """The :class:`LambdaChoice` of the discrepancy rule: every evaluation so far."""
-    ev = run.evals
-    return LambdaChoice(
-        rule="discrepancy", value=e.lam, candidates=np.array([x.lam for x in ev]),
-        chi2=np.array([x.chi2 for x in ev]), regularization_norms=np.array([x.reg for x in ev]),
-        criterion=np.array([x.chi2 - target for x in ev]), target=target, reference=reference, note=note,
-    )
-
-
-def _discrepancy_local_minimum(run: _Runner, e: _Eval, e2: _Eval, choice: LambdaChoice, theta0,
-                               search_rtol: float | None = None):
-    """Check the discrepancy solution ``e`` against ``e2``, the solve at the same
-    λ from the initial guess.
-
-    When ``e2`` has the lower objective and a χ²/m far above the target while
-    ``e`` meets it, the solution meeting the target is only a local minimum: at
-    this λ the global one lies on the nearly flat branch (measured: two-lobed
-    flame 16³, χ²/m 0.99 structured vs 1.34 flat with the lower objective).
-    The target is then unattainable by a minimiser; take the corner of the
-    structured branch below this λ (:func:`_branch_corner`) and solve there
-    from the initial guess.  Returns ``(e, e2, choice)``.
-    """
-    t = choice.target
-    if t is None or not (_objective(run, e2) < _objective(run, e) and e2.chi2 > t * (1 + _DISCREPANCY_JUMP)
-                         and e.chi2 <= t * (1 + _DISCREPANCY_JUMP)):
-        return e, e2, choice
-    found = _branch_corner(run.evals, e.lam / (1 + 1e-9), t)
-    if found is None:
-        return e, e2, choice
-    lam_local = e.lam
-    e = found[0]
-    note = (f"the solution meeting the target at λ = {lam_local:.3g} is a local minimum only (from the "
-            f"initial guess: chi²/m {e2.chi2:.3g} with a lower objective): {found[1]}")
-    e2 = run.solve(e.lam, theta0, objective_rtol=search_rtol)
-    return e, e2, _discrepancy_choice(run, e, t, choice.reference, note)
 
 
 # --------------------------------------------------------------------------- public solvers
@@ -1320,7 +834,7 @@ def solve_temperature(
     """
     t_start = time.perf_counter()
     problem = _check_problem(problem)
-    subvoxel_search = _check_choice("subvoxel_search", subvoxel_search, ("surrogate", "full"))
+    subvoxel_search = require_choice("subvoxel_search", subvoxel_search, ("surrogate", "full"))
     if problem.interpolation is not None and regularization == "auto" and subvoxel_search == "surrogate":
         return _solve_subvoxel_by_surrogate(
             problem, prior=prior, bounds=bounds, T0=T0, method=method, rule=rule, max_steps=max_steps, rtol=rtol,
@@ -1329,13 +843,15 @@ def solve_temperature(
             linear_rtol=linear_rtol, linear_max_steps=linear_max_steps, search_steps=search_steps,
             search_rtol=search_rtol, noise_scale=noise_scale, progress=progress,
         )
-    bounds = _check_bounds(bounds)
-    prior = _check_choice("prior", prior, PRIORS)
-    method = _check_choice("method", method, METHODS)
-    rule = _check_choice("rule", rule, RULES)
-    penalize = _check_choice("penalize", penalize, PENALIZE)
+    bounds = require_bounds(bounds)
+    tv_eps = require_positive("tv_eps", tv_eps)
+    prior_model = resolve_prior(prior, tv_eps=tv_eps)
+    prior = prior_model.name
+    method = require_choice("method", method, METHODS)
+    rule = resolve_rule(rule, fit="T").name
+    penalize = require_choice("penalize", penalize, PENALIZE)
     lam_fixed = _check_regularization(regularization, allow_auto=True)
-    noise_scale = _check_choice("noise_scale", noise_scale, NOISE_SCALES)
+    noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
     if noise_scale == "estimated" and rule != "discrepancy":
         raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
     max_steps = require_int("max_steps", max_steps, minimum=1)
@@ -1343,7 +859,6 @@ def solve_temperature(
     atol = require_nonnegative("atol", atol)
     if rtol == 0 and atol == 0:
         raise ValueError("rtol and atol must not both be 0")
-    tv_eps = require_positive("tv_eps", tv_eps)
     safety = require_nonnegative("discrepancy_safety", discrepancy_safety)
     try:
         lr = (require_positive("lambda_range[0]", lambda_range[0]), require_positive("lambda_range[1]", lambda_range[1]))
@@ -1384,11 +899,11 @@ def solve_temperature(
         T0_arr = arr.ravel()
 
     # ---- setup
-    s = _make_setup(problem, bounds=bounds, prior=prior, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
+    s = _make_setup(problem, bounds=bounds, prior=prior_model, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
     run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
                   linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
     show = progress if progress is not None else s.A_s.nnz > PROGRESS_MIN_NNZ
-    run.bar = _progress(None, bool(show), "reconstruct T", unit="step")
+    run.bar = progress_bar(None, bool(show), "reconstruct T", unit="step")
     try:
         return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
                            safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
@@ -1423,15 +938,16 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
             reference=lam_ref, note="λ given by the caller",
         )
     elif rule == "discrepancy":
-        e, target, note = _rule_discrepancy(run, theta0, lam_ref, safety, search_steps, float(search_rtol),
-                                            estimate_scale=estimate_scale)
-        choice = _discrepancy_choice(run, e, target, lam_ref, note)
+        e, target, note = Discrepancy(noise_scale="estimated" if estimate_scale else "given", safety=safety,
+                                      search_steps=search_steps, search_rtol=float(search_rtol)).choose(
+            run, theta0, lam_ref)
+        choice = discrepancy_choice(run, e, target, lam_ref, note)
     elif rule == "gcv":
-        e, c, ch, rg, cr, note = _rule_gcv(run, theta0, lam_ref, lr, n_lambda, gcv_probes, seed)
+        e, c, ch, rg, cr, note = GCV(lr, n_lambda, gcv_probes, seed).choose(run, theta0, lam_ref)
         choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
                               target=None, reference=lam_ref, note=note)
     else:
-        e, c, ch, rg, cr = _rule_lcurve(run, theta0, lam_ref, lr, n_lambda)
+        e, c, ch, rg, cr = LCurve(lr, n_lambda).choose(run, theta0, lam_ref)
         choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
                               target=None, reference=lam_ref, note="maximum curvature of (log‖r‖, log‖R‖)")
     if lam_fixed is None:
@@ -1445,13 +961,13 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
         # 109 s at 32³ and changed the objective by 2e-4).
         e2 = run.solve(e.lam, theta0, objective_rtol=float(search_rtol))
         if rule == "discrepancy":
-            e, e2, choice = _discrepancy_local_minimum(run, e, e2, choice, theta0, float(search_rtol))
-        if _objective(run, e2) <= _objective(run, e) or not e.converged:
+            e, e2, choice = discrepancy_local_minimum(run, e, e2, choice, theta0, float(search_rtol))
+        if objective(run, e2) <= objective(run, e) or not e.converged:
             e = e2
     t_end = time.perf_counter()
 
     T = run.T_of(e.theta)
-    Ib = _blackbody_np(T, s.wavelength)
+    Ib = blackbody(T, s.wavelength)
     return TemperatureSolution(
         T=T.reshape(grid.shape),
         I_b=Ib.reshape(grid.shape),
@@ -1487,7 +1003,7 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
                               metadata=problem.metadata)
     sur = solve_temperature(surrogate, regularization="auto", T0=T0, **options)
     ch = sur.lambda_choice
-    if ch.rule == "discrepancy" and sur.chi2 > ch.target * (1.0 + _DISCREPANCY_JUMP):
+    if ch.rule == "discrepancy" and sur.chi2 > ch.target * (1.0 + DISCREPANCY_JUMP):
         # The surrogate cannot reach the target at any λ: its own model error
         # (I_b interpolated linearly instead of Planck of the interpolated T)
         # exceeds the noise, so its "smallest λ" says nothing about the noise
@@ -1548,6 +1064,17 @@ def _baseline_start(s: _Setup, *, iter_lim: int = 150) -> BaselineSolution:
     return best
 
 
+def baseline_start(problem: LinearProblem, *, bounds: tuple[float, float], prior: Any = "gradient") -> BaselineSolution:
+    """The linear baseline that starts :func:`solve_temperature` (``T0=None``), for other fits' starts.
+
+    λ_I = ``λ_I,ref · 10^{-2k}``, k = 1 … 6 (``λ_I,ref`` the balanced weight of
+    the linear problem in ``I_b``), the first with ``χ²/m ≤ 2``; LSQR, 150
+    iterations, warm-started; the prior on ``T`` (quadratic, :func:`resolve_prior`).
+    """
+    s = _make_setup(problem, bounds=bounds, prior=prior, penalize="temperature", tv_eps=1e-3, T_ref=None)
+    return _baseline_start(s)
+
+
 def _baseline_core(s: _Setup, lam: float, *, method: str, atol: float, btol: float, iter_lim: int | None, x0=None):
     t0 = time.perf_counter()
     K = sp.vstack([s.A_s, (math.sqrt(lam) * s.I_scale / s.I_reg) * s.L], format="csr")
@@ -1564,7 +1091,7 @@ def _baseline_core(s: _Setup, lam: float, *, method: str, atol: float, btol: flo
     chi2 = (float(r @ r) + s.chi2_empty) / s.m_total
     reg = float(np.linalg.norm(s.L @ b) * s.I_scale / s.I_reg)
     tiny = np.finfo(np.float64).tiny
-    T_raw = _inverse_np(np.maximum(Ib, tiny), s.wavelength)
+    T_raw = blackbody_inverse(np.maximum(Ib, tiny), s.wavelength)
     T = np.clip(T_raw, s.tmin, s.tmax)
     shape = s.grid.shape
     return BaselineSolution(
@@ -1631,9 +1158,9 @@ def solve_linear_baseline(
     """
     problem = _check_problem(problem)
     lam = _check_regularization(regularization, allow_auto=False)
-    prior = _check_choice("prior", prior, ("gradient", "laplacian", "curvature"))
-    method = _check_choice("method", method, ("lsqr", "bounded"))
-    bounds = _check_bounds(bounds)
+    prior = resolve_prior(prior, quadratic_only=True, where="the linear baseline")
+    method = require_choice("method", method, ("lsqr", "bounded"))
+    bounds = require_bounds(bounds)
     atol = require_nonnegative("atol", atol)
     btol = require_nonnegative("btol", btol)
     if iter_lim is not None:

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 from ..forward.grid import Grid
 
 
-def _m(v) -> str:
+def format_vector(v) -> str:
     """A 3-vector for messages: ``(0.025, -0.03, 0.975)``, not ``np.float64(...)`` reprs."""
     return "(" + ", ".join(f"{float(x):.6g}" for x in np.ravel(v)) + ")"
 
@@ -84,13 +84,13 @@ def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
     tol = 1e-9 * h
     if np.any(qlo < lo - tol) or np.any(qhi > hi + tol):
         raise ValueError(
-            f"the quadrature grid's box {_m(qlo)}..{_m(qhi)} m must lie inside the grid's box "
-            f"{_m(lo)}..{_m(hi)} m"
+            f"the quadrature grid's box {format_vector(qlo)}..{format_vector(qhi)} m must lie inside the grid's box "
+            f"{format_vector(lo)}..{format_vector(hi)} m"
         )
     if np.any(np.asarray(quadrature.spacing) > h * (1 + 1e-9)):
         raise ValueError(
-            f"the quadrature grid (spacing {_m(quadrature.spacing)} m) must be at least as fine "
-            f"as the grid (spacing {_m(h)} m) on every axis"
+            f"the quadrature grid (spacing {format_vector(quadrature.spacing)} m) must be at least as fine "
+            f"as the grid (spacing {format_vector(h)} m) on every axis"
         )
     centres = quadrature.centers
     per_axis = [_axis_weights(int(grid.shape[a]), lo[a], h[a], np.asarray(centres[a], float)) for a in range(3)]

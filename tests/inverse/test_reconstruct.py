@@ -266,7 +266,7 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
     err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in lc.details["lambda_path_T"]]
     assert err[k] < err[-1], (lc.lambda_rule, err)  # the corner beats the cap
-    with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
+    with pytest.raises(ValueError, match="rule must be one of \\('discrepancy-bracket', 'lcurve'"):
         reconstruct(ms, seg, rule="gcv", **kw)
     # coarse-to-fine: a fit on 2³ (its own segment table, fixed λ 3e3) starts the 4³ search at its λ,
     # warm from the interpolated fields; the factor-10 step stops at the cap, and the cap's solve

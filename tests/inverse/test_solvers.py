@@ -252,14 +252,13 @@ class _BranchRunner:
     corner near λ = 400) and a flat branch beyond it (χ²/m 1.09): the χ² of the
     standard flame at 24³ with Monte Carlo data.  No λ attains χ²/m = 1."""
 
-    class s:  # mimics the runner's setup attribute
-        m_total = 100_000
+    m_total = 100_000  # a SolvePath's number of data
 
     def __init__(self):
         self.evals = []
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None):
-        from lftomo.inverse.solvers import _Eval
+        from lftomo.inverse.lambdarules import Eval as _Eval
 
         if lam < 5e3:
             chi2 = 0.80 + 0.0005 * (lam / 100.0)  # slow rise
@@ -277,7 +276,8 @@ class _BranchRunner:
 def test_structured_branch_needs_a_chi2_rise_not_only_a_drop_of_the_prior_norm():
     """An under-regularised first solution (‖R‖ 3.8) followed by smooth ones (0.9 … 0.6) at the same χ²/m
     is one branch (the curvature prior at 24³); a drop of ‖R‖ with χ²/m rising 0.80 → 1.10 is the jump."""
-    from lftomo.inverse.solvers import _Eval, _structured_branch
+    from lftomo.inverse.lambdarules import Eval as _Eval
+    from lftomo.inverse.lambdarules import structured_branch as _structured_branch
 
     def ev(lam, chi2, reg):
         return _Eval(lam, np.zeros(1), chi2, reg, 1, True, "")
@@ -291,12 +291,10 @@ def test_structured_branch_needs_a_chi2_rise_not_only_a_drop_of_the_prior_norm()
 def test_branch_corner_ignores_a_solve_dominated_on_the_lcurve():
     """A solve stopped early (larger χ² *and* larger ‖R‖ than its neighbour) is no point of the L-curve:
     on this path it would move the curvature maximum from λ 1e3 to 1e4; both rules drop it."""
-    from lftomo.inverse.solvers import (
-        _branch_corner,
-        _Eval,
-        _lcurve_curvature,
-        _on_lcurve,
-    )
+    from lftomo.inverse.lambdarules import Eval as _Eval
+    from lftomo.inverse.lambdarules import branch_corner as _branch_corner
+    from lftomo.inverse.lambdarules import lcurve_curvature as _lcurve_curvature
+    from lftomo.inverse.lambdarules import on_lcurve as _on_lcurve
 
     def ev(lam, chi2, reg):
         return _Eval(lam, np.zeros(1), chi2, reg, 1, True, "")
@@ -314,7 +312,7 @@ def test_branch_corner_ignores_a_solve_dominated_on_the_lcurve():
 
 
 def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
-    from lftomo.inverse.solvers import _rule_discrepancy
+    from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _BranchRunner()
     e, target, note = _rule_discrepancy(run, np.zeros(1), 4000.0, 0.0, None, 1e-3)
@@ -336,7 +334,7 @@ class _AboveRunner(_BranchRunner):
 def test_discrepancy_takes_lcurve_corner_when_chi2_stays_above_target():
     """No λ reaches the target from above: the smallest λ (an unregularized field) is not the answer;
     the corner of the path computed on the way down is."""
-    from lftomo.inverse.solvers import _rule_discrepancy
+    from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _AboveRunner()
     e, target, note = _rule_discrepancy(run, np.zeros(1), 4e5, 0.0, None, 1e-3)  # path 4000, 400, 40, ...
@@ -355,7 +353,7 @@ class _LocalMinimumRunner(_BranchRunner):
         self.theta0 = theta0
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None):
-        from lftomo.inverse.solvers import _Eval
+        from lftomo.inverse.lambdarules import Eval as _Eval
 
         if start is self.theta0 and lam >= 2e4:
             chi2, reg = 1.34, 0.1
@@ -371,11 +369,9 @@ class _LocalMinimumRunner(_BranchRunner):
 
 
 def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
-    from lftomo.inverse.solvers import (
-        LambdaChoice,
-        _discrepancy_local_minimum,
-        _rule_discrepancy,
-    )
+    from lftomo.inverse.lambdarules import LambdaChoice
+    from lftomo.inverse.lambdarules import discrepancy_local_minimum as _discrepancy_local_minimum
+    from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     theta0 = np.zeros(1)
     run = _LocalMinimumRunner(theta0)
@@ -399,7 +395,7 @@ class _FlatBelowTargetRunner(_BranchRunner):
     ‖R‖ keeps falling tenfold per decade (the quick demo's path)."""
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None):
-        from lftomo.inverse.solvers import _Eval
+        from lftomo.inverse.lambdarules import Eval as _Eval
 
         if lam < 1e3:
             chi2, reg = 0.745 + 1e-5 * lam, 1.75 - 0.1 * np.log10(lam)
@@ -414,7 +410,7 @@ def test_discrepancy_fallback_ignores_the_flat_branch():
     """An L-curve over the whole path finds its sharpest bend on the flat
     branch (λ ≥ 1e3, a featureless field); the fallback must stay on the
     structured branch."""
-    from lftomo.inverse.solvers import _rule_discrepancy
+    from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _FlatBelowTargetRunner()
     e, _, note = _rule_discrepancy(run, np.zeros(1), 3000.0, 0.0, None, 1e-3)
@@ -561,7 +557,7 @@ def test_fit_dof_matches_the_dense_trace():
         est, se = S._fit_dof(run, e, n_probes=32)
         sig = 1.0 / (1.0 + np.exp(-e.theta))
         dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
-        dI = S._dblackbody_np(s.tmin + (s.tmax - s.tmin) * sig, None) / s.I_scale
+        dI = lt.radiation.dblackbody_dT(s.tmin + (s.tmax - s.tmin) * sig, None) / s.I_scale
         J = s.A_s.toarray() * (dI * dT)[None, :]
         R = s.L.toarray() * (dT / s.T_scale)[None, :]
         H = J @ np.linalg.solve(J.T @ J + e.lam * R.T @ R, J.T)
@@ -577,7 +573,7 @@ def test_influence_probes_are_exact_and_report_progress():
     import jax.numpy as jnp
     import lineax as lx
 
-    from lftomo.inverse.solvers import _influence_probes
+    from lftomo.inverse.lsq import influence_probes as _influence_probes
 
     rng = np.random.default_rng(3)
     J = rng.normal(size=(30, 8))

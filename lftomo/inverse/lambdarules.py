@@ -1,0 +1,731 @@
+"""λ rules: how the regularization weight of a fit is chosen, one implementation each.
+
+A rule works on a *solve path* (:class:`SolvePath`): an object that solves the
+regularized problem at a given λ from a given start and remembers every
+solve.  The T-only fit (:func:`lftomo.inverse.solvers.solve_temperature`) and
+the joint T + σₐ fit (:func:`lftomo.inverse.joint.solve_temperature_absorption`)
+each provide one, so a rule is written once and the fits differ only in
+which rules their paths support.
+
+Rules (:data:`RULE_CLASSES`; the string names select them):
+
+* :class:`Discrepancy` (``"discrepancy"``): Morozov's principle as a root
+  search, the λ with ``χ²/m = target`` (factor-10 bracket, Illinois regula
+  falsi), target 1 + safety with the noise scale given, or ``(1 + safety) s²``
+  with it estimated (``s² = χ²/(m − ν)`` of the least-regularized fit).  The
+  T-only fit's rule.
+* :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
+  as "the largest λ with ``χ²/m ≤ target``" on a factor-10 ladder, refined by
+  two bisections in log λ, given or estimated noise scale.  The joint fit's
+  rule, which used to be called ``"discrepancy"`` too (that name still selects
+  it there, with a DeprecationWarning).
+* :class:`GCV` (``"gcv"``): generalised cross-validation of the linearised problem.
+* :class:`LCurve` (``"lcurve"``): the corner of the L-curve of log-spaced solves.
+* :class:`LCurveDecades` (``"lcurve"`` in the joint fit): the corner of the
+  structured branch of solves at λ = 1e-2, 1e-1, … up to a cap.
+* :class:`Fixed`: λ given.
+
+The L-curve helpers (:func:`on_lcurve`, :func:`structured_branch`,
+:func:`branch_corner`, :func:`lcurve_curvature`) are shared by the rules'
+fallbacks.  The algorithms are described with their measurements in
+:mod:`lftomo.inverse.solvers` and :mod:`lftomo.inverse.joint`.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "Eval",
+    "SolvePath",
+    "LambdaChoice",
+    "LambdaRule",
+    "Fixed",
+    "Discrepancy",
+    "DiscrepancyBracket",
+    "GCV",
+    "LCurve",
+    "LCurveDecades",
+    "RULE_CLASSES",
+    "NOISE_SCALES",
+    "resolve_rule",
+    "DISCREPANCY_JUMP",
+    "structured_branch",
+    "on_lcurve",
+    "branch_corner",
+    "lcurve_curvature",
+    "objective",
+    "discrepancy_search",
+    "discrepancy_choice",
+    "discrepancy_local_minimum",
+    "gcv_search",
+    "lcurve_search",
+    "bracket_search",
+    "decade_lcurve_search",
+]
+
+#: How the noise σ is trusted by the discrepancy rules: as given, or up to a common factor.
+NOISE_SCALES = ("given", "estimated")
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True, eq=False)
+class LambdaChoice:
+    """How the regularization weight λ was chosen.
+
+    Attributes
+    ----------
+    rule : str
+        ``"fixed"`` (given by the caller), ``"discrepancy"``, ``"gcv"`` or ``"lcurve"``.
+    value : float
+        λ used (dimensionless, see the module docstring).
+    candidates : ndarray, shape (k,)
+        Every λ evaluated, in the order evaluated.
+    chi2 : ndarray, shape (k,)
+        ``χ²/m`` at each candidate (for GCV: of the linearised problem).
+    regularization_norms : ndarray, shape (k,)
+        ``‖R‖`` at each candidate (prior residual norm, without √λ).
+    criterion : ndarray, shape (k,)
+        Rule's criterion per candidate: discrepancy ``χ²/m − target``; GCV
+        value; L-curve curvature (NaN at the ends).
+    target : float or None
+        Discrepancy target ``χ²/m`` (None for other rules).
+    reference : float
+        ``λ_ref``, the balanced weight that scales the candidates.
+    note : str
+        Human-readable summary (bracketing, end reached, passes...).
+    """
+
+    rule: str
+    value: float
+    candidates: np.ndarray
+    chi2: np.ndarray
+    regularization_norms: np.ndarray
+    criterion: np.ndarray
+    target: float | None = None
+    reference: float = float("nan")
+    note: str = ""
+
+
+@dataclass
+class Eval:
+    """One solve at a fixed λ: λ, the unknowns ``theta`` at its end, ``χ²/m``, ``‖R‖``, steps taken,
+    whether it converged, and how it ended."""
+
+    lam: float
+    theta: np.ndarray
+    chi2: float  # chi²/m (all rows)
+    reg: float  # ‖R‖
+    steps: int
+    converged: bool
+    message: str
+
+
+
+class SolvePath(Protocol):
+    """What a λ rule needs from a fit: solves at given λ, remembered in order.
+
+    Attributes
+    ----------
+    m_total : int
+        Number of data m (``χ²/m`` is over all of them).
+    n_unknowns : int
+        Number of unknowns (for the estimated noise scale's check m > n).
+    evals : list of Eval
+        Every solve so far, in the order solved.
+    """
+
+    m_total: int
+    n_unknowns: int
+    evals: list
+
+    def solve(self, lam: float, start: Any, max_steps: int | None = None,
+              objective_rtol: float | None = None) -> Eval:
+        """Solve at ``lam`` from ``start``, append the result to ``evals`` and return it."""
+
+    def nearest(self, lam: float, default: Any) -> Any:
+        """The unknowns of the solve nearest to ``lam`` in log λ (``default`` if none)."""
+
+    def fit_dof(self, e: Eval) -> tuple[float, float]:
+        """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their standard error."""
+
+
+# --------------------------------------------------------------------------- L-curve helpers
+#: A discrepancy search whose bracket closes with χ²/m further than this
+#: fraction from the target has met a jump (two branches of solutions).
+DISCREPANCY_JUMP = 0.02
+
+
+def structured_branch(path: list) -> list:
+    """The solutions (sorted by λ) before the jump to the nearly flat branch.
+
+    The flat branch starts at the first λ whose ‖R‖ falls below a quarter of
+    both its predecessor's and the path's largest (measured paths: ‖R‖ 2.2 →
+    0.41 at the standard flame 24³, 1.5 → 0.009 in the quick demo, where the
+    flat branch's χ²/m stays below the target and an L-curve over the whole
+    path found its "corner" on the flat branch, λ = 3.5e6).
+
+    A drop of ‖R‖ alone is not a jump: from an under-regularised, noisy
+    solution at the smallest λ ‖R‖ also falls steeply (measured: the
+    curvature prior at 24³, ‖R‖ 3.8 → 0.91 from λ 4.4 to 44 with χ²/m 0.8033
+    → 0.8037, which took the whole path for the flat branch and λ = 4.4).  The
+    flat branch also fits worse, so χ²/m must rise by more than 1 % too.
+    """
+    if not path:
+        return path
+    r_max = max(x.reg for x in path)
+    for k in range(1, len(path)):
+        drop = path[k].reg < 0.25 * path[k - 1].reg and path[k].reg < 0.25 * r_max
+        if drop and path[k].chi2 > 1.01 * path[k - 1].chi2:
+            return path[:k]
+    return path
+
+
+def on_lcurve(evals: list) -> list:
+    """The solves that lie on the L-curve: those not dominated by another.
+
+    A solve with both a larger χ² and a larger ‖R‖ than another one is not a
+    minimiser of its own objective χ² + λ‖R‖² (it stopped at its step budget
+    or in a worse local minimum), so it is no point of the L-curve.
+    """
+    return [e for e in evals
+            if not any(o is not e and o.chi2 <= e.chi2 and o.reg <= e.reg
+                       and (o.chi2 < e.chi2 or o.reg < e.reg) for o in evals)]
+
+
+def branch_corner(evals: list, lam_max: float, target: float):
+    """The λ to use when the discrepancy equation has no solution on the
+    structured branch of solutions (:func:`structured_branch` of those
+    computed at λ ≤ ``lam_max`` that lie on the L-curve, :func:`on_lcurve`):
+    the L-curve corner of that branch, or with too few points for a curvature
+    Morozov's largest λ with χ²/m ≤ target.  Returns ``(eval, how)`` or None."""
+    path = structured_branch(sorted(on_lcurve([x for x in evals if x.lam <= lam_max * (1 + 1e-12)]),
+                                     key=lambda x: x.lam))
+    kappa = lcurve_curvature(path) if len(path) >= 4 else np.array([np.nan])
+    if np.any(np.isfinite(kappa)):
+        best = path[int(np.nanargmax(kappa))]
+        return best, f"L-curve corner of the {len(path)} structured solutions, λ = {best.lam:.3g}"
+    below = [x for x in path if x.chi2 <= target]
+    if below:
+        best = max(below, key=lambda x: x.lam)
+        return best, f"largest λ with chi²/m ≤ target, λ = {best.lam:.3g}"
+    return None
+
+
+def lcurve_curvature(evals: list) -> np.ndarray:
+    """Curvature of ``(log ‖r‖, log ‖R‖)`` (axes normalised to [0, 1]) against ``log λ``; NaN at the ends
+    and on plateaus.  ``evals`` (with ``lam``, ``chi2`` = χ²/m and ``reg`` = ‖R‖) sorted by λ (either
+    direction); ``log ‖r‖ = ½ log(χ²/m) + const``, and the constant goes with the normalisation."""
+    t = np.log([e.lam for e in evals])
+    x = 0.5 * np.log(np.maximum([e.chi2 for e in evals], 1e-300))
+    y = np.log(np.maximum([e.reg for e in evals], 1e-300))
+    xn = (x - x.min()) / max(x.max() - x.min(), 1e-300)
+    yn = (y - y.min()) / max(y.max() - y.min(), 1e-300)
+    dx, dy = np.gradient(xn, t), np.gradient(yn, t)
+    ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
+    speed2 = dx * dx + dy * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kappa = (dx * ddy - dy * ddx) / speed2**1.5
+    # plateaus (the solution no longer changes with λ) give curvature from rounding noise
+    kappa[speed2 < 1e-4] = np.nan
+    kappa[0] = kappa[-1] = np.nan
+    return kappa
+
+
+# --------------------------------------------------------------------------- the T-only fit's searches
+def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
+                       search_rtol: float, *, estimate_scale: bool = False):
+    """Morozov's discrepancy principle as a root search: the λ with ``χ²/m = target``.
+
+    Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
+    then Illinois regula falsi on ``log(χ²/m / target)`` against ``log λ``; the
+    L-curve corner of the structured branch (:func:`branch_corner`) when no λ
+    attains the target.  ``estimate_scale``: the target is ``(1 + safety) s²``,
+    ``s² = χ²/(m − ν)`` of the first, least-regularized fit (``ν =
+    run.fit_dof(e)``).  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
+    target, note)``.  (The algorithm is described in
+    :mod:`lftomo.inverse.solvers`.)
+    """
+    target = 1.0 + safety
+    lo_lim, hi_lim = lam_ref * 1e-10, lam_ref * 1e4
+    m = run.m_total
+    # Illinois regula falsi in log λ on g (increasing), to the precision of the
+    # target itself: χ²/m of the noise has standard deviation √(2/m).
+    tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
+
+    def g(e: Eval) -> float:
+        return math.log(max(e.chi2, 1e-300) / target)
+
+    def solve(lam, start):
+        # χ² of a candidate must be converged to the search tolerance: a solve
+        # stopped early overstates χ² (measured, standard flame 24³: 2.39 after
+        # 25 steps vs 0.80 converged at λ = 41), which sent the search to a λ
+        # 100× too small.
+        return run.solve(lam, start, search_steps, objective_rtol=search_rtol)
+
+    lam = lam_ref * 1e-2
+    e = solve(lam, theta0)
+    note = ""
+    scale_note = ""
+    if estimate_scale:
+        # σ known up to a factor: estimate it from this least-regularized fit
+        # (s² = χ²_s/(m − ν), ν its residual degrees of freedom).  The target
+        # then sits ν/(m − ν) above χ²_s; what fixes λ is the rise of χ²
+        # above that fit, whose own spread is √(2ν) in total: the tolerance.
+        n_unknowns = run.n_unknowns
+        if m - n_unknowns < 1:
+            raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
+                             f"{n_unknowns} unknowns")
+        dof, dof_se = run.fit_dof(e)
+        s2 = e.chi2 * m / (m - dof)
+        target = (1.0 + safety) * s2
+        tol = min(tol, max(math.sqrt(2.0 * max(dof, 1.0)) / (m - dof), 1e-6))
+        scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
+                      f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
+                      f"target chi²/m = {target:.5g}; ")
+    if g(e) < 0:  # too little misfit: increase λ
+        lo = e
+        hi = None
+        while lam < hi_lim:
+            lam *= 10.0
+            e = solve(lam, lo.theta)
+            if g(e) >= 0:
+                hi = e
+                break
+            lo = e
+        if hi is None:
+            # χ² below the target everywhere: the noise σ is overestimated (e.g. a
+            # conservative Monte Carlo error model), and the largest λ would give a
+            # featureless field.  Fall back on the corner of the L-curve of the
+            # structured branch of the solutions already computed (λ_ref·1e-2 …
+            # λ_ref·1e4, factors of 10).
+            found = branch_corner(run.evals, math.inf, target)
+            if found is not None:
+                note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
+                return found[0], target, scale_note + note
+            note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
+            return lo, target, scale_note + note
+    else:
+        hi = e
+        lo = None
+        while lam > lo_lim:
+            lam /= 10.0
+            e = solve(lam, hi.theta)
+            if g(e) < 0:
+                lo = e
+                break
+            hi = e
+        if lo is None:
+            # χ² above the target everywhere: σ underestimated or a model error
+            # (a coarse grid, Monte Carlo data without their error in σ).  The
+            # smallest λ would give an unregularized field at the bounds
+            # (measured: 4³ from an 8³ flame, 74.7 % gray, 33.5 % at 650 nm);
+            # take the L-curve corner of the solutions computed on the way down.
+            found = branch_corner(run.evals, math.inf, target)
+            if found is not None:
+                note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
+                        f"model error?): {found[1]}")
+                return found[0], target, scale_note + note
+            note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
+            return hi, target, scale_note + note
+    glo, ghi = g(lo), g(hi)
+    xlo, xhi = math.log(lo.lam), math.log(hi.lam)
+    best = lo if abs(glo) < abs(ghi) else hi
+    side = 0
+    for _ in range(20):
+        if abs(math.exp(g(best)) - 1.0) <= tol or xhi - xlo < math.log(1.1):
+            break
+        x = xhi - ghi * (xhi - xlo) / (ghi - glo) if ghi != glo else 0.5 * (xlo + xhi)
+        x = min(max(x, xlo + 0.05 * (xhi - xlo)), xhi - 0.05 * (xhi - xlo))
+        lam = math.exp(x)
+        e = solve(lam, run.nearest(lam, theta0))
+        ge = g(e)
+        if abs(ge) < abs(g(best)):
+            best = e
+        if ge < 0:
+            xlo, glo = x, ge
+            if side == -1:
+                ghi *= 0.5
+            side = -1
+        else:
+            xhi, ghi = x, ge
+            if side == 1:
+                glo *= 0.5
+            side = 1
+    miss = abs(math.exp(g(best)) - 1.0)
+    if miss > DISCREPANCY_JUMP:
+        # The bracket closed on a jump of χ² across the target: two branches of
+        # solutions (a structured one below, a nearly flat one above; the
+        # problem is non-convex), so no λ attains the target and the equation
+        # has no solution (in practice: σ misestimated, e.g. a Monte Carlo
+        # noise model or discretisation error).  Take the L-curve corner of
+        # the structured branch (λ up to the lower end of the bracket);
+        # Morozov's "largest λ with χ² ≤ target" when it has too few points.
+        lo_lam = math.exp(xlo)
+        jump = (f"chi²/m jumps across the target between λ = {lo_lam:.3g} and {math.exp(xhi):.3g} "
+                f"(no λ attains it within {DISCREPANCY_JUMP:.0%}; σ misestimated?)")
+        found = branch_corner(run.evals, lo_lam, target)
+        if found is not None:
+            return found[0], target, scale_note + f"{jump}: {found[1]}"
+    note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
+    return best, target, scale_note + note
+
+
+def objective(run: Any, x: Eval) -> float:
+    """``χ²·m + λ‖R‖²`` of an evaluation (the minimised objective)."""
+    return x.chi2 * run.m_total + x.lam * x.reg**2
+
+
+def discrepancy_choice(run: Any, e: Eval, target: float, reference: float, note: str) -> LambdaChoice:
+    """The :class:`LambdaChoice` of the discrepancy rule: every evaluation so far."""
+    ev = run.evals
+    return LambdaChoice(
+        rule="discrepancy", value=e.lam, candidates=np.array([x.lam for x in ev]),
+        chi2=np.array([x.chi2 for x in ev]), regularization_norms=np.array([x.reg for x in ev]),
+        criterion=np.array([x.chi2 - target for x in ev]), target=target, reference=reference, note=note,
+    )
+
+
+def discrepancy_local_minimum(run: Any, e: Eval, e2: Eval, choice: LambdaChoice, theta0,
+                               search_rtol: float | None = None):
+    """Check the discrepancy solution ``e`` against ``e2``, the solve at the same
+    λ from the initial guess.
+
+    When ``e2`` has the lower objective and a χ²/m far above the target while
+    ``e`` meets it, the solution meeting the target is only a local minimum: at
+    this λ the global one lies on the nearly flat branch (measured: two-lobed
+    flame 16³, χ²/m 0.99 structured vs 1.34 flat with the lower objective).
+    The target is then unattainable by a minimiser; take the corner of the
+    structured branch below this λ (:func:`branch_corner`) and solve there
+    from the initial guess.  Returns ``(e, e2, choice)``.
+    """
+    t = choice.target
+    if t is None or not (objective(run, e2) < objective(run, e) and e2.chi2 > t * (1 + DISCREPANCY_JUMP)
+                         and e.chi2 <= t * (1 + DISCREPANCY_JUMP)):
+        return e, e2, choice
+    found = branch_corner(run.evals, e.lam / (1 + 1e-9), t)
+    if found is None:
+        return e, e2, choice
+    lam_local = e.lam
+    e = found[0]
+    note = (f"the solution meeting the target at λ = {lam_local:.3g} is a local minimum only (from the "
+            f"initial guess: chi²/m {e2.chi2:.3g} with a lower objective): {found[1]}")
+    e2 = run.solve(e.lam, theta0, objective_rtol=search_rtol)
+    return e, e2, discrepancy_choice(run, e, t, choice.reference, note)
+
+
+def gcv_search(run: Any, theta0, lam_ref, lambda_range, n_lambda, probes_n, seed):
+    """GCV of the problem linearised about the nonlinear solution (first at ``λ_ref · 1e-2``) over
+    ``n_lambda`` log-spaced λ in ``λ_ref · lambda_range``, refined by a parabola in log λ; solved at
+    the minimum and linearised again there if λ moved by more than a factor 3 (two passes at most).
+    ``run`` provides ``m_used`` (non-empty rows), ``chi2_empty``, ``m_total`` and
+    ``gcv_terms(theta, lam, probes) -> (‖r_d‖², ‖R‖², mean zᵀHz)``.  Returns ``(eval, λs, χ²/m,
+    ‖R‖, GCV values, note)``."""
+    m_used = run.m_used
+    rng = np.random.default_rng(seed)
+    probes = jnp.asarray(rng.choice([-1.0, 1.0], size=(probes_n, m_used)))
+    lam_lin = lam_ref * 1e-2
+    e = run.solve(lam_lin, theta0)
+    cands, chi2s, regs, crit = [], [], [], []
+    notes = []
+    for npass in range(2):
+        grid = lam_ref * np.logspace(np.log10(lambda_range[0]), np.log10(lambda_range[1]), n_lambda)
+        vals = []
+        for lam in grid:
+            c, r, tr = run.gcv_terms(e.theta, lam, probes)
+            c, r, tr = float(c), float(r), float(tr)
+            G = m_used * c / max(m_used - tr, 1e-12) ** 2
+            vals.append(G)
+            cands.append(lam)
+            chi2s.append((c + run.chi2_empty) / run.m_total)
+            regs.append(math.sqrt(max(r, 0.0)))
+            crit.append(G)
+        vals = np.asarray(vals)
+        k = int(np.argmin(vals))
+        x = np.log(grid)
+        lam_star = grid[k]
+        if 0 < k < n_lambda - 1:
+            y0, y1, y2 = np.log(vals[k - 1 : k + 2])
+            den = y0 - 2 * y1 + y2
+            if den > 0:
+                h = x[k + 1] - x[k]
+                lam_star = float(np.exp(x[k] + 0.5 * h * (y0 - y2) / den))
+        else:
+            notes.append(f"pass {npass + 1}: GCV minimum at the end of the λ range")
+        moved = abs(math.log(lam_star / lam_lin))
+        e = run.solve(lam_star, e.theta)
+        notes.append(f"pass {npass + 1}: linearised at λ={lam_lin:.3g}, GCV minimum λ={lam_star:.3g}")
+        if moved <= math.log(3.0):
+            break
+        lam_lin = lam_star
+    return e, np.array(cands), np.array(chi2s), np.array(regs), np.array(crit), "; ".join(notes)
+
+
+def lcurve_search(run: Any, theta0, lam_ref, lambda_range, n_lambda):
+    """Solves at ``n_lambda`` log-spaced λ in ``λ_ref · lambda_range`` (large to small, warm-started);
+    the λ of largest curvature (:func:`lcurve_curvature`).  Returns ``(eval, λs, χ²/m, ‖R‖, curvature)``."""
+    grid = lam_ref * np.logspace(np.log10(lambda_range[1]), np.log10(lambda_range[0]), n_lambda)
+    theta = theta0
+    evals = []
+    for lam in grid:
+        e = run.solve(lam, theta)
+        theta = e.theta
+        evals.append(e)
+    kappa = lcurve_curvature(evals)
+    k = int(np.nanargmax(kappa)) if np.any(np.isfinite(kappa)) else n_lambda // 2
+    return evals[k], grid, np.array([e.chi2 for e in evals]), np.array([e.reg for e in evals]), kappa
+
+
+# --------------------------------------------------------------------------- the joint fit's searches
+def _ladder_solve(path: Any, theta0: Any, lam: float, target_state: dict, estimate_scale: bool) -> bool:
+    """Solve at ``lam`` warm-started from the nearest λ solved; whether its χ²/m meets the target.
+
+    With ``estimate_scale`` the target is re-estimated first: ``s² = χ²/(m − ν)`` of the solve of least
+    χ² so far (the first, least-regularized one is often not converged within its step budget), ``ν``
+    the residual degrees of freedom of the first solve (``path.fit_dof``; ν falls with λ).
+    """
+    near = min(path.evals, key=lambda e: abs(math.log(e.lam / lam)), default=None)
+    e = path.solve(lam, theta0 if near is None else near.theta)
+    if estimate_scale:
+        info = target_state["scale_info"]
+        if info is None:
+            dof, dof_se = path.fit_dof(e)
+            info = target_state["scale_info"] = {"dof": dof, "dof_se": dof_se, "dof_lambda": e.lam}
+        ref = min(path.evals, key=lambda x: x.chi2)
+        s2 = ref.chi2 * path.m_total / (path.m_total - info["dof"])
+        info.update(s2=s2, chi2_ref=ref.chi2, lambda_ref=ref.lam)
+        target_state["target"] = s2
+    return e.chi2 <= target_state["target"]
+
+
+def _scale_note(info: dict, m_total: int, n_unknowns: int) -> str:
+    return (f"noise scale estimated: s² = chi²/(m − ν) = {info['s2']:.5g} "
+            f"(chi²/m {info['chi2_ref']:.5g} at λ = {info['lambda_ref']:.3g}, m = "
+            f"{m_total}, ν = tr(2H − H²) = {info['dof']:.4g} ± {info['dof_se']:.2g} at "
+            f"λ = {info['dof_lambda']:.3g}, of {n_unknowns} unknowns); ")
+
+
+def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float,
+                   estimate_scale: bool = False) -> tuple[Eval, str, float, dict | None]:
+    """Morozov's principle as "the largest λ with ``χ²/m ≤ target``".
+
+    From ``lam_start``, factors of 10 up while the target is met (or down until it is), within
+    ``[lam_min, lam_max]``, each solve warm-started from the nearest λ solved; then two bisections in
+    log λ of the bracket ``[largest λ meeting the target, next λ above]``.  Target 1, or the
+    estimated ``s²`` (:func:`_ladder_solve`).  Returns ``(eval, note, target, scale_info)``.
+    """
+    state = {"target": 1.0, "scale_info": None}
+
+    def at(lam: float) -> bool:
+        return _ladder_solve(path, theta0, lam, state, estimate_scale)
+
+    lam = lam_start
+    if at(lam):
+        while lam < lam_max and at(min(lam * 10.0, lam_max)):
+            lam = min(lam * 10.0, lam_max)  # a start's λ need not be a power of ten
+    else:
+        while lam > lam_min and not at(max(lam / 10.0, lam_min)):
+            lam = max(lam / 10.0, lam_min)
+    evals = path.evals
+    ok = sorted(e.lam for e in evals if e.chi2 <= state["target"])
+    bad = sorted(e.lam for e in evals if e.chi2 > state["target"])
+    goal = "chi²/m ≤ 1" if state["scale_info"] is None else "chi²/m ≤ s²"
+    if ok and bad and bad[-1] > ok[-1]:
+        lo_l, hi_l = ok[-1], min(q for q in bad if q > ok[-1])
+        for _ in range(2):
+            mid = math.sqrt(lo_l * hi_l)
+            if at(mid):
+                lo_l = mid
+            else:
+                hi_l = mid
+        lam = lo_l
+        note = (f"discrepancy (largest λ with {goal}: factor-10 bracket from {lam_start:.3g}, "
+                "2 bisections in log λ)")
+    elif ok:
+        # χ²/m ≤ 1 at every λ up to the cap: σ is overestimated (e.g. a conservative Monte Carlo error)
+        # and the cap is used (the L-curve corner was measured as the fallback: lftomo.inverse.joint)
+        lam = ok[-1]
+        note = f"discrepancy: {goal} up to the largest λ tried, {lam:.3g} (σ overestimated?)"
+    else:
+        lam = bad[0]
+        note = f"discrepancy: chi²/m > {state['target']:.5g} down to the smallest λ tried"
+    if state["scale_info"] is not None:
+        note = _scale_note(state["scale_info"], path.m_total, path.n_unknowns) + note
+    best = next(e for e in evals if e.lam == lam)
+    return best, note, state["target"], state["scale_info"]
+
+
+def decade_lcurve_search(path: Any, theta0: Any, *, lam_first: float, lam_max: float) -> tuple[Eval, str]:
+    """The L-curve corner of solves at λ = ``lam_first``, 10 ``lam_first``, … below ``lam_max``, then
+    ``lam_max`` (warm-started from the nearest λ solved): the corner of the structured branch of the
+    solves on the L-curve (:func:`branch_corner`); with too few of them for a curvature, Morozov's
+    largest λ with ``χ²/m ≤ 1``.  Returns ``(eval, note)``."""
+    state = {"target": 1.0, "scale_info": None}
+    q = lam_first
+    while q < lam_max * (1.0 - 1e-9):
+        _ladder_solve(path, theta0, q, state, False)
+        q *= 10.0
+    _ladder_solve(path, theta0, lam_max, state, False)
+    evals = path.evals
+    ok = sorted(e.lam for e in evals if e.chi2 <= 1.0)
+    bad = sorted(e.lam for e in evals if e.chi2 > 1.0)
+    # only solutions on the L-curve count (branch_corner keeps them): a solve stopped at its step
+    # budget can be dominated
+    front = on_lcurve(evals)
+    found = branch_corner(evals, math.inf, 1.0)
+    lam = (ok[-1] if ok else bad[0]) if found is None else found[0].lam
+    note = ("lcurve: " + (found[1] if found is not None else "too few solutions on the L-curve "
+                          "for a curvature: discrepancy") + f" ({len(front)} of {len(evals)} solves "
+            f"on the L-curve, λ = {_power_of_ten(lam_first)} … {lam_max:.3g})")
+    return next(e for e in evals if e.lam == lam), note
+
+
+def _power_of_ten(x: float) -> str:
+    """``1e-2`` for 0.01 (a power of ten as written in the docs), else ``{x:.3g}``."""
+    k = round(math.log10(x))
+    return f"1e{k}" if math.isclose(x, 10.0**k, rel_tol=1e-12) else f"{x:.3g}"
+
+
+# --------------------------------------------------------------------------- rule objects
+class LambdaRule:
+    """A way to choose λ: a small immutable object whose parameters are its attributes.
+
+    Subclasses set :attr:`name` (the string that selects them) and :attr:`fits`
+    (which fits' paths they run on: ``"T"``, ``"T+sigma_a"``).
+    """
+
+    name: str = ""
+    fits: tuple[str, ...] = ()
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v!r}" for k, v in sorted(vars(self).items()))
+        return f"{type(self).__name__}({params})"
+
+
+class Fixed(LambdaRule):
+    """λ given by the caller (``regularization=<float>``)."""
+
+    name = "fixed"
+    fits = ("T", "T+sigma_a")
+
+    def __init__(self, value: float) -> None:
+        if not (isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
+                and math.isfinite(value) and value >= 0):
+            raise ValueError(f"regularization must be 'auto' or a finite number >= 0, got {value!r}")
+        self.value = float(value)
+
+
+class Discrepancy(LambdaRule):
+    """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
+    (``"estimated"``): :func:`discrepancy_search`."""
+
+    name = "discrepancy"
+    fits = ("T",)
+
+    def __init__(self, noise_scale: str = "given", safety: float = 0.0, search_steps: int | None = None,
+                 search_rtol: float = 1e-3) -> None:
+        self.noise_scale = _noise_scale(noise_scale)
+        self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
+
+    def choose(self, path: Any, theta0: Any, lam_ref: float) -> tuple[Eval, float, str]:
+        return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
+                                  estimate_scale=self.noise_scale == "estimated")
+
+
+class DiscrepancyBracket(LambdaRule):
+    """Largest λ with ``χ²/m ≤ target`` on a factor-10 ladder and two bisections: :func:`bracket_search`."""
+
+    name = "discrepancy-bracket"
+    fits = ("T+sigma_a",)
+
+    def __init__(self, noise_scale: str = "given") -> None:
+        self.noise_scale = _noise_scale(noise_scale)
+
+    def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
+        return bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
+                              estimate_scale=self.noise_scale == "estimated")
+
+
+class GCV(LambdaRule):
+    """Generalised cross-validation of the linearised problem: :func:`gcv_search`."""
+
+    name = "gcv"
+    fits = ("T",)
+
+    def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13, probes: int = 8,
+                 seed: int = 0) -> None:
+        self.lambda_range, self.n_lambda, self.probes, self.seed = tuple(lambda_range), int(n_lambda), int(probes), int(seed)
+
+    def choose(self, path: Any, theta0: Any, lam_ref: float):
+        return gcv_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda, self.probes, self.seed)
+
+
+class LCurve(LambdaRule):
+    """Corner of the L-curve of ``n_lambda`` log-spaced solves in ``λ_ref · lambda_range``: :func:`lcurve_search`."""
+
+    name = "lcurve"
+    fits = ("T",)
+
+    def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13) -> None:
+        self.lambda_range, self.n_lambda = tuple(lambda_range), int(n_lambda)
+
+    def choose(self, path: Any, theta0: Any, lam_ref: float):
+        return lcurve_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda)
+
+
+class LCurveDecades(LambdaRule):
+    """Corner of the structured branch of solves at decades of λ up to a cap: :func:`decade_lcurve_search`."""
+
+    name = "lcurve"
+    fits = ("T+sigma_a",)
+
+    def choose(self, path: Any, theta0: Any, *, lam_first: float, lam_max: float):
+        return decade_lcurve_search(path, theta0, lam_first=lam_first, lam_max=lam_max)
+
+
+def _noise_scale(value: Any) -> str:
+    if not isinstance(value, str) or value not in NOISE_SCALES:
+        raise ValueError(f"noise_scale must be one of {NOISE_SCALES}, got {value!r}")
+    return value
+
+
+#: The rule classes of each fit, by name.
+RULE_CLASSES = {
+    "T": {"discrepancy": Discrepancy, "gcv": GCV, "lcurve": LCurve},
+    "T+sigma_a": {"discrepancy-bracket": DiscrepancyBracket, "lcurve": LCurveDecades},
+}
+
+#: Old names kept working, with the name that replaces them (a DeprecationWarning says so).
+_DEPRECATED = {("T+sigma_a", "discrepancy"): "discrepancy-bracket"}
+
+
+def resolve_rule(rule: Any, *, fit: str, stacklevel: int = 3) -> type:
+    """The rule class that ``rule`` (a name) selects for ``fit`` (``"T"`` or ``"T+sigma_a"``).
+
+    ``rule="discrepancy"`` in the joint fit selects :class:`DiscrepancyBracket`
+    (a different search from the T-only fit's :class:`Discrepancy`) and warns
+    (DeprecationWarning) that its name is ``"discrepancy-bracket"``.
+
+    Raises
+    ------
+    ValueError
+        A name the fit does not know, naming the ones it does.
+    """
+    names = RULE_CLASSES[fit]
+    if isinstance(rule, str) and (fit, rule) in _DEPRECATED:
+        new = _DEPRECATED[(fit, rule)]
+        warnings.warn(f"rule={rule!r} in the joint T + sigma_a fit is the search for the largest λ with "
+                      f"chi²/m ≤ target, not solve_temperature's root search of the same name: pass "
+                      f"rule={new!r}", DeprecationWarning, stacklevel=stacklevel)
+        return names[new]
+    if not isinstance(rule, str) or rule not in names:
+        allowed = tuple(names) + tuple(old for (f, old) in _DEPRECATED if f == fit)
+        where = "for the joint fit" if fit == "T+sigma_a" else "for unknowns='T'"
+        raise ValueError(f"rule must be one of {allowed} {where}, got {rule!r}")
+    return names[rule]

@@ -1,0 +1,120 @@
+"""The result of a reconstruction (:class:`Reconstruction`) and its error measure.
+
+Shared by the T-only front end (:mod:`lftomo.inverse.reconstruct`) and the
+joint fit (:mod:`lftomo.inverse.joint`), which both build it; living here, it
+needs neither.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..forward.grid import Grid
+
+__all__ = ["Reconstruction", "temperature_errors"]
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """Result of :func:`reconstruct`.
+
+    Attributes
+    ----------
+    T : ndarray, shape grid.shape
+        Temperature (K).
+    sigma_a : ndarray or None, shape grid.shape
+        Absorption coefficient (m⁻¹) at the first wavelength when fitted.
+    grid : Grid
+        Reconstruction grid.
+    regularization : float
+        λ used; ``lambda_rule`` says how it was chosen.
+    chi2 : float
+        Whitened ``χ²/m`` at the solution.
+    residual_norm, regularization_norm : float
+        ``‖r‖`` of the whitened data and ``‖R‖`` of the prior, the norm that λ
+        weighs (the objective is ``‖r‖² + λ ‖R‖²``); for ``"T+sigma_a"`` ``R``
+        holds the ``T`` and ``σ_a`` terms (and the ridge).
+    iterations : int
+    converged : bool
+    timing : dict
+        Seconds per stage.
+    unknowns, data_kind : str
+    details : Any
+        The solver's own result object (for an axisymmetric fit its fields
+        live on the ring cells).
+    symmetry : RingGrid or None
+        The ring grid of an axisymmetric reconstruction (``T`` is then
+        ``symmetry.expand`` of the ring-cell solution), else None.
+    """
+
+    T: np.ndarray
+    sigma_a: np.ndarray | None
+    grid: Grid
+    regularization: float
+    lambda_rule: str
+    chi2: float
+    residual_norm: float
+    regularization_norm: float
+    iterations: int
+    converged: bool
+    timing: dict
+    unknowns: str
+    data_kind: str
+    details: Any = None
+    metadata: dict = field(default_factory=dict)
+    symmetry: Any = None
+
+    def __repr__(self) -> str:  # the default would print the fields and the solver's whole result
+        return (f"Reconstruction(unknowns={self.unknowns!r}, data={self.data_kind!r}, grid={tuple(self.grid.shape)}, "
+                f"T={float(np.min(self.T)):.0f}..{float(np.max(self.T)):.0f} K, lambda={self.regularization:.3g} "
+                f"({self.lambda_rule}), chi2/m={self.chi2:.4g}, iterations={self.iterations}, "
+                f"converged={self.converged}, symmetry={'axisymmetric' if self.symmetry is not None else None})")
+
+    def errors(self, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
+        """Relative temperature errors against ``T_true`` (same grid) where ``T_true > hot`` (K).
+
+        Returns ``{"mean_rel": mean |ΔT|/T, "max_rel": max |ΔT|/T, "rms_K": rms ΔT,
+        "n_voxels": count}``.
+        """
+        T_true = np.asarray(T_true, dtype=float)
+        if T_true.shape != self.T.shape:
+            raise ValueError(f"shape of T_true {T_true.shape} does not match the reconstruction {self.T.shape}")
+        return temperature_errors(self.T, T_true, hot=hot)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "unknowns": self.unknowns,
+            "data": self.data_kind,
+            "grid_shape": list(self.grid.shape),
+            "regularization": self.regularization,
+            "lambda_rule": self.lambda_rule,
+            "chi2_per_datum": self.chi2,
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "timing_s": self.timing,
+            "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
+            "quadrature_grid": self.metadata.get("quadrature_grid"),
+        }
+
+
+def temperature_errors(T: np.ndarray, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
+    """Relative errors of ``T`` against ``T_true`` (same shape, K) where ``T_true > hot``.
+
+    Returns ``{"mean_rel", "max_rel", "rms_K", "n_voxels"}``; raises ValueError
+    when no voxel is that hot.
+    """
+    T = np.asarray(T, dtype=float)
+    T_true = np.asarray(T_true, dtype=float)
+    sel = T_true > hot
+    if not sel.any():
+        raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
+    rel = np.abs(T[sel] - T_true[sel]) / T_true[sel]
+    return {
+        "mean_rel": float(rel.mean()),
+        "max_rel": float(rel.max()),
+        "rms_K": float(np.sqrt(np.mean((T[sel] - T_true[sel]) ** 2))),
+        "n_voxels": int(sel.sum()),
+    }

@@ -1,0 +1,154 @@
+"""The λ rules on a small linear problem whose answers are known independently.
+
+A linear Tikhonov problem ``min ‖A x − y‖² + λ ‖L x‖²`` (whitened, σ = 1) is solved
+exactly at every λ, so χ²(λ), the influence matrix H(λ) and GCV(λ) follow from
+dense linear algebra; each rule must find the λ that this independent computation
+says it should."""
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from lftomo.inverse.lambdarules import (
+    GCV,
+    Discrepancy,
+    DiscrepancyBracket,
+    Eval,
+    LCurve,
+    LCurveDecades,
+    resolve_rule,
+)
+
+
+class LinearPath:
+    """A :class:`~lftomo.inverse.lambdarules.SolvePath` of an exactly solved linear problem."""
+
+    def __init__(self, m=120, n=20, noise=1.0, seed=0):
+        rng = np.random.default_rng(seed)
+        self.A = rng.normal(size=(m, n)) / math.sqrt(n)
+        t = np.linspace(0, 1, n)
+        x_true = 3.0 * np.sin(2 * np.pi * t) + 2.0
+        self.L = np.diff(np.eye(n), axis=0)
+        self.y = self.A @ x_true + noise * rng.normal(size=m)
+        self.m_total, self.n_unknowns = m, n
+        self.m_used, self.chi2_empty = m, 0.0
+        self.evals = []
+
+    def x(self, lam):
+        return np.linalg.solve(self.A.T @ self.A + lam * self.L.T @ self.L, self.A.T @ self.y)
+
+    def H(self, lam):
+        return self.A @ np.linalg.solve(self.A.T @ self.A + lam * self.L.T @ self.L, self.A.T)
+
+    def chi2(self, lam):
+        r = self.A @ self.x(lam) - self.y
+        return float(r @ r) / self.m_total
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        x = self.x(lam)
+        e = Eval(float(lam), x, self.chi2(lam), float(np.linalg.norm(self.L @ x)), 1, True, "")
+        self.evals.append(e)
+        return e
+
+    def nearest(self, lam, default):
+        return default
+
+    def fit_dof(self, e):
+        H = self.H(e.lam)
+        return float(np.trace(2 * H - H @ H)), 0.0
+
+    def gcv_terms(self, theta, lam, probes):
+        # the problem is linear: its linearisation about any point is itself
+        x = self.x(lam)
+        r = self.A @ x - self.y
+        return float(r @ r), float(np.sum((self.L @ x) ** 2)), float(np.trace(self.H(lam)))
+
+
+def _root(path, target):
+    return math.exp(brentq(lambda u: path.chi2(math.exp(u)) - target, math.log(1e-8), math.log(1e6), xtol=1e-12))
+
+
+def test_discrepancy_given_noise_finds_chi2_equal_to_one():
+    """‖r‖² = m σ² (σ = 1): the returned λ's χ²/m is 1 to the rule's tolerance √(2/m) (clipped to
+    [1e-3, 1e-2]), and λ is the root of χ²(λ)/m = 1 found by brentq to that precision."""
+    path = LinearPath()
+    e, target, note = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert target == 1.0 and "regula falsi" in note, note
+    tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+    assert abs(e.chi2 - 1.0) <= tol
+    lam_star = _root(path, 1.0)
+    # χ² is monotone in λ: the λ error follows from the χ² tolerance through the slope
+    slope = (path.chi2(lam_star * 1.01) - path.chi2(lam_star / 1.01)) / (2 * math.log(1.01))
+    assert abs(math.log(e.lam / lam_star)) <= 1.2 * tol / slope
+
+
+def test_discrepancy_estimated_noise_scale_targets_s2_of_the_least_regularized_fit():
+    """σ given 2× too small (data noise 2): the target is s² = χ²(λ_s)/(1 − ν/m), ν = tr(2H − H²) at
+    λ_s = λ_ref·1e-2, and the λ found meets it; the given-σ target would be unreachable below 4."""
+    path = LinearPath(noise=2.0)
+    lam_ref = 1.0
+    e, target, note = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), lam_ref)
+    H = path.H(lam_ref * 1e-2)
+    nu = np.trace(2 * H - H @ H)
+    s2 = path.chi2(lam_ref * 1e-2) * path.m_total / (path.m_total - nu)
+    assert target == pytest.approx(s2, rel=1e-12) and 3.0 < s2 < 5.0
+    assert "noise scale estimated" in note
+    assert e.chi2 == pytest.approx(target, rel=0.011)
+
+
+def test_discrepancy_bracket_is_the_largest_ladder_lambda_with_chi2_below_target():
+    """From 1e-2 by factors of 10, then two bisections in log λ: the returned λ is the largest solved
+    with χ²/m ≤ 1, and the true root lies within one bisection step (10^0.25) above it."""
+    path = LinearPath()
+    e, note, target, info = DiscrepancyBracket().choose(path, np.zeros(path.n_unknowns), lam_start=1e-2,
+                                                        lam_min=1e-8, lam_max=1e4)
+    lams = [x.lam for x in path.evals]
+    assert target == 1.0 and info is None and note.startswith("discrepancy (largest λ with chi²/m ≤ 1")
+    assert e.chi2 <= 1.0 and e.lam == max(x.lam for x in path.evals if x.chi2 <= 1.0)
+    assert all(x.chi2 > 1.0 for x in path.evals if x.lam > e.lam)
+    lam_star = _root(path, 1.0)
+    assert e.lam <= lam_star <= e.lam * 10 ** 0.25 * (1 + 1e-12), (e.lam, lam_star, lams)
+    assert lams[0] == 1e-2 and all(b == pytest.approx(10 * a) for a, b in zip(lams[:3], lams[1:3]))
+
+
+def test_gcv_minimum_matches_a_dense_scan():
+    """GCV(λ) = m ‖r_λ‖² / (m − tr H_λ)²: the rule's λ (grid of 13, h = 0.5 decade, parabola
+    refinement) lies within one grid step of the minimum of a fine dense scan (the grid's argmin is
+    within h/2 of it, the parabola's vertex within h/2 of the argmin), and its GCV value is the
+    scan's minimum to 2 % (GCV is flat near its minimum)."""
+    path = LinearPath(seed=1)
+    rule = GCV(lambda_range=(1e-4, 1e2), n_lambda=13)
+    e, cands, chi2s, regs, crit, note = rule.choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    scan = np.logspace(-4, 2, 2001)
+    g = [path.m_total * path.chi2(lam) * path.m_total / (path.m_total - np.trace(path.H(lam))) ** 2 for lam in scan]
+    lam_best = scan[int(np.argmin(g))]
+    assert abs(math.log10(e.lam / lam_best)) <= 0.5, (e.lam, lam_best, note)
+    g_rule = path.m_total * path.chi2(e.lam) * path.m_total / (path.m_total - np.trace(path.H(e.lam))) ** 2
+    assert g_rule <= 1.02 * min(g), (g_rule, min(g))
+
+
+def test_lcurve_rules_return_a_solved_lambda_at_the_curvature_maximum():
+    path = LinearPath(seed=2)
+    e, grid, chi2, reg, kappa = LCurve(lambda_range=(1e-4, 1e3), n_lambda=15).choose(path, None, lam_ref=1.0)
+    assert e.lam == grid[int(np.nanargmax(kappa))] and e in path.evals
+    path2 = LinearPath(seed=2)
+    e2, note = LCurveDecades().choose(path2, None, lam_first=1e-2, lam_max=1e4)
+    assert [x.lam for x in path2.evals] == pytest.approx([10.0 ** k for k in range(-2, 5)], rel=1e-12)
+    assert note.startswith("lcurve: ") and e2 in path2.evals
+
+
+def test_rule_names_and_the_deprecated_joint_discrepancy():
+    assert resolve_rule("discrepancy", fit="T") is Discrepancy
+    assert resolve_rule("discrepancy-bracket", fit="T+sigma_a") is DiscrepancyBracket
+    with pytest.warns(DeprecationWarning, match="pass rule='discrepancy-bracket'"):
+        assert resolve_rule("discrepancy", fit="T+sigma_a") is DiscrepancyBracket
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        resolve_rule("lcurve", fit="T+sigma_a")
+    with pytest.raises(ValueError, match="rule must be one of .*for the joint fit, got 'gcv'"):
+        resolve_rule("gcv", fit="T+sigma_a")
+    with pytest.raises(ValueError, match="noise_scale must be one of"):
+        Discrepancy(noise_scale="guess")
