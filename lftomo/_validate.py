@@ -58,6 +58,16 @@ MAX_RAYS_PER_PIXEL = 2**32
 MAX_TOTAL_RAYS = 10**13
 
 
+#: Upper bound of iteration counts (``max_steps``, ``linear_max_steps``, ...): far
+#: above any useful solve, far below what overflows a JAX int32 loop counter.
+MAX_SOLVER_STEPS = 1_000_000
+
+
+def require_steps(name: str, value: Any, *, minimum: int = 1) -> int:
+    """An iteration count in ``[minimum, MAX_SOLVER_STEPS]`` (:func:`require_int`)."""
+    return require_int(name, value, minimum=minimum, maximum=MAX_SOLVER_STEPS)
+
+
 def require_int(name: str, value: Any, *, minimum: int | None = None, maximum: int | None = None) -> int:
     """Return ``value`` as int; raise unless it is an integer in ``[minimum, maximum]``.
 

@@ -65,7 +65,7 @@ import scipy.sparse as sp
 from .version import __version__
 from ._validate import require_array, require_nonnegative, require_npz_file, require_positive
 from .radiation import dplanck_dT, planck
-from .io import atomic_path, check_output_file
+from .io import atomic_path, check_output_file, npz_output_path
 
 __all__ = ["MicrolensGrid", "calibrate_grid", "decode_operator", "decode_views", "refocus_views",
            "RadiometricCalibration", "radiometric_calibration", "save_calibration", "load_calibration",
@@ -809,9 +809,7 @@ def save_calibration(path: str | Path, grid: MicrolensGrid, *, radiometric: Radi
     ``valid`` (rows, cols); the grid's scalars, the radiometric scalars and
     ``metadata`` as JSON in ``meta``.  No pickle.
     """
-    p = Path(path)
-    if p.suffix != ".npz":
-        p = p.with_suffix(".npz")
+    p = npz_output_path(path, what="calibration file")
     meta = {"format": FORMAT, "lftomo_version": __version__,
             "grid": {"pitch": list(grid.pitch), "rotation": grid.rotation, "offset": list(grid.offset),
                      "shape": list(grid.shape), "image_shape": list(grid.image_shape),
@@ -823,7 +821,6 @@ def save_calibration(path: str | Path, grid: MicrolensGrid, *, radiometric: Radi
                                ("rel_std_temperature", "temperature", "temperature_std", "wavelength", "emissivity")}
         arrays.update({k: getattr(radiometric, k) for k in _RADIO_ARRAYS})
     meta_arr = np.array(json.dumps(meta))
-    check_output_file(p, what="calibration file")
     with atomic_path(p) as tmp:
         np.savez_compressed(tmp, meta=meta_arr, **arrays)
     return p

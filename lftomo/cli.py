@@ -80,7 +80,7 @@ def cmd_render(args) -> int:
 
 def cmd_weights(args) -> int:
     from .forward.weights import weights
-    from .io import check_output_file
+    from .io import check_output_file, npz_output_path
 
     cfg = _load(args.scene, args)
     medium = cfg.scene.medium
@@ -90,9 +90,7 @@ def cmd_weights(args) -> int:
     seed = cfg.seed if args.seed is None else args.seed
     sampler = cfg.sampler if args.sampler is None else args.sampler
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
-    out = Path(args.output)
-    if out.suffix != ".npz":
-        out = out.with_suffix(".npz")
+    out = npz_output_path(args.output, what="-o/--output")
     paths = [out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz") for wl in channels]
     for path in paths:  # before the build, not after it
         check_output_file(path, what="-o/--output")
@@ -175,6 +173,7 @@ def cmd_reconstruct(args) -> int:
 def cmd_calibrate(args) -> int:
     """``lftomo calibrate``: microlens grid (and radiometric factors) of a real camera from raw frames."""
     from .calibration import calibrate_grid, calibration_figure, radiometric_calibration, save_calibration
+    from .io import npz_output_path
     from .rawio import load_camera_description, read_raw
 
     if (args.blackbody is None) != (args.temperature is None):
@@ -185,10 +184,7 @@ def cmd_calibrate(args) -> int:
     if args.blackbody is not None and cam.gain is None:
         raise ValueError(f"--blackbody: camera file {cam.source!r} needs [sensor] gain_e_per_count for the noise "
                          "of the calibration factors")
-    out = Path(args.output)
-    out = out if out.suffix == ".npz" else out.with_suffix(".npz")
-    if not out.parent.is_dir():
-        raise ValueError(f"-o/--output: directory {str(out.parent)!r} does not exist")
+    out = npz_output_path(args.output, what="-o/--output")
     bits = cam.bit_depth if cam else None
     white = read_raw(args.white, bit_depth=bits, what="white frame")
     if cam is not None and cam.sensor_shape is not None and white.shape != cam.sensor_shape:

@@ -161,6 +161,19 @@ def check_output_file(path: Any, *, what: str = "output file") -> Path:
     return p
 
 
+def npz_output_path(path: Any, *, what: str = "output file") -> Path:
+    """``path`` with the suffix ``.npz`` (appended when it has another), checked
+    by :func:`check_output_file`; an existing folder given as ``path`` is
+    refused rather than written beside as ``folder.npz``."""
+    if isinstance(path, (str, os.PathLike)) and Path(path).is_dir():
+        raise LftomoError(f"{what} {str(path)!r} is a folder; give a file name such as "
+                          f"{str(Path(path) / 'out.npz')!r}")
+    p = Path(path) if isinstance(path, (str, os.PathLike)) else path
+    if isinstance(p, Path) and p.suffix != ".npz":
+        p = p.with_suffix(".npz")
+    return check_output_file(p, what=what)
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

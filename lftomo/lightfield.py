@@ -466,12 +466,9 @@ class LightField:
         either its previous content or the complete new file.  The metadata
         lists the arrays written, so that a file missing one is refused.
         """
-        from .io import atomic_path, check_output_file
+        from .io import atomic_path, npz_output_path
 
-        path = Path(path)
-        if path.suffix != ".npz":
-            path = path.with_suffix(".npz")
-        check_output_file(path, what="light-field file")
+        path = npz_output_path(path, what="light-field file")
         arrays = {"raw": self.raw, "etendue": self.etendue, "centers": self.centers}
         for name in ("std_error", "noise_std", "signal"):
             if getattr(self, name) is not None:

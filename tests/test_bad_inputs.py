@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -190,9 +191,8 @@ def test_fewer_data_than_unknowns_warns():
         warn_underdetermined(1, 64)
 
 
-def test_joint_fit_with_fewer_data_than_unknowns_warns_before_the_fit():
-    """unknowns="T+sigma_a" (T and sigma_a per voxel) warns like the T-only fit, before any solve: here the
-    joint fit's own argument check (rule="gcv") comes after the warning."""
+def _tiny_joint():
+    """Two-channel measurements of one view and the segment table of a 6³ grid (1 ray per pixel)."""
     cam = tiny_camera()
     grid = lt.Grid(shape=(6, 6, 6), lower=TINY_GRID["lower"], upper=TINY_GRID["upper"])
     flame = lt.phantoms.uniform_box(grid, T=1500.0, sigma_a=5.0)
@@ -201,11 +201,31 @@ def test_joint_fit_with_fewer_data_than_unknowns_warns_before_the_fit():
     S = lt.ray_segments(cam, grid, rays_per_pixel=1, seed=2, progress=False)
     view = (cam.views_shape[0] // 2, cam.views_shape[1] // 2)
     ms = [lt.Measurement.from_lightfield(lf, views=[view], channel=c) for c in (0, 1)]
+    return ms, S, grid
+
+
+def test_joint_fit_with_fewer_data_than_unknowns_warns_before_the_fit():
+    """unknowns="T+sigma_a" (T and sigma_a per voxel) warns like the T-only fit, before any solve: here the
+    joint fit's own argument check (rule="gcv") comes after the warning."""
+    ms, S, grid = _tiny_joint()
     m = sum(x.size for x in ms)
     assert m < 2 * grid.n_voxels
     with pytest.warns(UserWarning, match=f"reconstructing {2 * grid.n_voxels} unknowns from only {m} data"):
-        with pytest.raises(ValueError, match="rule must be 'discrepancy' or 'lcurve'"):
+        with pytest.raises(ValueError, match="rule must be one of .* for the joint fit, got 'gcv'"):
             lt.reconstruct(ms, S, unknowns="T+sigma_a", rule="gcv")
+
+
+@pytest.mark.parametrize("option", ["max_steps", "linear_max_steps"])
+def test_iteration_counts_are_bounded(lf, option):
+    """2**70 steps was accepted (and would overflow JAX's int32 loop counter): refused for both fits."""
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    with pytest.raises(LftomoError, match=f"{option} must be an integer <= 1000000, got {2**70}"):
+        lt.reconstruct(m, tiny_weights(), **{option: 2**70})
+    ms, S, _ = _tiny_joint()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # fewer data than unknowns
+        with pytest.raises(LftomoError, match=f"{option} must be an integer <= 1000000, got {2**70}"):
+            lt.reconstruct(ms, S, unknowns="T+sigma_a", **{option: 2**70})
 
 
 # ============================================================== scene files and paths
@@ -495,12 +515,16 @@ def test_weight_load_checks_types(files, cam, grid):
         lt.LightField.load(3)
 
 
-@pytest.mark.parametrize("target", ["folder", "missing-dir"])
+@pytest.mark.parametrize("target", ["folder", "folder-no-suffix", "missing-dir"])
 def test_save_targets_are_checked(tmp_path, lf, W, target):
     p = tmp_path / "x.npz"
     if target == "folder":
         p.mkdir()
-        match = "is not a regular file"
+        match = "is a folder; give a file name"
+    elif target == "folder-no-suffix":  # was written beside it as x.npz
+        p = tmp_path / "x"
+        p.mkdir()
+        match = "is a folder; give a file name"
     else:
         p = tmp_path / "nope" / "x.npz"
         match = "does not exist"

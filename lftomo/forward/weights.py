@@ -1247,12 +1247,9 @@ class WeightMatrix:
         save leaves the previous file at ``path``.  Returns the path written
         (``.npz`` appended if missing).
         """
-        from ..io import atomic_path, check_output_file
+        from ..io import atomic_path, npz_output_path
 
-        path = Path(path)
-        if path.suffix != ".npz":
-            path = path.with_suffix(".npz")
-        check_output_file(path, what="weight-matrix file")
+        path = npz_output_path(path, what="weight-matrix file")
         meta = dict(self.metadata, format=FORMAT, shape=list(self.shape), views_shape=list(self.views_shape),
                     sensor_shape=list(self.sensor_shape))
         writer = np.savez_compressed if compressed else np.savez

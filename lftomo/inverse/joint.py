@@ -68,7 +68,7 @@ import optimistix as optx
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from .._validate import require_choice
+from .._validate import require_choice, require_steps
 from ..forward.grid import Grid
 from ..forward.weights import RaySegments
 from ..progress import NoBar, progress_bar
@@ -633,7 +633,8 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
     return best, lam, note, polish, scale_info, target
 
 
-def _check_options(*, method, engine, rule, noise_scale, regularization, bounds, lambda_max, polish_steps):
+def _check_options(*, method, engine, rule, noise_scale, regularization, bounds, lambda_max, polish_steps,
+                   max_steps, linear_max_steps):
     """Checked ``(rule object, noise_scale, (T_min, T_max), λ_max)`` of the joint fit's options."""
     if engine not in ("host", "jax"):
         raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
@@ -650,8 +651,9 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
     lam_max = float(lambda_max)
     if not (math.isfinite(lam_max) and lam_max >= _LAMBDA_START):
         raise ValueError(f"lambda_max must be a finite number >= {_LAMBDA_START:g}, got {lambda_max!r}")
-    if isinstance(polish_steps, bool) or not isinstance(polish_steps, (int, np.integer)) or polish_steps < 0:
-        raise ValueError(f"polish_steps must be an integer >= 0, got {polish_steps!r}")
+    require_steps("polish_steps", polish_steps, minimum=0)
+    require_steps("max_steps", max_steps)
+    require_steps("linear_max_steps", linear_max_steps)
     return rule_obj, noise_scale, (lo, hi), lam_max
 
 
@@ -862,7 +864,8 @@ def solve_temperature_absorption(
     ms, wls = _check_channels(measurements, segments)
     rule_obj, noise_scale, bounds, lam_max = _check_options(
         method=method, engine=engine, rule=rule, noise_scale=noise_scale, regularization=regularization,
-        bounds=bounds, lambda_max=lambda_max, polish_steps=polish_steps)
+        bounds=bounds, lambda_max=lambda_max, polish_steps=polish_steps, max_steps=max_steps,
+        linear_max_steps=linear_max_steps)
     space, ridge = _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge)
     model = JointModel(ms, wls, segments, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
                        space=space, ridge=ridge, engine=engine)

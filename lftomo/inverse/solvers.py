@@ -167,6 +167,7 @@ from .._validate import (  # noqa: E402
     require_bounds,
     require_choice,
     require_int,
+    require_steps,
     require_nonnegative,
     require_positive,
 )
@@ -854,7 +855,7 @@ def solve_temperature(
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
     if noise_scale == "estimated" and rule != "discrepancy":
         raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
-    max_steps = require_int("max_steps", max_steps, minimum=1)
+    max_steps = require_steps("max_steps", max_steps)
     rtol = require_nonnegative("rtol", rtol)
     atol = require_nonnegative("atol", atol)
     if rtol == 0 and atol == 0:
@@ -870,8 +871,8 @@ def solve_temperature(
     gcv_probes = require_int("gcv_probes", gcv_probes, minimum=1)
     seed = require_int("seed", seed, minimum=0)
     linear_rtol = require_positive("linear_rtol", linear_rtol)
-    linear_max_steps = require_int("linear_max_steps", linear_max_steps, minimum=1)
-    search_steps = max_steps if search_steps is None else require_int("search_steps", search_steps, minimum=1)
+    linear_max_steps = require_steps("linear_max_steps", linear_max_steps)
+    search_steps = max_steps if search_steps is None else require_steps("search_steps", search_steps)
     if not (isinstance(search_rtol, (int, float)) and 0.0 < float(search_rtol) < 1.0):
         raise ValueError(f"search_rtol must be a number in (0, 1), got {search_rtol!r}")
     grid = problem.grid
