@@ -353,3 +353,30 @@ def test_ctrl_c_during_lftomo_reconstruct_exits_130(tmp_path):
     assert time.perf_counter() - t < 30.0
     assert not (out / "fields.npz").exists()
     _no_leftovers(tmp_path)
+
+
+def test_ctrl_c_stops_a_direct_solve_temperature_call_between_steps():
+    """solve_temperature called directly (not through lt.reconstruct) defers Ctrl-C to the next step too:
+    the error is lftomo's Interrupted, raised between two steps, not a KeyboardInterrupt from inside JAX."""
+    import threading
+
+    import scipy.sparse as sp
+
+    from lftomo.interrupt import Interrupted
+    from lftomo.inverse.problem import LinearProblem
+    from lftomo.inverse.solvers import solve_temperature
+
+    g = lt.Grid((6, 6, 6), (-0.02, -0.02, 0.98), (0.02, 0.02, 1.02))
+    A = sp.random(600, g.n_voxels, density=0.2, random_state=3, format="csr")
+    y = A @ np.full(g.n_voxels, 5.67e-8 * 1500.0**4 / np.pi)
+    prob = LinearProblem(A, y, 0.01 * np.abs(y) + 1e-12, g, wavelength=None, background=np.zeros(600))
+    timer = threading.Timer(2.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    t0 = time.perf_counter()
+    timer.start()
+    try:
+        with pytest.raises(Interrupted):  # never converges (tolerances 1e-300): 10^6 steps are minutes
+            solve_temperature(prob, regularization=1.0, max_steps=1_000_000, rtol=1e-300, atol=1e-300,
+                              progress=False)
+    finally:
+        timer.cancel()
+    assert time.perf_counter() - t0 < 30.0

@@ -71,6 +71,7 @@ import scipy.sparse as sp
 from .._validate import require_choice, require_steps
 from ..forward.grid import Grid
 from ..forward.weights import RaySegments
+from ..interrupt import stop_between_steps
 from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
@@ -888,9 +889,10 @@ def solve_temperature_absorption(
     show = progress if progress is not None else segments.n_segments > PROGRESS_MIN_SEGMENTS
     path.bar = progress_bar(None, bool(show), "reconstruct T+σa", unit="step")
     try:
-        best, lam, note, polish, scale_info, target = _choose_lambda(
-            path, p, regularization=regularization, rule=rule_obj, lam_start=lam_start, lam_max=lam_max,
-            polish_steps=polish_steps)
+        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+            best, lam, note, polish, scale_info, target = _choose_lambda(
+                path, p, regularization=regularization, rule=rule_obj, lam_start=lam_start, lam_max=lam_max,
+                polish_steps=polish_steps)
     finally:
         path.bar.close()
     return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, alpha=alpha,

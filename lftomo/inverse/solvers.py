@@ -172,6 +172,7 @@ from .._validate import (  # noqa: E402
     require_positive,
 )
 from ..progress import NoBar, progress_bar  # noqa: E402
+from ..interrupt import stop_between_steps  # noqa: E402
 from .hostsparse import host_csr  # noqa: E402
 from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks  # noqa: E402
 from .lambdarules import (  # noqa: E402
@@ -906,11 +907,12 @@ def solve_temperature(
     show = progress if progress is not None else s.A_s.nnz > PROGRESS_MIN_NNZ
     run.bar = progress_bar(None, bool(show), "reconstruct T", unit="step")
     try:
-        return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
-                           safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
-                           estimate_scale=noise_scale == "estimated",
-                           n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, method=method, prior=prior,
-                           penalize=penalize, t_start=t_start)
+        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+            return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
+                               safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
+                               estimate_scale=noise_scale == "estimated",
+                               n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, method=method, prior=prior,
+                               penalize=penalize, t_start=t_start)
     finally:
         run.bar.close()
 
