@@ -35,8 +35,8 @@ from typing import Any, Iterator, Sequence
 
 from .errors import LftomoError
 
-__all__ = ["atomic_path", "atomic_write_text", "check_output_dir", "check_output_file", "staged_directory",
-           "deferred_sigint", "COMPLETE_MARKER", "REPORT_FILES"]
+__all__ = ["atomic_path", "atomic_write_text", "check_output_dir", "check_output_file", "npz_output_path",
+           "staged_directory", "deferred_sigint", "ResumableRows", "COMPLETE_MARKER", "REPORT_FILES"]
 
 #: Name of the file that marks an output folder as complete (written last).
 COMPLETE_MARKER = "lftomo-complete.json"
@@ -172,6 +172,75 @@ def npz_output_path(path: Any, *, what: str = "output file") -> Path:
     if isinstance(p, Path) and p.suffix != ".npz":
         p = p.with_suffix(".npz")
     return check_output_file(p, what=what)
+
+
+class ResumableRows:
+    """Result rows of a long study, kept one per line (JSON Lines) so that a rerun resumes.
+
+    Each finished row is appended to ``path`` as one JSON line and flushed to
+    disk (``fsync``) before the next one starts.  A rerun with the same
+    ``settings`` finds the rows already done (:meth:`get`) and computes only
+    the rest; a file written with other settings is set aside as
+    ``<path>.old`` (not mixed in).  A line cut by an interruption or a crash is
+    ignored (that row is computed again).
+
+    Parameters
+    ----------
+    path : path
+        The rows file (created; its folder must exist).
+    settings : dict
+        JSON-serialisable description of everything the rows depend on (the
+        study's arguments): its first line.
+
+    Examples
+    --------
+    >>> rows = ResumableRows("draws.jsonl", vars(args))      # doctest: +SKIP
+    >>> for d in range(n):                                     # doctest: +SKIP
+    ...     row = rows.get(d) or rows.add(d, compute(d))
+    """
+
+    def __init__(self, path: str | os.PathLike, settings: dict[str, Any]) -> None:
+        self.path = check_output_file(path, what="rows file")
+        self.settings = json.loads(json.dumps(settings, sort_keys=True, default=str))
+        self.rows: dict[str, Any] = {}
+        if self.path.is_file():
+            lines = self.path.read_text(encoding="utf-8").splitlines()
+            head = self._parse(lines[0]) if lines else None
+            if isinstance(head, dict) and head.get("settings") == self.settings:
+                for line in lines[1:]:
+                    item = self._parse(line)
+                    if isinstance(item, dict) and "key" in item and "row" in item:
+                        self.rows[str(item["key"])] = item["row"]
+                self._rewrite()  # drop a cut last line before appending
+                return
+            os.replace(self.path, self.path.with_name(self.path.name + ".old"))
+        self._rewrite()
+
+    @staticmethod
+    def _parse(line: str) -> Any:
+        try:
+            return json.loads(line)
+        except json.JSONDecodeError:
+            return None
+
+    def _rewrite(self) -> None:
+        lines = [json.dumps({"settings": self.settings}, sort_keys=True)]
+        lines += [json.dumps({"key": k, "row": r}, default=float) for k, r in self.rows.items()]
+        atomic_write_text(self.path, "\n".join(lines) + "\n")
+
+    def get(self, key: Any) -> Any:
+        """The row stored under ``key`` (compared as a string), or None."""
+        return self.rows.get(str(key))
+
+    def add(self, key: Any, row: Any) -> Any:
+        """Append ``row`` (JSON-serialisable) under ``key``, durably; returns ``row``."""
+        line = json.dumps({"key": str(key), "row": row}, default=float)  # numpy scalars as numbers
+        with deferred_sigint(), open(self.path, "a", encoding="utf-8") as fh:
+            fh.write(line + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        self.rows[str(key)] = json.loads(line)["row"]
+        return row
 
 
 def _pid_alive(pid: int) -> bool:

@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 import lftomo as lt
+from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.solvers import NOISE_SCALES
@@ -62,7 +63,8 @@ def main():
     ap.add_argument("--quadrature", type=int, default=1,
                     help="sub-voxel emission: weights on a grid this many times finer, T interpolated to it "
                          "(lt.reconstruct(grid=...)); 1: uniform emission per voxel")
-    ap.add_argument("--json", default="")
+    ap.add_argument("--json", default="", help="results file; finished draws are also kept in JSON.rows.jsonl, "
+                                               "from which a rerun with the same arguments resumes")
     ap.add_argument("--save", default="", help="npz file for the last draw's T_true, T and sigma_a (coarse grid)")
     a = ap.parse_args()
     t0 = time.perf_counter()
@@ -96,8 +98,14 @@ def main():
     emitting = hot & (emission >= 0.01 * emission.max())
     print(f"hot voxels {hot.sum()} of {hot.size}; T_true max {T_true.max():.0f}")
     out = []
+    rows_file = ResumableRows(a.json + ".rows.jsonl", vars(a)) if a.json else None
+    rec = None
     regs = [a.regularization] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for d, reg in ((d, reg) for d in range(a.draws) for reg in regs):
+        if rows_file is not None and rows_file.get(f"{d}-{reg}") is not None:
+            out.append(rows_file.get(f"{d}-{reg}"))
+            print(f"draw {d}, regularization {reg}: resumed from {rows_file.path}")
+            continue
         noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
         noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
                                        min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
@@ -139,12 +147,13 @@ def main():
                "chi2_truth": chi2_true, "seconds": dt, "converged": rec.converged}
         print(json.dumps(row))
         out.append(row)
-    if a.save:
+        if rows_file is not None:
+            rows_file.add(f"{d}-{reg}", row)
+    if a.save and rec is not None:
         np.savez_compressed(a.save, T_true=T_true, T_point=T_point, T=rec.T, sigma_a=sa_c, spacing=np.asarray(coarse.spacing),
                             lower=np.asarray(coarse.lower))
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"args": vars(a), "draws": out}, f, indent=1)
+        atomic_write_text(a.json, json.dumps({"args": vars(a), "draws": out}, indent=1))
 
 
 if __name__ == "__main__":

@@ -53,6 +53,7 @@ import time
 import numpy as np
 
 import lftomo as lt
+from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 from lftomo.inverse.joint import JOINT_METHODS, SIGMA_A_SPACES
 from lftomo.inverse.solvers import NOISE_SCALES
@@ -108,7 +109,8 @@ def main():
     ap.add_argument("--start-npz", default="",
                     help="start from the fitted fields T, sigma_a of an earlier run's --npz file (same --n), "
                          "e.g. to continue a solve stopped by --max-steps")
-    ap.add_argument("--json", default="")
+    ap.add_argument("--json", default="", help="results file; finished fits are also kept in JSON.rows.jsonl, "
+                                               "from which a rerun with the same arguments resumes")
     ap.add_argument("--npz", default="", help="save truth, start and fitted fields of the last λ here")
     a = ap.parse_args()
     # option conflicts first, before the renders and fits
@@ -205,8 +207,13 @@ def main():
                 ap.error(f"--start-npz: {key} must be finite, >= 0 and of shape {coarse.shape}, got {v.shape}")
         print(f"start from {a.start_npz}: T {rel(start_opts['T0'], T_true).mean():.2%} mean", flush=True)
     rows = []
+    rows_file = ResumableRows(a.json + ".rows.jsonl", vars(a)) if a.json else None
     regs = ["auto"] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     for reg in regs:
+        if rows_file is not None and rows_file.get(reg) is not None:
+            rows.append(rows_file.get(reg))
+            print(f"regularization {reg}: resumed from {rows_file.path}")
+            continue
         t = time.perf_counter()
         opts = dict(prior_opts)
         if reg == "auto":
@@ -278,12 +285,13 @@ def main():
         row["lambda_path_errors"] = path
         print(json.dumps(row, default=float), flush=True)
         rows.append(row)
+        if rows_file is not None:
+            rows_file.add(reg, row)
         if a.npz:
             np.savez(a.npz, T_true=T_true, sigma_a_true=sa_c, T=rec.T, sigma_a=rec.sigma_a, T_start=T_start,
                      sigma_a_start=s_start, T_only=only.T)
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump(rows, f, indent=1, default=float)
+        atomic_write_text(a.json, json.dumps(rows, indent=1, default=float))
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ import time
 import numpy as np
 
 import lftomo as lt
+from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 
 
@@ -70,7 +71,8 @@ def main():
                     help="--laplace-field: smoothness prior")
     ap.add_argument("--quadrature", type=int, default=1,
                     help="--laplace-field: sub-voxel emission, weights on a grid this many times finer (1: off)")
-    ap.add_argument("--json", default="")
+    ap.add_argument("--json", default="", help="results file; finished draws are also kept in JSON.rows.jsonl, "
+                                               "from which a rerun with the same arguments resumes")
     a = ap.parse_args()
     if a.quadrature < 1 or (a.quadrature > 1 and not a.laplace_field):
         ap.error(f"--quadrature must be 1, or > 1 with --laplace-field; got {a.quadrature}")
@@ -105,7 +107,12 @@ def main():
         sig = W.to_raw(W @ lt.planck(T_true, wl).ravel() + W.background)
         lf = dataclasses.replace(lf, raw=np.asarray(sig).reshape(lf.raw.shape), std_error=None)
     rows = []
+    rows_file = ResumableRows(a.json + ".rows.jsonl", vars(a)) if a.json else None
     for d in range(a.draws):
+        if rows_file is not None and rows_file.get(d) is not None:
+            rows.append(rows_file.get(d))
+            print(f"draw {d}: resumed from {rows_file.path}")
+            continue
         noisy = lt.add_noise(dataclasses.replace(lf, std_error=None), relative_std=a.noise, seed=300 + d)
         if not a.model_data:  # the Monte Carlo error of data and weights joins the noise
             noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
@@ -136,12 +143,14 @@ def main():
                    "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t}
         print(json.dumps(row), flush=True)
         rows.append(row)
+        if rows_file is not None:
+            rows_file.add(d, row)
     cov = np.array([r["coverage_hot"] for r in rows])
     print(f"coverage of the 90 % intervals over {len(rows)} draws: mean {cov.mean():.3f} "
           f"(min {cov.min():.3f}, max {cov.max():.3f}); target 0.80-0.97")
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"args": vars(a), "draws": rows, "mean_coverage": float(cov.mean())}, f, indent=1)
+        atomic_write_text(a.json, json.dumps({"args": vars(a), "draws": rows, "mean_coverage": float(cov.mean())},
+                                             indent=1))
 
 
 if __name__ == "__main__":
