@@ -125,6 +125,40 @@ def require_rays(name: str, value: Any, *, n_pixels: int | None = None) -> int:
     return v
 
 
+def resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
+    """Channels of a render from its ``wavelengths`` argument.
+
+    Parameters
+    ----------
+    wavelengths : None, "gray", float or sequence of float
+        None or "gray" (any case) selects the gray band; a positive finite
+        wavelength (m) or a 1-D sequence of them selects spectral channels.
+
+    Returns
+    -------
+    tuple of float or None
+        The wavelengths (m), one per channel; None for the gray band.
+
+    Raises
+    ------
+    LftomoError
+        Another string, an empty / non-finite / non-positive value, or a value
+        above 1 mm (nanometres passed as metres).
+    """
+    if wavelengths is None or (isinstance(wavelengths, str) and wavelengths.lower() == "gray"):
+        return None
+    if isinstance(wavelengths, str):
+        raise LftomoError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
+    arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
+    if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise LftomoError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
+    if np.any(arr > 1e-3):
+        raise LftomoError(
+            f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
+        )
+    return tuple(float(a) for a in arr)
+
+
 def require_instance(name: str, value: Any, kind: type | tuple[type, ...], what: str) -> Any:
     """``value`` if it is an instance of ``kind``; else "``name`` must be ``what``, got <type>"."""
     if not isinstance(value, kind):

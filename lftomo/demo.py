@@ -212,7 +212,7 @@ def temperature_errors(T, T_true, hot: float = HOT) -> dict[str, float] | None:
 
 # ============================================================================ figures
 def _plt():
-    from .plot import _plt as p
+    from .plot import pyplot as p
 
     return p()
 

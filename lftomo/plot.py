@@ -10,7 +10,8 @@ import numpy as np
 from .io import atomic_path
 
 
-def _plt():
+def pyplot():
+    """``matplotlib.pyplot``, imported on first use with the Agg backend unless one is already chosen."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -21,7 +22,7 @@ def _plt():
 
 def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 12) -> Path:
     """One figure: a raw crop (microlens images), the central view, the view mosaic."""
-    plt = _plt()
+    plt = pyplot()
     raw = lf.raw if lf.n_channels == 1 else lf.raw[channel]
     p = lf.camera.pixels_per_lenslet
     r0 = raw.shape[0] // 2 - crop * p // 2
@@ -54,7 +55,7 @@ def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 1
 
 def focal_stack_figure(lf, depths: Sequence[float], path: str | Path, *, channel: int = 0) -> Path:
     """Refocused images at ``depths`` (m) side by side with their α."""
-    plt = _plt()
+    plt = pyplot()
     n = len(depths)
     cols = min(n, 4)
     rows = int(np.ceil(n / cols))

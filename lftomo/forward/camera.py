@@ -406,7 +406,7 @@ class Camera:
                 f"focus_distance ({fd!r} m) is inside the main-lens focal length ({f:.6g} m): no real "
                 "image; it must be larger"
             )
-        z_best = _best_focus_z(main_lens, fd)
+        z_best = best_focus_z(main_lens, fd)
         mla_front = z_best + mla.front_principal_plane
         return cls(
             main_lens=main_lens,
@@ -852,8 +852,6 @@ class Camera:
         """Traced shift (view pixels) between adjacent fully lit views per metre
         of depth change around ``depth``: slope of the view displacements
         against the view index, differentiated in depth (±5 mm)."""
-        from ..lightfield import view_displacements
-
         et = self._central_etendue
         full = et >= 0.5 * et.max()
         h = 0.005
@@ -1018,7 +1016,7 @@ def _axis_crossing(ray: np.ndarray) -> float:
     return pz - px * dz / dx
 
 
-def _best_focus_z(ml: MainLens, depth: float) -> float:
+def best_focus_z(ml: MainLens, depth: float) -> float:
     """z of minimum RMS spot radius for an on-axis point (real rays)."""
     rays = trace_axial_point(ml, depth, _pupil_fan(0.5 * ml.stop_diameter))
     rays = rays[np.isfinite(rays[:, 0])]
@@ -1026,6 +1024,83 @@ def _best_focus_z(ml: MainLens, depth: float) -> float:
     b = rays[:, 3:5] / rays[:, 5:6]
     a = rays[:, 0:2] - rays[:, 2:3] * b
     return float(-np.sum(a * b) / np.sum(b * b))
+
+
+def _zone_mean_positions(camera: Camera, depth: float, offset: tuple[float, float], n_rays: int = 1024):
+    """Throughput-weighted mean MLA-plane position (X, Y) (m) of the image of
+    the on-axis point at ``depth`` in each view, the views' total weight, and
+    the Monte Carlo standard error of the mean position (m)."""
+    samples = camera.view_stop_samples(offset, n_rays=n_rays)  # (n_v, n_u, K, 3)
+    nv, nu, K, _ = samples.shape
+    w = samples[..., 2].reshape(-1, K)
+    pts = samples[..., :2].reshape(-1, K, 2)
+    use = w > 0
+    XY = np.zeros((nv * nu, K, 2))
+    if use.any():
+        rays = trace_axial_point(camera.main_lens, float(depth), pts[use])
+        z_h1 = camera.z_mla - camera.mla.front_principal_plane
+        t = (z_h1 - rays[:, 2]) / rays[:, 5]
+        XY[use, 0] = rays[:, 0] + t * rays[:, 3]
+        XY[use, 1] = rays[:, 1] + t * rays[:, 4]
+        bad = np.zeros_like(use)
+        bad[use] = ~np.isfinite(XY[use, 0])
+        w = np.where(bad, 0.0, w)
+        XY[bad] = 0.0
+    tot = w.sum(axis=1)
+    mean = np.full((nv * nu, 2), np.nan)
+    se = np.full((nv * nu, 2), np.nan)
+    ok = tot > 0
+    mean[ok] = (w[ok, :, None] * XY[ok]).sum(axis=1) / tot[ok, None]
+    # standard error of a ratio (self-normalised) estimator
+    dev = XY[ok] - mean[ok][:, None, :]
+    se[ok] = np.sqrt((w[ok, :, None] ** 2 * dev**2).sum(axis=1)) / tot[ok, None]
+    return mean.reshape(nv, nu, 2), tot.reshape(nv, nu), se.reshape(nv, nu, 2)
+
+
+def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False, n_rays: int = 1024,
+                       return_se: bool = False):
+    """Displacement (in view pixels, (dx, dy) = (column, row)) of the image of
+    a point at ``depth`` in each view, relative to the weighted mean over views.
+
+    Traced through the real main lens as an exact first moment: rays from the
+    on-axis point at ``depth`` through the sampled stop positions of each
+    view's zone (:meth:`Camera.view_stop_samples`) are intersected with the
+    lenslets' object-side principal plane and averaged with the zone's
+    throughput weights.  (Through an aberrated lens the mean over a zone
+    differs from the displacement of the zone's mean ray.)
+
+    Returns
+    -------
+    D : ndarray, shape (n_v, n_u, 2)
+        Displacements for the pixels of the central lenslet; NaN for unlit views.
+    J : ndarray, shape (n_v, n_u, 2, 2), only with ``jacobian=True``
+        Derivative of D with respect to a displacement (rows, cols) of the
+        pixel relative to its microlens image, in view pixels per raw pixel
+        (central differences over ±0.25 px), for lenslets whose image centre
+        sits at another sub-pixel position than the central one.
+    """
+    pitch = camera.mla.pitch
+    XY, tot, se = _zone_mean_positions(camera, depth, (0.0, 0.0), n_rays)
+    lit = tot > 0
+    c = (tot[lit, None] * XY[lit]).sum(axis=0) / tot[lit].sum()
+
+    def to_view(xy):
+        d = np.empty_like(xy)
+        d[..., 0] = -(xy[..., 0] - c[0]) / pitch  # view column index runs along -x of the MLA
+        d[..., 1] = (xy[..., 1] - c[1]) / pitch  # view row index runs along +y of the MLA
+        return d
+
+    D = to_view(XY)
+    se_view = se / pitch
+    if not jacobian:
+        return (D, se_view) if return_se else D
+    h = 0.25
+    J = np.full(D.shape + (2,), np.nan)
+    for k, off in enumerate(((h, 0.0), (0.0, h))):
+        plus = _zone_mean_positions(camera, depth, off, n_rays)[0]
+        minus = _zone_mean_positions(camera, depth, (-off[0], -off[1]), n_rays)[0]
+        J[..., k] = (to_view(plus) - to_view(minus)) / (2 * h)
+    return (D, J, se_view) if return_se else (D, J)
 
 
 def spherical_aberration(ml: MainLens, depth: float) -> dict[str, float]:
@@ -1039,4 +1114,4 @@ def spherical_aberration(ml: MainLens, depth: float) -> dict[str, float]:
     rays = trace_axial_point(ml, depth, np.array([[1e-6 * r, 0.0], [r * (1 - 1e-9), 0.0]]))
     zp = _axis_crossing(rays[0])
     zm = _axis_crossing(rays[1])
-    return {"paraxial": zp, "marginal": zm, "best": _best_focus_z(ml, depth), "longitudinal": zp - zm}
+    return {"paraxial": zp, "marginal": zm, "best": best_focus_z(ml, depth), "longitudinal": zp - zm}

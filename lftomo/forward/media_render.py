@@ -31,7 +31,8 @@ import numpy as np
 import numba
 from numba import njit, prange
 
-from .._validate import MAX_TOTAL_RAYS, check_allocation, require_instance, require_int, require_positive, require_seed
+from .._validate import (MAX_TOTAL_RAYS, check_allocation, require_instance, require_int, require_positive,
+                        require_seed, resolve_wavelengths)
 from ..errors import LftomoError
 from . import optics as _o
 from . import sampler as _smp
@@ -496,7 +497,6 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
     image does not depend on the part sizes.
     """
     from ..lightfield import LightField
-    from .render import _resolve_wavelengths
     from .camera import Camera
     from .scene import Scene, pack_surfaces
 
@@ -504,7 +504,7 @@ def render_forward(scene, camera, *, n_bundles: int = 1_000_000, seed: int = 0, 
     require_instance("camera", camera, Camera, "an lftomo.Camera")
     n_bundles = require_int("n_bundles", n_bundles, minimum=N_CHUNKS, maximum=MAX_TOTAL_RAYS)
     seed = require_seed("seed", seed)
-    wl = _resolve_wavelengths(wavelengths)
+    wl = resolve_wavelengths(wavelengths)
     scene.check_visible_from(camera)
     n_ch = 1 if wl is None else len(wl)
     surf, tex = pack_surfaces(scene.surfaces, wl)

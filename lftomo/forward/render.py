@@ -21,26 +21,10 @@ import numpy as np
 import numba
 
 from ..errors import LftomoError
-from .._validate import check_allocation, require_instance, require_rays, require_seed
+from .._validate import check_allocation, require_instance, require_rays, require_seed, resolve_wavelengths
 from ..progress import progress_bar
 from .chunks import ChunkSizer, interruptible
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
-
-
-def _resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
-    """None or "gray" -> gray band; a number or sequence -> spectral channels (m)."""
-    if wavelengths is None or (isinstance(wavelengths, str) and wavelengths.lower() == "gray"):
-        return None
-    if isinstance(wavelengths, str):
-        raise LftomoError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
-    arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
-    if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise LftomoError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
-    if np.any(arr > 1e-3):
-        raise LftomoError(
-            f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
-        )
-    return tuple(float(a) for a in arr)
 
 
 @interruptible
@@ -97,7 +81,7 @@ def render(
     seed = require_seed("seed", seed)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise LftomoError(f"progress must be True, False or None, got {progress!r}")
-    wl = _resolve_wavelengths(wavelengths)
+    wl = resolve_wavelengths(wavelengths)
     scene.check_visible_from(camera)
     n_ch = 1 if wl is None else len(wl)
     surf, tex = pack_surfaces(scene.surfaces, wl)
