@@ -554,7 +554,7 @@ CLI_CASES = {
     "render-output-file": (lambda t, f: ["render", f["scene"], "-o", f["lf"]], "-o/--output '.*' is a file"),
     "render-output-under-file": (lambda t, f: ["render", f["scene"], "-o", f["lf"] / "x"], "is a file, not a folder"),
     "weights-no-dir": (lambda t, f: ["weights", f["scene"], "-o", t / "no" / "W.npz"], "directory '.*no' does not exist"),
-    "weights-output-dir": (lambda t, f: ["weights", f["scene"], "-o", f["dirnpz"]], "is not a regular file"),
+    "weights-output-dir": (lambda t, f: ["weights", f["scene"], "-o", f["dirnpz"]], "is a folder; give a file name"),
     "weights-no-medium": (lambda t, f: ["weights", f["surface_scene"], "-o", t / "W.npz"], "has no \\[medium\\]"),
     "weights-memory": (lambda t, f: ["weights", f["scene"], "-o", t / "W.npz", "--memory-limit-gb", "1e-9"],
                        "more than memory_limit"),
