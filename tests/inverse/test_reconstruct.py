@@ -66,8 +66,10 @@ def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
     assert f"{rec.iterations}" in err
 
 
-@pytest.mark.parametrize("method, space", [("levenberg-marquardt", "linear"), ("dense-lm", "linear"),
-                                           ("levenberg-marquardt", "log"), ("dense-lm", "log")])
+# the matrix-free LM with σₐ linear (54 s in CI) is heavy: LM is covered by the log case, σₐ linear by dense-lm
+@pytest.mark.parametrize("method, space", [pytest.param("levenberg-marquardt", "linear", marks=pytest.mark.heavy),
+                                           ("dense-lm", "linear"), ("levenberg-marquardt", "log"),
+                                           ("dense-lm", "log")])
 def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method, space):
     """Noise-free on-grid data at 650 and 800 nm (same rays; a solver check):
     T and sigma_a are recovered where the flame is hot and absorbing, by optimistix's
