@@ -22,6 +22,9 @@ from .inverse.measurement import SensorModel, add_noise, saturated_mask, Measure
 from .inverse.problem import LinearProblem
 from .inverse.reconstruct import Reconstruction, reconstruct
 from .inverse.solvers import solve_temperature, solve_linear_baseline
+from .inverse.regularizers import Prior, GradientPrior, LaplacianPrior, CurvaturePrior, TotalVariationPrior
+from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, Fixed
+from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
@@ -78,6 +81,21 @@ __all__ = [
     "saturated_mask",
     "Measurement",
     "LinearProblem",
+    "Prior",
+    "GradientPrior",
+    "LaplacianPrior",
+    "CurvaturePrior",
+    "TotalVariationPrior",
+    "LambdaRule",
+    "Discrepancy",
+    "DiscrepancyBracket",
+    "GCV",
+    "LCurve",
+    "Fixed",
+    "Solver",
+    "LevenbergMarquardt",
+    "GaussNewton",
+    "DenseLM",
     "Reconstruction",
     "reconstruct",
     "solve_temperature",

@@ -50,6 +50,8 @@ def main():
     ap.add_argument("--noise-scale", default="given", choices=NOISE_SCALES,
                     help="discrepancy rule: sigma as given, or its scale estimated from the residual")
     ap.add_argument("--regularization", default="auto")
+    ap.add_argument("--sampler", default=None, choices=["stratified", "independent"],
+                    help="pixel sampler of the render and the weights (default: the library's)")
     ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
     ap.add_argument("--flame", default="axisymmetric", choices=["axisymmetric", "two_lobed"])
     ap.add_argument("--data", default="subaperture")
@@ -78,15 +80,18 @@ def main():
         kw = {"width_scale": a.width / (0.06 * fine.size[0])} if a.width > 0 else {}
     flame = getattr(lt.phantoms, f"{a.flame}_flame")(fine, **kw)
     wl = a.wavelength
+    smp = {} if a.sampler is None else {"sampler": a.sampler}
     sa_c, T_true = effective_truth(flame, coarse, wl)
-    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays, seed=11, wavelengths=(wl,), progress=False)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays, seed=11, wavelengths=(wl,), progress=False,
+                   **smp)
     t_render = time.perf_counter() - t0
     if a.quadrature > 1:  # the known sigma_a (block means) interpolated like T
         quad = coarse.refined(a.quadrature)
         sa_w = lt.interpolate_field(sa_c, coarse, quad)
     else:
         quad, sa_w = coarse, sa_c
-    W = lt.weights(cam, quad, sigma_a=sa_w, wavelength=wl, rays_per_pixel=a.weight_rays, seed=12, progress=False)
+    W = lt.weights(cam, quad, sigma_a=sa_w, wavelength=wl, rays_per_pixel=a.weight_rays, seed=12, progress=False,
+                   **smp)
     # the flame's temperature at the coarse voxel centres: what the sub-voxel model's unknowns are
     T_point = getattr(lt.phantoms, f"{a.flame}_flame")(coarse, **kw).T
     t_w = time.perf_counter() - t0 - t_render

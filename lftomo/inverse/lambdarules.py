@@ -603,6 +603,12 @@ class LambdaRule:
     name: str = ""
     fits: tuple[str, ...] = ()
 
+    def keywords(self) -> dict[str, Any]:
+        """The fit function's keyword arguments that select this rule with its parameters
+        (:func:`lftomo.inverse.solvers.solve_temperature`,
+        :func:`lftomo.inverse.joint.solve_temperature_absorption`)."""
+        return {"rule": self.name}
+
     def __repr__(self) -> str:
         params = ", ".join(f"{k}={v!r}" for k, v in sorted(vars(self).items()))
         return f"{type(self).__name__}({params})"
@@ -620,6 +626,9 @@ class Fixed(LambdaRule):
             raise ValueError(f"regularization must be 'auto' or a finite number >= 0, got {value!r}")
         self.value = float(value)
 
+    def keywords(self) -> dict[str, Any]:
+        return {"regularization": self.value}
+
 
 class Discrepancy(LambdaRule):
     """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
@@ -632,6 +641,10 @@ class Discrepancy(LambdaRule):
                  search_rtol: float = 1e-3) -> None:
         self.noise_scale = _noise_scale(noise_scale)
         self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
+
+    def keywords(self) -> dict[str, Any]:
+        return {"rule": self.name, "noise_scale": self.noise_scale, "discrepancy_safety": self.safety,
+                "search_steps": self.search_steps, "search_rtol": self.search_rtol}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float) -> tuple[Eval, float, str]:
         return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
@@ -646,6 +659,9 @@ class DiscrepancyBracket(LambdaRule):
 
     def __init__(self, noise_scale: str = "given") -> None:
         self.noise_scale = _noise_scale(noise_scale)
+
+    def keywords(self) -> dict[str, Any]:
+        return {"rule": self.name, "noise_scale": self.noise_scale}
 
     def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
         return bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
@@ -662,6 +678,10 @@ class GCV(LambdaRule):
                  seed: int = 0) -> None:
         self.lambda_range, self.n_lambda, self.probes, self.seed = tuple(lambda_range), int(n_lambda), int(probes), int(seed)
 
+    def keywords(self) -> dict[str, Any]:
+        return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda,
+                "gcv_probes": self.probes, "seed": self.seed}
+
     def choose(self, path: Any, theta0: Any, lam_ref: float):
         return gcv_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda, self.probes, self.seed)
 
@@ -674,6 +694,9 @@ class LCurve(LambdaRule):
 
     def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13) -> None:
         self.lambda_range, self.n_lambda = tuple(lambda_range), int(n_lambda)
+
+    def keywords(self) -> dict[str, Any]:
+        return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float):
         return lcurve_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda)

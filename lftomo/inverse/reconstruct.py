@@ -82,6 +82,45 @@ def _check_types(measurement: Any, weights: Any) -> None:
                               f"{type(w).__name__}")
 
 
+def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solver: Any,
+                 options: dict[str, Any]) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """Fold ``rule`` and ``solver`` objects into the fit function's keywords.
+
+    A :class:`~lftomo.inverse.lambdarules.LambdaRule` object sets ``rule`` and
+    its parameters (``Fixed(λ)`` sets ``regularization``); a
+    :class:`~lftomo.inverse.solverchoice.Solver` sets ``method`` and its
+    parameters.  A keyword given both ways is refused (it would be ambiguous).
+
+    Returns
+    -------
+    (regularization, method, rule, options)
+        ``rule`` as a name (or None: the fit's default), ``method`` a name.
+    """
+    from .lambdarules import LambdaRule
+    from .solverchoice import resolve_solver
+
+    opts = dict(options)
+    given = {"regularization": regularization != "auto", "method": method is not None}
+
+    def fold(obj: Any, what: str) -> None:
+        for k, v in obj.keywords().items():
+            if given.get(k) or k in options:
+                raise ValueError(f"{k} is set twice: by {what}={obj!r} and as {k}=...; give it one way")
+            opts[k] = v
+
+    if isinstance(rule, LambdaRule):
+        if fit not in rule.fits:
+            raise ValueError(f"rule={rule!r} does not run for unknowns={fit!r} (it runs for {list(rule.fits)})")
+        fold(rule, "rule")
+        rule = None
+    if solver is not None:
+        fold(resolve_solver(solver, fit=fit), "solver")
+    regularization = opts.pop("regularization", regularization)
+    method = opts.pop("method", method)
+    rule = opts.pop("rule", rule)
+    return regularization, ("levenberg-marquardt" if method is None else method), rule, opts
+
+
 def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
     """Warn (UserWarning) when fewer data than unknowns are fitted: the field is
     then fixed by the prior more than by the data, whatever the solver reports."""
@@ -99,11 +138,12 @@ def reconstruct(
     regularization: str | float = "auto",
     prior: str = "gradient",
     bounds: tuple[float, float] = (300.0, 3000.0),
-    method: str = "levenberg-marquardt",
-    rule: str | None = None,
+    method: str | None = None,
+    rule: Any = None,
     T0: Any = None,
     symmetry: Any = None,
     grid: Grid | None = None,
+    solver: Any = None,
     **options: Any,
 ) -> Reconstruction:
     """Reconstruct the temperature field from a measurement.
@@ -118,16 +158,20 @@ def reconstruct(
         ``sigma_a`` (``"T"``); rows must cover the raw pixels the data use.
     unknowns : {"T", "T+sigma_a"}
     regularization : "auto" or float
-        λ, or ``"auto"`` to choose it by ``rule``.
+        λ, or ``"auto"`` to choose it by ``rule`` (``rule=Fixed(λ)`` is the same as a float).
     prior : {"gradient", "laplacian", "tv", "curvature"}
     bounds : (T_min, T_max)
         Temperature bounds (K), enforced by parameterisation.
     method : {"levenberg-marquardt", "gauss-newton"}, or "dense-lm" for "T+sigma_a"
-        optimistix's matrix-free solvers; ``"dense-lm"``: Levenberg–Marquardt on
+        Default ``"levenberg-marquardt"`` (or that of ``solver``). optimistix's matrix-free solvers; ``"dense-lm"``: Levenberg–Marquardt on
         exact dense normal equations, for joint fits with few unknowns
         (:func:`lftomo.inverse.joint.solve_temperature_absorption`).
-    rule : {"discrepancy", "gcv", "lcurve"}, optional
-        λ rule (:mod:`lftomo.inverse.lambdarules`); default each fit's own:
+    rule : str or LambdaRule, optional
+        λ rule (:mod:`lftomo.inverse.lambdarules`): a name, ``"discrepancy"``,
+        ``"gcv"``, ``"lcurve"`` (``"discrepancy-bracket"``, ``"lcurve"`` for
+        ``"T+sigma_a"``), or a rule object with its parameters, e.g.
+        ``Discrepancy(noise_scale="estimated")``, ``GCV(n_lambda=9)``,
+        ``Fixed(300.0)``; default each fit's own:
         ``"discrepancy"`` for ``"T"``, ``"discrepancy-bracket"`` for
         ``"T+sigma_a"`` (which takes it or ``"lcurve"``).
     T0 : ndarray, optional
@@ -151,6 +195,11 @@ def reconstruct(
         ``lftomo.interpolate_field(sigma_a, grid, quadrature_grid)``).  For
         ``"T+sigma_a"`` both ``T`` and ``sigma_a`` are interpolated, and the
         segment table is built on the quadrature grid.
+    solver : Solver, optional
+        The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
+        ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``, or
+        ``DenseLM(...)`` for ``"T+sigma_a"``.  Default: ``method``'s solver with
+        the fit's own settings.
     **options
         Passed to :func:`lftomo.inverse.solvers.solve_temperature` (``"T"``) or
         :func:`lftomo.inverse.joint.solve_temperature_absorption`.
@@ -162,6 +211,8 @@ def reconstruct(
     if unknowns not in ("T", "T+sigma_a"):
         raise ValueError(f"unknowns must be 'T' or 'T+sigma_a', got {unknowns!r}")
     _check_types(measurement, weights)
+    regularization, method, rule, options = fit_keywords(unknowns, regularization=regularization, method=method,
+                                                         rule=rule, solver=solver, options=options)
     try:
         lo, hi = (float(b) for b in bounds)
     except (TypeError, ValueError):

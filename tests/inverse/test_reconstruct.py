@@ -54,6 +54,38 @@ def test_reconstruct_refuses_bad_input(setup):
         rec_like.errors(np.zeros((3, 3, 3)))
 
 
+def test_rule_and_solver_objects_are_the_keywords_they_stand_for(setup):
+    """rule=Discrepancy(noise_scale="estimated") with solver=LevenbergMarquardt(max_steps=30) gives the same
+    result, bit for bit, as the same settings given as keywords; rule=Fixed(λ) as regularization=λ; a setting
+    given both ways, a solver of another fit and a rule of another fit are refused before any work."""
+    cam, grid, flame, lf, W = setup
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="subaperture")
+    kw = dict(bounds=(500.0, 2500.0))
+    by_obj = reconstruct(m, W, rule=lt.Discrepancy(noise_scale="estimated", search_rtol=1e-2),
+                         solver=lt.LevenbergMarquardt(max_steps=30, linear_max_steps=20), **kw)
+    by_kw = reconstruct(m, W, rule="discrepancy", noise_scale="estimated", search_rtol=1e-2, max_steps=30,
+                        linear_max_steps=20, **kw)
+    assert np.array_equal(by_obj.T, by_kw.T) and by_obj.regularization == by_kw.regularization
+    assert "estimated" in by_obj.details.lambda_choice.note or by_obj.details.lambda_choice.target != 1.0
+    fixed = reconstruct(m, W, rule=lt.Fixed(1e-3), solver=lt.GaussNewton(max_steps=5), **kw)
+    plain = reconstruct(m, W, regularization=1e-3, method="gauss-newton", max_steps=5, **kw)
+    assert np.array_equal(fixed.T, plain.T) and fixed.lambda_rule == "fixed"
+    with pytest.raises(ValueError, match="noise_scale is set twice"):
+        reconstruct(m, W, rule=lt.Discrepancy(), noise_scale="estimated")
+    with pytest.raises(ValueError, match="regularization is set twice"):
+        reconstruct(m, W, rule=lt.Fixed(1.0), regularization=2.0)
+    with pytest.raises(ValueError, match="max_steps is set twice"):
+        reconstruct(m, W, solver=lt.LevenbergMarquardt(max_steps=3), max_steps=4)
+    with pytest.raises(ValueError, match="DenseLM.*does not run unknowns='T'"):
+        reconstruct(m, W, solver=lt.DenseLM())
+    with pytest.raises(ValueError, match="solver must be one of lftomo's solver objects"):
+        reconstruct(m, W, solver="lm")
+    with pytest.raises(ValueError, match="does not run for unknowns='T'"):
+        reconstruct(m, W, rule=lt.DiscrepancyBracket())
+    with pytest.raises(ValueError, match="max_steps must be an integer >= 1"):
+        lt.LevenbergMarquardt(max_steps=0)
+
+
 def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
     """progress=True draws a bar on stderr (steps, λ, χ²/m); the default for a small problem is silent."""
     cam, grid, flame, lf, W = setup

@@ -1,0 +1,126 @@
+"""Solver objects: which algorithm minimises the regularised least-squares objective, with its settings.
+
+A solver is a small immutable object (as optimistix and lineax make
+solvers objects) given as ``solver=`` to :func:`lftomo.reconstruct`; its
+parameters are its attributes, and a parameter left at ``None`` keeps the
+fit's own default (:func:`lftomo.inverse.solvers.solve_temperature` for
+``unknowns="T"``, :func:`lftomo.inverse.joint.solve_temperature_absorption`
+for ``"T+sigma_a"``).
+
+``LevenbergMarquardt`` and ``GaussNewton``
+    optimistix's matrix-free solvers: each step solves its linear system by
+    LSMR on products with the sparse forward operator (both fits).
+``DenseLM``
+    Levenberg–Marquardt on exact dense normal equations (joint fit only; for
+    few unknowns, e.g. axisymmetric ring cells or a smooth basis).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["Solver", "LevenbergMarquardt", "GaussNewton", "DenseLM", "resolve_solver"]
+
+
+class Solver:
+    """An algorithm for the regularised least-squares fit and its settings.
+
+    Subclasses set :attr:`method` (the fit functions' ``method=`` name) and
+    :attr:`fits` (``"T"``, ``"T+sigma_a"``: which fits run it).
+    """
+
+    method: str = ""
+    fits: tuple[str, ...] = ()
+
+    def keywords(self) -> dict[str, Any]:
+        """Keyword arguments of the fit function: ``method`` and every parameter not None."""
+        return {"method": self.method, **{k: v for k, v in vars(self).items() if v is not None}}
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v!r}" for k, v in sorted(vars(self).items()) if v is not None)
+        return f"{type(self).__name__}({params})"
+
+
+def _steps(name: str, value: Any) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be an integer >= 1 or None (the fit's default), got {value!r}")
+    return int(value)
+
+
+def _tolerance(name: str, value: Any) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= float(value) < 1.0:
+        raise ValueError(f"{name} must be a number in [0, 1) or None (the fit's default), got {value!r}")
+    return float(value)
+
+
+class _MatrixFree(Solver):
+    fits = ("T", "T+sigma_a")
+
+    def __init__(self, max_steps: int | None = None, rtol: float | None = None, atol: float | None = None,
+                 linear_max_steps: int | None = None, linear_rtol: float | None = None) -> None:
+        self.max_steps = _steps("max_steps", max_steps)
+        self.rtol = _tolerance("rtol", rtol)
+        self.atol = _tolerance("atol", atol)
+        self.linear_max_steps = _steps("linear_max_steps", linear_max_steps)
+        self.linear_rtol = _tolerance("linear_rtol", linear_rtol)
+
+
+class LevenbergMarquardt(_MatrixFree):
+    """optimistix ``LevenbergMarquardt``, matrix-free (LSMR per step).
+
+    Parameters
+    ----------
+    max_steps : int, optional
+        Nonlinear steps per solve.
+    rtol, atol : float, optional
+        Convergence tolerances of the nonlinear solve.
+    linear_max_steps : int, optional
+        LSMR iterations per step (a truncated step beyond it).
+    linear_rtol : float, optional
+        LSMR tolerance of each step.
+    """
+
+    method = "levenberg-marquardt"
+
+
+class GaussNewton(_MatrixFree):
+    """optimistix ``GaussNewton``, matrix-free (LSMR per step); parameters as :class:`LevenbergMarquardt`."""
+
+    method = "gauss-newton"
+    fits = ("T",)
+
+
+class DenseLM(Solver):
+    """Levenberg–Marquardt on exact dense normal equations, for joint fits with few unknowns.
+
+    Parameters
+    ----------
+    max_steps : int, optional
+        Levenberg–Marquardt iterations per solve.
+    """
+
+    method = "dense-lm"
+    fits = ("T+sigma_a",)
+
+    def __init__(self, max_steps: int | None = None) -> None:
+        self.max_steps = _steps("max_steps", max_steps)
+
+
+def resolve_solver(solver: Any, *, fit: str) -> Solver:
+    """Check that ``solver`` is a :class:`Solver` that runs ``fit`` (``"T"`` or ``"T+sigma_a"``).
+
+    Raises
+    ------
+    ValueError
+        Not a Solver, or one that does not run this fit, naming those that do.
+    """
+    allowed = [c.__name__ for c in (LevenbergMarquardt, GaussNewton, DenseLM) if fit in c.fits]
+    if not isinstance(solver, Solver):
+        raise ValueError(f"solver must be one of lftomo's solver objects ({', '.join(allowed)}), got {solver!r}")
+    if fit not in solver.fits:
+        raise ValueError(f"solver {solver!r} does not run unknowns={fit!r}; use one of {', '.join(allowed)}")
+    return solver
