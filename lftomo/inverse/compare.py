@@ -92,7 +92,10 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     * ``floor="prior"``: the posterior mean of the pixel's variance with a
       scaled-inverse-χ² prior of scale ``floor`` worth one ray (conjugate
       normal model, Gelman et al., *Bayesian Data Analysis*, 3rd ed., §3.3),
-      ``se² = (floor² + (R − 1) se_d²) / R``, ``R = rays_per_pixel``: the
+      ``se² = (floor² + ν se_d²) / (ν + 1)`` with ``ν`` the degrees of freedom
+      of ``se_d``: ``R − 1`` for the independent sampler (``R =
+      rays_per_pixel``), ``K − 1`` for the stratified one (``K`` independent
+      randomizations, :func:`lftomo.forward.sampler.group_count`): the
       Monte Carlo error as it is (true field's predicted χ²/m 0.92–1.06).
       For models with little discretisation error (sub-voxel emission), with
       the discrepancy rule's ``noise_scale="estimated"``: standard flame at
@@ -128,10 +131,22 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     fl = monte_carlo_floor(lf).reshape(lf.n_channels, -1)
     if floor == "bound":
         out = np.maximum(se, fl)
-    else:  # scaled-inverse-χ² posterior: the render's sample variance (R − 1 dof), the floor a prior worth one ray
-        out = np.sqrt((fl**2 + (rays_per_pixel - 1) * se**2) / rays_per_pixel)
+    else:  # scaled-inverse-χ² posterior: the render's sample variance (ν dof), the floor a prior worth one ray
+        nu = mc_degrees_of_freedom(lf, rays_per_pixel)
+        out = np.sqrt((fl**2 + nu * se**2) / (nu + 1))
     out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
     return out.reshape(np.shape(lf.raw))
+
+
+def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int:
+    """Degrees of freedom of a render's per-pixel ``std_error``: ``R − 1`` for the
+    independent sampler, ``K − 1`` for the stratified one (its error comes from
+    the spread of ``K`` randomizations, :func:`lftomo.forward.sampler.group_count`)."""
+    from ..forward.sampler import group_count
+
+    if lf.metadata.get("sampler") == "stratified":
+        return max(group_count(rays_per_pixel) - 1, 0)
+    return max(int(rays_per_pixel) - 1, 0)
 
 
 def monte_carlo_floor(lf) -> np.ndarray:
