@@ -141,6 +141,26 @@ def test_raw_signal_and_noise_model_match_the_truth(frames):
     assert np.max(rel_cal) > 0.3
 
 
+def test_saturated_pixels_are_flagged_and_left_out(frames):
+    """Pixels at 2**12 - 1 are flagged like add_noise's saturated pixels: the Measurement drops them."""
+    _, radio, _ = lt.load_calibration(frames.cal)
+    flame = lt.read_raw(frames.d / "flame.tif", bit_depth=BITS)
+
+    def measurement(counts):
+        lf = lightfield_from_raw(lt.RawFrame(counts=counts, bit_depth=BITS), frames.cam, radio, gain=GAIN,
+                                 read_noise=READ, dark=lt.read_raw(frames.d / "dark.tif", bit_depth=BITS))
+        return lf, lt.Measurement.from_lightfield(lf, data="subaperture")
+
+    lf0, m0 = measurement(flame.counts)
+    hit = lf0.view_index[lf0.view_mask][:: 97][:20]
+    counts = flame.counts.copy()
+    counts.ravel()[hit] = 2**BITS - 1
+    lf1, m1 = measurement(counts)
+    assert lf1.metadata["n_saturated"] == lf0.metadata["n_saturated"] + 20
+    assert np.all(lt.saturated_mask(lf1).ravel()[hit])
+    assert m1.size == m0.size - 20 and not np.isin(hit, m1.raw_index).any()
+
+
 def _reconstruct(lf, W, grid):
     m = lt.Measurement.from_lightfield(with_model_error(lf, W), data="subaperture")
     return lt.reconstruct(m, W, regularization="auto", rule="discrepancy", prior="gradient", bounds=(300.0, 3000.0),
