@@ -1132,6 +1132,9 @@ def _inputs_from_raw(scene, raw, calibration, *, dark, dark_frames, camera_file,
         raise LftomoError(f"--dark frame {dk.source!r} has shape {dk.shape}, but --raw frame {frame.source!r} has "
                          f"shape {frame.shape}")
     check = check_grid_matches_camera(cal_grid, cam, what=f"--calibration {str(calibration)!r}")
+    if dk is None:
+        warnings.warn(f"no --dark: the counts of {frame.source!r} are used as they are; a black level or dark "
+                      "signal would bias the calibrated signal", UserWarning)
     lf = lightfield_from_raw(frame, cam, radio, gain=sens["gain"], read_noise=sens["read_noise"], dark=dk,
                              dark_frames=dark_frames, metadata={"source": "raw frame"})
     s0 = cfg.seed if seed is None else int(seed)

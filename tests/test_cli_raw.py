@@ -96,7 +96,7 @@ class Frames:
         lt.write_raw(d / "white.tif", w, bit_depth=BITS)
         self.cal = d / "cal.npz"
         assert main(["calibrate", str(d / "white.tif"), "--dark", str(d / "dark.tif"), "--blackbody",
-                     str(d / "bb.tif"), "--temperature", repr(self.T_bb), "--camera", str(d / "camera.toml"),
+                     str(d / "bb.tif"), "--temperature", repr(self.T_bb), "--temperature-std", "3", "--camera", str(d / "camera.toml"),
                      "-o", str(self.cal)]) == 0
 
     def flame_counts(self, seed):
@@ -148,7 +148,8 @@ def test_saturated_pixels_are_flagged_and_left_out(frames):
 
     def measurement(counts):
         lf = lightfield_from_raw(lt.RawFrame(counts=counts, bit_depth=BITS), frames.cam, radio, gain=GAIN,
-                                 read_noise=READ, dark=lt.read_raw(frames.d / "dark.tif", bit_depth=BITS))
+                                 read_noise=READ, dark=lt.read_raw(frames.d / "dark.tif", bit_depth=BITS),
+                                 etendue=frames.G)
         return lf, lt.Measurement.from_lightfield(lf, data="subaperture")
 
     lf0, m0 = measurement(flame.counts)
@@ -182,8 +183,13 @@ def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(frames, tmp_path,
     inp = m["inputs"]
     assert inp["grid_check"]["rms_px"] < 0.05 and inp["bit_depth"] == BITS
     assert inp["sensor"]["gain"] == GAIN and inp["sensor"]["read_noise"] == READ
-    assert inp["radiometric"]["scale_rel_std"] == 0.0
-    assert m["reconstruction"]["scale_uncertainty"]["T_std_K_at_max_T"] == 0.0
+    # the blackbody's 3 K: a common scale rel = 3 K x (dI_b/dT)/I_b at T_bb, i.e. T_std = rel I_b/(dI_b/dT)
+    # at the hottest voxel (central differences here, the analytic derivative in lftomo)
+    dlog = lambda T: (np.log(lt.planck(T + 0.01, WL)) - np.log(lt.planck(T - 0.01, WL))) / 0.02  # noqa: E731
+    rel = 3.0 * dlog(frames.T_bb)
+    assert inp["radiometric"]["scale_rel_std"] == pytest.approx(rel, rel=1e-6)
+    assert m["reconstruction"]["scale_uncertainty"]["T_std_K_at_max_T"] == pytest.approx(rel / dlog(T_raw.max()),
+                                                                                          rel=1e-6)
     assert m["measurement"]["noise"]["model"] == "raw frame"
 
     grid = lt.Grid((6, 6, 6), (-0.006, -0.006, 0.994), (0.006, 0.006, 1.006))
