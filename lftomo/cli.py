@@ -145,7 +145,8 @@ def cmd_reconstruct(args) -> int:
         rays_per_pixel=args.rays_per_pixel, seed=args.seed, sampler=args.sampler, channel=args.channel,
         max_steps=args.max_steps,
         min_etendue_fraction=args.min_etendue_fraction, symmetry=args.symmetry, quadrature=args.quadrature,
-        progress=not args.quiet, allow_outside=args.allow_outside_paths)
+        progress=not args.quiet, allow_outside=args.allow_outside_paths, raw=args.raw, calibration=args.calibration,
+        dark=args.dark, dark_frames=args.dark_frames, camera=args.camera)
     r = m["reconstruction"]
     print(f"reconstructed {'x'.join(map(str, r['grid_shape']))} voxels from {m['measurement']['n_data']} "
           f"{r['data']} data: lambda {r['regularization']:.3g} ({r['lambda_rule']}), chi2/m {r['chi2_per_datum']:.3g}, "
@@ -156,6 +157,10 @@ def cmd_reconstruct(args) -> int:
         e = r.get(key)
         if e:
             print(f"  {key}: mean {100 * e['mean_rel']:.1f} %, max {100 * e['max_rel']:.1f} %, rms {e['rms_K']:.0f} K")
+    if r.get("scale_uncertainty"):
+        s = r["scale_uncertainty"]
+        print(f"  radiometric scale uncertainty {100 * s['rel_std']:.2f} % (blackbody temperature): "
+              f"+-{s['T_std_K_at_max_T']:.1f} K at the hottest voxel, common to all voxels")
     if "posterior" in m:
         p = m["posterior"]
         if p["basis"] == "field":
@@ -433,6 +438,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sampler(rc, "scene mode: override render.sampler (the render and the weights)")
     rc.add_argument("--channel", type=_nonneg_int, default=None, help="wavelength channel (default: the first / "
                                                                       "the one matching --weights)")
+    rc.add_argument("--raw", default=None, help="raw frame (PNG, TIFF, .npy) of the SCENE's camera to reconstruct, "
+                                                "with --calibration (docs/real_cameras.md)")
+    rc.add_argument("--calibration", default=None, help="with --raw: calibration .npz of lftomo calibrate with "
+                                                        "--blackbody (microlens grid and radiometric factors)")
+    rc.add_argument("--dark", default=None, help="with --raw: dark frame (same exposure, lens capped)")
+    rc.add_argument("--dark-frames", type=_pos_int, default=None, help="with --dark: frames averaged in it "
+                                                                       "(default 1)")
+    rc.add_argument("--camera", default=None, help="with --raw: camera TOML (gain, read noise, bit depth) if the "
+                                                   "calibration did not record one")
     rc.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_allow_outside(rc)
     rc.set_defaults(func=cmd_reconstruct)

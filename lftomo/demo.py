@@ -951,6 +951,26 @@ class _ReconstructInputs:
     depths: Sequence[float] | None = None
     T_true: np.ndarray | None = None
     sigma_a: np.ndarray | None = None
+    scale_rel_std: float | None = None  # raw mode: common relative scale uncertainty of the signal
+
+
+def _check_raw_options(scene, lightfield, weights, noise, raw, calibration, extra: dict) -> None:
+    """LftomoError for a bad combination of the raw-frame options of ``lftomo reconstruct``."""
+    if raw is None:
+        given = [k for k, v in {"--calibration": calibration, **extra}.items() if v is not None]
+        if given:
+            raise LftomoError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} with --raw FRAME")
+        return
+    if lightfield is not None or weights is not None:
+        raise LftomoError("--raw reconstructs a frame of the SCENE's camera; leave out --lightfield and --weights")
+    if scene is None:
+        raise LftomoError("--raw needs a SCENE.toml: its camera (the model of the camera that took the frame), "
+                         "[medium] grid and sigma_a")
+    if calibration is None:
+        raise LftomoError("--raw needs --calibration cal.npz (lftomo calibrate with --blackbody)")
+    if noise is not None:
+        raise LftomoError("--noise adds synthetic noise; a --raw frame is already noisy (its noise model comes "
+                         "from the frame, the dark and the calibration): leave --noise out")
 
 
 def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
@@ -983,6 +1003,41 @@ def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds,
                          f"the {posterior_basis!r} basis posterior needs weights on the reconstruction grid")
 
 
+def _scene_medium(cfg, scene):
+    """The scene's non-scattering ``[medium]`` (LftomoError otherwise)."""
+    medium = cfg.scene.medium
+    if medium is None:
+        raise LftomoError(f"SCENE {str(scene)!r} has no [medium]: there is no temperature field to reconstruct")
+    if medium.is_scattering:
+        raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
+                         "(the weight matrix is built for a known, non-scattering sigma_a)")
+    return medium
+
+
+def _recon_grid(fine, recon_shape):
+    """The reconstruction grid: ``recon_shape`` (default half of ``fine``'s shape), dividing ``fine``."""
+    import lftomo as lt
+
+    shape = tuple(recon_shape) if recon_shape else tuple(n // 2 for n in fine.shape)
+    if len(shape) != 3 or any(n < 1 or f % n for n, f in zip(shape, fine.shape)):
+        given = (f"--recon-shape {list(shape)}" if recon_shape else
+                 f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
+        raise LftomoError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
+                         "an integer refinement of the reconstruction grid); give --recon-shape")
+    return lt.Grid(shape, fine.lower, fine.upper)
+
+
+def _scene_weights(cfg, grid, sa, wl, *, quadrature, rays_per_pixel, seed, progress, sampler):
+    """The weight matrix of the scene's camera on ``grid`` (or its ``quadrature``-fold refinement)."""
+    import lftomo as lt
+
+    wgrid = grid.refined(quadrature) if quadrature > 1 else grid
+    sa_w = lt.interpolate_field(sa, grid, wgrid) if quadrature > 1 else sa
+    return lt.weights(cfg.camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
+                      rays_per_pixel=rays_per_pixel, seed=seed, surfaces=cfg.scene.surfaces or None,
+                      progress=progress, sampler=sampler)
+
+
 def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, quadrature, data, depths, progress,
                        allow_outside, sampler) -> _ReconstructInputs:
     """Scene mode: render the scene's medium (the truth) and build the weights on the reconstruction grid."""
@@ -991,17 +1046,9 @@ def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, qua
     from .inverse.compare import effective_truth
 
     cfg = load_scene_file(scene, allow_outside=allow_outside)
-    medium = cfg.scene.medium
-    if medium is None:
-        raise LftomoError(f"SCENE {str(scene)!r} has no [medium]: there is no temperature field to reconstruct")
+    medium = _scene_medium(cfg, scene)
     fine = medium.grid
-    shape = tuple(recon_shape) if recon_shape else tuple(n // 2 for n in fine.shape)
-    if len(shape) != 3 or any(n < 1 or f % n for n, f in zip(shape, fine.shape)):
-        given = (f"--recon-shape {list(shape)}" if recon_shape else
-                 f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
-        raise LftomoError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
-                         "an integer refinement of the reconstruction grid); give --recon-shape")
-    grid = lt.Grid(shape, fine.lower, fine.upper)
+    grid = _recon_grid(fine, recon_shape)
     wls = cfg.wavelengths
     ch = 0 if channel is None else int(channel)
     n_ch = 1 if wls is None else len(wls)
@@ -1014,18 +1061,12 @@ def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, qua
         raise LftomoError(f"--rays-per-pixel / [render] rays_per_pixel is {n_d}: the render's Monte Carlo "
                          "error (part of the noise model) cannot be estimated from one ray per pixel; "
                          "use 2 or more")
-    if medium.is_scattering:
-        raise LftomoError(f"SCENE {str(scene)!r}: scattering media are not supported by lftomo reconstruct "
-                         "(the weight matrix is built for a known, non-scattering sigma_a)")
     smp = cfg.sampler if sampler is None else sampler
     lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
                    wavelengths="gray" if wl is None else (wl,), progress=progress, sampler=smp)
     sa, T_true = effective_truth(medium, grid, wl)
-    wgrid = grid.refined(quadrature) if quadrature > 1 else grid
-    sa_w = lt.interpolate_field(sa, grid, wgrid) if quadrature > 1 else sa
-    W = lt.weights(cfg.camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
-                   rays_per_pixel=n_d, seed=s0 + 2, surfaces=cfg.scene.surfaces or None, progress=progress,
-                   sampler=smp)
+    W = _scene_weights(cfg, grid, sa, wl, quadrature=quadrature, rays_per_pixel=n_d, seed=s0 + 2,
+                       progress=progress, sampler=smp)
     if depths is None and data == "refocus":
         depths = cfg.focal_stack_depths or None
     metrics = {"scene": str(scene), "truth_grid": fine.to_dict(), "rays_per_pixel_data": n_d,
@@ -1034,6 +1075,91 @@ def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, qua
     return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=0, n_data_rays=n_d, n_weight_rays=n_d,
                               noise_seed=s0 + 1, posterior_seed=s0 + 3, metrics=metrics, depths=depths,
                               T_true=T_true, sigma_a=sa)
+
+
+def _raw_channel(wls, wl: float, channel: int | None, calibration) -> None:
+    """Refuse a scene whose wavelength (channel) is not the calibration's."""
+    if wls is None:
+        raise LftomoError(f"--calibration {str(calibration)!r} is radiometric at {wl * 1e9:.1f} nm, but the SCENE is "
+                         "gray: give [render] wavelength_nm = the filter wavelength")
+    ch = 0 if channel is None else int(channel)
+    if not 0 <= ch < len(wls):
+        raise LftomoError(f"--channel must be in 0..{len(wls) - 1} for this scene's wavelengths, got {ch}")
+    match = [k for k, w in enumerate(wls) if abs(w - wl) <= 0.5e-9]
+    if (channel is None and not match) or (channel is not None and ch not in match):
+        have = [round(w * 1e9, 1) for w in wls] if channel is None else [round(wls[ch] * 1e9, 1)]
+        raise LftomoError(f"--calibration {str(calibration)!r} is radiometric at {wl * 1e9:.1f} nm, but the SCENE "
+                         f"{'--channel ' + str(ch) + ' is' if channel is not None else 'has'} {have} nm; the model "
+                         "must be built at the filter wavelength")
+
+
+def _inputs_from_raw(scene, raw, calibration, *, dark, dark_frames, camera_file, recon_shape, channel, seed,
+                     rays_per_pixel, quadrature, data, depths, progress, allow_outside,
+                     sampler) -> _ReconstructInputs:
+    """Raw mode: a raw frame of the scene file's camera, calibrated; weights on the reconstruction grid.
+
+    Everything is read and checked (scene, calibration with radiometry, sensor
+    settings, frame and dark shapes and bit depth, calibrated grid against the
+    camera's lenslets, wavelength) before the weight matrix is built.
+    """
+    import lftomo as lt
+    from .config import load_scene_file
+    from .inverse.compare import effective_truth
+    from .rawdata import check_grid_matches_camera, lightfield_from_raw, sensor_settings, with_model_error
+    from .rawio import load_camera_description, read_raw
+
+    cfg = load_scene_file(scene, allow_outside=allow_outside)
+    medium = _scene_medium(cfg, scene)
+    grid = _recon_grid(medium.grid, recon_shape)
+    cam = cfg.camera
+    try:
+        cal_grid, radio, cal_meta = lt.load_calibration(calibration)
+    except ValueError as exc:
+        raise LftomoError(f"--calibration: {exc}") from None
+    if radio is None:
+        raise LftomoError(f"--calibration {str(calibration)!r} has no radiometric calibration; run lftomo calibrate "
+                         "with --blackbody B --temperature K --camera CAMERA.toml")
+    wl = radio.wavelength
+    _raw_channel(cfg.wavelengths, wl, channel, calibration)
+    desc = load_camera_description(camera_file) if camera_file else None
+    sens = sensor_settings(desc, cal_meta, calibration=str(calibration))
+    frame = read_raw(raw, bit_depth=sens["bit_depth"], what="--raw frame")
+    if frame.shape != cam.sensor_shape:
+        raise LftomoError(f"--raw frame {frame.source!r} has shape {frame.shape}, but the SCENE camera's sensor is "
+                         f"{cam.sensor_shape[0]}x{cam.sensor_shape[1]} px (rows x cols)")
+    dk = None if dark is None else read_raw(dark, bit_depth=frame.bit_depth, allow_float=True, what="--dark frame")
+    if dk is not None and dk.shape != frame.shape:
+        raise LftomoError(f"--dark frame {dk.source!r} has shape {dk.shape}, but --raw frame {frame.source!r} has "
+                         f"shape {frame.shape}")
+    check = check_grid_matches_camera(cal_grid, cam, what=f"--calibration {str(calibration)!r}")
+    if dk is None:
+        warnings.warn(f"no --dark: the counts of {frame.source!r} are used as they are; a black level or dark "
+                      "signal would bias the calibrated signal", UserWarning)
+    lf = lightfield_from_raw(frame, cam, radio, gain=sens["gain"], read_noise=sens["read_noise"], dark=dk,
+                             dark_frames=dark_frames, metadata={"source": "raw frame"})
+    s0 = cfg.seed if seed is None else int(seed)
+    n_w = int(rays_per_pixel or cfg.rays_per_pixel)
+    smp = cfg.sampler if sampler is None else sampler
+    sa, _ = effective_truth(medium, grid, wl)  # the known absorption; the scene's T is not used
+    W = _scene_weights(cfg, grid, sa, wl, quadrature=quadrature, rays_per_pixel=n_w, seed=s0 + 2,
+                       progress=progress, sampler=smp)
+    lf = with_model_error(lf, W)
+    if depths is None and data == "refocus":
+        depths = cfg.focal_stack_depths or None
+    metrics = {"scene": str(scene), "raw": frame.source, "calibration": str(calibration),
+               "dark": None if dk is None else dk.source, "dark_frames": dark_frames if dk is not None else 0,
+               "sensor": sens, "bit_depth": frame.bit_depth, "grid_check": check,
+               "radiometric": {"temperature_K": radio.temperature, "temperature_std_K": radio.temperature_std,
+                               "wavelength_m": wl, "emissivity": radio.emissivity,
+                               "scale_rel_std": radio.rel_std_temperature},
+               "n_saturated": lf.metadata["n_saturated"], "n_uncalibrated": lf.metadata["n_uncalibrated"],
+               "rays_per_pixel_weights": n_w, "sampler": smp, "seeds": {"weights": s0 + 2, "posterior": s0 + 3},
+               "noise_note": "measurement noise of frame, dark and calibration, and the weight matrix's Monte "
+                             "Carlo error (relative rule); the source temperature's scale uncertainty is reported "
+                             "apart (reconstruction.scale_uncertainty)"}
+    return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=0, n_data_rays=None, n_weight_rays=n_w,
+                              noise_seed=s0 + 1, posterior_seed=s0 + 3, metrics=metrics, depths=depths,
+                              sigma_a=sa, scale_rel_std=radio.rel_std_temperature)
 
 
 def _matching_channel(lf, wl: float | None, channel: int | None) -> int:
@@ -1189,6 +1315,23 @@ def _write_reconstruct_outputs(stage: Path, inp: _ReconstructInputs, rec, post, 
     return ["fields.npz", "slices.png", "metrics.json"]
 
 
+def _scale_uncertainty(T, wavelength: float, rel: float) -> dict[str, Any]:
+    """Temperature equivalent of a common relative scale uncertainty ``rel`` of the signal.
+
+    Scaling every datum by ``1 + δ`` scales the fitted Planck intensities alike
+    (the model is linear in them), so ``δT = δ I_b / (∂I_b/∂T)`` per voxel:
+    ``σ_T = rel · I_b(λ, T) / (∂I_b/∂T)`` ≈ ``rel · λ T² / c₂`` (Wien).  Fully
+    correlated between voxels.  Returned at the median and the largest ``T``.
+    """
+    from .radiation import dplanck_dT, planck
+
+    t = np.asarray(T, float).ravel()
+    med, hi = float(np.median(t)), float(t.max())
+    s = lambda x: float(rel * planck(x, wavelength) / dplanck_dT(x, wavelength))  # noqa: E731
+    return {"rel_std": float(rel), "T_std_K_at_median_T": s(med), "T_std_K_at_max_T": s(hi),
+            "note": "common to all voxels (the blackbody source temperature's uncertainty), not in the noise model"}
+
+
 def run_reconstruct(
     out_dir: str | Path,
     *,
@@ -1217,6 +1360,11 @@ def run_reconstruct(
     quadrature: int = 1,
     progress: bool = True,
     allow_outside: bool = False,
+    raw: str | Path | None = None,
+    calibration: str | Path | None = None,
+    dark: str | Path | None = None,
+    dark_frames: int | None = None,
+    camera: str | Path | None = None,
 ) -> dict[str, Any]:
     """Reconstruct a temperature field and write ``fields.npz``, ``slices.png``, ``metrics.json``.
 
@@ -1237,13 +1385,21 @@ def run_reconstruct(
     sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene mode builds the
     weights on a grid K× finer than the reconstruction grid (for the known
     ``sigma_a`` interpolated to it); file mode reconstructs on the weights'
-    grid coarsened K×.  Error messages name the ``lftomo reconstruct`` option
+    grid coarsened K×.  ``raw`` (with ``scene`` and ``calibration``, a file of
+    :func:`lftomo.save_calibration` with radiometry) reconstructs a raw frame
+    of the scene's camera (:mod:`lftomo.rawdata`): ``dark`` (the mean of
+    ``dark_frames`` frames) is subtracted, the calibrated microlens grid must be
+    the camera's, ``camera`` (a camera TOML, :func:`lftomo.load_camera_description`)
+    gives the gain and read noise if the calibration did not record them; the
+    truth is unknown.  Error messages name the ``lftomo reconstruct`` option
     at fault.
     """
     import lftomo as lt
     from .io import check_output_dir, staged_directory
 
     t_start = time.perf_counter()
+    _check_raw_options(scene, lightfield, weights, noise, raw, calibration,
+                       {"--dark": dark, "--dark-frames": dark_frames, "--camera": camera})
     _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
                                symmetry, quadrature, posterior, posterior_basis, sampler)
     symmetry = None if symmetry == "none" else symmetry
@@ -1251,7 +1407,13 @@ def run_reconstruct(
     st = _Stages(5 if posterior else 4, progress)
     metrics: dict[str, Any] = {"environment": _environment()}
 
-    if scene is not None:
+    if raw is not None:
+        with st("inputs", f"raw frame {raw} with {calibration}, the weight matrix of {scene}'s camera"):
+            inp = _inputs_from_raw(scene, raw, calibration, dark=dark, dark_frames=dark_frames or 1,
+                                   camera_file=camera, recon_shape=recon_shape, channel=channel, seed=seed,
+                                   rays_per_pixel=rays_per_pixel, quadrature=quadrature, data=data, depths=depths,
+                                   progress=progress, allow_outside=allow_outside, sampler=sampler)
+    elif scene is not None:
         with st("inputs", f"scene {scene}: render the truth and the weight matrix"):
             inp = _inputs_from_scene(scene, recon_shape=recon_shape, channel=channel, seed=seed,
                                      rays_per_pixel=rays_per_pixel, quadrature=quadrature, data=data, depths=depths,
@@ -1279,6 +1441,8 @@ def run_reconstruct(
     if inp.T_true is not None:
         metrics["reconstruction"]["errors_T_gt_800K"] = temperature_errors(rec.T, inp.T_true, HOT)
         metrics["reconstruction"]["errors_T_gt_1400K"] = temperature_errors(rec.T, inp.T_true, HOT_CORE)
+    if inp.scale_rel_std is not None:
+        metrics["reconstruction"]["scale_uncertainty"] = _scale_uncertainty(rec.T, inp.wavelength, inp.scale_rel_std)
 
     post = None
     if posterior:

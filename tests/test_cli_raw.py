@@ -1,0 +1,280 @@
+"""``lftomo reconstruct --raw``: TIFF frames of lftomo's own camera, calibrated by ``lftomo calibrate``,
+reconstructed through the CLI and compared with the in-memory path on the same counts; and the refusals."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+import lftomo as lt
+from lftomo.cli import main
+from lftomo.config import load_scene_file
+from lftomo.rawdata import lightfield_from_raw, model_etendue, with_model_error
+
+from conftest import white_plane
+
+WL = 650e-9
+GAIN, READ, BLACK, BITS = 2.0, 3.0, 100, 12
+SCENE = """
+[camera]
+focus_distance = 1.0
+[camera.mla]
+count = [12, 12]
+[render]
+rays_per_pixel = 16
+seed = 0
+wavelength_nm = 650
+[medium]
+phantom = "gaussian_blob"
+shape = [6, 6, 6]
+lower = [-0.006, -0.006, 0.994]
+upper = [0.006, 0.006, 1.006]
+[medium.params]
+width = 0.004
+T_peak = 1800.0
+T_ambient = 1000.0
+sigma_a_peak = 30.0
+"""
+CAMERA_TOML = f"""
+[sensor]
+pixel_pitch_um = 10.0
+bit_depth = {BITS}
+shape = [120, 120]
+gain_e_per_count = {GAIN}
+read_noise_e = {READ}
+[acquisition]
+exposure_s = 0.002
+wavelength_nm = 650
+[main_lens]
+focal_length_mm = 100
+f_number = 4.0
+"""
+FAST = ["--quiet", "--max-steps", "50", "--recon-shape", "6,6,6"]
+HOT_K = 1400.0  # voxels the data constrain: >= 8 % of the peak intensity at 650 nm
+
+
+def _sensor(responsivity):
+    return lt.SensorModel(responsivity=responsivity, gain=GAIN, read_noise=READ, bit_depth=BITS, full_well=1e6,
+                          black_level=BLACK)
+
+
+class Frames:
+    """A 12 × 12-lenslet seed camera looking at a Gaussian flame: its TIFF frames and what made them.
+
+    Per-pixel response ``R · prnu`` (e⁻ per W/m, ±10 % non-uniformity), so the true factor from
+    counts to signal is ``f_true = GAIN / (R prnu)``; a 100-count black level (the dark)."""
+
+    def __init__(self, d):
+        self.d = d
+        (d / "scene.toml").write_text(SCENE)
+        (d / "camera.toml").write_text(CAMERA_TOML)
+        self.cfg = load_scene_file(d / "scene.toml")
+        self.cam = self.cfg.camera
+        # the flame at 4x the weight matrix's rays: its Monte Carlo error (which a real frame has not) is
+        # then small beside the matrix's, which the noise model holds
+        self.lf = lt.render(self.cfg.scene, self.cam, rays_per_pixel=64, seed=0, wavelengths=(WL,))
+        self.signal = self.lf.raw
+        self.R = 1500.0 * GAIN / self.signal.max()  # the flame's peak at ~1500 counts
+        self.prnu = 1.0 + 0.1 * np.random.default_rng(5).uniform(-1.0, 1.0, self.signal.shape)
+        self.f_true = GAIN / (self.R * self.prnu)
+        self.sensor = _sensor(self.R)
+        self.counts, self.sat = self.flame_counts(seed=10)
+        lt.write_raw(d / "flame.tif", self.counts, bit_depth=BITS)
+        dark, _ = self.sensor.expose(np.zeros(self.signal.shape), 11)
+        lt.write_raw(d / "dark.tif", dark, bit_depth=BITS)
+        # blackbody filling the view, peak ~3400 counts: signal I_b(T_bb) G with the model étendue
+        self.G = model_etendue(self.cam)
+        self.T_bb = float(lt.planck_inverse(3400.0 * GAIN / (self.R * 1.1 * self.G.max()), WL))
+        bb, bb_sat = self.sensor.expose(lt.planck(self.T_bb, WL) * self.G * self.prnu, 12)
+        assert not bb_sat.any()
+        lt.write_raw(d / "bb.tif", bb, bit_depth=BITS)
+        white = lt.render(white_plane(), self.cam, rays_per_pixel=16, seed=1, wavelengths=(WL,)).raw
+        w, _ = _sensor(3000.0 * GAIN / white.max()).expose(white, 13)
+        lt.write_raw(d / "white.tif", w, bit_depth=BITS)
+        self.cal = d / "cal.npz"
+        assert main(["calibrate", str(d / "white.tif"), "--dark", str(d / "dark.tif"), "--blackbody",
+                     str(d / "bb.tif"), "--temperature", repr(self.T_bb), "--temperature-std", "3", "--camera", str(d / "camera.toml"),
+                     "-o", str(self.cal)]) == 0
+
+    def flame_counts(self, seed):
+        return self.sensor.expose(self.signal * self.prnu, seed)
+
+    def in_memory(self, counts, sat):
+        """The API path with the true factors and dark level: signal, the sensor's predicted noise."""
+        std = self.sensor.noise_std(self.signal * self.prnu)[0] / self.prnu
+        return lt.LightField(raw=self.f_true * (counts - BLACK), camera=self.cam, wavelengths=(WL,), noise_std=std,
+                             metadata={"saturated_pixels": np.flatnonzero(sat).tolist()}, min_etendue_fraction=0.2)
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    return Frames(tmp_path_factory.mktemp("raw"))
+
+
+def test_raw_signal_and_noise_model_match_the_truth(frames):
+    """(calibrated signal − noise-free signal) / noise_std over the decoded pixels: mean 0 and
+    standard deviation 1 within 5 standard errors; the factors are f_true within their noise."""
+    _, radio, _ = lt.load_calibration(frames.cal)
+    flame = lt.read_raw(frames.d / "flame.tif", bit_depth=BITS)
+    dark = lt.read_raw(frames.d / "dark.tif", bit_depth=BITS, allow_float=True)
+    lf = lightfield_from_raw(flame, frames.cam, radio, gain=GAIN, read_noise=READ, dark=dark)
+    lf = lt.LightField(raw=lf.raw, camera=frames.cam, wavelengths=lf.wavelengths, noise_std=lf.noise_std,
+                       metadata=lf.metadata, min_etendue_fraction=0.2)
+    idx = lf.view_index[lf.view_mask]
+    ok = ~lt.saturated_mask(lf).ravel()[idx]
+    idx = idx[ok]
+    assert idx.size > 4000 and ok.mean() > 0.99  # nearly every decoded pixel has a calibration factor
+    f = (radio.radiance_factor * frames.G).ravel()[idx]
+    zf = (f / frames.f_true.ravel()[idx] - 1.0) / radio.rel_std_noise.ravel()[idx]
+    z = (lf.raw.ravel()[idx] - frames.signal.ravel()[idx]) / lf.noise_std.ravel()[idx]
+    n = idx.size
+    print(f"{n} px: factor z mean {np.mean(zf):.4f} std {np.std(zf):.4f}; signal z mean {np.mean(z):.4f} "
+          f"std {np.std(z):.4f} (5 standard errors: {5 / np.sqrt(n):.4f}, {5 / np.sqrt(2 * n):.4f})")
+    for name, x in (("factor", zf), ("signal", z)):
+        assert abs(np.mean(x)) < 5 / np.sqrt(n), name
+        assert abs(np.std(x) - 1.0) < 5 / np.sqrt(2 * n), (name, np.std(x))
+    # the calibration's noise is a visible part of the model (its omission would fail the test above)
+    rel_cal = (lf.raw.ravel()[idx] * radio.rel_std_noise.ravel()[idx]) / lf.noise_std.ravel()[idx]
+    assert np.max(rel_cal) > 0.3
+
+
+def test_saturated_pixels_are_flagged_and_left_out(frames):
+    """Pixels at 2**12 - 1 are flagged like add_noise's saturated pixels: the Measurement drops them."""
+    _, radio, _ = lt.load_calibration(frames.cal)
+    flame = lt.read_raw(frames.d / "flame.tif", bit_depth=BITS)
+
+    def measurement(counts):
+        lf = lightfield_from_raw(lt.RawFrame(counts=counts, bit_depth=BITS), frames.cam, radio, gain=GAIN,
+                                 read_noise=READ, dark=lt.read_raw(frames.d / "dark.tif", bit_depth=BITS),
+                                 etendue=frames.G)
+        return lf, lt.Measurement.from_lightfield(lf, data="subaperture")
+
+    lf0, m0 = measurement(flame.counts)
+    hit = lf0.view_index[lf0.view_mask][:: 97][:20]
+    counts = flame.counts.copy()
+    counts.ravel()[hit] = 2**BITS - 1
+    lf1, m1 = measurement(counts)
+    assert lf1.metadata["n_saturated"] == lf0.metadata["n_saturated"] + 20
+    assert np.all(lt.saturated_mask(lf1).ravel()[hit])
+    assert m1.size == m0.size - 20 and not np.isin(hit, m1.raw_index).any()
+
+
+def _reconstruct(lf, W, grid):
+    m = lt.Measurement.from_lightfield(with_model_error(lf, W), data="subaperture")
+    return lt.reconstruct(m, W, regularization="auto", rule="discrepancy", prior="gradient", bounds=(300.0, 3000.0),
+                          max_steps=50, grid=grid).T
+
+
+def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(frames, tmp_path, capsys):
+    """The CLI on the TIFF frames against the API on the same counts with the true factors and dark:
+    the RMS difference of the hot voxels is below that between two noise draws of the flame frame
+    (the calibration's noise is ~1/2 of the frame's at the flame's peak, so the expected ratio is ~0.5)."""
+    out = tmp_path / "rec"
+    rc = main(["reconstruct", str(frames.d / "scene.toml"), "--raw", str(frames.d / "flame.tif"), "--calibration",
+               str(frames.cal), "--dark", str(frames.d / "dark.tif"), "-o", str(out), *FAST])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "reconstructed 6x6x6 voxels" in text
+    T_raw = np.load(out / "fields.npz")["T"]
+    m = json.loads((out / "metrics.json").read_text())
+    inp = m["inputs"]
+    assert inp["grid_check"]["rms_px"] < 0.05 and inp["bit_depth"] == BITS
+    assert inp["sensor"]["gain"] == GAIN and inp["sensor"]["read_noise"] == READ
+    # the blackbody's 3 K: a common scale rel = 3 K x (dI_b/dT)/I_b at T_bb, i.e. T_std = rel I_b/(dI_b/dT)
+    # at the hottest voxel (central differences here, the analytic derivative in lftomo)
+    dlog = lambda T: (np.log(lt.planck(T + 0.01, WL)) - np.log(lt.planck(T - 0.01, WL))) / 0.02  # noqa: E731
+    rel = 3.0 * dlog(frames.T_bb)
+    assert inp["radiometric"]["scale_rel_std"] == pytest.approx(rel, rel=1e-6)
+    assert m["reconstruction"]["scale_uncertainty"]["T_std_K_at_max_T"] == pytest.approx(rel / dlog(T_raw.max()),
+                                                                                          rel=1e-6)
+    assert m["measurement"]["noise"]["model"] == "raw frame"
+
+    grid = lt.Grid((6, 6, 6), (-0.006, -0.006, 0.994), (0.006, 0.006, 1.006))
+    medium = frames.cfg.scene.medium
+    sa, T_eff = lt.effective_truth(medium, grid, WL)
+    W = lt.weights(frames.cam, grid, sigma_a=sa, wavelength=WL, rays_per_pixel=16, seed=2)
+    T1 = _reconstruct(frames.in_memory(frames.counts, frames.sat), W, grid)
+    T2 = _reconstruct(frames.in_memory(*frames.flame_counts(seed=20)), W, grid)
+    hot = T_eff > HOT_K
+    assert hot.sum() >= 8
+    rms = lambda x: float(np.sqrt(np.mean(x[hot] ** 2)))  # noqa: E731
+    spread, diff = rms(T1 - T2), rms(T_raw - T1)
+    print(f"hot voxels {hot.sum()}: raw vs in-memory {diff:.2f} K RMS, two noise draws {spread:.2f} K RMS, "
+          f"raw vs effective truth {rms(T_raw - T_eff):.1f} K RMS")
+    assert spread > 0
+    assert diff < spread
+
+
+@pytest.fixture
+def no_long_work(monkeypatch):
+    def fail(*a, **k):
+        raise AssertionError("the weight matrix was built before the inputs were checked")
+
+    monkeypatch.setattr(lt, "weights", fail)
+
+
+def _disc_white(shape, pitch, rotation_deg, offset):
+    """Analytic white image of a rotated, non-integer lattice: soft discs of radius 0.45 pitch."""
+    t = np.radians(rotation_deg)
+    B = pitch * np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    origin = np.array([(shape[0] - 1) / 2 + offset[0], (shape[1] - 1) / 2 + offset[1]])
+    rr, cc = np.indices(shape, dtype=float)
+    d = np.stack([rr - origin[0], cc - origin[1]], axis=-1)
+    local = d - np.round(d @ np.linalg.inv(B)) @ B
+    disc = np.clip(0.45 * pitch + 0.5 - np.hypot(local[..., 0], local[..., 1]), 0.0, 1.0)
+    return np.round(3000 * disc + BLACK).astype(np.uint16)
+
+
+def _run(frames, tmp_path, capsys, *extra, cal=None):
+    rc = main(["reconstruct", str(frames.d / "scene.toml"), "--raw", str(frames.d / "flame.tif"), "--calibration",
+               str(cal or frames.cal), "-o", str(tmp_path / "rec"), *FAST, *extra])
+    err = capsys.readouterr().err
+    assert rc == 2 and not (tmp_path / "rec" / "metrics.json").exists()
+    return err
+
+
+def test_rotated_non_integer_grid_is_refused_before_work(frames, tmp_path, capsys, no_long_work):
+    _, radio, _ = lt.load_calibration(frames.cal)
+    grid = lt.calibrate_grid(_disc_white((120, 120), 10.37, 0.2, (0.31, -0.42)), dark=float(BLACK))
+    bad = lt.save_calibration(tmp_path / "rot.npz", grid, radiometric=radio,
+                              metadata={"camera": {"gain": GAIN, "read_noise": READ, "bit_depth": BITS}})
+    err = _run(frames, tmp_path, capsys, cal=bad)
+    assert "pitch 10.37" in err and re.search(r"rotation 0\.(19|20)", err) and "offset (0.3" in err, err
+    assert "does not yet model a rotated or non-integer microlens array" in err
+
+
+def test_missing_radiometry_and_sensor_settings_are_refused(frames, tmp_path, capsys, no_long_work):
+    grid, radio, _ = lt.load_calibration(frames.cal)
+    only_grid = lt.save_calibration(tmp_path / "grid.npz", grid)
+    err = _run(frames, tmp_path, capsys, cal=only_grid)
+    assert "has no radiometric calibration; run lftomo calibrate with --blackbody" in err
+    no_gain = lt.save_calibration(tmp_path / "nogain.npz", grid, radiometric=radio)
+    err = _run(frames, tmp_path, capsys, cal=no_gain)
+    assert "gain_e_per_count" in err and "--camera" in err, err
+    # --camera supplies them: it then fails only later, at the (here deliberately cropped) dark frame
+    np.save(tmp_path / "small.npy", np.full((60, 120), BLACK, np.uint16))
+    err = _run(frames, tmp_path, capsys, "--camera", str(frames.d / "camera.toml"), "--dark",
+               str(tmp_path / "small.npy"), cal=no_gain)
+    assert "--dark frame" in err and "(60, 120)" in err, err
+
+
+def test_wrong_frame_shape_and_options_are_refused(frames, tmp_path, capsys, no_long_work):
+    lt.write_raw(tmp_path / "crop.tif", frames.counts[:100], bit_depth=BITS)
+    rc = main(["reconstruct", str(frames.d / "scene.toml"), "--raw", str(tmp_path / "crop.tif"), "--calibration",
+               str(frames.cal), "-o", str(tmp_path / "rec"), *FAST])
+    err = capsys.readouterr().err
+    assert rc == 2 and "crop.tif" in err and "(100, 120)" in err and "120x120 px" in err, err
+    for argv, msg in ((["--noise", "0.01"], "leave --noise out"), (["--calibration", str(frames.cal)], None)):
+        if msg is None:  # --calibration without --raw
+            rc = main(["reconstruct", str(frames.d / "scene.toml"), *argv, "-o", str(tmp_path / "r2"), *FAST])
+            assert rc == 2 and "only applies with --raw" in capsys.readouterr().err
+        else:
+            assert msg in _run(frames, tmp_path, capsys, *argv)
+    other = tmp_path / "gray.toml"
+    other.write_text(SCENE.replace("wavelength_nm = 650", "wavelength_nm = 800"))
+    rc = main(["reconstruct", str(other), "--raw", str(frames.d / "flame.tif"), "--calibration", str(frames.cal),
+               "-o", str(tmp_path / "rec"), *FAST])
+    assert rc == 2 and "radiometric at 650.0 nm" in capsys.readouterr().err
