@@ -30,6 +30,7 @@ from .inverse.symmetry import RingGrid, ring_grid
 from .rawio import RawFrame, read_raw, write_raw, subtract_dark, CameraDescription, load_camera_description
 from .calibration import (MicrolensGrid, calibrate_grid, decode_operator, decode_views, refocus_views,
                           RadiometricCalibration, radiometric_calibration, save_calibration, load_calibration)
+from .series import FrameResult, SeriesResult, reconstruct_series
 from .inverse.compare import (Comparison, compare_refocus_subaperture, effective_truth, monte_carlo_std,
                               with_monte_carlo_noise)
 
@@ -114,4 +115,7 @@ __all__ = [
     "radiometric_calibration",
     "save_calibration",
     "load_calibration",
+    "reconstruct_series",
+    "SeriesResult",
+    "FrameResult",
 ]
