@@ -414,7 +414,16 @@ def _check_forward(forward: Any) -> dict:
     meta = getattr(forward, "metadata", {}) or {}
     return {"kind": type(forward).__name__, "shape": list(getattr(forward, "shape", ()) or ()),
             "seed": meta.get("seed"), "rays_per_pixel": meta.get("rays_per_pixel"),
-            "wavelength": meta.get("wavelength"), "grid": meta.get("grid"), "sha256": fingerprint(forward)}
+            "wavelength": meta.get("wavelength"), "grid": meta.get("grid"), "sha256": _model_fingerprint(forward)}
+
+
+def _model_fingerprint(forward: Any) -> str:
+    """:func:`fingerprint` of the forward model without the build's timings (``build_seconds``,
+    ``estimate``), so that the same model built again (same rays and seed) matches."""
+    fields = {f.name: getattr(forward, f.name) for f in dataclasses.fields(forward)}
+    if isinstance(fields.get("metadata"), dict):
+        fields["metadata"] = {k: v for k, v in fields["metadata"].items() if k not in ("build_seconds", "estimate")}
+    return fingerprint(fields)
 
 
 def reconstruct_series(
@@ -498,14 +507,17 @@ def reconstruct_series(
     manifest = _Manifest(out, settings, fwd)
     keys = [_frame_key(f) for f in frames]
     todo = deque(i for i, (_, k) in enumerate(keys) if not manifest.is_done(i, k))
-    with _client_for(client, scheduler, workers) as (c, where):
-        manifest.runs.append({"run": len(manifest.runs) + 1, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                              "cluster": where, "frames_to_do": len(todo)})
+    run = {"run": len(manifest.runs) + 1, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "cluster": None,
+           "frames_to_do": len(todo)}
+    manifest.runs.append(run)
+    if not todo:  # every frame is complete: no cluster to start
         manifest.write()
-        if todo:
-            _run(c, frames, keys, todo, forward, settings, manifest, out, progress_bar(len(todo), progress,
-                                                                                      "series", unit="frame"),
-                 on_frame)
+        return _result(out, manifest, len(frames))
+    with _client_for(client, scheduler, workers) as (c, where):
+        run["cluster"] = where
+        manifest.write()
+        _run(c, frames, keys, todo, forward, settings, manifest, out,
+             progress_bar(len(todo), progress, "series", unit="frame"), on_frame)
     return _result(out, manifest, len(frames))
 
 
@@ -540,7 +552,8 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame)
             except (ValueError, OSError) as exc:  # LftomoError is a ValueError
                 record({"index": i, "status": "failed", "message": f"frame {i}: {exc}"})
                 continue
-            fut = c.submit(solve_frame, i, frame, W, settings, pure=False, key=f"lftomo-frame-{i}-{os.urandom(4).hex()}")
+            fut = c.submit(solve_frame, i, frame, W, settings, pure=False,
+                           key=f"lftomo-frame-{i}-{os.urandom(4).hex()}")
             in_flight[fut] = i
             ac.add(fut)
 
