@@ -272,7 +272,7 @@ def _series_forward(args, frames, out):
 def cmd_series(args) -> int:
     """``lftomo series``: one reconstruction per frame on a Dask cluster, resumable; a summary figure."""
     from .io import check_output_dir
-    from .series import reconstruct_series, series_figure
+    from .series import reconstruct_series, series_figure, series_strip
 
     scenes = [f for f in args.frames if f.endswith(".toml")]
     frames = [f for f in args.frames if not f.endswith(".toml")]
@@ -294,9 +294,11 @@ def cmd_series(args) -> int:
     res = reconstruct_series(frames, W, out=out, scheduler=args.scheduler, workers=args.workers,
                              progress=not args.quiet, noise=args.noise, seed=args.seed, data=args.data,
                              depths=args.depths, channel=args.channel, **opts)
-    fig = series_figure(res, out / "series.png", frame_rate=args.frame_rate)
+    figs = [series_figure(res, out / "series.png", frame_rate=args.frame_rate).name]
+    if res.n_done:
+        figs.append(series_strip(res, out / "series_strip.png").name)
     print(f"{res.n_done} of {len(res.frames)} frames reconstructed on {'x'.join(map(str, res.grid_shape))} voxels "
-          f"in {time.perf_counter() - t0:.1f} s; wrote {out}/ (frame_XXXX.npz, manifest.json, {fig.name})")
+          f"in {time.perf_counter() - t0:.1f} s; wrote {out}/ (frame_XXXX.npz, manifest.json, {', '.join(figs)})")
     for f in res.failed:
         print(f"  FAILED {f.message}")
     return 1 if res.failed else 0

@@ -49,7 +49,7 @@ import numpy as np
 from .errors import LftomoError
 
 __all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "MANIFEST", "frame_metrics",
-           "series_figure"]
+           "series_figure", "series_strip", "fingerprint", "solve_frame"]
 
 #: Environment of the default LocalCluster's worker processes: one thread per library.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
@@ -630,6 +630,48 @@ def series_figure(result: SeriesResult, path: str | os.PathLike, *, frame_rate: 
     axes[0].set_title(f"{result.n_done} of {len(result.frames)} frames reconstructed"
                       + (f" ({len(result.failed)} failed: red)" if result.failed else ""))
     fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    return Path(path)
+
+
+def series_strip(result: SeriesResult, path: str | os.PathLike, *, height: float = 0.3, max_frames: int = 12) -> Path:
+    """Frame strip (PNG, written atomically): the temperature of up to ``max_frames`` done frames
+    (evenly spaced) in the horizontal plane at ``height`` × the box height (y index
+    ``round(height (ny − 1))``), as the camera's top view: x to the right, z (depth) upwards.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    path : path
+        The PNG file.
+    height : float
+        Fraction of the box height, in [0, 1].
+    max_frames : int
+    """
+    from .io import atomic_path
+    from .plot import pyplot
+
+    if not 0.0 <= height <= 1.0:
+        raise LftomoError(f"height must be a fraction of the box height in [0, 1], got {height!r}")
+    done = [f for f in result.frames if f.status == "done"]
+    if not done:
+        raise LftomoError("series_strip: no frame of the series was reconstructed")
+    pick = [done[int(k)] for k in np.unique(np.linspace(0, len(done) - 1, min(max_frames, len(done))).round())]
+    stack = result.stack()
+    j = int(round(height * (result.grid_shape[1] - 1)))
+    slices = [stack[f.index][:, j, :].T for f in pick]  # (nz, nx)
+    lo, hi = min(float(s.min()) for s in slices), max(float(s.max()) for s in slices)
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(pick), figsize=(1.6 * len(pick) + 1.0, 2.2), squeeze=False)
+    for ax, f, sl in zip(axes[0], pick, slices):
+        im = ax.imshow(sl, origin="lower", vmin=lo, vmax=hi, cmap="inferno")
+        ax.set_title(f"frame {f.index}", fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im, ax=list(axes[0]), label="T (K)", shrink=0.8)
+    fig.suptitle(f"T in the plane y index {j} (x right, z up)", fontsize=9)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100)
     plt.close(fig)

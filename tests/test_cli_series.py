@@ -46,7 +46,7 @@ def test_series_from_saved_frames_and_weights(tmp_path, capsys):
     man = json.loads((out / "manifest.json").read_text())
     assert [f["status"] for f in man["frames"]] == ["done", "done", "failed"]
     assert man["settings"]["seed"] == 3 and man["settings"]["noise"] == 0.02
-    assert (out / "series.png").stat().st_size > 0 and (out / "frame_0001.npz").is_file()
+    assert (out / "series.png").stat().st_size > 0 and (out / "series_strip.png").stat().st_size > 0 and (out / "frame_0001.npz").is_file()
 
 
 @pytest.mark.parametrize("argv, match", [
