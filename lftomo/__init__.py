@@ -34,6 +34,7 @@ from .rawio import RawFrame, read_raw, write_raw, subtract_dark, CameraDescripti
 from .calibration import (MicrolensGrid, calibrate_grid, decode_operator, decode_views, refocus_views,
                           RadiometricCalibration, radiometric_calibration, save_calibration, load_calibration)
 from .rawdata import lightfield_from_raw, check_grid_matches_camera
+from .series import FrameResult, SeriesResult, reconstruct_series
 from .inverse.compare import (Comparison, compare_refocus_subaperture, effective_truth, monte_carlo_std,
                               with_monte_carlo_noise)
 
@@ -135,4 +136,7 @@ __all__ = [
     "load_calibration",
     "lightfield_from_raw",
     "check_grid_matches_camera",
+    "reconstruct_series",
+    "SeriesResult",
+    "FrameResult",
 ]

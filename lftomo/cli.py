@@ -237,6 +237,78 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _series_forward(args, frames, out):
+    """The forward model of ``lftomo series``: ``--weights`` (camera of the first readable frame) or a scene file
+    (its camera and [medium], built with seed render.seed + 2 and kept as DIR/weights.npz)."""
+    from .demo import grid_of_weight_file
+    from .forward.weights import WeightMatrix, weights
+    from .lightfield import LightField
+
+    if args.weights is not None:
+        cam = None
+        for f in frames:
+            try:
+                cam = LightField.load(f).camera
+                break
+            except (ValueError, OSError):
+                continue
+        if cam is None:
+            raise LftomoError("no frame could be read (light-field .npz files written by lftomo render / "
+                              "LightField.save): the camera of --weights is unknown")
+        grid, _ = grid_of_weight_file(Path(args.weights))
+        try:
+            return WeightMatrix.load(args.weights, cam, grid)
+        except ValueError as exc:
+            raise LftomoError(f"--weights: {exc}") from None
+    cfg = _load(args.scene, args)
+    medium = cfg.scene.medium
+    if medium is None:
+        raise LftomoError(f"scene file {cfg.source!r} has no [medium]: the weight matrix needs its grid and sigma_a")
+    wl = None if cfg.wavelengths is None else cfg.wavelengths[0]
+    print(f"lftomo series: weight matrix of {cfg.source} ({cfg.rays_per_pixel} rays/pixel, seed {cfg.seed + 2})",
+          file=sys.stderr)
+    W = weights(cfg.camera, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
+                wavelength="gray" if wl is None else wl, rays_per_pixel=cfg.rays_per_pixel, seed=cfg.seed + 2,
+                surfaces=cfg.scene.surfaces or None, progress=not args.quiet, sampler=cfg.sampler)
+    W.save(out / "weights.npz")
+    return W
+
+
+def cmd_series(args) -> int:
+    """``lftomo series``: one reconstruction per frame on a Dask cluster, resumable; a summary figure."""
+    from .io import check_output_dir
+    from .series import reconstruct_series, series_figure, series_strip
+
+    scenes = [f for f in args.frames if f.endswith(".toml")]
+    frames = [f for f in args.frames if not f.endswith(".toml")]
+    if len(scenes) > 1 or (scenes and args.weights is not None) or (not scenes and args.weights is None):
+        raise LftomoError("give the forward model either as --weights W.npz or as one SCENE.toml (got "
+                          f"{len(scenes)} .toml file(s){' and --weights' if args.weights else ''})")
+    if not frames:
+        raise LftomoError("no FRAMES given: light-field .npz files (lftomo render / LightField.save)")
+    if args.scheduler is not None and args.workers is not None:
+        raise LftomoError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
+    args.scene = scenes[0] if scenes else None
+    out = check_output_dir(args.output, what="-o/--output")
+    W = _series_forward(args, frames, out)
+    opts = {"regularization": args.regularization, "prior": args.prior, "bounds": tuple(args.bounds),
+            "max_steps": args.max_steps}
+    if args.regularization == "auto":
+        opts["rule"] = args.rule
+    t0 = time.perf_counter()
+    res = reconstruct_series(frames, W, out=out, scheduler=args.scheduler, workers=args.workers,
+                             progress=not args.quiet, noise=args.noise, seed=args.seed, data=args.data,
+                             depths=args.depths, channel=args.channel, **opts)
+    figs = [series_figure(res, out / "series.png", frame_rate=args.frame_rate).name]
+    if res.n_done:
+        figs.append(series_strip(res, out / "series_strip.png").name)
+    print(f"{res.n_done} of {len(res.frames)} frames reconstructed on {'x'.join(map(str, res.grid_shape))} voxels "
+          f"in {time.perf_counter() - t0:.1f} s; wrote {out}/ (frame_XXXX.npz, manifest.json, {', '.join(figs)})")
+    for f in res.failed:
+        print(f"  FAILED {f.message}")
+    return 1 if res.failed else 0
+
+
 # ---- argument types: argparse names the option in its error message
 def _int_in(text: str, lo: int, hi: int) -> int:
     """``int(text)`` if ``lo <= value <= hi``; else an argparse error saying what is allowed."""
@@ -450,6 +522,33 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_allow_outside(rc)
     rc.set_defaults(func=cmd_reconstruct)
+    sr = sub.add_parser("series", help="reconstruct a time-resolved series of light fields, one Dask task per "
+                                       "frame (resumable; a summary figure)")
+    sr.add_argument("frames", nargs="+", metavar="FRAMES",
+                    help="light-field .npz files (lftomo render / LightField.save), in time order; or one SCENE.toml "
+                         "among them, whose camera and [medium] give the weight matrix")
+    sr.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
+    sr.add_argument("-o", "--output", default="lftomo-series", help="output directory (a rerun resumes there)")
+    sr.add_argument("--scheduler", default=None, help="address of a Dask scheduler, e.g. tcp://host:8786 "
+                                                      "(default: a local cluster)")
+    sr.add_argument("--workers", type=_pos_int, default=None,
+                    help="processes of the local cluster, one thread each (default: the usable cores)")
+    sr.add_argument("--noise", type=_pos_float, default=None,
+                    help="relative Gaussian noise added to noise-free frames (seed --seed + frame index)")
+    sr.add_argument("--seed", type=_seed, default=0, help="base noise seed (default 0)")
+    sr.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
+    sr.add_argument("--depths", type=_depths, default=None, help="refocus depths in m, comma-separated")
+    sr.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
+    sr.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
+                    help="lambda rule with --regularization auto")
+    sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default="gradient")
+    sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
+    sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
+    sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")
+    sr.add_argument("--frame-rate", type=_pos_float, default=None, help="frames per second, for the figure's time axis")
+    sr.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_allow_outside(sr)
+    sr.set_defaults(func=cmd_series)
     cal = sub.add_parser("calibrate", help="microlens grid (and radiometric factors) of a real camera from a "
                                            "white frame (and a blackbody frame): PNG, TIFF or .npy")
     cal.add_argument("white", help="white (flat-field) raw frame")

@@ -917,7 +917,7 @@ def summary_text(metrics: dict[str, Any], out: str | Path) -> str:
 
 
 # ============================================================================ lftomo reconstruct
-def _grid_of_weight_file(path: Path):
+def grid_of_weight_file(path: Path):
     """The grid recorded in a weight-matrix file (read without pickle, checked)."""
     from .forward.grid import Grid
     from .io import json_member, read_npz
@@ -1197,7 +1197,7 @@ def _inputs_from_files(lightfield, weights, *, quadrature, channel, seed, depths
     if not wpath.is_file():
         raise LftomoError(f"--weights: weight-matrix file {str(wpath)!r} does not exist")
     try:
-        grid, _ = _grid_of_weight_file(wpath)
+        grid, _ = grid_of_weight_file(wpath)
         W = lt.WeightMatrix.load(wpath, lf.camera, grid)
     except ValueError as exc:
         raise LftomoError(f"--weights: {exc}") from None

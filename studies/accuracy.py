@@ -17,6 +17,11 @@ Usage::
 
     python studies/accuracy.py [--n 24] [--refine 2] [--rays 64] [--weight-rays 64] [--draws 1]
         [--symmetry axisymmetric] [--prior laplacian|curvature] [--quadrature 2] [--save fields.npz]
+        [--json results.json] [--workers N | --scheduler tcp://host:8786]
+
+With ``--workers``/``--scheduler`` the draws run as Dask tasks (the light field, weights and
+truth sent once per worker) and are recorded in the rows file as they finish; the resume is the
+same (the rows file does not depend on where the draws ran).
 """
 from __future__ import annotations
 
@@ -31,6 +36,95 @@ from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.solvers import NOISE_SCALES
+
+
+def _settings(a) -> dict:
+    """What the rows depend on: the arguments, less where they are computed."""
+    return {k: v for k, v in vars(a).items() if k not in ("scheduler", "workers")}
+
+
+def draw_row(d, reg, lf, W, a, ctx):
+    """One noise draw ``d`` at regularization ``reg``: reconstruct and measure the errors.
+
+    Returns ``(row, T)``; a task of its own with ``--scheduler``/``--workers``.
+    """
+    T_true, T_point, sa_c, coarse = ctx["T_true"], ctx["T_point"], ctx["sa_c"], ctx["coarse"]
+    hot, emitting = ctx["hot"], ctx["emitting"]
+    noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
+    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+                                   min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
+    m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
+    t = time.perf_counter()
+    opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}
+    if a.rule == "discrepancy":
+        opts["noise_scale"] = a.noise_scale
+    sym = None if a.symmetry == "none" else a.symmetry
+    rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, symmetry=sym, grid=coarse, **opts)
+    dt = time.perf_counter() - t
+    e = rec.errors(T_true)
+    sel = T_true > 800
+    visible = sel & (sa_c * np.asarray(coarse.spacing).mean() > 1e-3)
+    e["mean_rel_visible"] = float(np.mean(np.abs(rec.T[visible] / T_true[visible] - 1))) if visible.any() else None
+    e["n_visible"] = int(visible.sum())
+    # by how visible the voxels are at this wavelength: T bands, and the emitting voxels
+    for lo_T in (1100, 1400):
+        band = rec.errors(T_true, hot=lo_T)
+        e[f"mean_rel_T_gt_{lo_T}"], e[f"max_rel_T_gt_{lo_T}"] = band["mean_rel"], band["max_rel"]
+    rel = np.abs(rec.T / T_true - 1)
+    e["mean_rel_emitting"] = float(rel[emitting].mean())
+    e["max_rel_emitting"] = float(rel[emitting].max())
+    e["n_emitting"] = int(emitting.sum())
+    # against the point temperature at the voxel centres (same voxels: T_true > 800 K)
+    rel_p = np.abs(rec.T / T_point - 1)
+    e["mean_rel_point"], e["max_rel_point"] = float(rel_p[hot].mean()), float(rel_p[hot].max())
+    for lo_T in (1100, 1400):
+        band = T_true > lo_T
+        e[f"mean_rel_point_T_gt_{lo_T}"] = float(rel_p[band].mean())
+        e[f"max_rel_point_T_gt_{lo_T}"] = float(rel_p[band].max())
+    # misfit of the effective truth itself
+    problem = problem_on_grid(m, W, coarse)[0]
+    chi2_true = problem.chi2(T_true)
+    e["chi2_point"] = problem.chi2(T_point)
+    row = {"draw": d, **e, "lambda": rec.regularization, "lambda_rule": rec.lambda_rule,
+           "lambda_note": getattr(getattr(rec.details, "lambda_choice", None), "note", ""), "chi2": rec.chi2,
+           "chi2_truth": chi2_true, "seconds": dt, "converged": rec.converged}
+    return row, rec.T
+
+
+def _run_draws(todo, lf, W, a, ctx):
+    """Yield ``((d, reg), row, T)`` for each draw of ``todo``: here, one after the other, or with
+    ``--scheduler``/``--workers`` as Dask tasks (light field and weights sent once per worker), as they finish."""
+    if not todo:
+        return
+    if a.scheduler is None and a.workers is None:
+        for d, reg in todo:
+            yield ((d, reg), *draw_row(d, reg, lf, W, a, ctx))
+        return
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+
+    from lftomo.series import WORKER_ENV
+
+    if a.scheduler is not None:
+        cluster, client = None, Client(a.scheduler)
+    else:
+        cluster = LocalCluster(n_workers=a.workers, threads_per_worker=1, env=dict(WORKER_ENV), dashboard_address=":0",
+                               silence_logs=logging.ERROR)
+        client = Client(cluster)
+    try:
+        lf_f, W_f, ctx_f = (client.scatter(x, broadcast=True) for x in (lf, W, ctx))
+        futs = {client.submit(draw_row, d, reg, lf_f, W_f, a, ctx_f, pure=False): (d, reg) for d, reg in todo}
+        try:
+            for fut in as_completed(futs):
+                yield (futs[fut], *fut.result())
+        except BaseException:  # Ctrl-C: stop the other draws; the finished ones are in the rows file
+            client.cancel(list(futs))
+            raise
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def main():
@@ -68,6 +162,10 @@ def main():
     ap.add_argument("--json", default="", help="results file; finished draws are also kept in JSON.rows.jsonl, "
                                                "from which a rerun with the same arguments resumes")
     ap.add_argument("--save", default="", help="npz file for the last draw's T_true, T and sigma_a (coarse grid)")
+    ap.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786): the draws run "
+                                                      "there as tasks")
+    ap.add_argument("--workers", type=int, default=None, help="run the draws on a local Dask cluster of this many "
+                                                             "single-threaded processes")
     a = ap.parse_args()
     t0 = time.perf_counter()
     cam = lt.Camera.seed(1.0) if a.mla == 0 else lt.Camera.seed(1.0, mla={"count": (a.mla, a.mla)})
@@ -102,60 +200,26 @@ def main():
     emission = sa_c * lt.planck(T_true, wl)
     emitting = hot & (emission >= 0.01 * emission.max())
     print(f"hot voxels {hot.sum()} of {hot.size}; T_true max {T_true.max():.0f}")
-    out = []
-    rows_file = ResumableRows(a.json + ".rows.jsonl", vars(a)) if a.json else None
-    rec = None
+    rows_file = ResumableRows(a.json + ".rows.jsonl", _settings(a)) if a.json else None
     regs = [a.regularization] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
-    for d, reg in ((d, reg) for d in range(a.draws) for reg in regs):
+    ctx = {"T_true": T_true, "T_point": T_point, "sa_c": sa_c, "coarse": coarse, "hot": hot, "emitting": emitting}
+    keys = [(d, reg) for d in range(a.draws) for reg in regs]
+    done = {}
+    for d, reg in keys:
         if rows_file is not None and rows_file.get(f"{d}-{reg}") is not None:
-            out.append(rows_file.get(f"{d}-{reg}"))
+            done[(d, reg)] = (rows_file.get(f"{d}-{reg}"), None)
             print(f"draw {d}, regularization {reg}: resumed from {rows_file.path}")
-            continue
-        noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
-        noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
-                                       min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
-        m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
-        t = time.perf_counter()
-        opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}
-        if a.rule == "discrepancy":
-            opts["noise_scale"] = a.noise_scale
-        sym = None if a.symmetry == "none" else a.symmetry
-        rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, symmetry=sym, grid=coarse,
-                             **opts)
-        dt = time.perf_counter() - t
-        e = rec.errors(T_true)
-        sel = T_true > 800
-        visible = sel & (sa_c * np.asarray(coarse.spacing).mean() > 1e-3)
-        e["mean_rel_visible"] = float(np.mean(np.abs(rec.T[visible] / T_true[visible] - 1))) if visible.any() else None
-        e["n_visible"] = int(visible.sum())
-        # by how visible the voxels are at this wavelength: T bands, and the emitting voxels
-        for lo_T in (1100, 1400):
-            band = rec.errors(T_true, hot=lo_T)
-            e[f"mean_rel_T_gt_{lo_T}"], e[f"max_rel_T_gt_{lo_T}"] = band["mean_rel"], band["max_rel"]
-        rel = np.abs(rec.T / T_true - 1)
-        e["mean_rel_emitting"] = float(rel[emitting].mean())
-        e["max_rel_emitting"] = float(rel[emitting].max())
-        e["n_emitting"] = int(emitting.sum())
-        # against the point temperature at the voxel centres (same voxels: T_true > 800 K)
-        rel_p = np.abs(rec.T / T_point - 1)
-        e["mean_rel_point"], e["max_rel_point"] = float(rel_p[hot].mean()), float(rel_p[hot].max())
-        for lo_T in (1100, 1400):
-            band = T_true > lo_T
-            e[f"mean_rel_point_T_gt_{lo_T}"] = float(rel_p[band].mean())
-            e[f"max_rel_point_T_gt_{lo_T}"] = float(rel_p[band].max())
-        # misfit of the effective truth itself
-        problem = problem_on_grid(m, W, coarse)[0]
-        chi2_true = problem.chi2(T_true)
-        e["chi2_point"] = problem.chi2(T_point)
-        row = {"draw": d, **e, "lambda": rec.regularization, "lambda_rule": rec.lambda_rule,
-               "lambda_note": getattr(getattr(rec.details, "lambda_choice", None), "note", ""), "chi2": rec.chi2,
-               "chi2_truth": chi2_true, "seconds": dt, "converged": rec.converged}
+    todo = [k for k in keys if k not in done]
+    for (d, reg), row, T in _run_draws(todo, lf, W, a, ctx):
         print(json.dumps(row))
-        out.append(row)
+        done[(d, reg)] = (row, T)
         if rows_file is not None:
             rows_file.add(f"{d}-{reg}", row)
-    if a.save and rec is not None:
-        np.savez_compressed(a.save, T_true=T_true, T_point=T_point, T=rec.T, sigma_a=sa_c, spacing=np.asarray(coarse.spacing),
+    out = [done[k][0] for k in keys]
+    last_T = next((done[k][1] for k in reversed(keys) if done[k][1] is not None), None)
+    if a.save and last_T is not None:
+        np.savez_compressed(a.save, T_true=T_true, T_point=T_point, T=last_T, sigma_a=sa_c,
+                            spacing=np.asarray(coarse.spacing),
                             lower=np.asarray(coarse.lower))
     if a.json:
         atomic_write_text(a.json, json.dumps({"args": vars(a), "draws": out}, indent=1))

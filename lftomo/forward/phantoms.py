@@ -22,6 +22,8 @@ __all__ = [
     "gaussian_blob",
     "axisymmetric_flame",
     "two_lobed_flame",
+    "precessing_flame",
+    "precessing_flame_sequence",
     "reference_absorbing",
     "reference_scattering",
     "reference_emitting",
@@ -341,6 +343,103 @@ def two_lobed_flame(
         soot_exponent=soot_exponent, sigma_s=sigma_s, g=g,
         reference_wavelength=reference_wavelength, alpha=alpha,
     )
+
+
+def precessing_flame(
+    grid: Grid,
+    t: float,
+    *,
+    period: float = 0.02,
+    orbit: float = 0.12,
+    T_peak: float = 1900.0,
+    T_ambient: float = 300.0,
+    secondary_amplitude: float = 0.65,
+    sigma_a_peak: float = 10.0,
+    soot_exponent: float = 2.0,
+    width_scale: float = 1.0,
+    reference_wavelength: float = 650e-9,
+    alpha: float = 1.38,
+) -> Medium:
+    """Time-resolved, non-axisymmetric flame: two lobes precessing about the box's vertical axis.
+
+    Box size ``(Lx, Ly, Lz)``, centre ``(cx, cy, cz)``, base ``y0 = grid.lower[1]``;
+    phase ``φ(t) = 2π t / period`` (``t`` and ``period`` in s, default 50 Hz),
+    orbit radius ``ρ = orbit``.  Two axisymmetric profiles ``θ_i`` as in
+    :func:`axisymmetric_flame` (``_flame_shape``, axial order 2, width growth 0.04)
+    stand on opposite sides of the axis::
+
+        main (1):  axis (cx + ρ Lx cos φ, cz + ρ Lz sin φ), height_peak 0.40 Ly, width_base 0.06 Lx w
+        side (2):  axis (cx − ρ Lx cos φ, cz − ρ Lz sin φ), height_peak 0.25 Ly, width_base 0.04 Lx w
+
+    (``w = width_scale``) and combine as in :func:`two_lobed_flame`::
+
+        θ(t) = 1 − (1 − θ_1)(1 − a θ_2)          (a = secondary_amplitude)
+        T(t) = T_ambient + (T_peak − T_ambient) θ(t)
+
+    The absorption is **held fixed in time**: ``sigma_a = sigma_a_peak θ_env^p``
+    with ``θ_env`` the axisymmetric profile on the box axis ``(cx, cz)``,
+    height_peak 0.40 Ly, width_base ``(0.06 w + ρ) Lx``, which covers the
+    lobes' orbit.  One weight matrix, built for this ``sigma_a``, is then the
+    exact forward model of every frame (a T-only series with known
+    absorption); only the temperature moves.  The field is periodic in ``t``
+    with period ``period``, and ``t = period/2`` mirrors ``t = 0`` about the
+    axis.
+
+    Parameters
+    ----------
+    grid : Grid
+    t : float
+        Time (s).
+    period : float
+        Precession period (s), > 0.
+    orbit : float
+        Orbit radius as a fraction of the box width, in [0, 0.3].
+    T_peak, T_ambient, secondary_amplitude, sigma_a_peak, soot_exponent, width_scale, reference_wavelength, alpha
+        As :func:`two_lobed_flame`.
+
+    Returns
+    -------
+    Medium
+    """
+    _require_grid(grid)
+    t = require_finite_scalar("t", t)
+    P = require_positive("period", period)
+    rho = require_nonnegative("orbit", orbit)
+    if rho > 0.3:
+        raise LftomoError(f"orbit must be in [0, 0.3] (a fraction of the box width), got {rho!r}")
+    a = require_nonnegative("secondary_amplitude", secondary_amplitude)
+    if a > 1.0:
+        raise LftomoError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+    ws = require_positive("width_scale", width_scale)
+    L, c, y0 = grid.size, grid.center, grid.lower[1]
+    X, Y, Z = _mesh(grid)
+    phi = 2.0 * np.pi * t / P
+    dx, dz = rho * L[0] * np.cos(phi), rho * L[2] * np.sin(phi)
+    t1 = _flame_shape(X, Y, Z, xc=c[0] + dx, zc=c[2] + dz, y_base=y0, height_peak=0.40 * L[1],
+                      width_base=0.06 * L[0] * ws, width_growth=0.04, axial_order=2.0)
+    t2 = _flame_shape(X, Y, Z, xc=c[0] - dx, zc=c[2] - dz, y_base=y0, height_peak=0.25 * L[1],
+                      width_base=0.04 * L[0] * ws, width_growth=0.04, axial_order=2.0)
+    env = _flame_shape(X, Y, Z, xc=c[0], zc=c[2], y_base=y0, height_peak=0.40 * L[1],
+                       width_base=(0.06 * ws + rho) * L[0], width_growth=0.04, axial_order=2.0)
+    theta = np.clip(1.0 - (1.0 - t1) * (1.0 - a * t2), 0.0, 1.0)
+    medium = _flame_medium(grid, env, T_peak=T_peak, T_ambient=T_ambient, sigma_a_peak=sigma_a_peak,
+                           soot_exponent=soot_exponent, sigma_s=0.0, g=0.0,
+                           reference_wavelength=reference_wavelength, alpha=alpha)
+    return Medium(grid, sigma_a=medium.sigma_a, sigma_s=0.0, g=0.0,
+                  T=T_ambient + (T_peak - T_ambient) * theta, sigma_a_rule=medium.sigma_a_rule)
+
+
+def precessing_flame_sequence(grid: Grid, n_frames: int, *, frame_rate: float = 1000.0, **kw: Any) -> list[Medium]:
+    """``n_frames`` media of :func:`precessing_flame` at ``t_k = k / frame_rate`` (s), ``k = 0 … n_frames − 1``.
+
+    Default 1000 frames/s: 20 frames per 50 Hz precession period.  ``kw`` go to
+    :func:`precessing_flame`.
+    """
+    n = int(n_frames)
+    if n != n_frames or n < 1:
+        raise LftomoError(f"n_frames must be an integer >= 1, got {n_frames!r}")
+    fr = require_positive("frame_rate", frame_rate)
+    return [precessing_flame(grid, k / fr, **kw) for k in range(n)]
 
 
 # ---------------------------------------------------------------------- reference cases

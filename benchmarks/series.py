@@ -1,0 +1,111 @@
+"""A time-resolved series on a local Dask cluster against the same frames reconstructed serially.
+
+Frames: :func:`lftomo.phantoms.precessing_flame` at ``--frames`` instants (1000 frames/s, 50 Hz
+precession) on an ``--n``³ grid in the default flame box, rendered at 650 nm by the seed camera with
+``--mla`` lenslets per side (``--rays`` rays/pixel, seed 1); the weight matrix on the same grid for
+the phantom's fixed absorption (seed 2, another set of rays); 1 % noise (seed 100 + frame).  Every
+frame is reconstructed with a fixed λ (``--lam``) and ``--max-steps`` steps, once serially in this
+process (``lt.reconstruct``), once by :func:`lftomo.reconstruct_series` on a LocalCluster of
+``--workers`` single-threaded processes.
+
+The fields are bit-identical when this process runs with the workers' thread settings
+(``lftomo.series.WORKER_ENV``: ``OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1
+MKL_NUM_THREADS=1``); a multithreaded BLAS sums the solver's dot products in another order.
+
+Printed: the serial and series wall times and their ratio (the speed-up; the cluster's start-up
+is timed separately and excluded), whether the fields are bit-identical, the peak resident memory
+of each worker process, and how many copies of the forward model the tasks used (distinct
+(worker process, object id) pairs: one per worker when it is sent once per worker).
+
+Usage::
+
+    python benchmarks/series.py [--frames 16] [--n 16] [--mla 16] [--workers 2] [--max-steps 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+
+import numpy as np
+
+import lftomo as lt
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--frames", type=int, default=16)
+    ap.add_argument("--n", type=int, default=16)
+    ap.add_argument("--mla", type=int, default=16)
+    ap.add_argument("--rays", type=int, default=4)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--lam", type=float, default=1e-2)
+    ap.add_argument("--max-steps", type=int, default=10)
+    a = ap.parse_args()
+    wl = 650e-9
+    cam = lt.Camera.seed(1.0, mla={"count": (a.mla, a.mla)})
+    grid = lt.phantoms.default_flame_grid((a.n,) * 3)
+    t0 = time.perf_counter()
+    media = lt.phantoms.precessing_flame_sequence(grid, a.frames, width_scale=3.0)
+    frames = [lt.render(lt.Scene(medium=m), cam, rays_per_pixel=a.rays, seed=1, wavelengths=(wl,), progress=False)
+              for m in media]
+    W = lt.weights(cam, grid, sigma_a=media[0].sigma_a_at(wl), wavelength=wl, rays_per_pixel=a.rays, seed=2,
+                   progress=False)
+    print(f"setup: {a.frames} frames of {cam.sensor_shape[0]}x{cam.sensor_shape[1]} px rendered + W {W.shape} "
+          f"nnz {W.nnz} ({W.nbytes / 1e6:.1f} MB) in {time.perf_counter() - t0:.1f} s; load average "
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    opts = {"regularization": a.lam, "max_steps": a.max_steps, "bounds": (300.0, 2500.0)}
+
+    t0 = time.perf_counter()
+    serial = []
+    for i, lf in enumerate(frames):
+        m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=100 + i), channel=0)
+        serial.append(lt.reconstruct(m, W, **opts).T)
+    t_serial = time.perf_counter() - t0
+    print(f"serial: {t_serial:.1f} s ({t_serial / a.frames:.2f} s/frame); load average {os.getloadavg()[0]:.1f}")
+
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    from lftomo.series import WORKER_ENV
+
+    t0 = time.perf_counter()
+    cluster = LocalCluster(n_workers=a.workers, threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
+                           dashboard_address=":0", silence_logs=logging.ERROR)
+    client = Client(cluster)
+    client.run(lambda: __import__("lftomo.inverse.solvers"))  # imports (JAX) in every worker, as serial had
+    t_start = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        res = lt.reconstruct_series(frames, W, out=out, client=client, noise=0.01, seed=100, **opts)
+        t_series = time.perf_counter() - t0
+        man = json.load(open(os.path.join(out, "manifest.json")))
+        stack = res.stack()
+    rss = client.run(_peak_rss_mb)
+    client.close()
+    cluster.close()
+    copies = {(f["worker"], f["forward_copy"]) for f in man["frames"]}
+    workers = {f["worker"] for f in man["frames"]}
+    same = bool(np.array_equal(stack, np.stack(serial)))
+    dT = float(np.max(np.abs(stack - np.stack(serial))))
+    print(f"series: {t_series:.1f} s on {a.workers} workers (cluster start {t_start:.1f} s, not included); "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"speed-up serial/series: {t_serial / t_series:.2f}x; frames done {res.n_done}/{a.frames}; "
+          f"bit-identical to serial: {same} (max |dT| {dT:.3g} K)")
+    print("peak memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in rss.values())
+          + f"; this process {_peak_rss_mb():.0f} MB")
+    print(f"forward-model copies used by the tasks: {len(copies)} on {len(workers)} worker process(es)")
+
+
+if __name__ == "__main__":
+    main()
