@@ -291,10 +291,13 @@ def cmd_series(args) -> int:
     args.scene = scenes[0] if scenes else None
     out = check_output_dir(args.output, what="-o/--output")
     W = _series_forward(args, frames, out)
-    opts = {"regularization": args.regularization, "prior": args.prior, "bounds": tuple(args.bounds),
-            "max_steps": args.max_steps}
+    opts = {"regularization": args.regularization, "bounds": tuple(args.bounds), "max_steps": args.max_steps}
+    if args.prior is not None:
+        opts["prior"] = args.prior
     if args.regularization == "auto":
         opts["rule"] = args.rule
+        if args.noise_scale is not None:
+            opts["noise_scale"] = args.noise_scale
     t0 = time.perf_counter()
     res = reconstruct_series(frames, W, out=out, scheduler=args.scheduler, workers=args.workers,
                              progress=not args.quiet, noise=args.noise, seed=args.seed, data=args.data,
@@ -477,10 +480,12 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
     rc.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
                     help="lambda rule with --regularization auto")
-    rc.add_argument("--noise-scale", choices=("given", "estimated"), default="given",
+    rc.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
                     help="discrepancy rule: trust the noise model's sigma (given), or only its shape and estimate "
-                         "its scale from the residual of the least-regularized fit (estimated; Monte Carlo data)")
-    rc.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default="gradient", help="smoothness prior (curvature: second differences, free faces)")
+                         "its scale from the residual of the least-regularized fit (estimated; Monte Carlo data; "
+                         "the default with --rule discrepancy)")
+    rc.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
+                    help="smoothness prior (default curvature: second differences, free faces)")
     rc.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
     rc.add_argument("--min-etendue-fraction", type=_fraction, default=0.2,
                     help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "
@@ -541,7 +546,10 @@ def build_parser() -> argparse.ArgumentParser:
     sr.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
     sr.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
                     help="lambda rule with --regularization auto")
-    sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default="gradient")
+    sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
+                    help="smoothness prior (default: the library's, curvature)")
+    sr.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
+                    help="discrepancy rule: trust sigma (given) or estimate its scale (the default)")
     sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
     sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
     sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")

@@ -41,6 +41,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import LftomoError
+from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_PRIOR
 
 #: Folder inside the report folder that keeps the long stages of an unfinished run.
 RESUME_DIR = ".lftomo-resume"
@@ -91,11 +92,6 @@ BOUNDS = (300.0, 3000.0)
 #: the data: the rims of the microlens images, whose Monte Carlo error is far
 #: above what :func:`lftomo.inverse.compare.monte_carlo_std` models.
 MIN_ETENDUE_FRACTION = 0.2
-#: The discrepancy rule's noise scale (:func:`lftomo.inverse.solvers.solve_temperature`).  The
-#: demo's uniform 16³ voxels have a large model error at the flame's edges, which the default
-#: Monte Carlo floor ("bound") allows for; there the given-σ rule (7.2 % at λ 297) is measured.
-#: "estimated" goes with the accurate floor ("prior") and sub-voxel emission (docs/accuracy.md).
-NOISE_SCALE = "given"
 FOCAL_DEPTHS = (0.98, 0.99, 1.0, 1.01, 1.02)   # m: across the 50 mm flame box at 1 m
 COMPARE_DEPTHS = (0.985, 1.0, 1.015)
 #: Base width of the demo flame (m): 12 mm, about 10 lenslet footprints
@@ -369,8 +365,9 @@ def demo_settings(quick: bool = False, seed: int = 0) -> dict[str, Any]:
         "bounds_K": list(BOUNDS),
         "focal_stack_depths": list(FOCAL_DEPTHS),
         "compare_depths": list(COMPARE_DEPTHS),
-        "reconstruction": {"regularization": "auto", "rule": "discrepancy", "noise_scale": NOISE_SCALE,
-                           "prior": "gradient", "data": "subaperture", "method": "levenberg-marquardt"},
+        "reconstruction": {"regularization": "auto", "rule": "discrepancy", "noise_scale": DEFAULT_NOISE_SCALE,
+                           "prior": DEFAULT_PRIOR, "data": "subaperture", "method": "levenberg-marquardt",
+                           "options": "the library's defaults"},
         "posterior": {"basis": "ParametricFlame (6 parameters)", "grid": "reconstruction grid",
                       "n_walkers": 16, "burn": "n_steps // 4"},
     })
@@ -634,8 +631,7 @@ def _demo_reconstruct(d: _DemoRun) -> None:
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct", "reconstruction (optimistix LM, λ by the discrepancy rule)"):
-        rec = lt.reconstruct(d.r["m"], d.r["W"], regularization="auto", rule="discrepancy", noise_scale=NOISE_SCALE,
-                             prior="gradient", bounds=BOUNDS, **d.opts)
+        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, **d.opts)   # the library's defaults
     d.r["rec"] = rec
     err = temperature_errors(rec.T, T_eff, HOT)
     err_core = temperature_errors(rec.T, T_eff, HOT_CORE)
@@ -650,8 +646,9 @@ def _demo_reconstruct(d: _DemoRun) -> None:
                                  f"(error shown where T > {HOT:.0f} K)")
     d.sections.append({
         "title": "5. Reconstruction",
-        "text": ("Regularised nonlinear least squares in T (optimistix Levenberg–Marquardt, gradient prior, "
-                 f"bounds {BOUNDS[0]:.0f}–{BOUNDS[1]:.0f} K), λ by Morozov's discrepancy rule. "
+        "text": ("Regularised nonlinear least squares in T with the library's defaults (optimistix Levenberg–Marquardt, curvature prior, "
+                 f"bounds {BOUNDS[0]:.0f}–{BOUNDS[1]:.0f} K), λ by Morozov's discrepancy rule with the noise scale "
+                 "estimated from the residual. "
                  f"λ = {rec.regularization:.3g} ({note}). Errors against the effective truth where it exceeds "
                  f"{HOT:.0f} K; at 650 nm a voxel at 1000 K emits ~10⁻⁴ of one at 1800 K, so the cooler part of "
                  "that region is nearly invisible and is set by the prior."),
@@ -667,14 +664,12 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
     import lftomo as lt
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
-    with d.st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, Laplacian prior)"):
-        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], regularization="auto", rule="discrepancy",
-                                noise_scale=NOISE_SCALE, prior="laplacian", bounds=BOUNDS, symmetry="axisymmetric",
-                                **d.opts)
+    with d.st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, the defaults)"):
+        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, symmetry="axisymmetric", **d.opts)
     d.r["rec_ax"] = rec_ax
     err_ax = temperature_errors(rec_ax.T, T_eff, HOT)
     err_ax_core = temperature_errors(rec_ax.T, T_eff, HOT_CORE)
-    d.metrics["reconstruction_axisymmetric"] = {**rec_ax.summary(), "prior": "laplacian",
+    d.metrics["reconstruction_axisymmetric"] = {**rec_ax.summary(), "prior": DEFAULT_PRIOR,
                                                 "errors_T_gt_800K": err_ax, "errors_T_gt_1400K": err_ax_core}
     fig_ax = slice_figure([("effective truth", T_eff, "T"), ("axisymmetric fit", rec_ax.T, "T"),
                            ("axisymmetric fit − truth", rec_ax.T - T_eff, "error")], coarse,
@@ -686,7 +681,7 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
                  "the vertical axis through the box centre: every horizontal layer has one temperature per ring of "
                  "voxels at equal distance from the axis (lftomo.ring_grid; "
                  f"{rec_ax.symmetry.n_rings} rings instead of {coarse.shape[0] * coarse.shape[2]} voxels per "
-                 "layer), Laplacian prior, λ by the same rule. One camera sees the flame through a few-degree "
+                 "layer), the same prior and λ rule. One camera sees the flame through a few-degree "
                  "aperture and cannot place emission in depth (section 5's error is mostly that); an "
                  "axisymmetric field has no depth to place — its depth profile at one lateral position is its "
                  "lateral profile at another, as in Abel inversion. Only for flames that are axisymmetric."),
@@ -762,7 +757,7 @@ def _demo_field_posterior(d: _DemoRun) -> None:
     coarse, T_eff, rec = d.r["coarse"], d.r["T_eff"], d.r["rec"]
     with d.st("field_posterior", "posterior of the whole field: Laplace, lambda by evidence"):
         fpost = lt.laplace_posterior(d.r["problem"], regularization="evidence", lambda0=rec.regularization, T0=rec.T,
-                                     bounds=BOUNDS, seed=d.cfg["seeds"]["posterior"], **d.opts)
+                                     prior=DEFAULT_PRIOR, bounds=BOUNDS, seed=d.cfg["seeds"]["posterior"], **d.opts)
     d.r["fpost"] = fpost
     ev = fpost.evidence
     hot_eff = T_eff > HOT
@@ -809,7 +804,7 @@ def _demo_compare(d: _DemoRun) -> None:
             d.r["scene"], d.r["camera"], d.r["coarse"], noise=NOISE, depths=list(COMPARE_DEPTHS),
             seed=cfg["seeds"]["compare"], rays_per_pixel=d.n_d, weights_rays_per_pixel=d.n_w, wavelength=WAVELENGTH,
             regularization="auto", bounds=BOUNDS, n_singular=cfg["n_singular"], hot=HOT, progress=d.progress,
-            rule="discrepancy", noise_scale=NOISE_SCALE, lightfield=d.r["lf"], weights=d.r["W"], **extra, **d.opts)
+            lightfield=d.r["lf"], weights=d.r["W"], **extra, **d.opts)
     same = bool(np.allclose(comp.subaperture.T, d.r["rec"].T))
     csum = comp.summary()
     d.metrics["compare"] = {**csum, "depth_profile": comp.depth_profile, "singular_values": comp.singular_values,
@@ -895,7 +890,7 @@ def summary_text(metrics: dict[str, Any], out: str | Path) -> str:
         f"    T > {p['hot_threshold_K']:.0f} K:  {e(r['errors_T_gt_800K'])}",
         f"    T > {p['hot_core_threshold_K']:.0f} K: {e(r['errors_T_gt_1400K'])}",
         f"  axisym.     lambda {ra['regularization']:.3g}, {ra['symmetry']['n_rings']} rings per layer "
-        f"(Laplacian prior)",
+        f"(curvature prior)",
         f"    T > {p['hot_threshold_K']:.0f} K:  {e(ra['errors_T_gt_800K'])}",
         f"    T > {p['hot_core_threshold_K']:.0f} K: {e(ra['errors_T_gt_1400K'])}",
         f"  posterior   acceptance {po['acceptance_mean']:.2f}, tau max {po['tau_max_steps']:.1f} steps, "
@@ -1343,8 +1338,8 @@ def run_reconstruct(
     depths: Sequence[float] | None = None,
     regularization: str | float = "auto",
     rule: str = "discrepancy",
-    noise_scale: str = "given",
-    prior: str = "gradient",
+    noise_scale: str | None = None,
+    prior: str | None = None,
     bounds: tuple[float, float] = BOUNDS,
     posterior: bool = False,
     posterior_basis: str = "flame",
@@ -1376,8 +1371,10 @@ def run_reconstruct(
     noise-free light field gets ``noise`` (default 1 %) relative Gaussian
     noise; the render's Monte Carlo error joins the noise model.  View pixels
     of étendue below ``min_etendue_fraction`` of the peak are left out.
-    ``noise_scale="estimated"`` lets the discrepancy rule estimate the noise
-    scale from the residual (:func:`lftomo.inverse.solvers.solve_temperature`).
+    ``prior`` and ``noise_scale`` default to the library's
+    (:data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`, and with the discrepancy
+    rule :data:`~lftomo.inverse.reconstruct.DEFAULT_NOISE_SCALE`: the rule
+    estimates the noise scale from the residual).
     ``symmetry="axisymmetric"`` fits ring cells about the grid's vertical axis
     (reconstruction and field posterior).  ``sampler`` (scene mode) is the
     pixel sampler of the render and the weights (default the scene's
@@ -1428,16 +1425,20 @@ def run_reconstruct(
         m, problem, metrics["measurement"] = _reconstruct_measurement(inp, noise=noise, data=data,
                                                                       min_etendue_fraction=min_etendue_fraction)
 
+    prior = DEFAULT_PRIOR if prior is None else prior  # the library's defaults, named in metrics.json
+    if noise_scale is None and rule == "discrepancy" and regularization == "auto":
+        noise_scale = DEFAULT_NOISE_SCALE
+    scale_kw = {} if noise_scale is None else {"noise_scale": noise_scale}
     sym_text = ", axisymmetric" if symmetry else ""
     with st("reconstruct", f"reconstruct ({rule} rule, {prior} prior{sym_text})"):
         try:
             rec = lt.reconstruct(m, inp.W, regularization=regularization, rule=rule, prior=prior, bounds=tuple(bounds),
-                                 max_steps=max_steps, symmetry=symmetry, grid=inp.grid, noise_scale=noise_scale)
+                                 max_steps=max_steps, symmetry=symmetry, grid=inp.grid, **scale_kw)
         except ValueError as exc:
             raise LftomoError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")
     metrics["reconstruction"] = {**rec.summary(), "lambda_note": note, "max_steps": max_steps,
-                                 "bounds_K": list(bounds)}
+                                 "bounds_K": list(bounds), "prior": prior, "noise_scale": noise_scale}
     if inp.T_true is not None:
         metrics["reconstruction"]["errors_T_gt_800K"] = temperature_errors(rec.T, inp.T_true, HOT)
         metrics["reconstruction"]["errors_T_gt_1400K"] = temperature_errors(rec.T, inp.T_true, HOT_CORE)

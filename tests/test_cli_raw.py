@@ -164,8 +164,7 @@ def test_saturated_pixels_are_flagged_and_left_out(frames):
 
 def _reconstruct(lf, W, grid):
     m = lt.Measurement.from_lightfield(with_model_error(lf, W), data="subaperture")
-    return lt.reconstruct(m, W, regularization="auto", rule="discrepancy", prior="gradient", bounds=(300.0, 3000.0),
-                          max_steps=50, grid=grid).T
+    return lt.reconstruct(m, W, bounds=(300.0, 3000.0), max_steps=50, grid=grid).T   # the CLI's defaults
 
 
 def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(frames, tmp_path, capsys):

@@ -368,7 +368,10 @@ def compare_refocus_subaperture(
         if W.shape[1] != recon_grid.n_voxels:
             raise ValueError(f"weights has {W.shape[1]} columns, recon_grid {recon_grid.n_voxels} voxels")
     results, errors, profile, spectra, resolution = {}, {}, {}, {}, {}
-    L = prior_operator(recon_grid, "gradient")
+    from .reconstruct import DEFAULT_PRIOR
+
+    # the resolution kernels use the reconstruction's own prior (the solver's is the dimensionless operator)
+    L = prior_operator(recon_grid, solver_options.get("prior") or DEFAULT_PRIOR)
     hot_mask = T_true > hot
     j0 = int(np.argmax(np.where(hot_mask, T_true, -np.inf)))
     for kind in ("subaperture", "refocus"):

@@ -24,6 +24,14 @@ from .result import Reconstruction, temperature_errors  # noqa: F401  (re-export
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 
+#: The T-only fit's prior when none is given: second differences per axis, no boundary
+#: condition at the box faces (docs/accuracy.md, "Defaults").
+DEFAULT_PRIOR = "curvature"
+#: The T-only discrepancy rule's noise scale when none is given: σ trusted up to a common
+#: factor estimated from the residual (Monte Carlo data and model error; docs/accuracy.md, "Defaults").
+DEFAULT_NOISE_SCALE = "estimated"
+
+
 def _grid_of(W) -> Grid:
     g = W.metadata.get("grid")
     if g is None:
@@ -136,7 +144,7 @@ def reconstruct(
     *,
     unknowns: str = "T",
     regularization: str | float = "auto",
-    prior: str = "gradient",
+    prior: Any = None,
     bounds: tuple[float, float] = (300.0, 3000.0),
     method: str | None = None,
     rule: Any = None,
@@ -159,7 +167,11 @@ def reconstruct(
     unknowns : {"T", "T+sigma_a"}
     regularization : "auto" or float
         λ, or ``"auto"`` to choose it by ``rule`` (``rule=Fixed(λ)`` is the same as a float).
-    prior : {"gradient", "laplacian", "tv", "curvature"}
+    prior : str or Prior, optional
+        ``"gradient"``, ``"laplacian"``, ``"tv"``, ``"curvature"`` or a
+        :class:`~lftomo.inverse.regularizers.Prior`.  Default
+        :data:`DEFAULT_PRIOR` (``"curvature"``) for ``"T"``, ``"gradient"`` for
+        ``"T+sigma_a"``.
     bounds : (T_min, T_max)
         Temperature bounds (K), enforced by parameterisation.
     method : {"levenberg-marquardt", "gauss-newton"}, or "dense-lm" for "T+sigma_a"
@@ -171,7 +183,9 @@ def reconstruct(
         ``"gcv"``, ``"lcurve"`` (``"discrepancy-bracket"``, ``"lcurve"`` for
         ``"T+sigma_a"``), or a rule object with its parameters, e.g.
         ``Discrepancy(noise_scale="estimated")``, ``GCV(n_lambda=9)``,
-        ``Fixed(300.0)``; default each fit's own:
+        ``Fixed(300.0)``.  Default each fit's own: for ``"T"`` the discrepancy
+        rule with the noise scale estimated (:data:`DEFAULT_NOISE_SCALE`; pass
+        ``noise_scale="given"`` to trust σ as it is);
         ``"discrepancy"`` for ``"T"``, ``"discrepancy-bracket"`` for
         ``"T+sigma_a"`` (which takes it or ``"lcurve"``).
     T0 : ndarray, optional
@@ -234,7 +248,8 @@ def reconstruct(
             warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
         rule_kw = {} if rule is None else {"rule": rule}
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            return solve_temperature_absorption(ms, weights, regularization=regularization, prior=prior,
+            return solve_temperature_absorption(ms, weights, regularization=regularization,
+                                                prior="gradient" if prior is None else prior,
                                                 bounds=bounds, method=method, T0=T0,
                                                 symmetry=symmetry, grid=grid, **rule_kw, **options)
     from .solvers import solve_temperature
@@ -253,8 +268,11 @@ def reconstruct(
     warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-        sol = solve_temperature(problem, regularization=regularization, prior=prior, bounds=bounds, T0=T0,
-                                method=method, rule="discrepancy" if rule is None else rule, **options)
+        if rule in (None, "discrepancy") and regularization == "auto":
+            options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
+        sol = solve_temperature(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
+                                bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
+                                **options)
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items()}}
     return Reconstruction(
         T=sol.T if ring is None else ring.expand(sol.T),
