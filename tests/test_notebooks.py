@@ -7,6 +7,12 @@ files without touching the checkout.  The notebooks check their own
 conclusions with ``assert`` cells, so a notebook whose numbers stop supporting
 its text fails here too.
 
+Each kernel imports the same ``lftomo`` as this test process (its folder goes first on the
+kernel's ``PYTHONPATH``).  Under ``python -m pytest`` in the checkout that is the checkout, while a
+bare kernel started in a temporary folder would import the installed copy: different code from
+what the other tests check, and numba's ``cache=True`` kernels, cached per source file, compiled a
+second time (about 100 s of the first notebook in a fresh CI venv).
+
 A second test keeps the committed notebooks stripped: no outputs and no
 execution counts (regenerate or clear them before committing).
 """
@@ -16,9 +22,13 @@ from pathlib import Path
 
 import pytest
 
+import lftomo
+
 NOTEBOOK_DIR = Path(__file__).resolve().parents[1] / "notebooks"
 NOTEBOOKS = sorted(NOTEBOOK_DIR.glob("*.ipynb"))
 CELL_TIMEOUT_S = 600
+#: the folder holding the ``lftomo`` package this process imported
+LFTOMO_ROOT = Path(lftomo.__file__).resolve().parents[1]
 
 
 def _ids(paths):
@@ -36,6 +46,8 @@ def test_notebook_executes_without_errors(path, tmp_path, monkeypatch):
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         if var not in os.environ:
             monkeypatch.setenv(var, "1")
+    pythonpath = [str(LFTOMO_ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(pythonpath))
     nb = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(
         nb,

@@ -199,12 +199,14 @@ def test_exit_pupil_cull_changes_no_pixel(small_camera):
     from lftomo.forward import optics as O
     from lftomo.forward.camera import _pixel_throughput
 
-    rows, cols = np.indices(small_camera.sensor_shape)
-    rows, cols = rows.ravel()[::7], cols.ravel()[::7]
+    # contiguous pixel lists and read-only optics, the argument types the library passes: numba
+    # compiles the kernel once per type (strided or writable arrays cost ~2 more compiles)
+    rows, cols = (np.ascontiguousarray(a.ravel()[::7]) for a in np.indices(small_camera.sensor_shape))
     arrays = small_camera.sampler_arrays("stratified", 64)
     culled = _pixel_throughput(rows, cols, 64, 1, small_camera.packed, *arrays)
     no_cull = small_camera.packed.copy()
     no_cull[O.O_XP_R2] = 0.0
+    no_cull.setflags(write=False)
     full = _pixel_throughput(rows, cols, 64, 1, no_cull, *arrays)
     assert np.array_equal(culled, full)
     assert small_camera.packed[O.O_XP_R2] > 0

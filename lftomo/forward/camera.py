@@ -528,6 +528,7 @@ class Camera:
         probe = o.copy()
         probe[_o.O_RINGS] = 1.0
         probe[_o.O_P_OWN] = 0.0
+        probe.setflags(write=False)  # read-only like self.packed: numba compiles one kernel for both
         nrow, ncol = self.sensor_shape
         p = self.pixels_per_lenslet
         rows, cols = [], []
@@ -539,7 +540,7 @@ class Camera:
                         cols.append(bj * p + c)
         indep = _sampler.pack_sampler("independent", 400)
         res = _pixel_throughput(np.array(rows, np.int64), np.array(cols, np.int64), 400, 12345, probe,
-                                indep, np.zeros((1, 3)))
+                                indep, _NO_TABLE)
         return bool(np.any(res[:, 0] > 0.0))
 
     # ---- paraxial optics --------------------------------------------------

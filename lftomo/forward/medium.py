@@ -242,17 +242,24 @@ class Medium:
             repeated per channel); ``g`` (n_vox,); ``Ib`` (n_ch, n_vox) blackbody
             radiance as in :meth:`emission_intensity`; ``lower`` (3,) m;
             ``spacing`` (3,) m; ``shape`` (3,) int64.  Voxel order is
-            ``np.ravel_multi_index`` (C order).
+            ``np.ravel_multi_index`` (C order).  Every array is a fresh, writable
+            copy: numba compiles a kernel once per argument type, and a read-only
+            array (a view of a read-only field, or a broadcast) is another type than
+            a writable one, so mixing them compiled the same kernel twice (~40 s each).
         """
         ch = self._channels(wavelengths)
         n_vox = self.grid.n_voxels
-        sa = np.ascontiguousarray(np.stack([self.sigma_a_at(w).ravel() for w in ch]), dtype=np.float64)
-        ss = np.ascontiguousarray(np.broadcast_to(self.sigma_s.ravel(), (len(ch), n_vox)), dtype=np.float64)
-        Ib = np.ascontiguousarray(self.emission_intensity(wavelengths).reshape(len(ch), n_vox), dtype=np.float64)
+
+        def flat(a):
+            return np.array(a, dtype=np.float64, order="C", copy=True)
+
+        sa = flat(np.stack([self.sigma_a_at(w).ravel() for w in ch]))
+        ss = flat(np.broadcast_to(self.sigma_s.ravel(), (len(ch), n_vox)))
+        Ib = flat(self.emission_intensity(wavelengths).reshape(len(ch), n_vox))
         return {
             "sigma_a": sa,
             "sigma_s": ss,
-            "g": np.ascontiguousarray(self.g.ravel(), dtype=np.float64),
+            "g": flat(self.g.ravel()),
             "Ib": Ib,
             "lower": np.asarray(self.grid.lower, dtype=np.float64),
             "spacing": np.ascontiguousarray(self.grid.spacing, dtype=np.float64),

@@ -59,7 +59,8 @@ def _run(o, d, lower, spacing, shape, t_min=-np.inf, t_max=np.inf):
     m = max_segments(*shape)
     vox = np.full(m, -1, np.int64)
     seg = np.full(m, np.nan)
-    n = traverse(*o, *d, *_grid_args(lower, spacing, shape), t_min, t_max, vox, seg)
+    # floats, as the kernels get them: an int direction (0, 0, 1) would compile another signature
+    n = traverse(*map(float, o), *map(float, d), *_grid_args(lower, spacing, shape), t_min, t_max, vox, seg)
     return vox[:n].copy(), seg[:n].copy()
 
 
@@ -401,7 +402,7 @@ def _planar_surface(centre, e_u, e_v, normal, half_w, half_h, radiance):
 
 def _emission(o, d, lower, spacing, shape, sigma, Ib, surf=NO_SURF, tex=NO_TEX):
     out = np.empty(sigma.shape[0])
-    integrate_emission(*o, *d, *_grid_args(lower, spacing, shape), sigma, Ib, surf, tex, out)
+    integrate_emission(*map(float, o), *map(float, d), *_grid_args(lower, spacing, shape), sigma, Ib, surf, tex, out)
     return out
 
 

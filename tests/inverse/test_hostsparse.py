@@ -62,3 +62,29 @@ def test_projected_normal_equations_equal_the_explicit_products():
         projected_normal_equations(A, B[:-1], M, res)
     with pytest.raises(ValueError, match="M has 17 rows, A and B 90 columns"):
         projected_normal_equations(A, B, M.T.tocsr(), res)
+
+
+def test_equal_matrices_share_a_handle_and_the_registry_entry_lives_with_them():
+    """host_csr keys its handle on the content: an equal matrix reuses the handle (and so the compiled
+    functions); another matrix gets its own; the entry goes with the last object of its handle."""
+    import gc
+
+    from lftomo.inverse import hostsparse as hs
+
+    M = sp.random(40, 30, density=0.2, random_state=np.random.default_rng(3), format="csr")
+    a, b = hs.host_csr(M), hs.host_csr(M.copy())
+    M2 = M.copy()
+    M2.data[0] += 1.0
+    c = hs.host_csr(M2)
+    assert a.handle == b.handle and c.handle != a.handle
+    x = np.random.default_rng(4).normal(size=30)
+    np.testing.assert_allclose(np.asarray(b @ x), M @ x, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(c @ x), M2 @ x, rtol=1e-12)
+    key = a.handle
+    del a
+    gc.collect()
+    assert key in hs._REGISTRY  # b still uses it
+    np.testing.assert_allclose(np.asarray(b @ x), M @ x, rtol=1e-12)
+    del b
+    gc.collect()
+    assert key not in hs._REGISTRY
