@@ -482,8 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="lambda rule with --regularization auto")
     rc.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
                     help="discrepancy rule: trust the noise model's sigma (given), or only its shape and estimate "
-                         "its scale from the residual of the least-regularized fit (estimated; Monte Carlo data; "
-                         "the default with --rule discrepancy)")
+                         "its scale from the residual of the least-regularized fit (estimated); default given")
     rc.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
                     help="smoothness prior (default curvature: second differences, free faces)")
     rc.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
@@ -549,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
     sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
                     help="smoothness prior (default: the library's, curvature)")
     sr.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
-                    help="discrepancy rule: trust sigma (given) or estimate its scale (the default)")
+                    help="discrepancy rule: trust sigma (given, the default) or estimate its scale")
     sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
     sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
     sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")

@@ -647,8 +647,7 @@ def _demo_reconstruct(d: _DemoRun) -> None:
     d.sections.append({
         "title": "5. Reconstruction",
         "text": ("Regularised nonlinear least squares in T with the library's defaults (optimistix Levenberg–Marquardt, curvature prior, "
-                 f"bounds {BOUNDS[0]:.0f}–{BOUNDS[1]:.0f} K), λ by Morozov's discrepancy rule with the noise scale "
-                 "estimated from the residual. "
+                 f"bounds {BOUNDS[0]:.0f}–{BOUNDS[1]:.0f} K), λ by Morozov's discrepancy rule. "
                  f"λ = {rec.regularization:.3g} ({note}). Errors against the effective truth where it exceeds "
                  f"{HOT:.0f} K; at 650 nm a voxel at 1000 K emits ~10⁻⁴ of one at 1800 K, so the cooler part of "
                  "that region is nearly invisible and is set by the prior."),
@@ -1373,8 +1372,7 @@ def run_reconstruct(
     of étendue below ``min_etendue_fraction`` of the peak are left out.
     ``prior`` and ``noise_scale`` default to the library's
     (:data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`, and with the discrepancy
-    rule :data:`~lftomo.inverse.reconstruct.DEFAULT_NOISE_SCALE`: the rule
-    estimates the noise scale from the residual).
+    rule :data:`~lftomo.inverse.reconstruct.DEFAULT_NOISE_SCALE`).
     ``symmetry="axisymmetric"`` fits ring cells about the grid's vertical axis
     (reconstruction and field posterior).  ``sampler`` (scene mode) is the
     pixel sampler of the render and the weights (default the scene's
