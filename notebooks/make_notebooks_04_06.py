@@ -378,8 +378,8 @@ NB04 = [
         distance from the vertical axis through the box centre (`lt.ring_grid`; on this grid the
         lattice's own symmetry makes these rings exact, no interpolation). The forward model is
         `W P` (`P` the 0/1 map from ring cells to voxels, exact because `I_b(P t) = P I_b(t)`),
-        the prior the same smoothness term restricted to axisymmetric fields (here the
-        Laplacian), λ by the same rule. A single camera cannot place emission in depth (§4's
+        the prior the same smoothness term restricted to axisymmetric fields (the library's
+        default, the curvature prior), λ by the same rule. A single camera cannot place emission in depth (§4's
         per-depth errors); an axisymmetric field has no depth to place: its depth profile at one
         lateral position is its lateral profile at another — the principle of Abel inversion.
         """
@@ -387,7 +387,7 @@ NB04 = [
     code(
         """
         t0 = time.perf_counter()
-        rec_ax = lt.reconstruct(m, W, bounds=BOUNDS, rule="discrepancy", prior="laplacian", T0="uniform",
+        rec_ax = lt.reconstruct(m, W, bounds=BOUNDS, rule="discrepancy", T0="uniform",
                                 max_steps=50, symmetry="axisymmetric")
         err_ax = rec_ax.errors(T_c, hot=HOT)
         print(f"{rec_ax.symmetry}: {time.perf_counter() - t0:.1f} s, lambda {rec_ax.regularization:.3g}, "

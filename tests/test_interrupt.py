@@ -22,15 +22,15 @@ from lftomo.config import load_scene_file
 @pytest.fixture(autouse=True)
 def default_sigint():
     """These tests send SIGINT to this process: each starts with Python's default handler and SIGINT
-    unblocked, and warns (naming what it found) if an earlier test left them otherwise — in one full
-    CI run a SIGINT from a timer was not seen at all from this module on, and the forward-render test
-    ran until killed; alone, every test here passes."""
+    unblocked, and warns (naming what it found) otherwise.  A pytest started as a background job of a
+    non-interactive shell (``bash -c "pytest &"``) inherits SIGINT ignored (POSIX), and Python then
+    keeps SIG_IGN: a timer's SIGINT was not seen and the forward-render test ran until killed."""
     import warnings
 
     handler = signal.getsignal(signal.SIGINT)
     blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
     if handler is not signal.default_int_handler or blocked:
-        warnings.warn(f"SIGINT state left by an earlier test: handler {handler!r}, blocked {blocked}",
+        warnings.warn(f"SIGINT not at Python's default in this process: handler {handler!r}, blocked {blocked}",
                       RuntimeWarning, stacklevel=1)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
