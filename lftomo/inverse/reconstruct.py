@@ -139,6 +139,27 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
                       "coarser grid", UserWarning, stacklevel=3)
 
 
+def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, method, rule, T0, symmetry, grid,
+                       options):
+    """The ``unknowns="T+sigma_a"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
+    from .joint import solve_temperature_absorption
+
+    ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
+    if len(ms) < 2:
+        raise ValueError(f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}")
+    if isinstance(getattr(weights, "metadata", None), dict) and weights.metadata.get("grid") is not None:
+        g = grid if grid is not None else _grid_of(weights)
+        ring = resolve_symmetry(symmetry, g)
+        # unknowns: T and σ_ref per voxel (or ring cell)
+        warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
+    rule_kw = {} if rule is None else {"rule": rule}
+    with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+        return solve_temperature_absorption(ms, weights, regularization=regularization,
+                                            prior="gradient" if prior is None else prior, bounds=bounds,
+                                            method=method, T0=T0, symmetry=symmetry, grid=grid, **rule_kw,
+                                            **options)
+
+
 def reconstruct(
     measurement,
     weights,
@@ -235,24 +256,8 @@ def reconstruct(
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     if unknowns == "T+sigma_a":
-        ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
-        if len(ms) < 2:
-            raise ValueError(
-                f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}"
-            )
-        from .joint import solve_temperature_absorption
-
-        if isinstance(getattr(weights, "metadata", None), dict) and weights.metadata.get("grid") is not None:
-            g = grid if grid is not None else _grid_of(weights)
-            ring = resolve_symmetry(symmetry, g)
-            # unknowns: T and σ_ref per voxel (or ring cell)
-            warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
-        rule_kw = {} if rule is None else {"rule": rule}
-        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            return solve_temperature_absorption(ms, weights, regularization=regularization,
-                                                prior="gradient" if prior is None else prior,
-                                                bounds=bounds, method=method, T0=T0,
-                                                symmetry=symmetry, grid=grid, **rule_kw, **options)
+        return _reconstruct_joint(measurement, weights, regularization=regularization, prior=prior, bounds=bounds,
+                                  method=method, rule=rule, T0=T0, symmetry=symmetry, grid=grid, options=options)
     from .solvers import solve_temperature
 
     if method not in ("levenberg-marquardt", "gauss-newton"):
