@@ -57,6 +57,7 @@ from ..errors import LftomoError
 from ..forward.grid import Grid
 
 __all__ = ["Design", "design", "psf_widths", "rig_around", "compare_designs", "design_table",
+           "standard_configurations", "design_configurations", "cramer_rao_bound",
            "DESIGN_DENSE_MAX"]
 
 #: Largest number of voxels :func:`design` handles (dense n × n algebra: ~6 n² doubles, 0.8 GB at 16³).
@@ -527,3 +528,69 @@ def design_table(rows: Sequence[Mapping[str, Any]]) -> str:
             f"| {100 * r['crb_median_rel']:.2f} % | {100 * r['crb_below_1pct']:.0f} % "
             f"| {wx:.1f} / {wy:.1f} / {wz:.1f} | {draw} |")
     return "\n".join(lines) + "\n"
+
+
+def standard_configurations(camera: Any, grid: Grid, *, wavelength: float = 650e-9) -> dict[str, dict[str, Any]]:
+    """The configurations an experimenter compares first, built around ``camera``.
+
+    Returns
+    -------
+    dict
+        name → ``{"rig": tuple of Camera, "wavelength": float, "ray_share": int}``
+        (``ray_share``: the number of cameras the rays are shared by, so that
+        every configuration traces the same total rays): one camera; two at
+        90° and three at 60° about the vertical axis through the grid centre;
+        the aperture stop halved; the focus on the grid's front face; 900 nm
+        against ``wavelength``; 8 pixels per microlens (the seed camera has 10).
+    """
+    import dataclasses
+
+    from ..forward.camera import Camera, Sensor
+
+    c = tuple(float(v) for v in grid.center)
+    stop = dataclasses.replace(camera.main_lens, stop_diameter=0.5 * camera.main_lens.stop_diameter)
+    front = float(grid.lower[2]) - float(camera.pose.position[2] if camera.pose is not None else 0.0)
+    ppl8 = Sensor(pixel_pitch=camera.mla.pitch / 8)
+
+    def refocused(**parts):
+        cam = Camera.focused(parts.pop("focus", camera.focus_distance or 1.0), main_lens=parts.get("main_lens",
+                             camera.main_lens), mla=camera.mla, sensor=parts.get("sensor", camera.sensor))
+        return cam if camera.pose is None else cam.with_pose(camera.pose)
+
+    one = {"wavelength": wavelength, "ray_share": 1}
+    return {
+        "one camera": {"rig": (camera,), **one},
+        "two cameras at 90°": {"rig": rig_around(camera, c, (0.0, 90.0)), "wavelength": wavelength, "ray_share": 2},
+        "three cameras at 60°": {"rig": rig_around(camera, c, (0.0, 60.0, 120.0)), "wavelength": wavelength,
+                                 "ray_share": 3},
+        "stop diameter / 2": {"rig": (refocused(main_lens=stop),), **one},
+        "focus on the front face": {"rig": (refocused(focus=front),), **one},
+        "900 nm": {"rig": (camera,), "wavelength": 900e-9, "ray_share": 1},
+        "8 px per microlens": {"rig": (refocused(sensor=ppl8),), **one},
+    }
+
+
+def design_configurations(configs: Mapping[str, Mapping[str, Any]], grid: Grid, flame: Any, *,
+                          rays_per_pixel: int = 64, progress: bool | None = None, **options: Any) -> dict[str, Design]:
+    """:func:`design` of each configuration of :func:`standard_configurations` (or the same form).
+
+    Each camera of a rig of ``ray_share`` cameras traces
+    ``rays_per_pixel // ray_share`` rays per pixel (the same total).
+    ``options`` go to :func:`design`.  Returns name → Design, in order.
+    """
+    from ..progress import progress_bar
+    import sys
+
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    bar = progress_bar(len(configs), show, "configurations", unit="config")
+    out = {}
+    try:
+        for name, cfg in configs.items():
+            bar.set_postfix_str(name)
+            rays = max(1, int(rays_per_pixel) // int(cfg.get("ray_share", 1)))
+            out[name] = design(cfg["rig"], grid, flame, wavelength=cfg.get("wavelength", 650e-9),
+                               rays_per_pixel=rays, progress=False, **options)
+            bar.update(1)
+    finally:
+        bar.close()
+    return out

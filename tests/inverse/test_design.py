@@ -32,6 +32,7 @@ def _model_data(d):
     return m, W, p.A @ rad.planck(d.T_true.ravel(), WL) + p.background
 
 
+@pytest.mark.heavy  # ten reconstructions: ~2 min on 2 cores
 def test_predicted_spread_matches_reconstructions_over_noise_draws(blob_design):
     """The design's spread sqrt(diag(H⁻¹JᵀJH⁻¹)) against the standard deviation of 10 reconstructions (fixed λ,
     noise drawn with the design's σ about the model's data at the true field).  Per voxel the sample std of 10
