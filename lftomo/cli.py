@@ -120,15 +120,20 @@ def cmd_weights(args) -> int:
     sampler = cfg.sampler if args.sampler is None else args.sampler
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
     out = npz_output_path(args.output, what="-o/--output")
-    paths = [out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz") for wl in channels]
-    for path in paths:  # before the build, not after it
+    # one file per camera of a rig (suffix: its name) and per wavelength (suffix: nm)
+    jobs = []
+    for cam, name in zip(cfg.cameras, cfg.camera_names):
+        base = _suffixed(out, name) if cfg.is_rig else out
+        for wl in channels:
+            jobs.append((cam, wl, base if len(channels) == 1 else base.with_name(f"{base.stem}_{wl * 1e9:.0f}nm.npz")))
+    for _, _, path in jobs:  # before the build, not after it
         check_output_file(path, what="-o/--output")
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
-    for wl, path in zip(channels, paths):
+    for cam, wl, path in jobs:
         band = "gray" if wl is None else f"{wl * 1e9:.0f} nm"
         print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {sampler} sampler, {band})",
               file=sys.stderr)
-        W = weights(cfg.camera, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
+        W = weights(cam, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
                     wavelength="gray" if wl is None else wl, rays_per_pixel=rpp, seed=seed,
                     surfaces=cfg.scene.surfaces or None, memory_limit=limit, progress=not args.quiet,
                     sampler=sampler)

@@ -102,3 +102,15 @@ def test_cli_render_writes_one_output_per_camera(tmp_path):
     lf = lt.LightField.load(out / "lightfield_side.npz")
     assert lf.camera.pose == lt.Pose.look_at((-1, 0, 1), (0, 0, 1))
     assert lt.LightField.load(out / "lightfield_front.npz").camera.pose is None
+
+
+def test_cli_weights_writes_one_matrix_per_camera(tmp_path):
+    from lftomo.cli import main
+
+    scene = tmp_path / "rig.toml"
+    scene.write_text(_rig() + '[render]\nrays_per_pixel = 1\n')
+    assert main(["weights", str(scene), "-o", str(tmp_path / "W.npz"), "--quiet"]) == 0
+    cfg = load_scene_file(scene)
+    for cam, name in zip(cfg.cameras, cfg.camera_names):
+        W = lt.WeightMatrix.load(tmp_path / f"W_{name}.npz", cam, cfg.scene.medium.grid)
+        assert W.metadata["camera"] == cam.to_dict()
