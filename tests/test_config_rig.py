@@ -3,7 +3,6 @@
 Loading only: nothing here renders (the CLI test at the end renders 2 tiny cameras).
 """
 
-import numpy as np
 import pytest
 
 import lftomo as lt
