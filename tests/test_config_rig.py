@@ -113,3 +113,11 @@ def test_cli_weights_writes_one_matrix_per_camera(tmp_path):
     for cam, name in zip(cfg.cameras, cfg.camera_names):
         W = lt.WeightMatrix.load(tmp_path / f"W_{name}.npz", cam, cfg.scene.medium.grid)
         assert W.metadata["camera"] == cam.to_dict()
+
+
+def test_example_rig_file_loads():
+    from pathlib import Path
+
+    cfg = load_scene_file(Path(__file__).parent.parent / "examples" / "flame_two_cameras.toml")
+    assert cfg.camera_names == ("front", "side")
+    assert cfg.cameras[1].pose == lt.Pose.look_at((-1, 0, 1), (0, 0, 1))
