@@ -8,6 +8,7 @@ from .version import __version__
 from .errors import LftomoError
 
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor, thick_lens_focal_length, spherical_aberration
+from .forward.pose import Pose
 from .forward.scene import PlanarEmitter, Scene, checkerboard, uniform
 from .forward.render import render
 from .forward.media_render import render_forward
@@ -43,6 +44,7 @@ __all__ = [
     "__version__",
     "LftomoError",
     "Camera",
+    "Pose",
     "MainLens",
     "MicrolensArray",
     "Sensor",

@@ -42,7 +42,15 @@ def cmd_camera(args) -> int:
     return 0
 
 
+def _suffixed(path: Path, name: str) -> Path:
+    """``dir/stem.ext`` -> ``dir/stem_name.ext`` (the per-camera outputs of a rig)."""
+    return path.with_name(f"{path.stem}_{name}{path.suffix}")
+
+
 def cmd_render(args) -> int:
+    """Render the scene file's camera, or every camera of a rig (outputs suffixed by camera name)."""
+    import shutil
+
     from .forward.render import render
     from .io import check_output_dir, staged_directory
 
@@ -51,28 +59,49 @@ def cmd_render(args) -> int:
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     sampler = cfg.sampler if args.sampler is None else args.sampler
-    t0 = time.perf_counter()
-    print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel, seed {seed}, {sampler} sampler)",
-          file=sys.stderr)
-    lf = render(cfg.scene, cfg.camera, rays_per_pixel=rpp, seed=seed, wavelengths=cfg.wavelengths or "gray",
-                progress=not args.quiet, sampler=sampler)
-    t_render = time.perf_counter() - t0
     from .demo import save_lightfield_products
 
-    depths = cfg.focal_stack_depths or (cfg.camera.focus_distance,)
+    print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel, seed {seed}, {sampler} sampler"
+          + (f", {len(cfg.cameras)} cameras: {', '.join(cfg.camera_names)})" if cfg.is_rig else ")"), file=sys.stderr)
     with staged_directory(out) as stage:  # all files appear together, summary.json last
-        files = [out / f.name for f in save_lightfield_products(lf, stage, depths)]
+        files: list[Path] = []
+        per_camera = {}
+        for cam, name in zip(cfg.cameras, cfg.camera_names):
+            t0 = time.perf_counter()
+            lf = render(cfg.scene, cam, rays_per_pixel=rpp, seed=seed, wavelengths=cfg.wavelengths or "gray",
+                        progress=not args.quiet, sampler=sampler)
+            t_render = time.perf_counter() - t0
+            depths = cfg.focal_stack_depths or (cam.focus_distance,)
+            if not cfg.is_rig:
+                cam_files = [out / f.name for f in save_lightfield_products(lf, stage, depths)]
+            else:
+                tmp = stage / f".camera-{name}"
+                cam_files = []
+                for f in save_lightfield_products(lf, tmp, depths):
+                    f.rename(_suffixed(stage / f.name, name))
+                    cam_files.append(_suffixed(out / f.name, name))
+                shutil.rmtree(tmp)
+            files += cam_files
+            per_camera[name] = {"render_seconds": t_render, "total_signal": float(np.sum(lf.raw)),
+                                "pose": None if cam.pose is None else cam.pose.to_dict(),
+                                "files": [str(f) for f in cam_files]}
+            print(f"rendered {name}: {lf.camera.sensor_shape[0]}x{lf.camera.sensor_shape[1]} px in {t_render:.1f} s"
+                  if cfg.is_rig else
+                  f"rendered {lf.camera.sensor_shape[0]}x{lf.camera.sensor_shape[1]} px in {t_render:.1f} s; wrote:")
         summary = {
             "scene": cfg.source,
             "rays_per_pixel": rpp,
             "seed": seed,
             "sampler": sampler,
-            "render_seconds": t_render,
-            "total_signal": float(np.sum(lf.raw)),
-            "files": [str(f) for f in files],
         }
+        if cfg.is_rig:
+            summary["cameras"] = per_camera
+        else:
+            summary.update({k: per_camera["camera"][k] for k in ("render_seconds", "total_signal")})
+        summary["files"] = [str(f) for f in files]
         (stage / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"rendered {lf.camera.sensor_shape[0]}x{lf.camera.sensor_shape[1]} px in {t_render:.1f} s; wrote:")
+    if cfg.is_rig:
+        print("wrote:")
     for f in files + [out / "summary.json"]:
         print(f"  {f}")
     return 0
@@ -91,15 +120,20 @@ def cmd_weights(args) -> int:
     sampler = cfg.sampler if args.sampler is None else args.sampler
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
     out = npz_output_path(args.output, what="-o/--output")
-    paths = [out if len(channels) == 1 else out.with_name(f"{out.stem}_{wl * 1e9:.0f}nm.npz") for wl in channels]
-    for path in paths:  # before the build, not after it
+    # one file per camera of a rig (suffix: its name) and per wavelength (suffix: nm)
+    jobs = []
+    for cam, name in zip(cfg.cameras, cfg.camera_names):
+        base = _suffixed(out, name) if cfg.is_rig else out
+        for wl in channels:
+            jobs.append((cam, wl, base if len(channels) == 1 else base.with_name(f"{base.stem}_{wl * 1e9:.0f}nm.npz")))
+    for _, _, path in jobs:  # before the build, not after it
         check_output_file(path, what="-o/--output")
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
-    for wl, path in zip(channels, paths):
+    for cam, wl, path in jobs:
         band = "gray" if wl is None else f"{wl * 1e9:.0f} nm"
         print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {sampler} sampler, {band})",
               file=sys.stderr)
-        W = weights(cfg.camera, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
+        W = weights(cam, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
                     wavelength="gray" if wl is None else wl, rays_per_pixel=rpp, seed=seed,
                     surfaces=cfg.scene.surfaces or None, memory_limit=limit, progress=not args.quiet,
                     sampler=sampler)

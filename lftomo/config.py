@@ -9,6 +9,22 @@ Format (lengths in m, temperatures in K, radiance in W m^-2 sr^-1 [m^-1])::
     stop_diameter = 0.1        # r1, r2, thickness, diameter, index, stop_to_vertex, ideal
     [camera.mla]               # count = [60, 60], pitch, diameter, r1, r2, thickness, index
     [camera.sensor]            # pixel_pitch
+    [camera.pose]              # optional: where the camera stands (default: stop at the
+    eye = [-1.0, 0.0, 1.0]     #   origin looking along +z, +y up); eye, target (m) and
+    target = [0.0, 0.0, 1.0]   #   up (default [0, 1, 0]), or position (m) and rotation
+    up = [0.0, 1.0, 0.0]       #   (3 rows; columns = camera x, y, z in the world)
+
+A rig of several cameras is an array of tables, each as ``[camera]`` plus an
+optional ``name`` (letters, digits, ``_``, ``-``; default ``camera1``,
+``camera2``, …)::
+
+    [[camera]]
+    name = "front"
+    [[camera]]
+    name = "side"
+    [camera.pose]              # belongs to the [[camera]] just above
+    eye = [-1.0, 0.0, 1.0]
+    target = [0.0, 0.0, 1.0]
 
     [render]
     rays_per_pixel = 16
@@ -56,6 +72,7 @@ from .errors import LftomoError
 from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, require_inside, require_regular_file, toml_int, toml_number,
                         toml_numbers)
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
+from .forward.pose import Pose
 from .forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 from .forward.scene import PlanarEmitter, Scene, checkerboard
 from .lightfield import check_refocus_depth
@@ -63,7 +80,9 @@ from .lightfield import check_refocus_depth
 DEFAULT_SCENE = Path(__file__).parent / "data" / "targets.toml"
 
 _TOP = {"camera", "render", "output", "surface", "medium"}
-_CAMERA = {"preset", "focus_distance", "main_lens", "mla", "sensor"}
+_CAMERA = {"preset", "focus_distance", "main_lens", "mla", "sensor", "pose", "name"}
+_POSE_LOOK_AT = {"eye", "target", "up"}
+_POSE_EXPLICIT = {"position", "rotation"}
 _CAMERA_PARTS = {"main_lens": MainLens, "mla": MicrolensArray, "sensor": Sensor}
 _RENDER = {"rays_per_pixel", "seed", "wavelength_nm", "sampler"}
 _OUTPUT = {"focal_stack_depths"}
@@ -76,7 +95,12 @@ _RADIANCE_UNIT = "W m^-2 sr^-1 [m^-1]"
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """Everything a scene file specifies."""
+    """Everything a scene file specifies.
+
+    ``cameras`` holds every camera of the file (one per ``[[camera]]`` table
+    of a rig) and ``camera_names`` their names; ``camera`` is the first of
+    them (the only one of a single-camera file).
+    """
 
     camera: Camera
     scene: Scene
@@ -87,6 +111,22 @@ class SceneConfig:
     source: str = "<built-in>"
     raw: dict = field(default_factory=dict)
     sampler: str = DEFAULT_SAMPLER
+    cameras: tuple = ()
+    camera_names: tuple = ()
+
+    def __post_init__(self) -> None:
+        if not self.cameras:
+            object.__setattr__(self, "cameras", (self.camera,))
+        if not self.camera_names:
+            object.__setattr__(self, "camera_names", ("camera",) if len(self.cameras) == 1 else
+                               tuple(f"camera{k + 1}" for k in range(len(self.cameras))))
+        if self.cameras[0] is not self.camera or len(self.camera_names) != len(self.cameras):
+            raise LftomoError("SceneConfig: camera must be cameras[0] and camera_names must name every camera")
+
+    @property
+    def is_rig(self) -> bool:
+        """Several cameras (``[[camera]]`` tables)."""
+        return len(self.cameras) > 1
 
 
 def _check_keys(label: str, table: Any, allowed: set[str]) -> None:
@@ -225,8 +265,40 @@ def _camera_part(part: str, t: Any) -> dict[str, Any]:
     return out
 
 
-def camera_from_table(cam: Mapping[str, Any]) -> Camera:
-    """Build a Camera from a ``[camera]`` table.
+def pose_from_table(t: Any, label: str = "[camera.pose]") -> Pose:
+    """Build a :class:`Pose` from a ``[camera.pose]`` table.
+
+    Either ``eye`` and ``target`` (and optionally ``up``, default
+    ``[0, 1, 0]``), as :meth:`Pose.look_at`, or ``position`` and ``rotation``
+    (3 rows of 3 numbers; its columns are the camera's x, y, z axes in the
+    world), as :class:`Pose`.  Lengths in m.
+    """
+    _check_keys(label, t, _POSE_LOOK_AT | _POSE_EXPLICIT)
+    keys = set(t)
+    try:
+        if keys & _POSE_EXPLICIT:
+            if keys & _POSE_LOOK_AT or keys != _POSE_EXPLICIT:
+                raise LftomoError(f"{label} needs either eye and target (and optionally up) or position and "
+                                  f"rotation, not a mix; got keys {sorted(keys)}")
+            rot = t["rotation"]
+            if not isinstance(rot, list) or len(rot) != 3:
+                raise LftomoError(f"{label} rotation must be 3 rows of 3 numbers, got {rot!r}")
+            rows = [toml_numbers(f"{label} rotation[{i}]", r, length=3) for i, r in enumerate(rot)]
+            return Pose(rows, toml_numbers(f"{label} position", t["position"], length=3, hint="[x, y, z]", unit="m"))
+        if not {"eye", "target"} <= keys:
+            raise LftomoError(f"{label} needs eye and target (and optionally up), or position and rotation; got "
+                              f"keys {sorted(keys)}")
+        eye = toml_numbers(f"{label} eye", t["eye"], length=3, hint="[x, y, z]", unit="m")
+        target = toml_numbers(f"{label} target", t["target"], length=3, hint="[x, y, z]", unit="m")
+        up = toml_numbers(f"{label} up", t.get("up", [0.0, 1.0, 0.0]), length=3, hint="[x, y, z]")
+        return Pose.look_at(eye, target, up)
+    except LftomoError as exc:
+        msg = str(exc)
+        raise LftomoError(msg if msg.startswith(label) else f"{label}: {msg}") from None
+
+
+def camera_from_table(cam: Mapping[str, Any], label: str = "[camera]") -> Camera:
+    """Build a Camera from a ``[camera]`` table (or one ``[[camera]]`` of a rig, named ``label``).
 
     Raises
     ------
@@ -234,16 +306,84 @@ def camera_from_table(cam: Mapping[str, Any]) -> Camera:
         For unknown keys, values of the wrong type or out of range, naming the
         table and key (``[camera.main_lens] stop_diameter``).
     """
-    _check_keys("[camera]", cam, _CAMERA)
+    _check_keys(label, cam, _CAMERA)
     preset = cam.get("preset", "seed")
     if preset != "seed":
-        raise LftomoError(f"[camera] preset must be 'seed' (the only preset), got {preset!r}")
-    fd = toml_number("[camera] focus_distance", cam.get("focus_distance", 1.0), gt=0, unit="m")
+        raise LftomoError(f"{label} preset must be 'seed' (the only preset), got {preset!r}")
+    fd = toml_number(f"{label} focus_distance", cam.get("focus_distance", 1.0), gt=0, unit="m")
     overrides = {part: _camera_part(part, cam[part]) for part in _CAMERA_PARTS if part in cam}
+    pose = pose_from_table(cam["pose"], f"{label} pose" if label != "[camera]" else "[camera.pose]") \
+        if "pose" in cam else None
     try:
-        return Camera.seed(fd, **overrides)
+        return Camera.seed(fd, pose=pose, **overrides)
     except ValueError as exc:
-        raise LftomoError(f"[camera]: {exc}") from None
+        raise LftomoError(f"{label}: {exc}") from None
+
+
+def _camera_name(label: str, value: Any) -> str:
+    if not (isinstance(value, str) and value and len(value) <= 64
+            and all(ch.isascii() and (ch.isalnum() or ch in "_-") for ch in value)):
+        raise LftomoError(f"{label} name must be 1-64 letters, digits, '_' or '-' (it becomes part of file "
+                          f"names), got {value!r}")
+    return value
+
+
+def cameras_from_value(value: Any) -> tuple[tuple[Camera, ...], tuple[str, ...]]:
+    """The cameras and names of the ``camera`` key of a scene file.
+
+    A table is one camera (name ``"camera"`` unless given); an array of tables
+    (``[[camera]]``) is a rig, its cameras named ``camera1``, ``camera2``, …
+    unless given.  Names must be unique.
+    """
+    if isinstance(value, list):
+        if not value:
+            raise LftomoError("the scene file has an empty camera rig: give at least one [[camera]] table")
+        labels = [f"[[camera]] #{k + 1}" for k in range(len(value))]
+        tables = value
+    else:
+        labels, tables = ["[camera]"], [value]
+    cameras, names = [], []
+    for k, (label, t) in enumerate(zip(labels, tables)):
+        if not isinstance(t, Mapping):
+            raise LftomoError(f"{label} must be a table, got {type(t).__name__} {t!r}")
+        default = "camera" if len(tables) == 1 else f"camera{k + 1}"
+        names.append(_camera_name(label, t.get("name", default)))
+        cameras.append(camera_from_table(t, label))
+    seen: dict[str, int] = {}
+    for k, n in enumerate(names):
+        if n in seen:
+            raise LftomoError(f"[[camera]] #{seen[n] + 1} and #{k + 1} are both named {n!r}: camera names must be "
+                              "unique (they name the output files)")
+        seen[n] = k
+    return tuple(cameras), tuple(names)
+
+
+def check_rig(cameras, names, medium=None) -> None:
+    """Refuse rigs whose cameras overlap or cannot see the medium.
+
+    Two cameras overlap when their stop centres are closer than the larger of
+    their main-lens clear diameters.  With a medium, every camera must see
+    part of its box (:func:`lftomo.forward.media_render.check_medium_visible`).
+    """
+    from .forward.media_render import check_medium_visible
+
+    pos = [np.zeros(3) if c.pose is None else c.pose.position for c in cameras]
+    for i in range(len(cameras)):
+        for j in range(i + 1, len(cameras)):
+            dist = float(np.linalg.norm(pos[i] - pos[j]))
+            need = max(cameras[i].main_lens.diameter, cameras[j].main_lens.diameter)
+            if dist < need:
+                raise LftomoError(
+                    f"overlapping cameras: the stops of {names[i]!r} at {pos[i].tolist()!r} and {names[j]!r} at "
+                    f"{pos[j].tolist()!r} are {dist:.4g} m apart, less than the main-lens diameter {need:.4g} m; "
+                    "move them apart ([camera.pose] eye or position)"
+                )
+    if medium is not None:
+        for cam, name in zip(cameras, names):
+            try:
+                check_medium_visible(medium, cam)
+            except ValueError as exc:
+                raise LftomoError(f"camera {name!r} cannot see the medium: {exc}") from None
 
 
 def load_scene_file(path: str | Path | None = None, *, allow_outside: bool = False) -> SceneConfig:
@@ -289,7 +429,8 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     if not isinstance(allow_outside, bool):
         raise LftomoError(f"allow_outside must be True or False, got {allow_outside!r}")
     _check_keys("the top level", data, _TOP)
-    camera = camera_from_table(data.get("camera", {}))
+    cameras, names = cameras_from_value(data.get("camera", {}))
+    camera = cameras[0]
     r = data.get("render", {})
     _check_keys("[render]", r, _RENDER)
     rays_per_pixel = toml_int("[render] rays_per_pixel", r.get("rays_per_pixel", 16), minimum=1,
@@ -307,8 +448,10 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
         raise LftomoError(
             f"[output] focal_stack_depths must be a list of numbers > 0 (m), e.g. [0.95, 1.0, 1.05], got {depths_t!r}"
         )
-    depths = tuple(check_refocus_depth(camera, toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m"),
-                                       f"[output] focal_stack_depths[{i}]") for i, d in enumerate(depths_t))
+    # refocus depths are each camera's own depths along its optical axis: every camera must reach them
+    depths = tuple(toml_number(f"[output] focal_stack_depths[{i}]", d, gt=0, unit="m") for i, d in enumerate(depths_t))
+    for cam in cameras:
+        depths = tuple(check_refocus_depth(cam, d, f"[output] focal_stack_depths[{i}]") for i, d in enumerate(depths))
     surfaces_t = data.get("surface", [])
     if not isinstance(surfaces_t, list):
         raise LftomoError("surfaces must be given as [[surface]] tables")
@@ -322,6 +465,8 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     scene = Scene(surfaces=surfaces, medium=medium)
     if not surfaces and medium is None:
         raise LftomoError(f"scene file {source!r} defines no [[surface]] and no [medium]: nothing to see")
+    if len(cameras) > 1 or camera.pose is not None:
+        check_rig(cameras, names, medium)
     return SceneConfig(
         camera=camera,
         scene=scene,
@@ -332,4 +477,6 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
         source=source,
         raw=dict(data),
         sampler=sampler,
+        cameras=cameras,
+        camera_names=names,
     )

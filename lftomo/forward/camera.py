@@ -31,6 +31,7 @@ from .._validate import check_allocation, require_finite_scalar, require_instanc
 from . import optics as _o
 from . import sampler as _sampler
 from .sampler import DEFAULT_SAMPLER
+from .pose import Pose
 from .rng import rng_init
 
 
@@ -343,6 +344,13 @@ class Camera:
     focus_distance : float or None
         Object distance (m, from the stop) that is imaged onto the MLA;
         informational (set by :meth:`focused`).
+    pose : Pose or None
+        Position and orientation of the camera in the world frame
+        (:class:`lftomo.Pose`).  ``None`` (the default), like the identity
+        pose, which is stored as ``None``, places the stop centre at the world
+        origin looking along +z with +y up.  Depths (``focus_distance``,
+        refocus depths, depth of field) stay measured from the camera's own
+        stop along its own optical axis.
     """
 
     main_lens: MainLens = field(default_factory=MainLens)
@@ -351,8 +359,13 @@ class Camera:
     mla_distance: float = 0.437
     sensor_gap: float = 1.133e-3
     focus_distance: float | None = None
+    pose: Pose | None = None
 
     def __post_init__(self) -> None:
+        if self.pose is not None:
+            require_instance("pose", self.pose, Pose, "an lftomo.Pose or None")
+            if self.pose.is_identity:
+                object.__setattr__(self, "pose", None)
         for name, kind in (("main_lens", MainLens), ("mla", MicrolensArray), ("sensor", Sensor)):
             require_instance(name, getattr(self, name), kind, f"an lftomo.{kind.__name__}")
         ppl = _pixels_per_lenslet(self.mla, self.sensor)
@@ -388,13 +401,15 @@ class Camera:
         main_lens: MainLens | None = None,
         mla: MicrolensArray | None = None,
         sensor: Sensor | None = None,
+        pose: Pose | None = None,
     ) -> "Camera":
         """Plenoptic 1.0 camera focused at ``focus_distance`` (m from the stop).
 
         The MLA (its object-side principal plane) is placed at the plane of
         best focus of an on-axis point at ``focus_distance``, found by tracing
         a pupil-filling fan of real rays and minimising the RMS spot radius;
-        the sensor is at the lenslet back focal plane.
+        the sensor is at the lenslet back focal plane.  ``pose`` places the
+        camera in the world (:class:`lftomo.Pose`; default: the camera frame).
         """
         main_lens = main_lens or MainLens()
         mla = mla or MicrolensArray()
@@ -415,6 +430,7 @@ class Camera:
             mla_distance=-mla_front,
             sensor_gap=mla.back_focal_distance,
             focus_distance=fd,
+            pose=pose,
         )
 
     @classmethod
@@ -425,13 +441,15 @@ class Camera:
         main_lens: Mapping[str, Any] | MainLens | None = None,
         mla: Mapping[str, Any] | MicrolensArray | None = None,
         sensor: Mapping[str, Any] | Sensor | None = None,
+        pose: Pose | None = None,
     ) -> "Camera":
         """The reference camera (DESIGN §1), focused at ``focus_distance`` (m).
 
         Any component parameter can be overridden with a mapping, e.g.
         ``Camera.seed(0.8, main_lens={"stop_diameter": 0.05}, mla={"count": (40, 40)})``,
         or a component object.  ``main_lens={"ideal": True}`` gives the ideal
-        thin-lens variant.
+        thin-lens variant.  ``pose`` places the camera in the world, e.g.
+        ``pose=lftomo.Pose.look_at(eye=(-1, 0, 1), target=(0, 0, 1))``.
         """
 
         def build(kind, value):
@@ -452,7 +470,12 @@ class Camera:
             main_lens=build(MainLens, main_lens),
             mla=build(MicrolensArray, mla),
             sensor=build(Sensor, sensor),
+            pose=pose,
         )
+
+    def with_pose(self, pose: Pose | None) -> "Camera":
+        """The same camera placed at ``pose`` (``None``: the camera frame)."""
+        return dataclasses.replace(self, pose=pose)
 
     # ---- derived geometry -------------------------------------------------
     # numba-free helper state (stop-sample cache) lives in __dict__ of the frozen instance
@@ -512,6 +535,10 @@ class Camera:
         z_xp, d_xp = _exit_pupil(ml)
         o[_o.O_XP_Z] = z_xp
         o[_o.O_XP_R2] = (EXIT_PUPIL_CULL_MARGIN * 0.5 * d_xp) ** 2
+        if self.pose is not None:  # the identity pose is None: its rays are not touched
+            o[_o.O_POSE] = 1.0
+            o[_o.O_R:_o.O_R + 9] = self.pose.rotation.ravel()
+            o[_o.O_T:_o.O_T + 3] = self.pose.position
         o.setflags(write=False)
         if self._crosstalk_possible(o):
             o = o.copy()
@@ -846,6 +873,7 @@ class Camera:
             "exit_pupil_z": z_xp,
             "exit_pupil_diameter": d_xp,
             "ideal_main_lens": ml.ideal,
+            "pose": None if self.pose is None else self.pose.to_dict(),
             "warnings": warns,
         }
 
@@ -867,8 +895,12 @@ class Camera:
         return abs(slope(dp) - slope(dm)) / (2 * h)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able description that :meth:`from_dict` rebuilds exactly."""
-        return {
+        """JSON-able description that :meth:`from_dict` rebuilds exactly.
+
+        The ``"pose"`` key is present only for a posed camera, so the
+        description (and the files that store it) of an unposed camera is
+        the same as before poses existed."""
+        d = {
             "main_lens": dataclasses.asdict(self.main_lens),
             "mla": {**dataclasses.asdict(self.mla), "count": list(self.mla.count)},
             "sensor": dataclasses.asdict(self.sensor),
@@ -876,6 +908,9 @@ class Camera:
             "sensor_gap": self.sensor_gap,
             "focus_distance": self.focus_distance,
         }
+        if self.pose is not None:
+            d["pose"] = self.pose.to_dict()
+        return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Camera":
@@ -887,6 +922,7 @@ class Camera:
                 mla_distance=float(d["mla_distance"]),
                 sensor_gap=float(d["sensor_gap"]),
                 focus_distance=None if d.get("focus_distance") is None else float(d["focus_distance"]),
+                pose=None if d.get("pose") is None else Pose.from_dict(d["pose"]),
             )
         except (KeyError, TypeError) as exc:
             raise LftomoError(f"camera description is malformed: {exc}") from None

@@ -47,15 +47,43 @@ TRANSPORT_STREAM = 1 << 40  # offset of the per-pixel transport random streams
 MAJORANT_BLOCK = 4
 
 
+def box_in_camera_frame(lower, upper, camera) -> tuple[np.ndarray, np.ndarray, str]:
+    """Bounds of an axis-aligned world box in the camera's frame.
+
+    Returns ``(lo, hi, where)``: for the identity pose the box itself; for a
+    posed camera the bounding box of its 8 corners mapped to the camera frame
+    (which contains the box, so a test against it never refuses a box the
+    camera sees); ``where`` names the frame for error messages.
+    """
+    lo = np.asarray(lower, float)
+    hi = np.asarray(upper, float)
+    pose = camera.pose
+    if pose is None:
+        return lo, hi, ""
+    corners = np.array([[(lo, hi)[a][0], (lo, hi)[b][1], (lo, hi)[c][2]] for a in (0, 1) for b in (0, 1)
+                        for c in (0, 1)])
+    cam = pose.to_camera_points(corners)
+    where = (f" in the frame of the camera at {pose.position.tolist()!r} looking along "
+             f"{np.round(pose.axis, 6).tolist()!r}")
+    return cam.min(axis=0), cam.max(axis=0), where
+
+
 def check_medium_visible(medium, camera) -> None:
     """Raise ValueError before any tracing if the medium box overlaps the
-    camera (z <= 0) or lies entirely outside the field of view."""
+    camera (camera-frame z <= 0) or lies entirely outside the field of view.
+
+    A posed camera tests the box's corners mapped to its own frame
+    (:func:`box_in_camera_frame`)."""
     g = medium.grid
-    lo = np.asarray(g.lower, float)
-    hi = np.asarray(g.upper, float)
+    lo, hi, where = box_in_camera_frame(g.lower, g.upper, camera)
     if lo[2] <= 0.0:
+        if hi[2] <= 0.0:
+            raise ValueError(
+                f"the medium box lies wholly behind the camera (z from {lo[2]:.4g} to {hi[2]:.4g} m{where}); "
+                "the camera sees object space z > 0 only: point it at the medium (pose target) or move the box"
+            )
         raise ValueError(
-            f"the medium box starts at z = {lo[2]:.4g} m; it must lie in object space z > 0 "
+            f"the medium box starts at z = {lo[2]:.4g} m{where}; it must lie in object space z > 0 "
             "(the aperture stop is at z = 0 and the lens behind it)"
         )
     # the field of view is a cone from the stop: half-width at depth z is
@@ -71,8 +99,8 @@ def check_medium_visible(medium, camera) -> None:
         limit = r + zfar * tan[axis]
         if lo[axis] > limit or hi[axis] < -limit:
             raise ValueError(
-                f"the medium box spans {name} = [{lo[axis]:.4g}, {hi[axis]:.4g}] m, outside the camera's field "
-                f"of view (|{name}| <= {limit:.4g} m at z = {zfar:.4g} m): the camera cannot see it"
+                f"the medium box spans {name} = [{lo[axis]:.4g}, {hi[axis]:.4g}] m{where}, outside the camera's "
+                f"field of view (|{name}| <= {limit:.4g} m at z = {zfar:.4g} m): the camera cannot see it"
             )
 
 
@@ -129,7 +157,7 @@ def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, ra
             for m in range(rays_per_pixel):
                 gm = g
                 g = g + 1 if g + 1 < k_groups else 0
-                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, rays_per_pixel, key, state,
                                                                       optics, sampler, mli)
                 if not ok:
                     continue
@@ -167,7 +195,7 @@ def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, r
             for m in range(rays_per_pixel):
                 gm = grp
                 grp = grp + 1 if grp + 1 < k_groups else 0
-                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, m, rays_per_pixel, key, state,
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, rays_per_pixel, key, state,
                                                                       optics, sampler, mli)
                 if not ok:
                     continue
@@ -228,21 +256,28 @@ def _stop_connection(px, py, pz, state, optics, surf, tex, Lbuf):
     vignetted or off the sensor), its unit direction and length, and
     ``geom = A_stop cos θ_s / r²`` (sr), so that a source of radiant intensity
     I toward the connection scores ``I · geom · T``.
+
+    ``(px, py, pz)`` and the returned direction are in the world frame; the
+    stop point, ``geom`` and the optics trace are in the camera's frame (the
+    point is mapped by the camera's pose first, nothing is done for the
+    identity pose).
     """
     rs = optics[_o.O_STOP_R]
     state, ax, ay = _o.sample_unit_disc(state)
-    ex = rs * ax - px
-    ey = rs * ay - py
-    ez = -pz
+    qx, qy, qz = _o.pose_point_to_camera(px, py, pz, optics)
+    ex = rs * ax - qx
+    ey = rs * ay - qy
+    ez = -qz
     r2 = ex * ex + ey * ey + ez * ez
     dist = math.sqrt(r2)
     dx = ex / dist
     dy = ey / dist
     dz = ez / dist
     geom = math.pi * rs * rs * (-dz) / r2
-    if surfaces_hit(px, py, pz, dx, dy, dz, dist, surf, tex, Lbuf) < dist:
-        return state, -1, dx, dy, dz, dist, geom
-    return state, _o.trace_to_sensor(px, py, pz, dx, dy, dz, optics), dx, dy, dz, dist, geom
+    wx, wy, wz = _o.pose_direction_to_world(dx, dy, dz, optics)
+    if surfaces_hit(px, py, pz, wx, wy, wz, dist, surf, tex, Lbuf) < dist:
+        return state, -1, wx, wy, wz, dist, geom
+    return state, _o.trace_to_sensor(qx, qy, qz, dx, dy, dz, optics), wx, wy, wz, dist, geom
 
 
 @njit(cache=True, inline="always")

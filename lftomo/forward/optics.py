@@ -10,6 +10,9 @@ surface with vertex ``zv`` and curvature ``c = 1/R`` has its centre at
 ``zv - R``.  ``c = 0`` is a plane.
 
 Packed camera (``optics``): 1-D float64 array, indices named ``O_*`` below.
+Everything here works in the camera's own frame; the camera's pose
+(``O_POSE``, ``O_R``, ``O_T``) maps its object-space rays to the world frame
+(:func:`pose_ray_to_world`, :func:`pose_point_to_camera`).
 Kernels take only arrays and scalars.  Surfaces are ideally coated (no Fresnel
 loss, no absorption); total internal reflection and every clear aperture and
 the aperture stop vignette (the ray is dropped).
@@ -53,7 +56,53 @@ O_NCOLS = 24
 O_NROWS = 25
 O_XP_Z = 26  # z of the paraxial exit pupil
 O_XP_R2 = 27  # squared cull radius at the exit pupil (0: no cull)
-O_SIZE = 28
+O_POSE = 28  # 1.0: the camera has a pose other than the identity (lftomo.forward.pose)
+O_R = 29  # pose rotation R, row-major, 9 entries: R[i, j] at O_R + 3 i + j (camera -> world)
+O_T = 38  # pose position (stop centre in the world), 3 entries
+O_SIZE = 41
+
+
+@njit(cache=True, inline="always")
+def pose_ray_to_world(ox, oy, oz, dx, dy, dz, optics):
+    """Camera-frame ray (origin, direction) to the world frame: ``R o + t``, ``R d``.
+
+    Unchanged (no arithmetic at all) when ``optics[O_POSE] == 0``.
+    """
+    if optics[O_POSE] == 0.0:
+        return ox, oy, oz, dx, dy, dz
+    r = O_R
+    wx = optics[r] * ox + optics[r + 1] * oy + optics[r + 2] * oz + optics[O_T]
+    wy = optics[r + 3] * ox + optics[r + 4] * oy + optics[r + 5] * oz + optics[O_T + 1]
+    wz = optics[r + 6] * ox + optics[r + 7] * oy + optics[r + 8] * oz + optics[O_T + 2]
+    ex = optics[r] * dx + optics[r + 1] * dy + optics[r + 2] * dz
+    ey = optics[r + 3] * dx + optics[r + 4] * dy + optics[r + 5] * dz
+    ez = optics[r + 6] * dx + optics[r + 7] * dy + optics[r + 8] * dz
+    return wx, wy, wz, ex, ey, ez
+
+
+@njit(cache=True, inline="always")
+def pose_point_to_camera(px, py, pz, optics):
+    """World point to the camera frame, ``R^T (p - t)``; unchanged when ``optics[O_POSE] == 0``."""
+    if optics[O_POSE] == 0.0:
+        return px, py, pz
+    r = O_R
+    qx = px - optics[O_T]
+    qy = py - optics[O_T + 1]
+    qz = pz - optics[O_T + 2]
+    return (optics[r] * qx + optics[r + 3] * qy + optics[r + 6] * qz,
+            optics[r + 1] * qx + optics[r + 4] * qy + optics[r + 7] * qz,
+            optics[r + 2] * qx + optics[r + 5] * qy + optics[r + 8] * qz)
+
+
+@njit(cache=True, inline="always")
+def pose_direction_to_world(dx, dy, dz, optics):
+    """Camera-frame direction to the world frame, ``R d``; unchanged when ``optics[O_POSE] == 0``."""
+    if optics[O_POSE] == 0.0:
+        return dx, dy, dz
+    r = O_R
+    return (optics[r] * dx + optics[r + 1] * dy + optics[r + 2] * dz,
+            optics[r + 3] * dx + optics[r + 4] * dy + optics[r + 5] * dz,
+            optics[r + 6] * dx + optics[r + 7] * dy + optics[r + 8] * dz)
 
 
 @njit(cache=True, inline="always")

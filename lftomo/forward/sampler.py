@@ -279,6 +279,24 @@ def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, ml
     return _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli)
 
 
+@njit(cache=True, inline="always")
+def pixel_ray_world(row, col, m, n_rays, key, state, optics, sampler, mli):
+    """:func:`pixel_ray` of the pixel itself, with the object-space ray in the world frame.
+
+    The camera-frame ray (origin on the stop plane, dz > 0) is mapped by the
+    camera's pose (:func:`lftomo.forward.optics.pose_ray_to_world`); with the
+    identity pose it is returned untouched, bit for bit.  Every kernel that
+    sends rays into the scene (render, weights, ray segments) calls this;
+    tabulations of the camera itself (étendue, stop positions) call
+    :func:`pixel_ray` and stay in the camera frame.
+
+    Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)`` as :func:`pixel_ray`.
+    """
+    state, ok, ox, oy, oz, dx, dy, dz, w = pixel_ray(row, col, 0.0, 0.0, m, n_rays, key, state, optics, sampler, mli)
+    ox, oy, oz, dx, dy, dz = _o.pose_ray_to_world(ox, oy, oz, dx, dy, dz, optics)
+    return state, ok, ox, oy, oz, dx, dy, dz, w
+
+
 @njit(cache=True)
 def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
     sp = optics[_o.O_S_PITCH]

@@ -200,13 +200,21 @@ class Scene:
         return d
 
     def check_visible_from(self, camera) -> None:
-        """Raise ValueError if any part of the scene is at or behind the stop plane."""
+        """Raise ValueError if any part of the scene is at or behind the camera's stop plane.
+
+        Surfaces are tested in the camera's frame (their corners mapped by the
+        camera's pose, if it has one)."""
+        pose = getattr(camera, "pose", None)
+        where = "" if pose is None else f" in the frame of the camera at {pose.position.tolist()!r}"
         for k, s in enumerate(self.surfaces):
             u, v, _ = s.frame
-            corners = [np.asarray(s.center) + a * 0.5 * s.size[0] * u + b * 0.5 * s.size[1] * v for a in (-1, 1) for b in (-1, 1)]
-            zmin = min(c[2] for c in corners)
+            corners = np.array([np.asarray(s.center) + a * 0.5 * s.size[0] * u + b * 0.5 * s.size[1] * v
+                                for a in (-1, 1) for b in (-1, 1)])
+            if pose is not None:
+                corners = pose.to_camera_points(corners)
+            zmin = float(corners[:, 2].min())
             if zmin <= 0.0:
                 raise LftomoError(
-                    f"surfaces[{k}] reaches z = {zmin:.4g} m; the object space of the camera is z > 0 "
+                    f"surfaces[{k}] reaches z = {zmin:.4g} m{where}; the object space of the camera is z > 0 "
                     "(the aperture stop is at z = 0): move it in front of the camera"
                 )

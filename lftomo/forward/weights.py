@@ -191,7 +191,7 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
         bg = 0.0
         overflow = False
         for ray in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, ray, n_rays, key, state,
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
                 continue
@@ -278,7 +278,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
         bg = 0.0
         overflow = False
         for ray in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, ray, n_rays, key, state,
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok or overflow:
                 continue
@@ -407,7 +407,7 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
         o = seg_off[k]
         nr = 0
         for ray in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray(r, c, 0.0, 0.0, ray, n_rays, key, state,
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
                 continue
