@@ -476,6 +476,14 @@ def design(
                   timing=clock)
 
 
+def _cos_sin_degrees(a: float) -> tuple[float, float]:
+    """cos and sin of ``a`` degrees, exact at multiples of 90° (so that quarter turns permute axes exactly)."""
+    if a % 90.0 == 0.0:
+        return {0: (1.0, 0.0), 1: (0.0, 1.0), 2: (-1.0, 0.0), 3: (0.0, -1.0)}[int(a // 90.0) % 4]
+    t = math.radians(a)
+    return math.cos(t), math.sin(t)
+
+
 def rig_around(camera: Any, center: Sequence[float], angles_deg: Sequence[float]) -> tuple:
     """Copies of ``camera`` on a circle about the vertical (+y) axis through ``center``.
 
@@ -501,8 +509,8 @@ def rig_around(camera: Any, center: Sequence[float], angles_deg: Sequence[float]
     eye0 = np.asarray(pose.position, dtype=float) - c
     out = []
     for a in angles_deg:
-        t = math.radians(float(a))
-        rot = np.array([[math.cos(t), 0.0, math.sin(t)], [0.0, 1.0, 0.0], [-math.sin(t), 0.0, math.cos(t)]])
+        co, si = _cos_sin_degrees(float(a))
+        rot = np.array([[co, 0.0, si], [0.0, 1.0, 0.0], [-si, 0.0, co]])
         eye = c + rot @ eye0
         out.append(camera.with_pose(Pose.look_at(eye=tuple(eye), target=tuple(c), up=(0.0, 1.0, 0.0))))
     return tuple(out)

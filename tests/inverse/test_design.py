@@ -121,3 +121,19 @@ def test_design_refuses_bad_input(blob_design):
         design(cam, grid, flame, prior="tv")
     with pytest.raises(lt.LftomoError, match="probe"):
         design(cam, grid, flame, probes=[(5, 0, 0)])
+
+
+def test_a_second_camera_can_only_shrink_the_posterior(blob_design):
+    """At a fixed λ a second camera adds J₂ᵀJ₂ ⪰ 0 to the precision, so every voxel's posterior variance can only
+    fall; the camera at 90° (rig_around) is the issue's pose, sees the blob from the side (other data), and the
+    rig's data are the two cameras' together."""
+    cam, grid, flame, d = blob_design
+    rig = lt.rig_around(cam, grid.center, (0.0, 90.0))
+    assert rig[0] == cam and rig[1].pose == lt.Pose.look_at(eye=(-1.0, 0.0, 1.0), target=(0.0, 0.0, 1.0))
+    d2 = design(rig, grid, flame, noise=0.01, rays_per_pixel=64, regularization=d.regularization, progress=False)
+    side = d2.weights[1]
+    assert d2.n_data == d.n_data + d2.measurements[1].y.size
+    assert abs(side.matrix - d.weights[0].matrix).sum() > 0.1 * abs(side.matrix).sum()
+    assert np.all(d2.T_std <= d.T_std * (1 + 1e-9))
+    hot = d.T_true > 1200
+    assert np.mean(d2.T_std[hot]) < 0.9 * np.mean(d.T_std[hot])
