@@ -25,12 +25,15 @@ prior factor ``L_s = L / (T_max − T_min)`` and the regularisation λ:
 
 λ is that of the default rule on one simulated noisy measurement
 (``regularization="auto"``: the reconstruction the experimenter would run),
-or given.  The data of each camera are its lit sub-aperture pixels with
-noise ``σ = noise × max(signal, 10⁻³ × peak)`` (:func:`lftomo.add_noise`),
-the signal rendered from the flame itself, and the weight matrix's own Monte
-Carlo error added to σ in quadrature (treated as independent per pixel, as
-the raw-data path does).  Model error of a coarse grid (a flame's detail
-below the voxel size) is not part of the prediction; the dense algebra limits the grid to ``dense_max`` voxels (16³ = 4096 by
+or given.  The data of each camera are its lit sub-aperture pixels (étendue
+above 0.2 of the peak) of a render of the flame itself, with noise
+``σ = noise × max(signal, 10⁻³ × peak)`` (:func:`lftomo.add_noise`) and the
+Monte Carlo error of the render and of the weights added to σ
+(:func:`lftomo.inverse.compare.with_monte_carlo_noise`, floor ``"prior"``, the less pessimistic one):
+the prediction is that of lftomo's own synthetic pipeline at these rays,
+conservative for a real camera's images, which have no Monte Carlo error.
+Model error of a coarse grid (flame detail below the voxel size) is not part
+of the prediction; the dense algebra limits the grid to ``dense_max`` voxels (16³ = 4096 by
 default).
 
 References
@@ -224,15 +227,15 @@ def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, 
 def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar):
     """Per camera: the simulated measurement and its weights on ``grid``.
 
-    The data emulate a real camera: the flame rendered with
+    As the library's synthetic studies do: the flame rendered with
     ``data_rays_per_pixel`` rays, relative noise ``noise``
-    (:func:`lftomo.add_noise`), and the weight matrix's own Monte Carlo error
-    added to σ (:func:`lftomo.rawdata.with_model_error`), as the raw-data path does.
+    (:func:`lftomo.add_noise`), and the Monte Carlo error of the render and of
+    the weights added to σ (:func:`lftomo.inverse.compare.with_monte_carlo_noise`).
     """
     from ..forward.render import render
     from ..forward.scene import Scene
     from ..forward.weights import weights
-    from ..rawdata import with_model_error
+    from .compare import with_monte_carlo_noise
     from .measurement import Measurement, add_noise
 
     ms, Ws = [], []
@@ -241,13 +244,14 @@ def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_
         lf = render(Scene(medium=flame), cam, rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k,
                     wavelengths=(wavelength,), progress=False)
         bar.update(1)
+        noisy = with_monte_carlo_noise(add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), lf,
+                                       rays_per_pixel=data_rays_per_pixel, weights_rays_per_pixel=rays_per_pixel,
+                                       floor="prior")
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: weights")
-        W = weights(cam, grid, sigma_a=sa, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
-                    seed=seed + 3 * k + 1, lightfield=lf, progress=False)
+        Ws.append(weights(cam, grid, sigma_a=sa, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
+                          seed=seed + 3 * k + 1, lightfield=noisy, progress=False))
         bar.update(1)
-        noisy = with_model_error(add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), W)
         ms.append(Measurement.from_lightfield(noisy))
-        Ws.append(W)
     return ms, Ws
 
 
@@ -390,8 +394,8 @@ def design(
     rays_per_pixel : int
         Rays of the weight matrices (their Monte Carlo error enters σ).
     data_rays_per_pixel : int, optional
-        Rays of the render that stands in for the camera's images; default
-        ``4 × rays_per_pixel`` (a real image has no Monte Carlo error).
+        Rays of the render that stands in for the camera's images (its Monte
+        Carlo error enters σ too); default ``rays_per_pixel``.
     regularization : "auto" or float
         λ: ``"auto"`` reconstructs one simulated noisy measurement with the
         library's default rule and uses its λ; a float fixes it.
@@ -427,7 +431,7 @@ def design(
 
     cams = _cameras(rig)
     rays_per_pixel = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
-    data_rays = 4 * rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
+    data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
     _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max)
     prior_name = resolve_prior(DEFAULT_PRIOR if prior is None else prior, quadratic_only=True,
                                where="design (a Gaussian prior)").name
