@@ -57,6 +57,7 @@ import scipy.sparse as sp
 from scipy.special import ndtri
 
 from .._validate import require_bounds, require_int, require_positive
+from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
@@ -219,12 +220,19 @@ def _null_dimension(Ls: sp.csr_matrix) -> int:
     return 1 if float(np.abs(Ls @ np.ones(n)).max()) <= 1e-10 * scale else 0
 
 
-def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
+def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, *, prior: str | None = None,
+                 shape: tuple | None = None) -> _Stats:
+    """Exact ``diag(H⁻¹)``, ``tr(H⁻¹M)`` and ``log det H`` by a Cholesky factor of ``H = JᵀJ + λ LsᵀLs``.
+
+    Raises :class:`~lftomo.LftomoError` naming the unconstrained unknowns
+    (:func:`_unconstrained_message`; ``prior`` and ``shape``, the unknowns'
+    grid shape, only word it) when ``H`` is not numerically positive definite.
+    """
     M = (Ls.T @ Ls).tocoo()
     H = (J.T @ J).toarray() + lam * M.toarray()
     c, info = sla.lapack.dpotrf(H, lower=1, clean=1, overwrite_a=1)
     if info != 0:
-        raise np.linalg.LinAlgError(f"the Laplace precision is not positive definite (dpotrf info {info})")
+        raise LftomoError(_unconstrained_message(J, Ls, lam, prior, shape))
     logdet = 2.0 * float(np.sum(np.log(np.diag(c))))
     inv, info = sla.lapack.dpotri(c, lower=1, overwrite_c=1)  # lower triangle of H⁻¹
     if info != 0:
@@ -232,6 +240,43 @@ def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
     i, j = np.maximum(M.row, M.col), np.minimum(M.row, M.col)
     trace = float(np.sum(inv[i, j] * M.data))
     return _Stats(var=np.diag(inv).copy(), trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0)
+
+
+def _unconstrained_message(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, prior: str | None,
+                           shape: tuple | None, rtol: float = 1e-12, show: int = 8) -> str:
+    """Why ``H = JᵀJ + λ LsᵀLs`` is not positive definite: the unknowns its (near-)null directions move.
+
+    The directions are the eigenvectors of ``H`` with eigenvalues ≤ ``rtol``
+    × the largest; an unknown is named when such a direction moves it by more
+    than 10 % of the direction's largest component.  Unknowns no datum sees
+    (zero columns of ``J``) are counted apart.  ``shape``: the grid shape of
+    the unknowns, for (i, j, k) indices (flat indices otherwise).
+    """
+    n = J.shape[1]
+    H = (J.T @ J).toarray() + lam * (Ls.T @ Ls).toarray()
+    w, V = np.linalg.eigh(H)
+    null = w <= rtol * max(float(w[-1]), 1e-300)
+    if not null.any():  # positive definite to this tolerance, yet Cholesky failed: the smallest direction
+        null = w <= w[0]
+    V0 = np.abs(V[:, null])
+    moved = np.flatnonzero(np.any(V0 > 0.1 * V0.max(axis=0), axis=1))
+    unseen = np.asarray(abs(J).sum(axis=0)).ravel() == 0
+    where = [tuple(int(i) for i in np.unravel_index(k, shape)) if shape is not None else int(k) for k in moved[:show]]
+    more = f" and {moved.size - show} more" if moved.size > show else ""
+    prior_txt = "the prior" if prior is None else f"prior={prior!r}"
+    # in the prior's null space (‖Ls v‖ ≈ 0): no λ constrains them; else λ is merely too small for the data
+    Ls_norm = math.sqrt(max(float(np.max(np.asarray(Ls.multiply(Ls).sum(axis=0)))), 1e-300))
+    prior_free = float(np.max(np.linalg.norm(Ls @ V[:, null], axis=0))) <= 1e-6 * Ls_norm
+    remedy = ("a larger regularization cannot fix this: use a stronger prior (prior='gradient' leaves only the "
+              "constant field free)" if prior_free else
+              "use a larger regularization (λ) or a stronger prior (prior='gradient' leaves only the constant field "
+              "free)")
+    return (f"the Laplace precision JᵀJ + λ LᵀL is not positive definite at regularization={lam:g}: "
+            f"{int(null.sum())} direction(s) of the field are constrained neither by the data nor by {prior_txt}"
+            f"{' (at any λ)' if prior_free else ' (at this λ)'}; they move {moved.size} of the {n} unknowns "
+            f"({', '.join(map(str, where))}{more}); {int(unseen.sum())} of the {n} unknowns are seen by no datum "
+            f"({int(unseen[moved].sum())} of those moved). To fix: {remedy}, or fewer unknowns (a coarser grid, "
+            f"symmetry='axisymmetric', or a grid that the data see)")
 
 
 def block_pcg(apply_H, B: np.ndarray, inv_diag: np.ndarray, *, rtol: float, max_iter: int) -> tuple[np.ndarray, int]:
@@ -446,7 +491,7 @@ def laplace_posterior(
         t = time.perf_counter()
         J = _whitened_jacobian(problem, np.asarray(T, dtype=np.float64).ravel())
         if method == "dense":
-            st = _dense_stats(J, Ls, lam)
+            st = _dense_stats(J, Ls, lam, prior=prior, shape=grid.shape)
         else:
             st = _sampled_stats(J, Ls, lam, k, rng, cg_rtol, cg_max_iter)
         clock["posterior_s"] += time.perf_counter() - t
