@@ -350,10 +350,6 @@ class JointModel:
         """Unknowns -> the reconstruction grid's voxels."""
         return x if self.cell is None else x[self.cell]
 
-    def on_segment_voxels(self, x):
-        """Unknowns -> the segment table's voxels (where the physics is evaluated)."""
-        return x if self.to_seg_j is None else self.to_seg_j @ x
-
     def residual(self, p, lam):
         """Whitened data of every channel, then ``√λ`` × the T prior, the σ prior and the σ ridge (JAX)."""
         return self.fns["residual"](p, self.jax_args(lam))
