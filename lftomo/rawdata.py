@@ -339,7 +339,7 @@ class RawFrameConverter:
 
     @classmethod
     def load(cls, calibration: Any, camera: Any, *, dark: Any = None, dark_frames: int = 1,
-             camera_description: Any = None, names: dict | None = None) -> "RawFrameConverter":
+             camera_description: Any = None, names: dict | None = None) -> RawFrameConverter:
         """Read and check the calibration, sensor settings and dark frame for ``camera``.
 
         Parameters

@@ -603,8 +603,10 @@ def test_a_second_frame_with_other_noise_reuses_the_compiled_solver(gray_blob):
 
     cam, grid, flame, lf, W = gray_blob
     opts = {"regularization": 1e-3, "bounds": (500.0, 2500.0), "max_steps": 3}
-    frames = [lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=s)) for s in (31, 32)]
-    assert not np.array_equal(frames[0].sigma, frames[1].sigma)  # other noise, so another whitened matrix
+    brighter = dataclasses.replace(lf, raw=1.3 * lf.raw)  # another frame: another signal, so another sigma
+    frames = [lt.Measurement.from_lightfield(lt.add_noise(f, relative_std=0.01, seed=s))
+              for f, s in ((lf, 31), (brighter, 32))]
+    assert frames[0].size == frames[1].size and not np.array_equal(frames[0].sigma, frames[1].sigma)
     lt.reconstruct(frames[0], W, **opts)
     seen = []
 
