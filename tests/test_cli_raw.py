@@ -261,6 +261,8 @@ def test_wrong_frame_shape_and_options_are_refused(frames, tmp_path, capsys, no_
     assert rc == 2 and "radiometric at 650.0 nm" in capsys.readouterr().err
 
 
+# 290 s on 2 cores at load average 11 (4 reconstructions, a local cluster's start and its worker's compilation)
+@pytest.mark.heavy
 def test_cli_series_of_raw_frames_equals_the_per_frame_raw_path(frames, tmp_path, capsys):
     """3 raw TIFF frames (other noise draws of the flame) through ``lftomo series --calibration --dark``
     on a one-worker local cluster: each field equals ``lftomo reconstruct --raw`` of that frame with the
