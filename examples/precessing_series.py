@@ -1,7 +1,8 @@
 """A time-resolved sequence of the precessing flame: render it, and (``--reconstruct``) reconstruct it.
 
 Truth: :func:`lftomo.phantoms.precessing_flame` (two lobes precessing about the box axis at 50 Hz,
-absorption fixed in time) on a grid ``--refine`` times finer than the reconstruction grid (``--n``³),
+absorption fixed in time) on a grid ``--refine`` times finer than the reconstruction grid (``--n``³)
+in a box that the camera sees whole (:func:`flame_grid`),
 at ``t = k / frame_rate``, rendered at 650 nm by the seed camera with ``--mla`` lenslets per side
 (``--rays`` rays/pixel, seed 1).  Writes ``OUT/lf_XXXX.npz`` (noisy light fields: ``--noise``
 relative Gaussian noise with seed 100 + frame index, and in their ``noise_std`` also the Monte
@@ -42,11 +43,18 @@ from lftomo.series import series_figure, series_strip
 WL = 650e-9
 
 
+def flame_grid(cam, n):
+    """``n``³ voxels in a box of 0.8 × the camera's field of view per side (x, z; y 1.2 × that), at 1 m:
+    :func:`lftomo.phantoms.default_flame_grid`'s shape, scaled so that the camera sees all of it (the
+    default 50 mm box needs the seed camera's 60 lenslets; 16 lenslets see the central 20 mm)."""
+    w = 0.8 * cam.describe(warn=False)["field_of_view"][0]
+    return lt.Grid((n, n, n), (-w / 2, -0.6 * w, 1.0 - w / 2), (w / 2, 0.6 * w, 1.0 + w / 2))
+
+
 def render(a, out):
     """Frames, weight matrix and effective truths; returns (light-field paths, W, T_true (frames, n, n, n))."""
     cam = lt.Camera.seed(1.0, mla={"count": (a.mla, a.mla)})
-    fine = lt.phantoms.default_flame_grid((a.n * a.refine,) * 3)
-    grid = lt.phantoms.default_flame_grid((a.n,) * 3)
+    fine, grid = flame_grid(cam, a.n * a.refine), flame_grid(cam, a.n)
     media = lt.phantoms.precessing_flame_sequence(fine, a.frames, frame_rate=a.frame_rate, width_scale=3.0)
     paths, truths = [], []
     for k, m in enumerate(media):
