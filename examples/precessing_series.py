@@ -23,8 +23,8 @@ reconstruction, frame by frame), ``OUT/series/series.png`` and ``OUT/series/erro
 
 Usage::
 
-    python examples/precessing_series.py [-o precessing] [--frames 8] [--n 16] [--refine 2] [--mla 16]
-        [--rays 16] [--noise 0.01] [--reconstruct [--workers 2] [--max-steps 30]]
+    python examples/precessing_series.py [-o precessing] [--frames 8] [--n 16] [--refine 2] [--mla 60]
+        [--rays 64] [--noise 0.01] [--reconstruct [--workers 2] [--max-steps 30]]
 """
 
 from __future__ import annotations
@@ -103,8 +103,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--n", type=int, default=16, help="reconstruction voxels per side")
     ap.add_argument("--refine", type=int, default=2, help="truth grid: this many times finer")
-    ap.add_argument("--mla", type=int, default=16, help="lenslets per side of the seed camera")
-    ap.add_argument("--rays", type=int, default=16, help="rays per pixel of the frames and of the weights")
+    ap.add_argument("--mla", type=int, default=60, help="lenslets per side of the seed camera (its own 60)")
+    ap.add_argument("--rays", type=int, default=64, help="rays per pixel of the frames and of the weights")
     ap.add_argument("--noise", type=float, default=0.01, help="relative sensor noise of the frames")
     ap.add_argument("--frame-rate", type=float, default=1000.0, help="frames per second (50 Hz precession)")
     ap.add_argument("--reconstruct", action="store_true", help="reconstruct the series here, report the errors")
