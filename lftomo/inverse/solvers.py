@@ -362,14 +362,25 @@ class _Setup:
     A_q: sp.csr_matrix | None = None
     E: sp.csr_matrix | None = None
     prior_model: Prior | None = None  # the Prior whose name is ``prior``
+    # the JAX data term: A_s (or A_q) = diag(row_scale) @ A_u, A_u the problem's rows used, unwhitened
+    A_u: sp.csr_matrix | None = None
+    row_scale: np.ndarray | None = None
 
     def jax_args(self) -> dict:
-        """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding)."""
+        """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding).
+
+        The matrix goes in unwhitened (``A_u``, the weight matrix's rows: the same
+        for every frame of a series with the same forward model and data rows)
+        with the whitening as the traced array ``row_scale``, so that its
+        :class:`HostCSR` handle, and with it the compiled solver, is reused
+        across measurements that differ only in their data and noise.
+        """
         reg_scale = 1.0 / self.T_scale if self.penalize == "temperature" else self.I_scale / self.I_reg
         extra = {} if self.E is None else {"E": host_csr(self.E)}
         return {
             **extra,
-            "A": host_csr(self.A_s if self.A_q is None else self.A_q),
+            "A": host_csr(self.A_u),
+            "row_scale": jnp.asarray(self.row_scale),
             "d": jnp.asarray(self.d),
             "L": host_csr(self.L),
             "lam": jnp.asarray(0.0),
@@ -398,11 +409,14 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     I_scale = float(blackbody(np.float64(T_ref), wl))
     T_scale = tmax - tmin
     I_reg = float(dblackbody_dT(np.float64(T_ref), wl)) * T_scale
-    scale = sp.diags(w[used] * I_scale)
-    A_s = (scale @ problem.linear_operator()[used]).tocsr()
+    row_scale = w[used] * I_scale
+    scale = sp.diags(row_scale)
+    A_u = problem.linear_operator()[used].tocsr()
+    A_s = (scale @ A_u).tocsr()
     A_q = E = None
     if problem.interpolation is not None:
-        A_q, E = (scale @ A[used]).tocsr(), problem.interpolation
+        A_u = A[used].tocsr()
+        A_q, E = (scale @ A_u).tocsr(), problem.interpolation
     model = resolve_prior(prior, tv_eps=tv_eps)
     tv_eps = getattr(model, "eps", tv_eps)
     L = model.operator(problem.grid, dimensionless=True)
@@ -427,6 +441,8 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         A_q=A_q,
         E=E,
         prior_model=model,
+        A_u=A_u,
+        row_scale=row_scale,
     )
     return s
 
@@ -453,7 +469,7 @@ def _functions(gray: bool, prior_type: type, penalize: str, subvoxel: bool = Fal
         if subvoxel:
             T = args["E"] @ T
         b = scaled_intensity(T, args)
-        return args["A"] @ b - args["d"]
+        return args["row_scale"] * (args["A"] @ b) - args["d"]
 
     def reg_res(theta, args):
         T = temperature(theta, args)
