@@ -13,7 +13,8 @@ The fields are bit-identical when this process runs with the workers' thread set
 MKL_NUM_THREADS=1``); a multithreaded BLAS sums the solver's dot products in another order.
 
 Printed: the serial and series wall times and their ratio (the speed-up; the cluster's start-up
-is timed separately and excluded), whether the fields are bit-identical, the peak resident memory
+is timed separately and excluded; both include compiling the solver, once in the serial process
+and once in each worker), the first and later frames' times of both, whether the fields are bit-identical, the peak resident memory
 of each worker process, and how many copies of the forward model the tasks used (distinct
 (worker process, object id) pairs: one per worker when it is sent once per worker).
 
@@ -66,12 +67,16 @@ def main() -> None:
     opts = {"regularization": a.lam, "max_steps": a.max_steps, "bounds": (300.0, 2500.0)}
 
     t0 = time.perf_counter()
-    serial = []
+    serial, t_frames = [], []
     for i, lf in enumerate(frames):
+        t1 = time.perf_counter()
         m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=100 + i), channel=0)
         serial.append(lt.reconstruct(m, W, **opts).T)
+        t_frames.append(time.perf_counter() - t1)
     t_serial = time.perf_counter() - t0
-    print(f"serial: {t_serial:.1f} s ({t_serial / a.frames:.2f} s/frame); load average {os.getloadavg()[0]:.1f}")
+    print(f"serial: {t_serial:.1f} s ({t_serial / a.frames:.2f} s/frame; first frame {t_frames[0]:.1f} s with the "
+          f"solver's compilation, later frames median {np.median(t_frames[1:]) if a.frames > 1 else np.nan:.2f} s); "
+          f"load average {os.getloadavg()[0]:.1f}")
 
     import logging
 
@@ -105,6 +110,10 @@ def main() -> None:
     print("peak memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in rss.values())
           + f"; this process {_peak_rss_mb():.0f} MB")
     print(f"forward-model copies used by the tasks: {len(copies)} on {len(workers)} worker process(es)")
+    for w in sorted(workers):  # per worker: its first frame compiles the solver, the later ones reuse it
+        secs = [f["seconds"] for f in sorted(man["frames"], key=lambda f: f["completed"]) if f["worker"] == w]
+        print(f"  worker {w}: {len(secs)} frames, first {secs[0]:.1f} s, later median "
+              f"{np.median(secs[1:]) if len(secs) > 1 else np.nan:.2f} s")
 
 
 if __name__ == "__main__":

@@ -308,6 +308,38 @@ def _series_forward(args, frames, out):
     return W
 
 
+def _series_raw_check(args) -> None:
+    """``lftomo series`` raw-frame options: refused in a bad combination (before any work)."""
+    if args.calibration is None:
+        given = [f"--{k.replace('_', '-')}" for k in ("dark", "dark_frames", "camera", "recon_shape")
+                 if getattr(args, k) is not None]
+        if given:
+            raise LftomoError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to raw frames, "
+                              "with --calibration cal.npz")
+        return
+    if args.scene is None:
+        raise LftomoError("raw frames (--calibration) need a SCENE.toml (its camera, [medium] grid and sigma_a) "
+                          "instead of --weights")
+    if args.noise is not None:
+        raise LftomoError("--noise adds synthetic noise; raw frames are already noisy (their noise model comes "
+                          "from the frame, the dark and the calibration): leave --noise out")
+
+
+def _series_raw_forward(args, out):
+    """Raw frames: the calibration, dark and sensor settings checked once, then the weight matrix as
+    ``lftomo reconstruct --raw`` builds it (kept as DIR/weights.npz); returns ``(W, raw options)``."""
+    from .demo import raw_scene_model, raw_scene_weights
+
+    cfg, grid, conv = raw_scene_model(args.scene, args.calibration, dark=args.dark, dark_frames=args.dark_frames or 1,
+                                      camera_file=args.camera, recon_shape=args.recon_shape,
+                                      allow_outside=args.allow_outside_paths)
+    print(f"lftomo series: raw frames calibrated by {args.calibration} at {conv.wavelength * 1e9:.1f} nm; weight "
+          f"matrix of {cfg.source} on {'x'.join(map(str, grid.shape))} voxels", file=sys.stderr)
+    W, _, _ = raw_scene_weights(cfg, grid, conv.wavelength, progress=not args.quiet)
+    W.save(out / "weights.npz")
+    return W, {"calibration": conv}
+
+
 def cmd_series(args) -> int:
     """``lftomo series``: one reconstruction per frame on a Dask cluster, resumable; a summary figure."""
     from .io import check_output_dir
@@ -323,8 +355,13 @@ def cmd_series(args) -> int:
     if args.scheduler is not None and args.workers is not None:
         raise LftomoError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
     args.scene = scenes[0] if scenes else None
+    _series_raw_check(args)
+    raw_kw: dict = {}
     out = check_output_dir(args.output, what="-o/--output")
-    W = _series_forward(args, frames, out)
+    if args.calibration is not None:
+        W, raw_kw = _series_raw_forward(args, out)
+    else:
+        W = _series_forward(args, frames, out)
     opts = {"regularization": args.regularization, "bounds": tuple(args.bounds), "max_steps": args.max_steps}
     if args.prior is not None:
         opts["prior"] = args.prior
@@ -335,7 +372,7 @@ def cmd_series(args) -> int:
     t0 = time.perf_counter()
     res = reconstruct_series(frames, W, out=out, scheduler=args.scheduler, workers=args.workers,
                              progress=not args.quiet, noise=args.noise, seed=args.seed, data=args.data,
-                             depths=args.depths, channel=args.channel, **opts)
+                             depths=args.depths, channel=args.channel, **raw_kw, **opts)
     figs = [series_figure(res, out / "series.png", frame_rate=args.frame_rate).name]
     if res.n_done:
         figs.append(series_strip(res, out / "series_strip.png").name)
@@ -563,8 +600,9 @@ def build_parser() -> argparse.ArgumentParser:
     sr = sub.add_parser("series", help="reconstruct a time-resolved series of light fields, one Dask task per "
                                        "frame (resumable; a summary figure)")
     sr.add_argument("frames", nargs="+", metavar="FRAMES",
-                    help="light-field .npz files (lftomo render / LightField.save), in time order; or one SCENE.toml "
-                         "among them, whose camera and [medium] give the weight matrix")
+                    help="light-field .npz files (lftomo render / LightField.save), or raw frames with --calibration, "
+                         "in time order; and one SCENE.toml among them, whose camera and [medium] give the weight "
+                         "matrix (or --weights)")
     sr.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
     sr.add_argument("-o", "--output", default="lftomo-series", help="output directory (a rerun resumes there)")
     sr.add_argument("--scheduler", default=None, help="address of a Dask scheduler, e.g. tcp://host:8786 "
@@ -587,6 +625,14 @@ def build_parser() -> argparse.ArgumentParser:
     sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
     sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")
     sr.add_argument("--frame-rate", type=_pos_float, default=None, help="frames per second, for the figure's time axis")
+    sr.add_argument("--calibration", default=None, help="raw frames (PNG, TIFF, .npy) of the SCENE's camera: the "
+                                                        "calibration .npz of lftomo calibrate with --blackbody")
+    sr.add_argument("--dark", default=None, help="with --calibration: dark frame (same exposure, lens capped)")
+    sr.add_argument("--dark-frames", type=_pos_int, default=None, help="with --calibration: frames averaged in --dark")
+    sr.add_argument("--camera", default=None, help="with --calibration: camera TOML (gain, read noise, bit depth) "
+                                                   "if the calibration did not record them")
+    sr.add_argument("--recon-shape", type=_shape3, default=None,
+                    help="with --calibration: reconstruction grid nx,ny,nz (default half the [medium] shape)")
     sr.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(sr)
     sr.set_defaults(func=cmd_series)

@@ -1087,6 +1087,59 @@ def _raw_channel(wls, wl: float, channel: int | None, calibration) -> None:
                          "must be built at the filter wavelength")
 
 
+def raw_scene_model(scene, calibration, *, dark=None, dark_frames=1, camera_file=None, recon_shape=None,
+                    channel=None, allow_outside=False) -> tuple:
+    """The checked pieces of a raw-frame reconstruction of a scene file's camera (no long work).
+
+    Reads the scene (a non-scattering ``[medium]``), the reconstruction grid
+    (``recon_shape``, default half the medium's), and a
+    :class:`~lftomo.rawdata.RawFrameConverter` of the calibration, sensor
+    settings (``camera_file``: a camera TOML) and dark frame for the scene's
+    camera; checks the scene's wavelength (``channel``) is the calibration's.
+    Messages name the ``lftomo reconstruct`` / ``lftomo series`` options.
+
+    Returns
+    -------
+    (cfg, grid, converter)
+        The :class:`~lftomo.config.SceneConfig`, the reconstruction :class:`~lftomo.Grid`
+        and the converter.
+    """
+    from .config import load_scene_file
+    from .rawdata import RawFrameConverter
+    from .rawio import load_camera_description
+
+    cfg = load_scene_file(scene, allow_outside=allow_outside)
+    medium = _scene_medium(cfg, scene)
+    grid = _recon_grid(medium.grid, recon_shape)
+    desc = load_camera_description(camera_file) if camera_file else None
+    conv = RawFrameConverter.load(calibration, cfg.camera, dark=dark, dark_frames=dark_frames,
+                                  camera_description=desc, names={"calibration": "--calibration", "dark": "--dark frame"})
+    _raw_channel(cfg.wavelengths, conv.wavelength, channel, calibration)
+    return cfg, grid, conv
+
+
+def raw_scene_weights(cfg, grid, wavelength: float, *, seed=None, rays_per_pixel=None, quadrature: int = 1,
+                      progress: bool = True, sampler=None) -> tuple:
+    """The weight matrix of a raw-frame reconstruction: the scene's camera on ``grid`` at ``wavelength``
+    for the known absorption (:func:`lftomo.effective_truth` of the scene's ``[medium]``), seed
+    ``seed`` (default ``[render] seed``) + 2, ``rays_per_pixel`` (default the scene's).
+
+    Returns
+    -------
+    (W, sigma_a, info)
+        ``info``: ``rays_per_pixel_weights``, ``sampler``, ``seeds``.
+    """
+    from .inverse.compare import effective_truth
+
+    s0 = cfg.seed if seed is None else int(seed)
+    n_w = int(rays_per_pixel or cfg.rays_per_pixel)
+    smp = cfg.sampler if sampler is None else sampler
+    sa, _ = effective_truth(cfg.scene.medium, grid, wavelength)  # the known absorption; the scene's T is not used
+    W = _scene_weights(cfg, grid, sa, wavelength, quadrature=quadrature, rays_per_pixel=n_w, seed=s0 + 2,
+                       progress=progress, sampler=smp)
+    return W, sa, {"rays_per_pixel_weights": n_w, "sampler": smp, "seeds": {"weights": s0 + 2, "posterior": s0 + 3}}
+
+
 def _inputs_from_raw(scene, raw, calibration, *, dark, dark_frames, camera_file, recon_shape, channel, seed,
                      rays_per_pixel, quadrature, data, depths, progress, allow_outside,
                      sampler) -> _ReconstructInputs:
@@ -1096,64 +1149,28 @@ def _inputs_from_raw(scene, raw, calibration, *, dark, dark_frames, camera_file,
     settings, frame and dark shapes and bit depth, calibrated grid against the
     camera's lenslets, wavelength) before the weight matrix is built.
     """
-    import lftomo as lt
-    from .config import load_scene_file
-    from .inverse.compare import effective_truth
-    from .rawdata import check_grid_matches_camera, lightfield_from_raw, sensor_settings, with_model_error
-    from .rawio import load_camera_description, read_raw
-
-    cfg = load_scene_file(scene, allow_outside=allow_outside)
-    medium = _scene_medium(cfg, scene)
-    grid = _recon_grid(medium.grid, recon_shape)
-    cam = cfg.camera
-    try:
-        cal_grid, radio, cal_meta = lt.load_calibration(calibration)
-    except ValueError as exc:
-        raise LftomoError(f"--calibration: {exc}") from None
-    if radio is None:
-        raise LftomoError(f"--calibration {str(calibration)!r} has no radiometric calibration; run lftomo calibrate "
-                         "with --blackbody B --temperature K --camera CAMERA.toml")
-    wl = radio.wavelength
-    _raw_channel(cfg.wavelengths, wl, channel, calibration)
-    desc = load_camera_description(camera_file) if camera_file else None
-    sens = sensor_settings(desc, cal_meta, calibration=str(calibration))
-    frame = read_raw(raw, bit_depth=sens["bit_depth"], what="--raw frame")
-    if frame.shape != cam.sensor_shape:
-        raise LftomoError(f"--raw frame {frame.source!r} has shape {frame.shape}, but the SCENE camera's sensor is "
-                         f"{cam.sensor_shape[0]}x{cam.sensor_shape[1]} px (rows x cols)")
-    dk = None if dark is None else read_raw(dark, bit_depth=frame.bit_depth, allow_float=True, what="--dark frame")
-    if dk is not None and dk.shape != frame.shape:
-        raise LftomoError(f"--dark frame {dk.source!r} has shape {dk.shape}, but --raw frame {frame.source!r} has "
-                         f"shape {frame.shape}")
-    check = check_grid_matches_camera(cal_grid, cam, what=f"--calibration {str(calibration)!r}")
-    if dk is None:
-        warnings.warn(f"no --dark: the counts of {frame.source!r} are used as they are; a black level or dark "
-                      "signal would bias the calibrated signal", UserWarning)
-    lf = lightfield_from_raw(frame, cam, radio, gain=sens["gain"], read_noise=sens["read_noise"], dark=dk,
-                             dark_frames=dark_frames, metadata={"source": "raw frame"})
-    s0 = cfg.seed if seed is None else int(seed)
-    n_w = int(rays_per_pixel or cfg.rays_per_pixel)
-    smp = cfg.sampler if sampler is None else sampler
-    sa, _ = effective_truth(medium, grid, wl)  # the known absorption; the scene's T is not used
-    W = _scene_weights(cfg, grid, sa, wl, quadrature=quadrature, rays_per_pixel=n_w, seed=s0 + 2,
-                       progress=progress, sampler=smp)
-    lf = with_model_error(lf, W)
+    cfg, grid, conv = raw_scene_model(scene, calibration, dark=dark, dark_frames=dark_frames, camera_file=camera_file,
+                                      recon_shape=recon_shape, channel=channel, allow_outside=allow_outside)
+    frame = conv.read(raw, what="--raw frame")
+    wl = conv.wavelength
+    W, sa, info = raw_scene_weights(cfg, grid, wl, seed=seed, rays_per_pixel=rays_per_pixel, quadrature=quadrature,
+                                    progress=progress, sampler=sampler)
+    lf = conv.lightfield(frame, W, metadata={"source": "raw frame"})
     if depths is None and data == "refocus":
         depths = cfg.focal_stack_depths or None
+    d = conv.describe()
     metrics = {"scene": str(scene), "raw": frame.source, "calibration": str(calibration),
-               "dark": None if dk is None else dk.source, "dark_frames": dark_frames if dk is not None else 0,
-               "sensor": sens, "bit_depth": frame.bit_depth, "grid_check": check,
-               "radiometric": {"temperature_K": radio.temperature, "temperature_std_K": radio.temperature_std,
-                               "wavelength_m": wl, "emissivity": radio.emissivity,
-                               "scale_rel_std": radio.rel_std_temperature},
-               "n_saturated": lf.metadata["n_saturated"], "n_uncalibrated": lf.metadata["n_uncalibrated"],
-               "rays_per_pixel_weights": n_w, "sampler": smp, "seeds": {"weights": s0 + 2, "posterior": s0 + 3},
+               "dark": d["dark"], "dark_frames": d["dark_frames"], "sensor": d["sensor"], "bit_depth": frame.bit_depth,
+               "grid_check": d["grid_check"], "radiometric": d["radiometric"],
+               "n_saturated": lf.metadata["n_saturated"], "n_uncalibrated": lf.metadata["n_uncalibrated"], **info,
                "noise_note": "measurement noise of frame, dark and calibration, and the weight matrix's Monte "
                              "Carlo error (relative rule); the source temperature's scale uncertainty is reported "
                              "apart (reconstruction.scale_uncertainty)"}
-    return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=0, n_data_rays=None, n_weight_rays=n_w,
-                              noise_seed=s0 + 1, posterior_seed=s0 + 3, metrics=metrics, depths=depths,
-                              sigma_a=sa, scale_rel_std=radio.rel_std_temperature)
+    s0 = cfg.seed if seed is None else int(seed)
+    return _ReconstructInputs(lf=lf, W=W, grid=grid, wavelength=wl, channel=0, n_data_rays=None,
+                              n_weight_rays=info["rays_per_pixel_weights"], noise_seed=s0 + 1, posterior_seed=s0 + 3,
+                              metrics=metrics, depths=depths, sigma_a=sa,
+                              scale_rel_std=conv.radiometric.rel_std_temperature)
 
 
 def _matching_channel(lf, wl: float | None, channel: int | None) -> int:

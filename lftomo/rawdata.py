@@ -44,7 +44,7 @@ from .errors import LftomoError
 from .lightfield import LightField, geometric_centers
 from .rawio import RawFrame, subtract_dark
 
-__all__ = ["GRID_RMS_TOL", "GRID_MAX_TOL", "ETENDUE_RAYS", "model_lattice", "check_grid_matches_camera",
+__all__ = ["GRID_RMS_TOL", "GRID_MAX_TOL", "ETENDUE_RAYS", "model_lattice", "check_grid_matches_camera", "RawFrameConverter",
            "model_etendue", "lightfield_from_raw", "with_model_error", "sensor_settings"]
 
 #: Largest RMS distance (px) between calibrated and model microlens-image centres.
@@ -300,3 +300,158 @@ def with_model_error(lf: LightField, W: Any) -> LightField:
                      "row_std_error/row_sum x |signal| in quadrature",
                      "model_error_rel_median": float(np.median(rel[s > 0])) if np.any(s > 0) else 0.0}
     return dataclasses.replace(lf, noise_std=std, metadata=meta)
+
+
+class RawFrameConverter:
+    """Raw frames of one acquisition into noisy light fields: the calibration checked once, frames one by one.
+
+    Made by :meth:`load`, which reads and checks everything the frames share —
+    the calibration (with radiometry), the sensor settings (:func:`sensor_settings`),
+    the dark frame (the camera's sensor shape) and the calibrated microlens grid
+    against the camera (:func:`check_grid_matches_camera`) — and computes the
+    model étendue (:func:`model_etendue`) once.  :meth:`read` then reads and
+    checks one frame (file, bit depth, sensor shape) and :meth:`lightfield`
+    turns it into the light field of :func:`lightfield_from_raw` with the
+    weight matrix's Monte Carlo error added (:func:`with_model_error`), the
+    data of ``lftomo reconstruct --raw``.
+
+    Attributes
+    ----------
+    camera : Camera
+    radiometric : RadiometricCalibration
+    sensor : dict
+        ``bit_depth`` (int or None: each frame's own), ``gain`` (e⁻/count),
+        ``read_noise`` (e⁻), ``source``.
+    dark : RawFrame or None
+    dark_frames : int
+    grid_check : dict
+        :func:`check_grid_matches_camera`'s result.
+    calibration : str
+        The calibration file.
+    etendue : ndarray, shape camera.sensor_shape
+        Model pixel étendue (m² sr).
+    """
+
+    def __init__(self, *, camera, radiometric, sensor, dark, dark_frames, grid_check, calibration, etendue):
+        self.camera, self.radiometric, self.sensor = camera, radiometric, sensor
+        self.dark, self.dark_frames, self.grid_check = dark, dark_frames, grid_check
+        self.calibration, self.etendue = calibration, etendue
+
+    @classmethod
+    def load(cls, calibration: Any, camera: Any, *, dark: Any = None, dark_frames: int = 1,
+             camera_description: Any = None, names: dict | None = None) -> RawFrameConverter:
+        """Read and check the calibration, sensor settings and dark frame for ``camera``.
+
+        Parameters
+        ----------
+        calibration : path
+            File of :func:`lftomo.save_calibration` (``lftomo calibrate``) with radiometry.
+        camera : Camera
+            The model camera that took the frames.
+        dark : path, optional
+            Dark frame (PNG, TIFF, .npy; float allowed), the mean of ``dark_frames`` exposures.
+        dark_frames : int
+        camera_description : CameraDescription, optional
+            Gain, read noise and bit depth if the calibration did not record them.
+        names : dict, optional
+            Names of the inputs in messages: keys ``"calibration"``, ``"dark"``
+            (default ``"calibration"``, ``"dark frame"``; the CLI gives its options).
+
+        Raises
+        ------
+        LftomoError
+            Naming the input at fault: unreadable calibration, no radiometry, no gain,
+            a dark frame of another shape, a microlens grid that is not the camera's.
+        """
+        import warnings
+
+        from ._validate import require_int
+        from .calibration import load_calibration
+        from .rawio import read_raw
+
+        names = {"calibration": "calibration", "dark": "dark frame", **(names or {})}
+        what = f"{names['calibration']} {str(calibration)!r}"
+        try:
+            cal_grid, radio, cal_meta = load_calibration(calibration)
+        except ValueError as exc:
+            raise LftomoError(f"{names['calibration']}: {exc}") from None
+        if radio is None:
+            raise LftomoError(f"{what} has no radiometric calibration; run lftomo calibrate with --blackbody B "
+                              "--temperature K --camera CAMERA.toml")
+        sens = sensor_settings(camera_description, cal_meta, calibration=str(calibration))
+        n_d = require_int("dark_frames", dark_frames, minimum=1)
+        dk = None
+        if dark is not None:
+            try:
+                dk = read_raw(dark, bit_depth=sens["bit_depth"], allow_float=True, what=names["dark"])
+            except ValueError as exc:
+                raise LftomoError(str(exc)) from None
+            if dk.shape != tuple(camera.sensor_shape):
+                raise LftomoError(f"{names['dark']} {dk.source!r} has shape {dk.shape}, but the camera's sensor is "
+                                  f"{camera.sensor_shape[0]}x{camera.sensor_shape[1]} px (rows x cols)")
+        check = check_grid_matches_camera(cal_grid, camera, what=what)
+        if dk is None:
+            warnings.warn(f"no {names['dark']}: the frames' counts are used as they are; a black level or dark "
+                          "signal would bias the calibrated signal", UserWarning, stacklevel=2)
+        return cls(camera=camera, radiometric=radio, sensor=sens, dark=dk, dark_frames=n_d, grid_check=check,
+                   calibration=str(calibration), etendue=model_etendue(camera))
+
+    @property
+    def wavelength(self) -> float:
+        """The calibration's (filter) wavelength, m."""
+        return float(self.radiometric.wavelength)
+
+    def read(self, path: Any, *, what: str = "raw frame") -> RawFrame:
+        """Read one frame and check it: a readable 2-D count image within its bit depth, the camera's sensor
+        shape, the dark frame's bit depth.  LftomoError naming ``what``, the file and the fault."""
+        from .rawio import read_raw
+
+        try:
+            frame = read_raw(path, bit_depth=self.sensor["bit_depth"], what=what)
+        except ValueError as exc:
+            raise LftomoError(str(exc)) from None
+        cam = self.camera
+        if frame.shape != tuple(cam.sensor_shape):
+            raise LftomoError(f"{what} {frame.source!r} has shape {frame.shape}, but the SCENE camera's sensor is "
+                              f"{cam.sensor_shape[0]}x{cam.sensor_shape[1]} px (rows x cols)")
+        return frame
+
+    def dark_for(self, frame: RawFrame) -> RawFrame | None:
+        """The dark frame at ``frame``'s bit depth (the file's own when the sensor settings give none;
+        LftomoError if the dark's counts do not fit it)."""
+        dk = self.dark
+        if dk is None or dk.bit_depth == frame.bit_depth:
+            return dk
+        if float(np.max(dk.counts)) > 2**frame.bit_depth - 1:
+            raise LftomoError(f"dark frame {dk.source!r} has counts up to {float(np.max(dk.counts)):g}, above the "
+                              f"{frame.bit_depth}-bit range of {frame.source!r}")
+        return RawFrame(counts=dk.counts, bit_depth=frame.bit_depth, source=dk.source)
+
+    def lightfield(self, frame: RawFrame, W: Any, *, min_etendue_fraction: float | None = None,
+                   metadata: dict | None = None) -> LightField:
+        """The calibrated, noisy light field of ``frame`` with ``W``'s Monte Carlo error in its noise.
+
+        ``metadata["n_saturated"]``, ``["n_uncalibrated"]`` count the pixels left out
+        (:func:`lightfield_from_raw`); ``min_etendue_fraction`` (if given) is set on the light field.
+        """
+        import dataclasses
+
+        lf = lightfield_from_raw(frame, self.camera, self.radiometric, gain=self.sensor["gain"],
+                                 read_noise=self.sensor["read_noise"], dark=self.dark_for(frame),
+                                 dark_frames=self.dark_frames,
+                                 etendue=self.etendue, metadata=metadata)
+        lf.metadata["noise"]["etendue"] = {"rays_per_pixel": ETENDUE_RAYS, "seed": ETENDUE_SEED}  # model_etendue's
+        lf = with_model_error(lf, W)
+        if min_etendue_fraction is not None:
+            lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
+        return lf
+
+    def describe(self) -> dict:
+        """JSON-able summary: files, sensor settings, grid check, radiometric reference."""
+        r = self.radiometric
+        return {"calibration": self.calibration, "dark": None if self.dark is None else self.dark.source,
+                "dark_frames": self.dark_frames if self.dark is not None else 0, "sensor": dict(self.sensor),
+                "grid_check": self.grid_check,
+                "radiometric": {"temperature_K": r.temperature, "temperature_std_K": r.temperature_std,
+                                "wavelength_m": r.wavelength, "emissivity": r.emissivity,
+                                "scale_rel_std": r.rel_std_temperature}}

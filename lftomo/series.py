@@ -49,7 +49,7 @@ import numpy as np
 from .errors import LftomoError
 
 __all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "MANIFEST", "frame_metrics",
-           "series_figure", "series_strip", "fingerprint", "solve_frame"]
+           "series_figure", "series_strip", "fingerprint", "solve_frame", "client_for", "run_tasks"]
 
 #: Environment of the default LocalCluster's worker processes: one thread per library.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
@@ -258,6 +258,7 @@ def solve_frame(index: int, frame: Any, forward: Any, settings: dict) -> dict:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             m = _measurement(frame, index, settings)
+            m_meta = getattr(frame, "metadata", None) or {}  # raw frames: pixels left out
             rec = reconstruct(m, forward, **settings["reconstruct"])
         T = np.asarray(rec.T, dtype=float)
         if not np.all(np.isfinite(T)):
@@ -268,6 +269,7 @@ def solve_frame(index: int, frame: Any, forward: Any, settings: dict) -> dict:
                 "metrics": {**frame_metrics(T, rec.grid), "regularization": summary["regularization"],
                             "chi2_per_datum": summary["chi2_per_datum"], "iterations": summary["iterations"],
                             "converged": summary["converged"], "n_data": int(m.size),
+                            **{k: int(m_meta[k]) for k in ("n_saturated", "n_uncalibrated") if k in m_meta},
                             "warnings": sorted({str(w.message) for w in caught})},
                 "summary": summary, "seconds": time.perf_counter() - t0}
     except Exception as exc:  # noqa: BLE001 - a bad frame is recorded, never fatal to the series
@@ -355,7 +357,7 @@ def _usable_cores() -> int:
 
 
 @contextlib.contextmanager
-def _client_for(client: Any, scheduler: Any, workers: Any):
+def client_for(client: Any = None, scheduler: Any = None, workers: Any = None):
     """Yield ``(client, description)``: the given client, one connected to ``scheduler``, or a new
     LocalCluster of ``workers`` single-threaded processes (closed on exit, also on Ctrl-C)."""
     import logging
@@ -394,14 +396,111 @@ def _client_for(client: Any, scheduler: Any, workers: Any):
         cluster.close()
 
 
+def run_tasks(fn: Callable, keys: Sequence[tuple], *shared: Any, client: Any = None, scheduler: str | None = None,
+              workers: int | None = None, serial: bool = False):
+    """Yield ``(key, fn(*key, *shared))`` for every tuple ``key``: as Dask tasks, as they finish.
+
+    The ``shared`` objects (light fields, weight matrices, ...) are sent to every
+    worker once (``Client.scatter(..., broadcast=True)``), not with each task.
+    The cluster is :func:`client_for`'s (``client``, ``scheduler`` or a
+    LocalCluster of ``workers`` single-threaded processes, closed at the end).
+    With ``serial=True`` the calls run here, in order, without Dask.  Ctrl-C
+    (or the caller leaving the loop early) cancels the tasks not yet finished.
+    The sweeps of ``studies/`` run their noise draws with it.
+
+    Parameters
+    ----------
+    fn : callable
+        Picklable (a module-level function); its result is sent back to the caller.
+    keys : sequence of tuple
+        The leading arguments of each call.
+    *shared
+        The trailing arguments, the same for every call.
+    """
+    keys = [tuple(k) for k in keys]
+    if not keys:
+        return
+    if serial:
+        for k in keys:
+            yield k, fn(*k, *shared)
+        return
+    from distributed import as_completed
+
+    with client_for(client, scheduler, workers) as (c, _):
+        scattered = [c.scatter(x, broadcast=True) for x in shared]
+        futs = {c.submit(fn, *k, *scattered, pure=False): k for k in keys}
+        try:
+            for fut in as_completed(futs):
+                yield futs[fut], fut.result()
+        finally:  # Ctrl-C, an error, or the caller stopped early: the other tasks are not needed
+            c.cancel([f for f in futs if not f.done()])
+
+
 # ---------------------------------------------------------------- the series
-def _load_frame(frame: Any, index: int) -> Any:
-    """A path is read here (checked by :meth:`LightField.load`); objects pass through."""
+def _load_frame(frame: Any, index: int, raw: dict | None = None) -> Any:
+    """A path is read here (checked by :meth:`LightField.load`, or, with ``raw``, a raw image checked and
+    calibrated by its :class:`~lftomo.rawdata.RawFrameConverter`); objects pass through."""
     from .lightfield import LightField
+    from .rawio import RAW_SUFFIXES
 
     if _is_path(frame):
+        if raw is not None and Path(frame).suffix.lower() in RAW_SUFFIXES:
+            conv = raw["converter"]
+            counts = conv.read(frame, what="raw frame")
+            return conv.lightfield(counts, raw["forward"], min_etendue_fraction=raw["min_etendue_fraction"],
+                                   metadata={"source": "raw frame", "raw": counts.source})
         return LightField.load(frame)
     return frame
+
+
+def _raw_setup(calibration: Any, forward: Any, *, camera: Any, dark: Any, dark_frames: int,
+               camera_description: Any, min_etendue_fraction: float | None, noise: Any) -> tuple[dict, dict]:
+    """Check the raw-frame inputs once (before any work): ``(raw, manifest settings)``.
+
+    ``calibration`` is a :class:`~lftomo.rawdata.RawFrameConverter` or the path of a calibration file
+    (then ``camera`` is the model camera); the converter's camera and wavelength must be the forward model's.
+    """
+    from .forward.camera import Camera
+    from .forward.weights import WeightMatrix
+    from .rawdata import RawFrameConverter
+
+    if not isinstance(forward, WeightMatrix):
+        raise LftomoError(f"raw frames (calibration=...) need forward to be an lftomo.WeightMatrix (its Monte Carlo "
+                          f"error joins the noise model), got {type(forward).__name__}")
+    if noise is not None:
+        raise LftomoError(f"noise={noise!r} adds synthetic noise; raw frames are already noisy (their noise model "
+                          "comes from the frame, the dark and the calibration): leave noise out")
+    if isinstance(calibration, RawFrameConverter):
+        if dark is not None or camera_description is not None or camera is not None:
+            raise LftomoError("with calibration given as a RawFrameConverter, leave out camera, dark and "
+                              "camera_description (the converter holds them)")
+        conv = calibration
+    else:
+        if not isinstance(camera, Camera):
+            raise LftomoError(f"calibration={str(calibration)!r} needs camera=<the lftomo.Camera the forward model "
+                              f"was built for>, got {type(camera).__name__}")
+        conv = RawFrameConverter.load(calibration, camera, dark=dark, dark_frames=dark_frames,
+                                      camera_description=camera_description)
+    have = json.loads(json.dumps(conv.camera.to_dict()))
+    if forward.metadata.get("camera") != have:
+        raise LftomoError("the calibration's camera is not the camera the forward model was built for "
+                          "(forward.metadata['camera'] differs)")
+    wl = forward.metadata.get("wavelength")
+    if wl is None or abs(float(wl) - conv.wavelength) > 0.5e-9:
+        raise LftomoError(f"the calibration is radiometric at {conv.wavelength * 1e9:.1f} nm but the forward model "
+                          f"was built for {'gray' if wl is None else f'{float(wl) * 1e9:.1f} nm'}")
+    if min_etendue_fraction is None:
+        from .demo import MIN_ETENDUE_FRACTION
+
+        min_etendue_fraction = MIN_ETENDUE_FRACTION
+    if not 0.0 <= min_etendue_fraction < 1.0:
+        raise LftomoError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    desc = conv.describe()
+    files = {"calibration_sha256": _file_sha256(Path(conv.calibration))}
+    if conv.dark is not None and Path(conv.dark.source).is_file():
+        files["dark_sha256"] = _file_sha256(Path(conv.dark.source))
+    settings = {**desc, **files, "min_etendue_fraction": float(min_etendue_fraction)}
+    return {"converter": conv, "forward": forward, "min_etendue_fraction": float(min_etendue_fraction)}, settings
 
 
 def _check_forward(forward: Any) -> dict:
@@ -441,6 +540,12 @@ def reconstruct_series(
     depths: Sequence[float] | None = None,
     channel: int = 0,
     on_frame: Callable[[FrameResult], None] | None = None,
+    calibration: Any = None,
+    camera: Any = None,
+    dark: Any = None,
+    dark_frames: int = 1,
+    camera_description: Any = None,
+    min_etendue_fraction: float | None = None,
     **reconstruct_options: Any,
 ) -> SeriesResult:
     """Reconstruct every frame of a sequence, one Dask task per frame, with resume.
@@ -451,7 +556,13 @@ def reconstruct_series(
         Each a noisy :class:`~lftomo.LightField`, a noise-free one (with
         ``noise``), a :class:`~lftomo.Measurement`, or the path of a light-field
         ``.npz`` (:meth:`LightField.save`, ``lftomo render``; read and checked
-        on the client just before its task is submitted).
+        on the client just before its task is submitted).  With
+        ``calibration``, a frame may also be a raw image file (``.tif``,
+        ``.tiff``, ``.png``, ``.npy`` counts of ``camera``): read, checked
+        (bit depth, sensor shape) and calibrated on the client as by
+        ``lftomo reconstruct --raw`` (:class:`~lftomo.rawdata.RawFrameConverter`;
+        saturated and uncalibrated pixels left out and counted in the frame's
+        metrics), a bad frame recorded as failed.
     forward : WeightMatrix, RaySegments or RefocusWeights
         The forward model of every frame (as ``weights`` of :func:`lftomo.reconstruct`);
         sent once to each worker.
@@ -475,6 +586,23 @@ def reconstruct_series(
         As :meth:`Measurement.from_lightfield` for light-field frames.
     on_frame : callable, optional
         Called on the client with each new :class:`FrameResult` as it completes.
+    calibration : path or RawFrameConverter, optional
+        For raw frames: a calibration of ``lftomo calibrate`` with radiometry
+        (then ``camera`` is needed), or a converter made by
+        :meth:`RawFrameConverter.load`.  Checked once, before any work: the
+        radiometry, the sensor settings, the dark frame, the microlens grid
+        against the camera, the camera and wavelength against ``forward``
+        (a :class:`~lftomo.WeightMatrix`, whose Monte Carlo error joins the noise).
+    camera : Camera, optional
+        The model camera of the raw frames (that of ``forward``).
+    dark : path, optional
+        Dark frame of the raw frames (the mean of ``dark_frames`` exposures).
+    dark_frames : int
+    camera_description : CameraDescription, optional
+        Gain, read noise, bit depth if the calibration did not record them.
+    min_etendue_fraction : float, optional
+        Raw frames: view pixels below this fraction of the peak étendue are left
+        out (default :data:`lftomo.demo.MIN_ETENDUE_FRACTION`, as ``lftomo reconstruct``).
     **reconstruct_options
         Passed to :func:`lftomo.reconstruct` (JSON-serialisable values; they
         are recorded in the manifest).
@@ -502,8 +630,18 @@ def reconstruct_series(
         raise LftomoError(f"noise must be a relative std > 0 or None, got {noise!r}")
     out = check_output_dir(out, what="out")
     fwd = _check_forward(forward)
+    raw, raw_settings = None, None
+    if calibration is not None:
+        raw, raw_settings = _raw_setup(calibration, forward, camera=camera, dark=dark, dark_frames=dark_frames,
+                                       camera_description=camera_description,
+                                       min_etendue_fraction=min_etendue_fraction, noise=noise)
+    elif any(v is not None for v in (camera, dark, camera_description, min_etendue_fraction)):
+        raise LftomoError("camera, dark, camera_description and min_etendue_fraction apply to raw frames: give "
+                          "calibration=")
     settings = {"noise": noise, "seed": int(seed), "data": data, "depths": None if depths is None else list(depths),
                 "channel": int(channel), "reconstruct": dict(reconstruct_options)}
+    if raw_settings is not None:
+        settings["raw"] = raw_settings
     manifest = _Manifest(out, settings, fwd)
     keys = [_frame_key(f) for f in frames]
     todo = deque(i for i, (_, k) in enumerate(keys) if not manifest.is_done(i, k))
@@ -513,15 +651,15 @@ def reconstruct_series(
     if not todo:  # every frame is complete: no cluster to start
         manifest.write()
         return _result(out, manifest, len(frames))
-    with _client_for(client, scheduler, workers) as (c, where):
+    with client_for(client, scheduler, workers) as (c, where):
         run["cluster"] = where
         manifest.write()
         _run(c, frames, keys, todo, forward, settings, manifest, out,
-             progress_bar(len(todo), progress, "series", unit="frame"), on_frame)
+             progress_bar(len(todo), progress, "series", unit="frame"), on_frame, raw)
     return _result(out, manifest, len(frames))
 
 
-def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame) -> None:
+def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame, raw=None) -> None:
     """Submit the frames of ``todo`` (a window of 2 per worker thread in flight), collect and record them."""
     from distributed import as_completed
 
@@ -548,7 +686,7 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame)
         while todo and len(in_flight) < window:
             i = todo.popleft()
             try:
-                frame = _load_frame(frames[i], i)
+                frame = _load_frame(frames[i], i, raw)
             except (ValueError, OSError) as exc:  # LftomoError is a ValueError
                 record({"index": i, "status": "failed", "message": f"frame {i}: {exc}"})
                 continue

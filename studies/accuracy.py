@@ -20,8 +20,8 @@ Usage::
         [--json results.json] [--workers N | --scheduler tcp://host:8786]
 
 With ``--workers``/``--scheduler`` the draws run as Dask tasks (the light field, weights and
-truth sent once per worker) and are recorded in the rows file as they finish; the resume is the
-same (the rows file does not depend on where the draws ran).
+truth sent once per worker; ``studies/sweep.py``) and are recorded in the rows file as they
+finish; the resume is the same (the rows file does not depend on where the draws ran).
 """
 from __future__ import annotations
 
@@ -37,10 +37,7 @@ from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.solvers import NOISE_SCALES
 
-
-def _settings(a) -> dict:
-    """What the rows depend on: the arguments, less where they are computed."""
-    return {k: v for k, v in vars(a).items() if k not in ("scheduler", "workers")}
+import sweep
 
 
 def draw_row(d, reg, lf, W, a, ctx):
@@ -91,42 +88,6 @@ def draw_row(d, reg, lf, W, a, ctx):
     return row, rec.T
 
 
-def _run_draws(todo, lf, W, a, ctx):
-    """Yield ``((d, reg), row, T)`` for each draw of ``todo``: here, one after the other, or with
-    ``--scheduler``/``--workers`` as Dask tasks (light field and weights sent once per worker), as they finish."""
-    if not todo:
-        return
-    if a.scheduler is None and a.workers is None:
-        for d, reg in todo:
-            yield ((d, reg), *draw_row(d, reg, lf, W, a, ctx))
-        return
-    import logging
-
-    from distributed import Client, LocalCluster, as_completed
-
-    from lftomo.series import WORKER_ENV
-
-    if a.scheduler is not None:
-        cluster, client = None, Client(a.scheduler)
-    else:
-        cluster = LocalCluster(n_workers=a.workers, threads_per_worker=1, env=dict(WORKER_ENV), dashboard_address=":0",
-                               silence_logs=logging.ERROR)
-        client = Client(cluster)
-    try:
-        lf_f, W_f, ctx_f = (client.scatter(x, broadcast=True) for x in (lf, W, ctx))
-        futs = {client.submit(draw_row, d, reg, lf_f, W_f, a, ctx_f, pure=False): (d, reg) for d, reg in todo}
-        try:
-            for fut in as_completed(futs):
-                yield (futs[fut], *fut.result())
-        except BaseException:  # Ctrl-C: stop the other draws; the finished ones are in the rows file
-            client.cancel(list(futs))
-            raise
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=24)
@@ -162,10 +123,7 @@ def main():
     ap.add_argument("--json", default="", help="results file; finished draws are also kept in JSON.rows.jsonl, "
                                                "from which a rerun with the same arguments resumes")
     ap.add_argument("--save", default="", help="npz file for the last draw's T_true, T and sigma_a (coarse grid)")
-    ap.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786): the draws run "
-                                                      "there as tasks")
-    ap.add_argument("--workers", type=int, default=None, help="run the draws on a local Dask cluster of this many "
-                                                             "single-threaded processes")
+    sweep.add_arguments(ap)
     a = ap.parse_args()
     t0 = time.perf_counter()
     cam = lt.Camera.seed(1.0) if a.mla == 0 else lt.Camera.seed(1.0, mla={"count": (a.mla, a.mla)})
@@ -200,7 +158,7 @@ def main():
     emission = sa_c * lt.planck(T_true, wl)
     emitting = hot & (emission >= 0.01 * emission.max())
     print(f"hot voxels {hot.sum()} of {hot.size}; T_true max {T_true.max():.0f}")
-    rows_file = ResumableRows(a.json + ".rows.jsonl", _settings(a)) if a.json else None
+    rows_file = ResumableRows(a.json + ".rows.jsonl", sweep.settings(a)) if a.json else None
     regs = [a.regularization] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
     ctx = {"T_true": T_true, "T_point": T_point, "sa_c": sa_c, "coarse": coarse, "hot": hot, "emitting": emitting}
     keys = [(d, reg) for d in range(a.draws) for reg in regs]
@@ -210,7 +168,7 @@ def main():
             done[(d, reg)] = (rows_file.get(f"{d}-{reg}"), None)
             print(f"draw {d}, regularization {reg}: resumed from {rows_file.path}")
     todo = [k for k in keys if k not in done]
-    for (d, reg), row, T in _run_draws(todo, lf, W, a, ctx):
+    for (d, reg), (row, T) in sweep.run(draw_row, todo, a, lf, W, a, ctx):
         print(json.dumps(row))
         done[(d, reg)] = (row, T)
         if rows_file is not None:

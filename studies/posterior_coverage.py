@@ -23,6 +23,11 @@ Noise model, camera and data selection as in ``studies/accuracy.py``.
 Usage::
 
     python studies/posterior_coverage.py [--n 12] [--draws 10] [--steps 1500] [--model-data]
+        [--json results.json] [--workers N | --scheduler tcp://host:8786]
+
+With ``--workers``/``--scheduler`` the draws run as Dask tasks (light field, weights and truth sent
+once per worker; ``studies/sweep.py``), recorded in the rows file as they finish; a rerun resumes
+from it wherever the draws ran.
 """
 from __future__ import annotations
 
@@ -36,6 +41,42 @@ import numpy as np
 import lftomo as lt
 from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
+
+import sweep
+
+
+def draw_row(d, lf, W, W_post, a, ctx):
+    """Noise draw ``d``: the posterior (emcee in the flame basis, or the full-grid Laplace one) and its
+    coverage of the hot voxels.  A task of its own with ``--scheduler``/``--workers``."""
+    T_true, hot, coarse, basis, sub = ctx["T_true"], ctx["hot"], ctx["coarse"], ctx["basis"], ctx["sub"]
+    noisy = lt.add_noise(dataclasses.replace(lf, std_error=None), relative_std=a.noise, seed=300 + d)
+    if not a.model_data:  # the Monte Carlo error of data and weights joins the noise
+        noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+                                       floor=a.mc_floor)
+    m = lt.Measurement.from_lightfield(noisy, data="subaperture")
+    t = time.perf_counter()
+    if a.laplace_field:
+        reg = a.regularization if a.regularization in ("evidence", "auto") else float(a.regularization)
+        post = lt.laplace_posterior(m, W_post, regularization=reg, method=a.method, n_samples=a.samples,
+                                    seed=400 + d, prior=a.prior,
+                                    symmetry=None if a.symmetry == "none" else a.symmetry, **sub)
+        row = {"draw": d, "coverage_hot": post.coverage(T_true), "n_hot": int(hot.sum()),
+               "lambda": post.regularization, "lambda_rule": post.lambda_rule, "method": post.method,
+               "mean_rel_error": post.errors(T_true)["mean_rel"],
+               "median_abs_error_K": float(np.median(np.abs(post.T_mean - T_true)[hot])),
+               "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t,
+               "solve_s": post.metadata["solve_s"], "posterior_s": post.metadata["posterior_s"]}
+        if post.evidence is not None:
+            row["evidence"] = {k: post.evidence[k] for k in ("lambda", "gamma", "log_evidence", "converged")}
+        return row
+    post = lt.sample_posterior(m.problem(W, coarse), basis=basis, n_walkers=a.walkers, n_steps=a.steps,
+                               seed=400 + d, progress=False)
+    inside = (post.T_lower <= T_true) & (T_true <= post.T_upper)
+    return {"draw": d, "coverage_hot": float(inside[hot].mean()), "n_hot": int(hot.sum()),
+            "converged": bool(post.converged), "tau_max": float(np.nanmax(post.tau)),
+            "acceptance": float(np.mean(post.acceptance_fraction)),
+            "median_abs_error_K": float(np.median(np.abs(post.T_mean - T_true)[hot])),
+            "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t}
 
 
 def main():
@@ -73,6 +114,7 @@ def main():
                     help="--laplace-field: sub-voxel emission, weights on a grid this many times finer (1: off)")
     ap.add_argument("--json", default="", help="results file; finished draws are also kept in JSON.rows.jsonl, "
                                                "from which a rerun with the same arguments resumes")
+    sweep.add_arguments(ap)
     a = ap.parse_args()
     if a.quadrature < 1 or (a.quadrature > 1 and not a.laplace_field):
         ap.error(f"--quadrature must be 1, or > 1 with --laplace-field; got {a.quadrature}")
@@ -106,45 +148,20 @@ def main():
         hot = T_true > 800.0
         sig = W.to_raw(W @ lt.planck(T_true, wl).ravel() + W.background)
         lf = dataclasses.replace(lf, raw=np.asarray(sig).reshape(lf.raw.shape), std_error=None)
-    rows = []
-    rows_file = ResumableRows(a.json + ".rows.jsonl", vars(a)) if a.json else None
+    rows_file = ResumableRows(a.json + ".rows.jsonl", sweep.settings(a)) if a.json else None
+    done = {}
     for d in range(a.draws):
         if rows_file is not None and rows_file.get(d) is not None:
-            rows.append(rows_file.get(d))
+            done[d] = rows_file.get(d)
             print(f"draw {d}: resumed from {rows_file.path}")
-            continue
-        noisy = lt.add_noise(dataclasses.replace(lf, std_error=None), relative_std=a.noise, seed=300 + d)
-        if not a.model_data:  # the Monte Carlo error of data and weights joins the noise
-            noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
-                                           floor=a.mc_floor)
-        m = lt.Measurement.from_lightfield(noisy, data="subaperture")
-        t = time.perf_counter()
-        if a.laplace_field:
-            reg = a.regularization if a.regularization in ("evidence", "auto") else float(a.regularization)
-            post = lt.laplace_posterior(m, W_post, regularization=reg, method=a.method, n_samples=a.samples,
-                                        seed=400 + d, prior=a.prior,
-                                        symmetry=None if a.symmetry == "none" else a.symmetry, **sub)
-            row = {"draw": d, "coverage_hot": post.coverage(T_true), "n_hot": int(hot.sum()),
-                   "lambda": post.regularization, "lambda_rule": post.lambda_rule, "method": post.method,
-                   "mean_rel_error": post.errors(T_true)["mean_rel"],
-                   "median_abs_error_K": float(np.median(np.abs(post.T_mean - T_true)[hot])),
-                   "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t,
-                   "solve_s": post.metadata["solve_s"], "posterior_s": post.metadata["posterior_s"]}
-            if post.evidence is not None:
-                row["evidence"] = {k: post.evidence[k] for k in ("lambda", "gamma", "log_evidence", "converged")}
-        else:
-            post = lt.sample_posterior(m.problem(W, coarse), basis=basis, n_walkers=a.walkers, n_steps=a.steps,
-                                       seed=400 + d, progress=False)
-            inside = (post.T_lower <= T_true) & (T_true <= post.T_upper)
-            row = {"draw": d, "coverage_hot": float(inside[hot].mean()), "n_hot": int(hot.sum()),
-                   "converged": bool(post.converged), "tau_max": float(np.nanmax(post.tau)),
-                   "acceptance": float(np.mean(post.acceptance_fraction)),
-                   "median_abs_error_K": float(np.median(np.abs(post.T_mean - T_true)[hot])),
-                   "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t}
+    todo = [(d,) for d in range(a.draws) if d not in done]
+    ctx = {"T_true": T_true, "hot": hot, "coarse": coarse, "basis": basis, "sub": sub}
+    for (d,), row in sweep.run(draw_row, todo, a, lf, W, W_post, a, ctx):
         print(json.dumps(row), flush=True)
-        rows.append(row)
+        done[d] = row
         if rows_file is not None:
             rows_file.add(d, row)
+    rows = [done[d] for d in range(a.draws)]
     cov = np.array([r["coverage_hot"] for r in rows])
     print(f"coverage of the 90 % intervals over {len(rows)} draws: mean {cov.mean():.3f} "
           f"(min {cov.min():.3f}, max {cov.max():.3f}); target 0.80-0.97")

@@ -81,3 +81,26 @@ upper = [0.006, 0.006, 1.006]
 T = 1500.0
 sigma_a = 5.0
 """
+
+#: A Gaussian flame seen by a 12 x 12-lenslet seed camera (the CLI tests of reconstruct --raw and series):
+#: format with ``rays``, ``seed``, ``n`` (voxels per side) and ``render`` (more [render] lines, e.g. the wavelength).
+BLOB_SCENE = """
+[camera]
+focus_distance = 1.0
+[camera.mla]
+count = [12, 12]
+[render]
+rays_per_pixel = {rays}
+seed = {seed}
+{render}
+[medium]
+phantom = "gaussian_blob"
+shape = [{n}, {n}, {n}]
+lower = [-0.006, -0.006, 0.994]
+upper = [0.006, 0.006, 1.006]
+[medium.params]
+width = 0.004
+T_peak = 1800.0
+T_ambient = 1000.0
+sigma_a_peak = 30.0
+"""

@@ -8,31 +8,13 @@ import pytest
 
 from lftomo.cli import main
 
-SCENE = """
-[camera]
-focus_distance = 1.0
-[camera.mla]
-count = [12, 12]
-[render]
-rays_per_pixel = 4
-seed = {seed}
-[medium]
-phantom = "gaussian_blob"
-shape = [4, 4, 4]
-lower = [-0.006, -0.006, 0.994]
-upper = [0.006, 0.006, 1.006]
-[medium.params]
-width = 0.004
-T_peak = 1800.0
-T_ambient = 1000.0
-sigma_a_peak = 30.0
-"""
+from reliability_helpers import BLOB_SCENE
 
 
 def test_series_from_saved_frames_and_weights(tmp_path, capsys):
     data, model = tmp_path / "data.toml", tmp_path / "model.toml"
-    data.write_text(SCENE.format(seed=0))
-    model.write_text(SCENE.format(seed=7))
+    data.write_text(BLOB_SCENE.format(rays=4, seed=0, n=4, render=""))
+    model.write_text(BLOB_SCENE.format(rays=4, seed=7, n=4, render=""))
     assert main(["render", str(data), "-o", str(tmp_path / "render"), "--quiet"]) == 0
     assert main(["weights", str(model), "-o", str(tmp_path / "W.npz"), "--quiet"]) == 0
     lf = str(tmp_path / "render" / "lightfield.npz")
@@ -54,6 +36,9 @@ def test_series_from_saved_frames_and_weights(tmp_path, capsys):
     (["a.toml", "b.toml"], "either as --weights"),
     (["a.toml"], "no FRAMES given"),
     (["a.npz", "--weights", "W.npz", "--workers", "2", "--scheduler", "tcp://h:1"], "--workers sizes the local"),
+    (["a.tif", "--weights", "W.npz", "--calibration", "c.npz"], "raw frames (--calibration) need a SCENE.toml"),
+    (["a.npz", "--weights", "W.npz", "--dark", "d.tif"], "--dark only applies to raw frames"),
+    (["a.tif", "s.toml", "--calibration", "c.npz", "--noise", "0.01"], "leave --noise out"),
 ])
 def test_series_bad_arguments(argv, match, tmp_path, capsys):
     assert main(["series", *argv, "-o", str(tmp_path / "o")]) == 2

@@ -203,3 +203,20 @@ def test_frame_metrics_center_volume_and_extremes():
     m = frame_metrics(T, g)
     assert m["T_center"] == 2000.0 and m["T_max"] == 2000.0 and m["T_min"] == 1000.0
     assert np.isclose(m["flame_volume_m3"], 5 * 1e-9, rtol=1e-12)
+
+
+def test_run_tasks_on_the_cluster_equals_serial_calls(client):
+    """The sweeps' task runner: every key's result, whatever order the tasks finish in; shared arguments
+    reach every task; serial=True calls in order without Dask."""
+    from lftomo.series import frame_metrics, run_tasks
+
+    g = lt.Grid(shape=(4, 3, 2), lower=(0.0, 0.0, 0.0), upper=(0.004, 0.003, 0.002))
+    fields = [np.full(g.shape, 1000.0 + 300.0 * k) for k in range(5)]
+    keys = [(f,) for f in fields]
+    serial = list(run_tasks(frame_metrics, keys, g, serial=True))
+    assert all(k[0] is f for (k, _), f in zip(serial, fields))  # in order
+    want = {float(k[0].flat[0]): r for k, r in serial}
+    got = {float(k[0].flat[0]): r for k, r in run_tasks(frame_metrics, keys, g, client=client)}
+    assert got == want and len(got) == 5
+    assert want[1600.0]["flame_volume_m3"] == pytest.approx(24e-9) and want[1300.0]["flame_volume_m3"] == 0.0
+    assert list(run_tasks(frame_metrics, [], g, client=client)) == []

@@ -57,6 +57,7 @@ import scipy.sparse as sp
 from scipy.special import ndtri
 
 from .._validate import require_bounds, require_int, require_positive
+from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
@@ -219,12 +220,19 @@ def _null_dimension(Ls: sp.csr_matrix) -> int:
     return 1 if float(np.abs(Ls @ np.ones(n)).max()) <= 1e-10 * scale else 0
 
 
-def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
+def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, *, prior: str | None = None,
+                 shape: tuple | None = None) -> _Stats:
+    """Exact ``diag(H⁻¹)``, ``tr(H⁻¹M)`` and ``log det H`` by a Cholesky factor of ``H = JᵀJ + λ LsᵀLs``.
+
+    Raises :class:`~lftomo.LftomoError` naming the unconstrained unknowns
+    (:func:`_unconstrained_message`; ``prior`` and ``shape``, the unknowns'
+    grid shape, only word it) when ``H`` is not numerically positive definite.
+    """
     M = (Ls.T @ Ls).tocoo()
     H = (J.T @ J).toarray() + lam * M.toarray()
     c, info = sla.lapack.dpotrf(H, lower=1, clean=1, overwrite_a=1)
     if info != 0:
-        raise np.linalg.LinAlgError(f"the Laplace precision is not positive definite (dpotrf info {info})")
+        raise LftomoError(_unconstrained_message(J, Ls, lam, prior, shape))
     logdet = 2.0 * float(np.sum(np.log(np.diag(c))))
     inv, info = sla.lapack.dpotri(c, lower=1, overwrite_c=1)  # lower triangle of H⁻¹
     if info != 0:
@@ -232,6 +240,43 @@ def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float) -> _Stats:
     i, j = np.maximum(M.row, M.col), np.minimum(M.row, M.col)
     trace = float(np.sum(inv[i, j] * M.data))
     return _Stats(var=np.diag(inv).copy(), trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0)
+
+
+def _unconstrained_message(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, prior: str | None,
+                           shape: tuple | None, rtol: float = 1e-12, show: int = 8) -> str:
+    """Why ``H = JᵀJ + λ LsᵀLs`` is not positive definite: the unknowns its (near-)null directions move.
+
+    The directions are the eigenvectors of ``H`` with eigenvalues ≤ ``rtol``
+    × the largest; an unknown is named when such a direction moves it by more
+    than 10 % of the direction's largest component.  Unknowns no datum sees
+    (zero columns of ``J``) are counted apart.  ``shape``: the grid shape of
+    the unknowns, for (i, j, k) indices (flat indices otherwise).
+    """
+    n = J.shape[1]
+    H = (J.T @ J).toarray() + lam * (Ls.T @ Ls).toarray()
+    w, V = np.linalg.eigh(H)
+    null = w <= rtol * max(float(w[-1]), 1e-300)
+    if not null.any():  # positive definite to this tolerance, yet Cholesky failed: the smallest direction
+        null = w <= w[0]
+    V0 = np.abs(V[:, null])
+    moved = np.flatnonzero(np.any(V0 > 0.1 * V0.max(axis=0), axis=1))
+    unseen = np.asarray(abs(J).sum(axis=0)).ravel() == 0
+    where = [tuple(int(i) for i in np.unravel_index(k, shape)) if shape is not None else int(k) for k in moved[:show]]
+    more = f" and {moved.size - show} more" if moved.size > show else ""
+    prior_txt = "the prior" if prior is None else f"prior={prior!r}"
+    # in the prior's null space (‖Ls v‖ ≈ 0): no λ constrains them; else λ is merely too small for the data
+    Ls_norm = math.sqrt(max(float(np.max(np.asarray(Ls.multiply(Ls).sum(axis=0)))), 1e-300))
+    prior_free = float(np.max(np.linalg.norm(Ls @ V[:, null], axis=0))) <= 1e-6 * Ls_norm
+    remedy = ("a larger regularization cannot fix this: use a stronger prior (prior='gradient' leaves only the "
+              "constant field free)" if prior_free else
+              "use a larger regularization (λ) or a stronger prior (prior='gradient' leaves only the constant field "
+              "free)")
+    return (f"the Laplace precision JᵀJ + λ LᵀL is not positive definite at regularization={lam:g}: "
+            f"{int(null.sum())} direction(s) of the field are constrained neither by the data nor by {prior_txt}"
+            f"{' (at any λ)' if prior_free else ' (at this λ)'}; they move {moved.size} of the {n} unknowns "
+            f"({', '.join(map(str, where))}{more}); {int(unseen.sum())} of the {n} unknowns are seen by no datum "
+            f"({int(unseen[moved].sum())} of those moved). To fix: {remedy}, or fewer unknowns (a coarser grid, "
+            f"symmetry='axisymmetric', or a grid that the data see)")
 
 
 def block_pcg(apply_H, B: np.ndarray, inv_diag: np.ndarray, *, rtol: float, max_iter: int) -> tuple[np.ndarray, int]:
@@ -388,6 +433,55 @@ def laplace_posterior(
         For a bad argument (before any solve).
     """
     t_start = time.perf_counter()
+    prior, regularization, bounds, lam_opts = _check_posterior_options(
+        measurement, prior=prior, method=method, credible_level=credible_level, regularization=regularization,
+        bounds=bounds, options=options, dense_max=dense_max, n_samples=n_samples, trace_samples=trace_samples,
+        max_iter=max_iter, cg_max_iter=cg_max_iter, lambda_rtol=lambda_rtol, cg_rtol=cg_rtol, lambda0=lambda0)
+    if isinstance(measurement, LinearProblem):
+        if weights is not None:
+            raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
+        problem = measurement
+    else:
+        if weights is None:
+            raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
+        problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights
+    ring = resolve_symmetry(symmetry, problem.grid)
+    if ring is not None:
+        problem = ring_problem(problem, ring)
+    grid = problem.grid
+    if method == "auto":
+        method = "dense" if grid.n_voxels <= lam_opts["dense_max"] else "sampled"
+    run = _PosteriorRun(problem, prior=prior, bounds=bounds, options=options, method=method,
+                        n_samples=lam_opts["n_samples"], rng=np.random.default_rng(seed), cg_rtol=lam_opts["cg_rtol"],
+                        cg_max_iter=lam_opts["cg_max_iter"])
+    T_start = options.pop("T0", None)
+    if ring is not None:
+        T_start = ring_start(T_start, ring)
+
+    evidence = None
+    if regularization == "evidence":
+        rec, lam, st, evidence = _evidence_iterations(
+            run, T_start, lambda0=lam_opts["lambda0"], max_iter=lam_opts["max_iter"],
+            lambda_rtol=lam_opts["lambda_rtol"], trace_samples=lam_opts["trace_samples"], progress=progress)
+        rule = "evidence"
+        if method == "sampled":  # the variances at the final λ, with the full number of draws
+            st = run.stats_at(rec.T, lam)
+    else:
+        rec = run.solve(regularization, T_start)
+        lam = rec.regularization
+        st = run.stats_at(rec.T, lam)
+        rule = rec.lambda_choice.rule if regularization == "auto" else "fixed"
+    return _field_posterior(rec, st, lam, rule=rule, method=method, n_samples=lam_opts["n_samples"],
+                            credible_level=credible_level, grid=grid, ring=ring, evidence=evidence, clock=run.clock,
+                            t_start=t_start)
+
+
+def _check_posterior_options(measurement, *, prior, method, credible_level, regularization, bounds, options,
+                             dense_max, n_samples, trace_samples, max_iter, cg_max_iter, lambda_rtol, cg_rtol,
+                             lambda0) -> tuple[str, Any, tuple[float, float], dict]:
+    """The checked options of :func:`laplace_posterior` (ValueError naming the argument otherwise):
+    ``(prior name, regularization, bounds, {"dense_max", "n_samples", "trace_samples", "max_iter", "cg_max_iter",
+    "lambda_rtol", "cg_rtol", "lambda0"})``."""
     prior = resolve_prior(prior, quadratic_only=True, where="laplace_posterior (a Gaussian prior)").name
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
@@ -403,94 +497,89 @@ def laplace_posterior(
         raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
     if isinstance(measurement, (list, tuple)):
         raise ValueError("laplace_posterior takes one Measurement (one wavelength channel)")
-    dense_max = require_int("dense_max", dense_max, minimum=1)
-    n_samples = require_int("n_samples", n_samples, minimum=8)
-    trace_samples = require_int("trace_samples", trace_samples, minimum=4)
-    max_iter = require_int("max_iter", max_iter, minimum=1)
-    cg_max_iter = require_int("cg_max_iter", cg_max_iter, minimum=1)
-    lambda_rtol = require_positive("lambda_rtol", lambda_rtol)
-    cg_rtol = require_positive("cg_rtol", cg_rtol)
-    if lambda0 is not None:
-        lambda0 = require_positive("lambda0", lambda0)
-    if isinstance(measurement, LinearProblem):
-        if weights is not None:
-            raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
-        problem = measurement
-    else:
-        if weights is None:
-            raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
-        problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights
-    ring = resolve_symmetry(symmetry, problem.grid)
-    if ring is not None:
-        problem = ring_problem(problem, ring)
-    grid = problem.grid
-    n = grid.n_voxels
-    if method == "auto":
-        method = "dense" if n <= dense_max else "sampled"
-    rng = np.random.default_rng(seed)
+    checked = {
+        "dense_max": require_int("dense_max", dense_max, minimum=1),
+        "n_samples": require_int("n_samples", n_samples, minimum=8),
+        "trace_samples": require_int("trace_samples", trace_samples, minimum=4),
+        "max_iter": require_int("max_iter", max_iter, minimum=1),
+        "cg_max_iter": require_int("cg_max_iter", cg_max_iter, minimum=1),
+        "lambda_rtol": require_positive("lambda_rtol", lambda_rtol),
+        "cg_rtol": require_positive("cg_rtol", cg_rtol),
+        "lambda0": None if lambda0 is None else require_positive("lambda0", lambda0),
+    }
+    return prior, regularization, bounds, checked
 
-    T_start = options.pop("T0", None)
-    if ring is not None:
-        T_start = ring_start(T_start, ring)
-    clock = {"solve_s": 0.0, "posterior_s": 0.0}
-    Ls = _scaled_prior(grid, prior, bounds)
 
-    def solve(reg, T0=None):
+class _PosteriorRun:
+    """The reconstructions and posterior evaluations of one :func:`laplace_posterior` call, timed in ``clock``."""
+
+    def __init__(self, problem, *, prior, bounds, options, method, n_samples, rng, cg_rtol, cg_max_iter):
+        self.problem, self.prior, self.bounds, self.options, self.method = problem, prior, bounds, options, method
+        self.n_samples, self.rng, self.cg_rtol, self.cg_max_iter = n_samples, rng, cg_rtol, cg_max_iter
+        self.clock = {"solve_s": 0.0, "posterior_s": 0.0}
+        self.Ls = _scaled_prior(problem.grid, prior, bounds)
+
+    def solve(self, reg, T0=None):
+        """The reconstruction at ``reg`` (λ, or a rule's name) from ``T0`` (:func:`lftomo.solve_temperature`)."""
         t = time.perf_counter()
         with stop_between_steps("the field posterior"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            sol = solve_temperature(problem, regularization=reg, prior=prior, bounds=bounds, T0=T0, **options)
-        clock["solve_s"] += time.perf_counter() - t
+            sol = solve_temperature(self.problem, regularization=reg, prior=self.prior, bounds=self.bounds, T0=T0,
+                                    **self.options)
+        self.clock["solve_s"] += time.perf_counter() - t
         return sol
 
-    def stats_at(T, lam, k=n_samples) -> _Stats:
+    def stats_at(self, T, lam, k=None) -> _Stats:
+        """The posterior's statistics at ``T`` and λ (``k`` draws for the sampled method; default ``n_samples``)."""
         t = time.perf_counter()
-        J = _whitened_jacobian(problem, np.asarray(T, dtype=np.float64).ravel())
-        if method == "dense":
-            st = _dense_stats(J, Ls, lam)
+        J = _whitened_jacobian(self.problem, np.asarray(T, dtype=np.float64).ravel())
+        if self.method == "dense":
+            st = _dense_stats(J, self.Ls, lam, prior=self.prior, shape=self.problem.grid.shape)
         else:
-            st = _sampled_stats(J, Ls, lam, k, rng, cg_rtol, cg_max_iter)
-        clock["posterior_s"] += time.perf_counter() - t
+            st = _sampled_stats(J, self.Ls, lam, self.n_samples if k is None else k, self.rng, self.cg_rtol,
+                                self.cg_max_iter)
+        self.clock["posterior_s"] += time.perf_counter() - t
         return st
 
-    evidence = None
-    if regularization == "evidence":
-        rec = solve("auto" if lambda0 is None else lambda0, T_start)
-        r = n - _null_dimension(Ls)
-        lam = rec.regularization
-        path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2")}
-        converged = False
-        for it in range(max_iter):
-            if it > 0:
-                rec = solve(lam, rec.T)
-            st = stats_at(rec.T, lam, trace_samples)
-            R2 = rec.regularization_norm**2
-            gamma = r - lam * st.trace
-            log_ev = (-0.5 * (rec.residual_norm**2 + lam * R2) + 0.5 * r * math.log(lam) - 0.5 * st.logdet)
-            for k, v in zip(path, (lam, gamma, st.trace, st.trace_se, log_ev, rec.chi2)):
-                path[k].append(float(v))
-            if progress:
-                print(f"evidence iteration {it}: lambda {lam:.4g}, gamma {gamma:.1f} of {r}, chi2/m {rec.chi2:.3f}",
-                      flush=True)
-            if not (gamma > 0 and R2 > 0):
-                raise RuntimeError(f"evidence fixed point broke down at lambda={lam:g} (gamma={gamma:g}, "
-                                   f"|L T/T_s|^2={R2:g})")
-            step = math.log(gamma / R2 / lam)
-            noise = lam * st.trace_se / gamma  # std of the step from the trace's sampling error
-            if abs(step) <= max(lambda_rtol, 2.0 * noise):
-                converged = True
-                break
-            if it == max_iter - 1:
-                break  # keep λ consistent with the last reconstruction
-            lam = lam * math.exp(min(max(step, -math.log(10.0)), math.log(10.0)))
-        evidence = {**path, "converged": converged, "iterations": len(path["lambda"]), "rank": r}
-        rule = "evidence"
-        if method == "sampled":  # the variances at the final λ, with the full number of draws
-            st = stats_at(rec.T, lam)
-    else:
-        rec = solve(regularization, T_start)
-        lam = rec.regularization
-        st = stats_at(rec.T, lam)
-        rule = rec.lambda_choice.rule if regularization == "auto" else "fixed"
+
+def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lambda_rtol, trace_samples, progress):
+    """MacKay's fixed point ``λ = γ / ‖L T̂/T_s‖²`` from the discrepancy λ (or ``lambda0``), each step a
+    warm-started reconstruction.  Returns ``(reconstruction, λ, statistics, evidence record)``."""
+    rec = run.solve("auto" if lambda0 is None else lambda0, T_start)
+    r = run.problem.grid.n_voxels - _null_dimension(run.Ls)
+    lam = rec.regularization
+    path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2")}
+    converged = False
+    for it in range(max_iter):
+        if it > 0:
+            rec = run.solve(lam, rec.T)
+        st = run.stats_at(rec.T, lam, trace_samples)
+        R2 = rec.regularization_norm**2
+        gamma = r - lam * st.trace
+        log_ev = (-0.5 * (rec.residual_norm**2 + lam * R2) + 0.5 * r * math.log(lam) - 0.5 * st.logdet)
+        for k, v in zip(path, (lam, gamma, st.trace, st.trace_se, log_ev, rec.chi2)):
+            path[k].append(float(v))
+        if progress:
+            print(f"evidence iteration {it}: lambda {lam:.4g}, gamma {gamma:.1f} of {r}, chi2/m {rec.chi2:.3f}",
+                  flush=True)
+        if not (gamma > 0 and R2 > 0):
+            raise RuntimeError(f"evidence fixed point broke down at lambda={lam:g} (gamma={gamma:g}, "
+                               f"|L T/T_s|^2={R2:g})")
+        step = math.log(gamma / R2 / lam)
+        noise = lam * st.trace_se / gamma  # std of the step from the trace's sampling error
+        if abs(step) <= max(lambda_rtol, 2.0 * noise):
+            converged = True
+            break
+        if it == max_iter - 1:
+            break  # keep λ consistent with the last reconstruction
+        lam = lam * math.exp(min(max(step, -math.log(10.0)), math.log(10.0)))
+    evidence = {**path, "converged": converged, "iterations": len(path["lambda"]), "rank": r}
+    return rec, lam, st, evidence
+
+
+def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_level, grid, ring, evidence, clock,
+                     t_start) -> FieldPosterior:
+    """The :class:`FieldPosterior` of the reconstruction ``rec`` and the statistics ``st`` (on the voxel grid)."""
+    n = grid.n_voxels
     std = np.sqrt(st.var).reshape(grid.shape)
     z = float(ndtri(0.5 + 0.5 * float(credible_level)))
     T_hat = rec.T

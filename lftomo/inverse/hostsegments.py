@@ -20,6 +20,12 @@ computes the two sparse Jacobians once per evaluation point (cached by the
 point's bytes) and applies them in the JVP and its exact transpose
 (``jax.custom_jvp`` with a ``linear_call`` tangent): 30× less work per step.
 
+As :class:`~lftomo.inverse.hostsparse.HostCSR` does for a matrix, the
+returned :class:`HostForward` is a pytree whose static handle is a hash of the
+table's content: a jitted residual taking it as an argument is compiled once
+per table, not once per fit (a joint fit's λ search and every later fit on an
+equal table reuse it).
+
 Same restrictions as :mod:`lftomo.inverse.hostsparse`: no ``vmap``; host work
 is serialised by that module's lock (numba's parallel kernels must not run
 concurrently).
@@ -28,8 +34,10 @@ concurrently).
 from __future__ import annotations
 
 import collections
+import functools
 import hashlib
 import itertools
+import threading
 import weakref
 from typing import Any
 
@@ -42,11 +50,13 @@ from jax.custom_derivatives import SymbolicZero, linear_call
 from ..interrupt import check_interrupt
 from .hostsparse import SCIPY_LOCK, csr_product
 
-__all__ = ["host_forward"]
+__all__ = ["HostForward", "host_forward"]
 
 _TABLES: dict[int, Any] = {}
 _CACHES: dict[int, collections.OrderedDict] = {}
-_COUNTER = itertools.count(1)
+_LIVE: dict[int, int] = {}  # handle -> number of live HostForward objects made by host_forward with it
+_COUNTER = itertools.count(1)  # fresh handles after a hash collision: 1, 2, ... (content handles are >= 2**32)
+_REGISTRY_LOCK = threading.RLock()  # re-entrant: a finaliser may run while host_forward holds it
 _CACHE_POINTS = 6  # two or three channels × (current point, trial point)
 
 
@@ -83,27 +93,44 @@ def _point(handle: int, Ib, sa) -> _Point:
     return p
 
 
-def host_forward(segments) -> Any:
-    """``F(I_b, σ_a)`` of ``segments`` as a JAX function with exact host Jacobians.
+def _table_arrays(segments) -> tuple:
+    """What ``weights`` and ``jacobian`` of a table read: its arrays and sizes."""
+    sizes = np.asarray([int(segments.n_voxels), int(segments.n_rows), int(segments.rays_per_pixel),
+                        *segments.metadata["grid"]["shape"]], dtype=np.int64)
+    return (sizes, segments.ray_row, segments.ray_weight, segments.ray_radiance, segments.ray_ptr,
+            segments.row_ray_ptr, segments.voxel, segments.length)
 
-    Parameters
-    ----------
-    segments : RaySegments
-        The table (its rows are the returned signal's rows).
 
-    Returns
-    -------
-    callable
-        ``F(Ib, sigma_a)`` for flat float64 arrays of shape (n_vox,) (W m⁻² sr⁻¹
-        [m⁻¹] and m⁻¹), returning the signal (n_rows,); differentiable with
-        ``jax.jvp``, ``jax.linearize``, ``jax.linear_transpose``, ``jax.vjp``,
-        usable under ``jax.jit``.  The table stays registered while the
-        returned function is alive.
-    """
-    handle = next(_COUNTER)
-    _TABLES[handle] = segments
-    _CACHES[handle] = collections.OrderedDict()
-    n_rows, n_vox = int(segments.n_rows), int(segments.n_voxels)
+def _content_handle(arrays: tuple) -> int:
+    """A handle >= 2**32 from a table's arrays (64-bit BLAKE2b of their dtypes, shapes and bytes)."""
+    h = hashlib.blake2b(digest_size=8)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return int.from_bytes(h.digest(), "little") | (1 << 32)
+
+
+def _same_table(a, b) -> bool:
+    return a is b or all(x.dtype == y.dtype and np.array_equal(x, y)
+                         for x, y in zip(_table_arrays(a), _table_arrays(b)))
+
+
+def _release(key: int) -> None:
+    """One :class:`HostForward` with ``key`` is gone; drop the table with the last one."""
+    with _REGISTRY_LOCK:
+        n = _LIVE.get(key, 0) - 1
+        if n > 0:
+            _LIVE[key] = n
+        else:
+            _LIVE.pop(key, None)
+            _TABLES.pop(key, None)
+            _CACHES.pop(key, None)
+
+
+@functools.lru_cache(maxsize=None)
+def _forward_function(handle: int, n_rows: int, n_vox: int):
+    """``F(I_b, σ_a)`` of the registered table ``handle`` with its exact host JVP (one per handle)."""
     out_rows = jax.ShapeDtypeStruct((n_rows,), jnp.float64)
     out_vox = jax.ShapeDtypeStruct((n_vox,), jnp.float64)
 
@@ -142,11 +169,72 @@ def host_forward(segments) -> Any:
         return y, dy
 
     forward.defjvp(forward_jvp, symbolic_zeros=True)
-
-    def release(h=handle):
-        _TABLES.pop(h, None)
-        _CACHES.pop(h, None)
-
-    # the registry entry lives as long as the function (closures hold only the handle)
-    weakref.finalize(forward, release)
     return forward
+
+
+@jax.tree_util.register_pytree_node_class
+class HostForward:
+    """``F(I_b, σ_a)`` of a registered segment table, callable inside JAX transformations.
+
+    Make it with :func:`host_forward`.  A pytree with no array leaves: the
+    handle (derived from the table's content) is static data, so a jitted
+    function taking it as an argument is compiled once per table content and
+    reused by every later fit on an equal table.
+    """
+
+    def __init__(self, handle: int, n_rows: int, n_vox: int):
+        self.handle, self.n_rows, self.n_vox = int(handle), int(n_rows), int(n_vox)
+
+    def tree_flatten(self):
+        return (), (self.handle, self.n_rows, self.n_vox)
+
+    @classmethod
+    def tree_unflatten(cls, aux, leaves):
+        return cls(*aux)
+
+    def __eq__(self, other):
+        return isinstance(other, HostForward) and other.handle == self.handle
+
+    def __hash__(self):
+        return hash(("HostForward", self.handle))
+
+    def __call__(self, Ib, sa) -> jax.Array:
+        """The signal (n_rows,) for flat ``Ib`` and ``sa`` of shape (n_vox,)."""
+        return _forward_function(self.handle, self.n_rows, self.n_vox)(Ib, sa)
+
+
+def host_forward(segments) -> HostForward:
+    """``F(I_b, σ_a)`` of ``segments`` as a JAX function with exact host Jacobians.
+
+    Parameters
+    ----------
+    segments : RaySegments
+        The table (its rows are the returned signal's rows).
+
+    Returns
+    -------
+    HostForward
+        ``F(Ib, sigma_a)`` for flat float64 arrays of shape (n_vox,) (W m⁻² sr⁻¹
+        [m⁻¹] and m⁻¹), returning the signal (n_rows,); differentiable with
+        ``jax.jvp``, ``jax.linearize``, ``jax.linear_transpose``, ``jax.vjp``,
+        usable under ``jax.jit`` (best passed as an argument: a pytree whose
+        static handle is a hash of the table's content, so equal tables share
+        compiled functions; a colliding, different table gets a fresh handle).
+        The table stays registered while a returned object with its handle is
+        alive.
+    """
+    arrays = _table_arrays(segments)
+    key = _content_handle(arrays)
+    with _REGISTRY_LOCK:
+        _LIVE[key] = _LIVE.get(key, 0) + 1  # counted first: a finaliser running meanwhile keeps the entry
+        table = _TABLES.get(key)
+        if table is not None and not _same_table(table, segments):  # hash collision with another table
+            _LIVE[key] -= 1  # >= 1: the other table's objects are alive
+            key, table = next(_COUNTER), None
+            _LIVE[key] = 1
+        if table is None:
+            _TABLES[key] = segments
+            _CACHES[key] = collections.OrderedDict()
+    F = HostForward(key, segments.n_rows, segments.n_voxels)
+    weakref.finalize(F, _release, key)
+    return F

@@ -51,6 +51,7 @@ decades below the start's λ.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import time
@@ -235,6 +236,46 @@ def _check_channels(measurements, segments) -> tuple[list, list[float]]:
     return ms, wls
 
 
+@functools.lru_cache(maxsize=None)
+def _residual_functions(log_space: bool) -> dict:
+    """The joint fit's residual functions (cached: the same objects for every fit, so JAX's caches hit).
+
+    ``residual(p, args)``: for unknowns ``p = [θ, ρ]`` (2 n_u,) the whitened
+    data of every channel, then ``√λ`` × the T prior, the σ prior and the σ
+    ridge (``args``: :meth:`JointModel.jax_args`); ``scaled_residual(ψ, args)``
+    the same at ``θ_c + D ψ`` (``args["theta_c"]``, ``args["D"]``);
+    ``residual_jit`` the jitted residual.  ``log_space``: ``σ_ref = σ_min
+    exp(span u)`` rather than ``span u`` (:class:`SigmaSpace`).
+    """
+
+    def residual(p, args):
+        n_u = p.shape[0] // 2
+        lo, hi = args["lo"], args["hi"]
+        T = lo + (hi - lo) * jax.nn.sigmoid(p[:n_u])
+        u = jax.nn.sigmoid(p[n_u:])
+        sref = args["sigma_min"] * jnp.exp(args["span"] * u) if log_space else args["span"] * u
+        to_seg, F = args["to_seg"], args["F"]
+        Tv, sv = (T, sref) if to_seg is None else (to_seg @ T, to_seg @ sref)
+        out = []
+        for c in range(len(args["ys"])):
+            Ib = planck_jax(Tv, args["wls"][c])
+            sa = sv * args["factors"][c]
+            s = F(Ib, sa)  # HostForward or JaxSegments
+            model = jnp.where(args["valid"][c], s[args["rows"][c]], 0.0)
+            out.append((model - args["ys"][c]) * args["inv_s"][c])
+        q = args["b_prior"] * u  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
+        lam = args["lam"]
+        out.append(jnp.sqrt(lam) * (args["L"] @ ((T - lo) / (hi - lo))))
+        out.append(jnp.sqrt(lam) * (args["L"] @ q))
+        out.append(jnp.sqrt(lam * args["ridge"]) * q)
+        return jnp.concatenate(out)
+
+    def scaled_residual(psi, args):
+        return residual(args["theta_c"] + args["D"] * psi, args)
+
+    return {"residual": residual, "scaled_residual": scaled_residual, "residual_jit": jax.jit(residual)}
+
+
 class JointModel:
     """The joint problem's fixed pieces: channels, unknowns, maps to the segment table, prior, residual.
 
@@ -278,6 +319,23 @@ class JointModel:
         else:
             self.seg, self.host_F = segments.to_jax(), None
         self.m_total = sum(m.y.size for m in ms)
+        self.fns = _residual_functions(space.space == "log")
+        # every array the residual reads, passed as an argument (never closed over): the cached residual
+        # functions are then traced and compiled once per problem shape, not once per fit or per λ
+        self._jax_args = {
+            "F": self.host_F if engine == "host" else self.seg,
+            "to_seg": self.to_seg_j, "L": self.L, "ys": self.ys, "inv_s": self.inv_s, "rows": self.rows_j,
+            "valid": self.valid, "wls": [jnp.asarray(w) for w in wls],
+            "factors": [jnp.asarray(f) for f in self.factors], "lo": jnp.asarray(float(self.lo)),
+            "hi": jnp.asarray(float(self.hi)), "span": jnp.asarray(space.span),
+            "sigma_min": jnp.asarray(0.0 if space.sigma_min is None else float(space.sigma_min)),
+            "b_prior": jnp.asarray(space.b_prior), "ridge": jnp.asarray(float(ridge)),
+        }
+
+    def jax_args(self, lam) -> dict:
+        """The arguments of the residual functions at ``λ`` (a new dict; ``theta_c`` and ``D`` are added by
+        :func:`~lftomo.inverse.lsq.scaled_chunks`)."""
+        return {**self._jax_args, "lam": jnp.asarray(float(lam))}
 
     def per_unknown(self, M):
         """Columns of a segment-voxel matrix summed per unknown (``M E P``; ``M`` itself without symmetry or ``E``)."""
@@ -292,29 +350,9 @@ class JointModel:
         """Unknowns -> the reconstruction grid's voxels."""
         return x if self.cell is None else x[self.cell]
 
-    def on_segment_voxels(self, x):
-        """Unknowns -> the segment table's voxels (where the physics is evaluated)."""
-        return x if self.to_seg_j is None else self.to_seg_j @ x
-
-    def residual(self, p, args):
-        """Whitened data of every channel, then ``√λ`` × the T prior, the σ prior and the σ ridge."""
-        seg_, lam = args
-        T, sref = self.unpack(p)
-        Tv, sv = self.on_segment_voxels(T), self.on_segment_voxels(sref)
-        out = []
-        for c in range(len(self.ms)):
-            Ib = planck_jax(Tv, self.wls[c])
-            s = self.host_F(Ib, sv * self.factors[c]) if seg_ is None else seg_.forward(Ib, sv * self.factors[c])
-            model = jnp.where(self.valid[c], s[self.rows_j[c]], 0.0)
-            out.append((model - self.ys[c]) * self.inv_s[c])
-        q = self.space.b_prior * jax.nn.sigmoid(p[self.n_u:])  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
-        out.append(jnp.sqrt(lam) * (self.L @ ((T - self.lo) / (self.hi - self.lo))))
-        out.append(jnp.sqrt(lam) * (self.L @ q))
-        out.append(jnp.sqrt(lam * self.ridge) * q)
-        return jnp.concatenate(out)
-
-    def scaled_residual(self, psi, args):
-        return self.residual(args["theta_c"] + args["D"] * psi, (args["seg"], args["lam"]))
+    def residual(self, p, lam):
+        """Whitened data of every channel, then ``√λ`` × the T prior, the σ prior and the σ ridge (JAX)."""
+        return self.fns["residual"](p, self.jax_args(lam))
 
     def penalty_norm(self, pv) -> float:
         """‖R‖ of the prior (the norm λ weighs): T and σ smoothness and the σ ridge."""
@@ -325,7 +363,7 @@ class JointModel:
 
     def objective(self, pv, lam) -> tuple[float, float]:
         """The minimised objective at ``pv`` and its data part ‖r‖² (one residual evaluation)."""
-        r = self.residual(jnp.asarray(pv), (self.seg, lam))
+        r = self.fns["residual_jit"](jnp.asarray(pv), self.jax_args(lam))
         return float(jnp.sum(r * r)), float(jnp.sum(r[: self.m_total] ** 2))
 
     def column_scale(self, pv, lam) -> np.ndarray:
@@ -390,7 +428,7 @@ class MatrixFreePath(_JointPath):
         pv = np.asarray(p0, dtype=np.float64)
         steps, result = 0, optx.RESULTS.nonlinear_max_steps_reached
         obj_prev, data_sq = model.objective(pv, lam)
-        chunks = scaled_chunks(model.scaled_residual, self.solver, {"seg": model.seg, "lam": lam},
+        chunks = scaled_chunks(model.fns["scaled_residual"], self.solver, model.jax_args(lam),
                                lambda th: model.column_scale(th, lam), pv, steps_max, bar)
         for new, n, res in chunks:
             steps += n
@@ -414,10 +452,10 @@ class MatrixFreePath(_JointPath):
         Hutchinson's estimator with ``n_probes`` Rademacher vectors, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` of the
         problem linearised at ``e`` (one Jacobi-scaled LSMR solve per probe), as the T-only rule's."""
         model, bar, m_total, n_u = self.model, self.bar, self.m_total, self.model.n_u
-        args = {"theta_c": jnp.asarray(e.theta), "D": jnp.asarray(model.column_scale(np.asarray(e.theta), e.lam)),
-                "seg": model.seg, "lam": e.lam}
+        args = {**model.jax_args(e.lam), "theta_c": jnp.asarray(e.theta),
+                "D": jnp.asarray(model.column_scale(np.asarray(e.theta), e.lam))}
         psi0 = jnp.zeros(2 * n_u)
-        r0, J = jax.linearize(lambda psi: model.scaled_residual(psi, args), psi0)
+        r0, J = jax.linearize(lambda psi: model.fns["scaled_residual"](psi, args), psi0)
 
         def split(r):
             return r[:m_total], r[m_total:]  # data rows (H acts on them), prior rows

@@ -362,14 +362,25 @@ class _Setup:
     A_q: sp.csr_matrix | None = None
     E: sp.csr_matrix | None = None
     prior_model: Prior | None = None  # the Prior whose name is ``prior``
+    # the JAX data term: A_s (or A_q) = diag(row_scale) @ A_u, A_u the problem's rows used, unwhitened
+    A_u: sp.csr_matrix | None = None
+    row_scale: np.ndarray | None = None
 
     def jax_args(self) -> dict:
-        """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding)."""
+        """Arrays passed to the JAX residuals (as arguments, never closed over: no constant folding).
+
+        The matrix goes in unwhitened (``A_u``, the weight matrix's rows: the same
+        for every frame of a series with the same forward model and data rows)
+        with the whitening as the traced array ``row_scale``, so that its
+        :class:`HostCSR` handle, and with it the compiled solver, is reused
+        across measurements that differ only in their data and noise.
+        """
         reg_scale = 1.0 / self.T_scale if self.penalize == "temperature" else self.I_scale / self.I_reg
         extra = {} if self.E is None else {"E": host_csr(self.E)}
         return {
             **extra,
-            "A": host_csr(self.A_s if self.A_q is None else self.A_q),
+            "A": host_csr(self.A_u),
+            "row_scale": jnp.asarray(self.row_scale),
             "d": jnp.asarray(self.d),
             "L": host_csr(self.L),
             "lam": jnp.asarray(0.0),
@@ -398,11 +409,14 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     I_scale = float(blackbody(np.float64(T_ref), wl))
     T_scale = tmax - tmin
     I_reg = float(dblackbody_dT(np.float64(T_ref), wl)) * T_scale
-    scale = sp.diags(w[used] * I_scale)
-    A_s = (scale @ problem.linear_operator()[used]).tocsr()
+    row_scale = w[used] * I_scale
+    scale = sp.diags(row_scale)
+    A_u = problem.linear_operator()[used].tocsr()
+    A_s = (scale @ A_u).tocsr()
     A_q = E = None
     if problem.interpolation is not None:
-        A_q, E = (scale @ A[used]).tocsr(), problem.interpolation
+        A_u = A[used].tocsr()
+        A_q, E = (scale @ A_u).tocsr(), problem.interpolation
     model = resolve_prior(prior, tv_eps=tv_eps)
     tv_eps = getattr(model, "eps", tv_eps)
     L = model.operator(problem.grid, dimensionless=True)
@@ -427,6 +441,8 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
         A_q=A_q,
         E=E,
         prior_model=model,
+        A_u=A_u,
+        row_scale=row_scale,
     )
     return s
 
@@ -453,7 +469,7 @@ def _functions(gray: bool, prior_type: type, penalize: str, subvoxel: bool = Fal
         if subvoxel:
             T = args["E"] @ T
         b = scaled_intensity(T, args)
-        return args["A"] @ b - args["d"]
+        return args["row_scale"] * (args["A"] @ b) - args["d"]
 
     def reg_res(theta, args):
         T = temperature(theta, args)
@@ -836,15 +852,22 @@ def solve_temperature(
     """
     t_start = time.perf_counter()
     problem = _check_problem(problem)
+    options = dict(prior=prior, bounds=bounds, T0=T0, method=method, rule=rule, max_steps=max_steps, rtol=rtol,
+                   atol=atol, penalize=penalize, T_ref=T_ref, tv_eps=tv_eps, discrepancy_safety=discrepancy_safety,
+                   lambda_range=lambda_range, n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed,
+                   linear_rtol=linear_rtol, linear_max_steps=linear_max_steps, search_steps=search_steps,
+                   search_rtol=search_rtol, noise_scale=noise_scale, progress=progress)
     subvoxel_search = require_choice("subvoxel_search", subvoxel_search, ("surrogate", "full"))
     if problem.interpolation is not None and regularization == "auto" and subvoxel_search == "surrogate":
-        return _solve_subvoxel_by_surrogate(
-            problem, prior=prior, bounds=bounds, T0=T0, method=method, rule=rule, max_steps=max_steps, rtol=rtol,
-            atol=atol, penalize=penalize, T_ref=T_ref, tv_eps=tv_eps, discrepancy_safety=discrepancy_safety,
-            lambda_range=lambda_range, n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed,
-            linear_rtol=linear_rtol, linear_max_steps=linear_max_steps, search_steps=search_steps,
-            search_rtol=search_rtol, noise_scale=noise_scale, progress=progress,
-        )
+        return _solve_subvoxel_by_surrogate(problem, **options)
+    return _solve_checked(problem, regularization=regularization, t_start=t_start, **options)
+
+
+def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0, method, rule, max_steps, rtol, atol,
+                   penalize, T_ref, tv_eps, discrepancy_safety, lambda_range, n_lambda, gcv_probes, seed, linear_rtol,
+                   linear_max_steps, search_steps, search_rtol, noise_scale, progress, t_start) -> TemperatureSolution:
+    """:func:`solve_temperature` on the voxel model of ``problem``: checks the options, builds the setup and runs
+    :func:`_solve_with` (the surrogate's λ search, if any, is decided before)."""
     bounds = require_bounds(bounds)
     tv_eps = require_positive("tv_eps", tv_eps)
     prior_model = resolve_prior(prior, tv_eps=tv_eps)
@@ -856,6 +879,35 @@ def solve_temperature(
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
     if noise_scale == "estimated" and rule != "discrepancy":
         raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
+    (max_steps, rtol, atol, safety, lr, n_lambda, gcv_probes, seed, linear_rtol, linear_max_steps, search_steps,
+     search_rtol) = _check_step_options(
+        max_steps=max_steps, rtol=rtol, atol=atol, discrepancy_safety=discrepancy_safety, lambda_range=lambda_range,
+        n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, linear_rtol=linear_rtol,
+        linear_max_steps=linear_max_steps, search_steps=search_steps, search_rtol=search_rtol)
+    T0_arr, T0_mode = _check_T0(T0, problem.grid, bounds)
+
+    # ---- setup
+    s = _make_setup(problem, bounds=bounds, prior=prior_model, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
+    run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
+                  linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
+    show = progress if progress is not None else s.A_s.nnz > PROGRESS_MIN_NNZ
+    run.bar = progress_bar(None, bool(show), "reconstruct T", unit="step")
+    try:
+        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+            return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
+                               safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
+                               estimate_scale=noise_scale == "estimated",
+                               n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, method=method, prior=prior,
+                               penalize=penalize, t_start=t_start)
+    finally:
+        run.bar.close()
+
+
+def _check_step_options(*, max_steps, rtol, atol, discrepancy_safety, lambda_range, n_lambda, gcv_probes, seed,
+                        linear_rtol, linear_max_steps, search_steps, search_rtol) -> tuple:
+    """The checked step counts, tolerances and λ-rule options of :func:`solve_temperature`, in the order of its
+    signature: ``(max_steps, rtol, atol, safety, lambda_range, n_lambda, gcv_probes, seed, linear_rtol,
+    linear_max_steps, search_steps, search_rtol)`` (ValueError naming the argument otherwise)."""
     max_steps = require_steps("max_steps", max_steps)
     rtol = require_nonnegative("rtol", rtol)
     atol = require_nonnegative("atol", atol)
@@ -876,7 +928,13 @@ def solve_temperature(
     search_steps = max_steps if search_steps is None else require_steps("search_steps", search_steps)
     if not (isinstance(search_rtol, (int, float)) and 0.0 < float(search_rtol) < 1.0):
         raise ValueError(f"search_rtol must be a number in (0, 1), got {search_rtol!r}")
-    grid = problem.grid
+    return (max_steps, rtol, atol, safety, lr, n_lambda, gcv_probes, seed, linear_rtol, linear_max_steps, search_steps,
+            search_rtol)
+
+
+def _check_T0(T0: Any, grid, bounds: tuple[float, float]) -> tuple[np.ndarray | None, str]:
+    """``(T0 as a flat array or None, how it was given: "baseline", "uniform" or "given")`` of
+    :func:`solve_temperature`'s ``T0`` (ValueError for a bad one)."""
     n = grid.n_voxels
     T0_arr = None
     T0_mode = "baseline"
@@ -899,22 +957,7 @@ def solve_temperature(
             )
         T0_mode = "given"
         T0_arr = arr.ravel()
-
-    # ---- setup
-    s = _make_setup(problem, bounds=bounds, prior=prior_model, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
-    run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
-                  linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
-    show = progress if progress is not None else s.A_s.nnz > PROGRESS_MIN_NNZ
-    run.bar = progress_bar(None, bool(show), "reconstruct T", unit="step")
-    try:
-        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
-                               safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
-                               estimate_scale=noise_scale == "estimated",
-                               n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, method=method, prior=prior,
-                               penalize=penalize, t_start=t_start)
-    finally:
-        run.bar.close()
+    return T0_arr, T0_mode
 
 
 def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule, *, T0_arr, T0_mode, bounds,

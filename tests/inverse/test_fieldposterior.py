@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import lftomo as lt
 from lftomo.inverse.fieldposterior import (
@@ -187,3 +188,33 @@ def test_weights_argument_rules(case):
         laplace_posterior(problem, object())
     with pytest.raises(ValueError, match="LinearProblem|one Measurement"):
         laplace_posterior([problem, problem])
+
+
+def test_unconstrained_voxels_raise_a_clear_error_naming_them():
+    """Three data see only the first three voxels of a 3³ grid.  The curvature prior does not
+    constrain the other 24 (its null space holds fields that vary there), so the Laplace
+    precision is singular: the error is an LftomoError (not numpy's LinAlgError) that counts the
+    free directions — independently, 24 − rank(L restricted to the unseen voxels) — names unseen
+    voxels only, says no λ helps and what does.  The gradient prior, the suggested remedy,
+    leaves only the constant field free, which the data fix: its precision factors."""
+    grid = lt.Grid((3, 3, 3), (-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
+    n = grid.n_voxels
+    rng = np.random.default_rng(0)
+    A = sp.csr_matrix((1e-3 * rng.random(9), (np.repeat(np.arange(3), 3), np.tile([0, 1, 2], 3))), shape=(3, n))
+    T = hot_spot(grid, 800.0, 2000.0)
+    y = A @ lt.planck(T, WL).ravel()
+    problem = LinearProblem(A, y, np.full(3, 0.01 * np.abs(y).mean()), grid, WL)
+    L_unseen = prior_operator(grid, "curvature")[:, 3:].toarray()
+    n_free = (n - 3) - np.linalg.matrix_rank(L_unseen)
+    assert n_free > 0
+    with pytest.raises(lt.LftomoError) as err:
+        laplace_posterior(problem, regularization=1e-3, prior="curvature", method="dense", max_steps=10)
+    msg = str(err.value)
+    assert not isinstance(err.value, np.linalg.LinAlgError)
+    assert f"{n_free} direction(s) of the field are constrained neither by the data nor by prior='curvature' " \
+           f"(at any λ)" in msg, msg
+    assert f"24 of the {n} unknowns are seen by no datum" in msg and "prior='gradient'" in msg, msg
+    assert "(0, 1, 0)" in msg and all(f"(0, 0, {k})" not in msg for k in range(3)), msg  # seen voxels not named
+    J, Ls = precision_factors(problem, T, prior="gradient")
+    var = _dense_stats(J, Ls, 1e-3).var
+    assert np.all(np.isfinite(var)) and np.all(var > 0)

@@ -99,3 +99,45 @@ def test_joint_sigma_a_prior_options(table):
         with pytest.raises(ValueError, match=r"sigma_a_min must be a number with 0 < sigma_a_min < sigma_a_max "
                                              rf"\(200.0\) for sigma_a_space='log', got {re.escape(repr(bad_min))}"):
             lt.reconstruct(ms, seg, **{**kw, "sigma_a_space": "log", "sigma_a_min": bad_min})
+
+
+def test_equal_tables_share_a_handle_and_compiled_functions(table, monkeypatch):
+    """host_forward keys its handle on the table's content: an equal table (a copy) gets the same
+    handle, so a jitted function taking it is traced once for both (what stops every joint fit from
+    recompiling its residual); a changed table gets its own handle and its own signal; after a hash
+    collision the second table still gets a fresh handle; the entry goes with its last object."""
+    import gc
+
+    from lftomo.inverse import hostsegments as hs
+
+    _, grid, seg = table
+    rng = np.random.default_rng(1)
+    Ib = 1e3 + 1e3 * rng.random(grid.n_voxels)
+    sa = 10.0 + 40.0 * rng.random(grid.n_voxels)
+    copy = dataclasses.replace(seg, length=seg.length.copy(), voxel=seg.voxel.copy())
+    changed = dataclasses.replace(seg, length=seg.length * 1.25)
+    a, b, c = host_forward(seg), host_forward(copy), host_forward(changed)
+    assert a.handle == b.handle and c.handle != a.handle
+    traces = []
+
+    @jax.jit
+    def signal(F, x, y):
+        traces.append(F.handle)
+        return F(x, y)
+
+    for F, tab in ((a, seg), (b, copy), (c, changed)):
+        np.testing.assert_allclose(np.asarray(signal(F, Ib, sa)), tab.forward(Ib, sa), rtol=1e-12)
+    assert traces == [a.handle, c.handle], traces  # b reused a's trace
+    key = a.handle
+    del a
+    gc.collect()
+    assert key in hs._TABLES  # b still uses it
+    del b
+    gc.collect()
+    assert key not in hs._TABLES and c.handle in hs._TABLES
+    # a colliding hash: the second, different table gets a fresh handle and its own signal
+    monkeypatch.setattr(hs, "_content_handle", lambda arrays: 1 << 40)
+    d, e = host_forward(seg), host_forward(changed)
+    assert d.handle == 1 << 40 and e.handle not in (d.handle, c.handle)
+    np.testing.assert_allclose(np.asarray(e(Ib, sa)), changed.forward(Ib, sa), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(d(Ib, sa)), seg.forward(Ib, sa), rtol=1e-12)

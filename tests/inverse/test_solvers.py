@@ -591,3 +591,45 @@ def test_influence_probes_are_exact_and_report_progress():
     np.testing.assert_allclose(np.asarray(hz2), np.einsum("ij,ij->i", Hz, Hz), rtol=1e-7)
     jax.effects_barrier()
     assert done == [1, 2, 3, 4, 5]
+
+
+def test_a_second_frame_with_other_noise_reuses_the_compiled_solver(gray_blob):
+    """Frames of a series differ in their data and noise only: the whitening is a traced argument, the
+    matrix handle is the weight matrix's, so the second reconstruct compiles no solver (it took ~7 s
+    of a 10 s frame at 8³ when the whitened matrix was the handle)."""
+    import logging
+
+    import jax
+
+    cam, grid, flame, lf, W = gray_blob
+    opts = {"regularization": 1e-3, "bounds": (500.0, 2500.0), "max_steps": 3}
+    brighter = dataclasses.replace(lf, raw=1.3 * lf.raw)  # another frame: another signal, so another sigma
+    frames = [lt.Measurement.from_lightfield(lt.add_noise(f, relative_std=0.01, seed=s))
+              for f, s in ((lf, 31), (brighter, 32))]
+    assert frames[0].size == frames[1].size and not np.array_equal(frames[0].sigma, frames[1].sigma)
+    lt.reconstruct(frames[0], W, **opts)
+    seen = []
+
+    class Catch(logging.Handler):
+        def emit(self, record):
+            seen.append(record.getMessage())
+
+    h = Catch(level=logging.DEBUG)
+    logging.getLogger("jax").addHandler(h)
+    try:
+        with jax.log_compiles():
+            T = lt.reconstruct(frames[1], W, **opts).T
+    finally:
+        logging.getLogger("jax").removeHandler(h)
+    assert np.all(np.isfinite(T))
+    compiled = [m for m in seen if m.startswith("Compiling") and ("least_squares" in m or "terms" in m)]
+    assert not compiled, compiled
+    # the control: the same check sees a compilation when there is one (a new prior: new functions)
+    seen.clear()
+    logging.getLogger("jax").addHandler(h)
+    try:
+        with jax.log_compiles():
+            lt.reconstruct(frames[1], W, **{**opts, "prior": "laplacian"})
+    finally:
+        logging.getLogger("jax").removeHandler(h)
+    assert any(m.startswith("Compiling") and "least_squares" in m for m in seen)
