@@ -12,8 +12,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..io import atomic_path
-from ..plot import pyplot
+from ..plot import pyplot, save_figure
 
 __all__ = ["design_figures", "design_comparison_figure"]
 
@@ -54,12 +53,7 @@ def _field_figure(path: Path, design: Any, field: np.ndarray, title: str, label:
         a.set_ylabel(f"{axes[1]} (mm)")
     fig.colorbar(im, ax=ax, shrink=0.85, label=label)
     fig.suptitle(title)
-    try:
-        with atomic_path(path) as tmp:  # never a partial figure at ``path``
-            fig.savefig(tmp, dpi=100)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def design_figures(design: Any, directory: Path, *, prefix: str = "design") -> list[Path]:
@@ -102,10 +96,4 @@ def design_comparison_figure(rows: Sequence[dict], path: str | Path) -> Path:
     ax.set_xticks(x, names, rotation=20, ha="right")
     ax.set_ylabel("mean over hot voxels, % of T")
     ax.legend()
-    path = Path(path)
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=100)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
