@@ -28,6 +28,7 @@ from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GC
 from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
+from .inverse.design import Design, design, compare_designs, design_table, rig_around, standard_configurations
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 from .inverse.subvoxel import interpolate_field, interpolation_matrix
 from .inverse.symmetry import RingGrid, ring_grid
@@ -109,6 +110,12 @@ __all__ = [
     "laplace_approximation",
     "FieldPosterior",
     "laplace_posterior",
+    "Design",
+    "design",
+    "compare_designs",
+    "design_table",
+    "rig_around",
+    "standard_configurations",
     "DCTBasis",
     "BSplineBasis",
     "ParametricFlame",

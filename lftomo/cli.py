@@ -648,6 +648,9 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--camera", default=None, help="camera/acquisition TOML (bit depth, wavelength, gain, f-number)")
     cal.add_argument("-o", "--output", default="calibration.npz", help="output .npz (a .png figure beside it)")
     cal.set_defaults(func=cmd_calibrate)
+    from .designcli import add_design_parser
+
+    add_design_parser(sub, positive_int=_pos_int, positive_float=_pos_float, add_allow_outside=_add_allow_outside)
     return p
 
 

@@ -20,6 +20,18 @@ def pyplot():
     return plt
 
 
+def save_figure(fig, path: str | Path, *, dpi: int = 110) -> Path:
+    """Write ``fig`` to ``path`` atomically (never a partial figure there) and close it; returns the path."""
+    plt = pyplot()
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        plt.close(fig)
+    return path
+
+
 def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 12) -> Path:
     """One figure: a raw crop (microlens images), the central view, the view mosaic."""
     plt = pyplot()

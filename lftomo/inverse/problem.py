@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -129,3 +129,57 @@ class LinearProblem:
         """(Σ^{-1/2} A, Σ^{-1/2} (y - background))."""
         w = 1.0 / self.sigma
         return sp.diags(w) @ self.A, w * (self.y - self.background)
+
+
+def stack_problems(problems: Sequence[LinearProblem]) -> LinearProblem:
+    """One problem from the channels of several cameras at one wavelength.
+
+    The rows of the channels are stacked (``A = vstack(A_k)``, ``y``, ``sigma``
+    and ``background`` concatenated): the cameras see the same field
+    independently, so their data and noise simply add up in the least-squares
+    objective.  ``metadata["rows"]`` holds each channel's ``(start, stop)``
+    row range, in the order given.
+
+    Parameters
+    ----------
+    problems : sequence of LinearProblem
+        Two or more; same reconstruction grid (shape and box), same
+        wavelength, same interpolation (sub-voxel emission) if any.
+
+    Returns
+    -------
+    LinearProblem
+
+    Raises
+    ------
+    ValueError
+        When the problems do not share grid, wavelength or interpolation.
+    """
+    ps = list(problems)
+    if not ps:
+        raise ValueError("stack_problems needs at least one LinearProblem, got none")
+    first = ps[0]
+    for k, p in enumerate(ps):
+        if not isinstance(p, LinearProblem):
+            raise ValueError(f"problems[{k}] must be a LinearProblem, got {type(p).__name__}")
+        if p.grid != first.grid:
+            raise ValueError(f"problems[{k}] is on grid {p.grid!r}, problems[0] on {first.grid!r}: the cameras of "
+                             "one fit must share the reconstruction grid")
+        if p.wavelength != first.wavelength:
+            raise ValueError(
+                f"problems[{k}] is at wavelength {p.wavelength!r} m, problems[0] at {first.wavelength!r} m: a "
+                "temperature-only fit stacks channels of one wavelength (fit several wavelengths with "
+                "unknowns='T+sigma_a')")
+        same_E = (p.interpolation is None) == (first.interpolation is None) and (
+            p.interpolation is None or (p.interpolation != first.interpolation).nnz == 0)
+        if not same_E:
+            raise ValueError(f"problems[{k}] has a different sub-voxel interpolation than problems[0]: build every "
+                             "camera's weights on the same quadrature grid")
+    if len(ps) == 1:
+        return first
+    bounds = np.cumsum([0] + [p.A.shape[0] for p in ps])
+    meta = {**first.metadata, "rows": [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]}
+    return LinearProblem(A=sp.vstack([p.A for p in ps], format="csr"), y=np.concatenate([p.y for p in ps]),
+                         sigma=np.concatenate([p.sigma for p in ps]),
+                         background=np.concatenate([p.background for p in ps]), grid=first.grid,
+                         wavelength=first.wavelength, metadata=meta, interpolation=first.interpolation)

@@ -12,6 +12,7 @@ transmittance in JAX.
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
 from typing import Any
@@ -69,6 +70,43 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
     meta = {**problem.metadata, "quadrature_grid": wgrid.to_dict()}
     return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=grid, wavelength=problem.wavelength,
                          background=problem.background, metadata=meta, interpolation=E), grid
+
+
+def _temperature_problem(measurement, weights, grid: Grid | None):
+    """The T-only problem of one camera (``Measurement``, ``WeightMatrix``) or of
+    a rig (sequences of equal length: camera ``k``'s data with its own weights),
+    stacked by :func:`lftomo.inverse.problem.stack_problems`."""
+    from .problem import stack_problems
+
+    if not isinstance(measurement, (list, tuple)):
+        if isinstance(weights, (list, tuple)):
+            raise ValueError(f"weights is a sequence of {len(weights)} but measurement is one Measurement: give one "
+                             "measurement per weight matrix (one per camera)")
+        return problem_on_grid(measurement, weights, grid)
+    if not isinstance(weights, (list, tuple)) or len(weights) != len(measurement):
+        n_w = len(weights) if isinstance(weights, (list, tuple)) else 1
+        raise ValueError(
+            f"unknowns='T' with {len(measurement)} measurements needs one weight matrix per measurement (the "
+            f"camera that took it), got {n_w}; several wavelengths of one camera are fitted with "
+            "unknowns='T+sigma_a'")
+    if len(measurement) == 0:
+        raise ValueError("measurement is an empty sequence: give at least one Measurement")
+    for k, (m, w) in enumerate(zip(measurement, weights)):
+        built_for = getattr(w, "metadata", {}).get("camera") if isinstance(getattr(w, "metadata", None), dict) else None
+        if built_for is not None and built_for != json.loads(json.dumps(m.camera.to_dict())):
+            raise ValueError(f"weights[{k}] was built for another camera (or pose) than the one that took "
+                             f"measurement[{k}]: pair each camera's data with its own weight matrix")
+    parts = [problem_on_grid(m, w, grid) for m, w in zip(measurement, weights)]
+    grids = {p[1] for p in parts}
+    if len(grids) > 1:
+        raise ValueError(f"the weight matrices are on different grids ({sorted(map(repr, grids))}): build every "
+                         "camera's weights on the same grid")
+    return stack_problems([p[0] for p in parts]), parts[0][1]
+
+
+def _data_kind(measurement) -> str:
+    kinds = {m.kind for m in measurement} if isinstance(measurement, (list, tuple)) else {measurement.kind}
+    return kinds.pop() if len(kinds) == 1 else "mixed"
 
 
 def _check_types(measurement: Any, weights: Any) -> None:
@@ -182,10 +220,13 @@ def reconstruct(
     ----------
     measurement : Measurement or sequence of Measurement
         Noisy data (:meth:`Measurement.from_lightfield`); one per wavelength
-        for ``unknowns="T+sigma_a"``.
-    weights : WeightMatrix, or RaySegments for ``"T+sigma_a"``
+        for ``unknowns="T+sigma_a"``; for ``"T"`` one per camera of a rig
+        (same wavelength), with ``weights`` the matching sequence.
+    weights : WeightMatrix or sequence of WeightMatrix, or RaySegments for ``"T+sigma_a"``
         Forward model on the reconstruction grid, built for the known
         ``sigma_a`` (``"T"``); rows must cover the raw pixels the data use.
+        For a rig, ``weights[k]`` is camera ``k``'s matrix (the camera that
+        took ``measurement[k]``, with its pose) on the common grid.
     unknowns : {"T", "T+sigma_a"}
     regularization : "auto" or float
         λ, or ``"auto"`` to choose it by ``rule`` (``rule=Fixed(λ)`` is the same as a float).
@@ -263,10 +304,8 @@ def reconstruct(
     if method not in ("levenberg-marquardt", "gauss-newton"):
         raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', got {method!r}"
                          + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
-    if isinstance(measurement, (list, tuple)):
-        raise ValueError("unknowns='T' takes one Measurement (one wavelength); pass the channel to use")
     t0 = time.perf_counter()
-    problem, grid = problem_on_grid(measurement, weights, grid)
+    problem, grid = _temperature_problem(measurement, weights, grid)
     ring = resolve_symmetry(symmetry, grid)
     if ring is not None:
         problem = ring_problem(problem, ring)
@@ -293,7 +332,7 @@ def reconstruct(
         converged=sol.converged,
         timing=timing,
         unknowns="T",
-        data_kind=measurement.kind,
+        data_kind=_data_kind(measurement),
         details=sol,
         symmetry=ring,
         metadata={"quadrature_grid": problem.metadata["quadrature_grid"]} if problem.interpolation is not None else {},

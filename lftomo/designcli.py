@@ -1,0 +1,78 @@
+"""``lftomo design SCENE.toml``: what the scene's camera(s) will resolve in its flame, before anything is built.
+
+The scene's ``[medium]`` is the expected flame; its box, at ``--n``³ voxels,
+the reconstruction grid.  Writes ``design.json`` (the summary), one figure per
+quantity, and with ``--compare`` ``comparison.md`` / ``comparison.json`` /
+``comparison.png`` over :func:`lftomo.inverse.design.standard_configurations`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .errors import LftomoError
+
+__all__ = ["add_design_parser", "run_design"]
+
+
+def add_design_parser(sub: Any, *, positive_int, positive_float, add_allow_outside) -> None:
+    """The ``design`` sub-command on an argparse sub-parser collection."""
+    d = sub.add_parser("design", help="experiment design: predicted posterior std, resolution and Cramér–Rao bound "
+                                      "of the scene's camera(s) on its flame; --compare for a table of rigs")
+    d.add_argument("scene", metavar="SCENE.toml", help="scene file with [camera] (or [[camera]] tables) and [medium]")
+    d.add_argument("-o", "--output", default="lftomo-design", help="output directory (default lftomo-design)")
+    d.add_argument("--n", type=positive_int, default=16, help="voxels per axis of the reconstruction grid (<= 16)")
+    d.add_argument("--noise", type=positive_float, default=0.01, help="relative measurement noise (default 0.01)")
+    d.add_argument("--rays", type=positive_int, default=64, help="rays per pixel of the weights (default 64)")
+    d.add_argument("--wavelength", type=positive_float, default=650e-9, help="m (default 650e-9)")
+    d.add_argument("--seed", type=int, default=0, help="seed of the renders and noise (default 0)")
+    d.add_argument("--compare", action="store_true",
+                   help="also design the standard configurations (1, 2 at 90°, 3 at 60° cameras; stop; focus; "
+                        "900 nm; pixels per microlens) around the first camera and write a comparison table")
+    d.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_allow_outside(d)
+    d.set_defaults(func=run_design)
+
+
+def run_design(args: Any) -> int:
+    """Run ``lftomo design``; returns the exit status."""
+    from .config import load_scene_file
+    from .forward.grid import Grid
+    from .inverse.design import compare_designs, design, design_configurations, design_table, standard_configurations
+    from .inverse.designplot import design_comparison_figure
+    from .io import atomic_write_text
+
+    scene = load_scene_file(args.scene, allow_outside=bool(getattr(args, "allow_outside_paths", False)))
+    flame = scene.scene.medium
+    if flame is None:
+        raise LftomoError(f"{args.scene} has no [medium]: the design needs the expected flame")
+    cams = tuple(getattr(scene, "cameras", None) or (scene.camera,))
+    box = flame.grid
+    grid = Grid(shape=(args.n,) * 3, lower=tuple(box.lower), upper=tuple(box.upper))
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    show = not args.quiet
+    kw = dict(noise=args.noise, seed=args.seed)
+    d = design(cams, grid, flame, wavelength=args.wavelength, rays_per_pixel=args.rays, progress=show, **kw)
+    s = d.summary()
+    atomic_write_text(out / "design.json", json.dumps({"scene": str(args.scene), "grid_shape": list(grid.shape),
+                                                       "wavelength": args.wavelength, **kw, "summary": s,
+                                                       "timing_s": d.timing}, indent=1))
+    files = ["design.json"] + [p.name for p in d.figures(out)]
+    print(f"{len(cams)} camera(s), {s['n_data']} data, lambda {s['regularization']:.3g}: predicted mean error "
+          f"{100 * s['predicted_mean_rel']:.2f} % above {d.hot:.0f} K (posterior std {100 * s['posterior_std_mean_rel']:.2f} %, "
+          f"Cramér–Rao median {100 * s['crb_median_rel']:.2f} %)")
+    if args.compare:
+        designs = design_configurations(standard_configurations(cams[0], grid, wavelength=args.wavelength), grid,
+                                        flame, rays_per_pixel=args.rays, progress=show, **kw)
+        rows = compare_designs(designs)
+        table = design_table(rows)
+        atomic_write_text(out / "comparison.md", table)
+        atomic_write_text(out / "comparison.json", json.dumps(rows, indent=1))
+        design_comparison_figure(rows, out / "comparison.png")
+        files += ["comparison.md", "comparison.json", "comparison.png"]
+        print(table, end="")
+    print(f"wrote {out}/: " + ", ".join(files))
+    return 0

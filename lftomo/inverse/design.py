@@ -1,0 +1,608 @@
+"""Experiment design: what a camera rig will resolve in a flame, before it is built.
+
+For an expected flame (a :class:`~lftomo.Medium`), a rig of one or more
+(posed) plenoptic cameras, a wavelength and a noise level, :func:`design`
+predicts, per voxel of the reconstruction grid, what the default temperature
+reconstruction (:func:`lftomo.reconstruct`, known ``sigma_a``) will achieve.
+The predictions are those of the Gauss–Newton linearisation of the
+regularised least-squares problem about the true field ``T`` (Tarantola 2005,
+§3.2; Aster, Borchers & Thurber 2018, ch. 4).  With the whitened Jacobian
+``J = Σ^{-1/2} A diag(∂I_b/∂T)`` (1/K) of all cameras' data stacked, the
+prior factor ``L_s = L / (T_max − T_min)`` and the regularisation λ:
+
+* ``H = JᵀJ + λ L_sᵀ L_s`` is the Laplace posterior precision and
+  ``sqrt(diag H⁻¹)`` the **posterior standard deviation** (K);
+* ``R = H⁻¹ JᵀJ`` is the **resolution matrix**: column ``j`` is the
+  reconstruction of a unit temperature change at voxel ``j`` (its
+  point-spread function), summarised by its RMS widths along x, y, z;
+* ``T̂ − T = H⁻¹ (Jᵀ e − λ L_sᵀ L_s T)`` for a noise draw ``e ~ N(0, I)``:
+  the **spread** of the reconstruction over noise draws is
+  ``sqrt(diag(H⁻¹ JᵀJ H⁻¹))`` and its **bias** ``−λ H⁻¹ L_sᵀ L_s T``; the
+  **predicted error** is ``sqrt(bias² + spread²)``;
+* the **Cramér–Rao bound** without a prior: ``sqrt(diag F⁻¹)`` with
+  ``F = JᵀJ`` restricted to the voxels hotter than ``hot`` (the cooler ones
+  told exactly: a bound that can only be optimistic; Kay 1993, ch. 3).
+
+λ is that of the default rule on one simulated noisy measurement
+(``regularization="auto"``: the reconstruction the experimenter would run),
+or given.  The data of each camera are its lit sub-aperture pixels (étendue
+above 0.2 of the peak) of a render of the flame itself, with noise
+``σ = noise × max(signal, 10⁻³ × peak)`` (:func:`lftomo.add_noise`) and the
+Monte Carlo error of the render and of the weights added to σ
+(:func:`lftomo.inverse.compare.with_monte_carlo_noise`, floor ``"prior"``, the less pessimistic one):
+the prediction is that of lftomo's own synthetic pipeline at these rays,
+conservative for a real camera's images, which have no Monte Carlo error.
+Model error of a coarse grid (flame detail below the voxel size) is not part
+of the prediction; the dense algebra limits the grid to ``dense_max`` voxels (16³ = 4096 by
+default).
+
+References
+----------
+Tarantola, A. (2005). *Inverse Problem Theory*. SIAM.
+Aster, R., Borchers, B., Thurber, C. (2018). *Parameter Estimation and
+Inverse Problems*, 3rd ed. Elsevier.
+Kay, S. M. (1993). *Fundamentals of Statistical Signal Processing:
+Estimation Theory*. Prentice Hall.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import LftomoError
+from ..forward.grid import Grid
+
+__all__ = ["Design", "design", "psf_widths", "rig_around", "compare_designs", "design_table",
+           "standard_configurations", "design_configurations", "cramer_rao_bound",
+           "DESIGN_DENSE_MAX"]
+
+#: Largest number of voxels :func:`design` handles (dense n × n algebra: ~6 n² doubles, 0.8 GB at 16³).
+DESIGN_DENSE_MAX = 4096
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    """Predicted performance of a rig on a flame (:func:`design`).
+
+    All fields of shape ``grid.shape`` are in K; ``crb`` is NaN where the
+    true temperature is not above ``hot``.
+
+    Attributes
+    ----------
+    grid : Grid
+    T_true : ndarray
+        The flame's effective temperature on ``grid`` (linearisation point).
+    T_std : ndarray
+        Laplace posterior standard deviation ``sqrt(diag H⁻¹)``.
+    T_spread : ndarray
+        Standard deviation of the reconstruction over noise draws.
+    T_bias : ndarray
+        Linearised bias of the reconstruction (the prior's pull).
+    crb : ndarray
+        Cramér–Rao bound (no prior), hot voxels only.
+    probes : tuple of (i, j, k)
+        Voxels whose point-spread functions are reported.
+    psf : ndarray, shape (n_probes, *grid.shape)
+        Columns of the resolution matrix at ``probes`` (dimensionless).
+    psf_widths : ndarray, shape (n_probes, 3)
+        RMS widths (m) of ``psf`` along x, y, z through each probe.
+    regularization : float
+        λ of the prediction.
+    lambda_rule : str
+    prior : str
+    hot : float
+        Threshold (K) of the summaries and of the bound.
+    n_data : int
+        Data of all cameras.
+    cameras : tuple of Camera
+    wavelength : float
+        m.
+    noise : float
+        Relative noise level.
+    rays_per_pixel : int
+    reconstruction : Reconstruction or None
+        The reconstruction of one simulated noisy measurement that chose λ
+        (``regularization="auto"``).
+    measurements, weights : tuple
+        Per camera, the simulated :class:`~lftomo.Measurement` and its
+        :class:`~lftomo.WeightMatrix` (to reconstruct more draws).
+    timing : dict
+        Seconds per stage.
+    """
+
+    grid: Grid
+    T_true: np.ndarray
+    T_std: np.ndarray
+    T_spread: np.ndarray
+    T_bias: np.ndarray
+    crb: np.ndarray
+    probes: tuple
+    psf: np.ndarray
+    psf_widths: np.ndarray
+    regularization: float
+    lambda_rule: str
+    prior: str
+    hot: float
+    n_data: int
+    cameras: tuple
+    wavelength: float
+    noise: float
+    rays_per_pixel: int
+    reconstruction: Any = None
+    measurements: tuple = ()
+    weights: tuple = ()
+    timing: dict = field(default_factory=dict)
+
+    @property
+    def predicted_error(self) -> np.ndarray:
+        """RMS error of the reconstruction per voxel, ``sqrt(bias² + spread²)`` (K)."""
+        return np.sqrt(self.T_bias**2 + self.T_spread**2)
+
+    def summary(self) -> dict[str, Any]:
+        """Means over the voxels hotter than ``hot``, relative to the true T.
+
+        Returns
+        -------
+        dict
+            ``predicted_mean_rel`` (mean predicted |error|/T, using the RMS
+            error), ``posterior_std_mean_rel``, ``spread_mean_rel``,
+            ``bias_mean_rel``, ``crb_median_rel``, ``crb_below_1pct``
+            (fraction of hot voxels), ``psf_width_mean_m`` (x, y, z),
+            ``regularization``, ``n_data``, ``n_cameras``, and, when a
+            reconstruction chose λ, ``reconstruction_mean_rel`` (its achieved
+            mean |ΔT|/T over the same voxels: one noise draw).
+        """
+        hot = self.T_true > self.hot
+        T = self.T_true[hot]
+        crb = self.crb[hot] / T
+        out = {
+            "n_cameras": len(self.cameras), "n_data": int(self.n_data), "hot_voxels": int(hot.sum()),
+            "regularization": float(self.regularization),
+            "predicted_mean_rel": float(np.mean(self.predicted_error[hot] / T)),
+            "posterior_std_mean_rel": float(np.mean(self.T_std[hot] / T)),
+            "spread_mean_rel": float(np.mean(self.T_spread[hot] / T)),
+            "bias_mean_rel": float(np.mean(np.abs(self.T_bias[hot]) / T)),
+            "crb_median_rel": float(np.median(crb)),
+            "crb_below_1pct": float(np.mean(crb < 0.01)),
+            "psf_width_mean_m": [float(v) for v in np.nanmean(self.psf_widths, axis=0)],
+        }
+        if self.reconstruction is not None:
+            rec_T = np.asarray(self.reconstruction.T)
+            out["reconstruction_mean_rel"] = float(np.mean(np.abs(rec_T[hot] - T) / T))
+        return out
+
+    def figures(self, directory: str | Path, *, prefix: str = "design") -> list[Path]:
+        """One figure per quantity (posterior std, predicted error, Cramér–Rao
+        bound, point-spread functions): three central slices each, written
+        atomically as PNG files in ``directory``.  Returns their paths."""
+        from .designplot import design_figures
+
+        return design_figures(self, Path(directory), prefix=prefix)
+
+
+def _cameras(rig: Any) -> tuple:
+    from ..forward.camera import Camera
+
+    cams = (rig,) if isinstance(rig, Camera) else tuple(rig) if isinstance(rig, (list, tuple)) else None
+    if cams is None:
+        raise LftomoError(f"rig must be an lftomo.Camera or a sequence of cameras, got {type(rig).__name__}")
+    if not cams:
+        raise LftomoError("rig has no cameras: give at least one lftomo.Camera")
+    for k, c in enumerate(cams):
+        if not isinstance(c, Camera):
+            raise LftomoError(f"rig[{k}] must be an lftomo.Camera, got {type(c).__name__}")
+    return cams
+
+
+def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max):
+    from .._validate import require_int, require_positive
+    from ..forward.medium import Medium
+
+    if not isinstance(grid, Grid):
+        raise LftomoError(f"grid must be an lftomo.Grid (the reconstruction grid), got {type(grid).__name__}")
+    if not isinstance(flame, Medium):
+        raise LftomoError(f"flame must be an lftomo.Medium (the expected flame), got {type(flame).__name__}")
+    require_positive("noise", noise)
+    wl = require_positive("wavelength", wavelength)
+    if not 1e-7 < wl < 1e-4:
+        raise LftomoError(f"wavelength must be in m (e.g. 650e-9), got {wavelength!r}")
+    require_int("rays_per_pixel", rays_per_pixel, minimum=1)
+    require_int("data_rays_per_pixel", data_rays, minimum=1)
+    if not (regularization == "auto" or (isinstance(regularization, (int, float)) and regularization > 0)):
+        raise LftomoError(f"regularization must be 'auto' or a float > 0, got {regularization!r}")
+    require_positive("hot", hot)
+    if grid.n_voxels > dense_max:
+        raise LftomoError(
+            f"grid has {grid.n_voxels} voxels {tuple(grid.shape)}; design forms dense {grid.n_voxels}² matrices "
+            f"and handles at most dense_max={dense_max} (16³): use a coarser reconstruction grid")
+
+
+def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar):
+    """Per camera: the simulated measurement and its weights on ``grid``.
+
+    As the library's synthetic studies do: the flame rendered with
+    ``data_rays_per_pixel`` rays, relative noise ``noise``
+    (:func:`lftomo.add_noise`), and the Monte Carlo error of the render and of
+    the weights added to σ (:func:`lftomo.inverse.compare.with_monte_carlo_noise`).
+    """
+    from ..forward.render import render
+    from ..forward.scene import Scene
+    from ..forward.weights import weights
+    from .compare import with_monte_carlo_noise
+    from .measurement import Measurement, add_noise
+
+    ms, Ws = [], []
+    for k, cam in enumerate(cams):
+        bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render")
+        lf = render(Scene(medium=flame), cam, rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k,
+                    wavelengths=(wavelength,), progress=False)
+        bar.update(1)
+        noisy = with_monte_carlo_noise(add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), lf,
+                                       rays_per_pixel=data_rays_per_pixel, weights_rays_per_pixel=rays_per_pixel,
+                                       floor="prior")
+        bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: weights")
+        Ws.append(weights(cam, grid, sigma_a=sa, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
+                          seed=seed + 3 * k + 1, lightfield=noisy, progress=False))
+        bar.update(1)
+        ms.append(Measurement.from_lightfield(noisy))
+    return ms, Ws
+
+
+def _linear_predictions(J, Ls, lam: float, T: np.ndarray):
+    """Dense posterior covariance ``C = H⁻¹``, resolution ``R = C G``, spread² and bias (flat, K)."""
+    G = (J.T @ J).toarray()
+    MT = Ls.T @ (Ls @ T)
+    H = G + lam * (Ls.T @ Ls).toarray()
+    try:
+        cho = sla.cho_factor(H, lower=True, overwrite_a=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        raise LftomoError(
+            f"the design's posterior precision is singular at λ = {lam:.3g}: some voxels are neither seen by "
+            "any camera nor tied to seen ones by the prior; use a stronger λ, a smaller grid, or cameras that "
+            "see the whole grid") from None
+    C = sla.cho_solve(cho, np.eye(H.shape[0]), check_finite=False)
+    C = 0.5 * (C + C.T)
+    R = C @ G
+    spread2 = np.maximum(np.einsum("ij,ij->i", R, C), 0.0)
+    bias = -lam * (C @ MT)
+    return G, C, R, spread2, bias
+
+
+def cramer_rao_bound(G: np.ndarray, hot: np.ndarray) -> np.ndarray:
+    """Marginal Cramér–Rao bound of the hot voxels, the others told exactly.
+
+    Parameters
+    ----------
+    G : ndarray, shape (n, n)
+        Fisher information ``JᵀJ`` of the voxel temperatures (1/K²).
+    hot : ndarray of bool, shape (n,)
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``sqrt((F_hot⁻¹)_ii)`` (K) on the hot voxels (``inf`` along directions
+        the data do not see), NaN elsewhere.
+    """
+    out = np.full(G.shape[0], np.nan)
+    idx = np.flatnonzero(hot)
+    if idx.size == 0:
+        return out
+    w, V = np.linalg.eigh(G[np.ix_(idx, idx)])
+    tiny = max(float(w.max()), 1e-300) * 1e-13
+    with np.errstate(divide="ignore"):
+        inv_w = np.where(w > tiny, 1.0 / np.maximum(w, tiny), np.inf)
+    var = np.einsum("ij,j,ij->i", V, np.where(np.isinf(inv_w), 0.0, inv_w), V)
+    blind = (np.abs(V[:, np.isinf(inv_w)]) > 1e-8).any(axis=1)
+    out[idx] = np.where(blind, np.inf, np.sqrt(var))
+    return out
+
+
+def psf_widths(psf: np.ndarray, grid: Grid, voxel: Sequence[int]) -> np.ndarray:
+    """RMS widths (m) along x, y, z of a point-spread function through ``voxel``.
+
+    Each width is that of ``|psf|`` on the grid line through ``voxel`` along
+    the axis, about its centroid: ``sqrt(Σ p (x − x̄)² / Σ p)`` × voxel size
+    (0 for a kernel confined to the voxel).
+
+    Parameters
+    ----------
+    psf : ndarray, shape grid.shape
+    grid : Grid
+    voxel : (i, j, k)
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
+    i, j, k = (int(v) for v in voxel)
+    lines = (psf[:, j, k], psf[i, :, k], psf[i, j, :])
+    out = np.empty(3)
+    for a, line in enumerate(lines):
+        p = np.abs(line)
+        if p.sum() == 0:
+            out[a] = np.nan
+            continue
+        x = np.arange(p.size)
+        mu = (p * x).sum() / p.sum()
+        out[a] = math.sqrt(float((p * (x - mu) ** 2).sum() / p.sum())) * float(grid.spacing[a])
+    return out
+
+
+def _default_probes(T: np.ndarray, hot: float) -> tuple:
+    """The hottest voxel and the hot region's centroid voxel (one probe if they coincide)."""
+    first = tuple(int(v) for v in np.unravel_index(int(np.argmax(T)), T.shape))
+    sel = np.argwhere(T > hot)
+    if sel.size == 0:
+        return (first,)
+    c = sel.mean(axis=0)
+    second = tuple(int(v) for v in sel[np.argmin(((sel - c) ** 2).sum(axis=1))])
+    return (first,) if second == first else (first, second)
+
+
+def _check_probes(probes: Any, shape: tuple) -> tuple:
+    try:
+        ps = tuple(tuple(int(v) for v in p) for p in probes)
+    except (TypeError, ValueError):
+        raise LftomoError(f"probes must be a sequence of (i, j, k) voxel indices, got {probes!r}") from None
+    for p in ps:
+        if len(p) != 3 or not all(0 <= v < n for v, n in zip(p, shape)):
+            raise LftomoError(f"probe {p} is not a voxel of the grid of shape {tuple(shape)}")
+    return ps
+
+
+def design(
+    rig: Any,
+    grid: Grid,
+    flame: Any,
+    *,
+    noise: float = 0.01,
+    wavelength: float = 650e-9,
+    rays_per_pixel: int = 64,
+    data_rays_per_pixel: int | None = None,
+    regularization: str | float = "auto",
+    prior: Any = None,
+    bounds: tuple[float, float] = (300.0, 3000.0),
+    hot: float = 800.0,
+    probes: Any = None,
+    seed: int = 0,
+    progress: bool | None = None,
+    dense_max: int = DESIGN_DENSE_MAX,
+) -> Design:
+    """Predict what a rig of plenoptic cameras resolves in a flame (module docstring).
+
+    Parameters
+    ----------
+    rig : Camera or sequence of Camera
+        The cameras, each with its pose (:class:`lftomo.Pose`).
+    grid : Grid
+        Reconstruction grid (at most ``dense_max`` voxels).
+    flame : Medium
+        The expected flame (temperature and absorption, any grid); its
+        effective fields on ``grid`` (:func:`lftomo.inverse.compare.effective_truth`)
+        are the linearisation point and the known ``sigma_a``.
+    noise : float
+        Relative measurement noise (e.g. 0.01).
+    wavelength : float
+        m.  Compare wavelengths with one design each.
+    rays_per_pixel : int
+        Rays of the weight matrices (their Monte Carlo error enters σ).
+    data_rays_per_pixel : int, optional
+        Rays of the render that stands in for the camera's images (its Monte
+        Carlo error enters σ too); default ``rays_per_pixel``.
+    regularization : "auto" or float
+        λ: ``"auto"`` reconstructs one simulated noisy measurement with the
+        library's default rule and uses its λ; a float fixes it.
+    prior : str or Prior, optional
+        A quadratic prior; default :data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`.
+    bounds : (T_min, T_max)
+        K, as for :func:`lftomo.reconstruct` (they scale the prior).
+    hot : float
+        K; the summaries and the Cramér–Rao bound cover the voxels above it.
+    probes : sequence of (i, j, k), optional
+        Voxels whose point-spread functions are computed; default the hottest
+        voxel and the hot region's central voxel.
+    seed : int
+        Seed of the renders, weights and noise.
+    progress : bool, optional
+        A progress bar over the stages (default: when stderr is a terminal).
+    dense_max : int
+        Largest voxel count.
+
+    Returns
+    -------
+    Design
+    """
+    import sys
+
+    from .._validate import require_int
+    from ..progress import progress_bar
+    from .compare import effective_truth
+    from .fieldposterior import precision_factors
+    from .problem import stack_problems
+    from .reconstruct import DEFAULT_PRIOR, problem_on_grid, reconstruct
+    from .regularizers import resolve_prior
+
+    cams = _cameras(rig)
+    rays_per_pixel = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
+    data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
+    _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max)
+    prior_name = resolve_prior(DEFAULT_PRIOR if prior is None else prior, quadratic_only=True,
+                               where="design (a Gaussian prior)").name
+    sa, T = effective_truth(flame, grid, float(wavelength))
+    probes = _default_probes(T, hot) if probes is None else _check_probes(probes, grid.shape)
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    bar = progress_bar(2 * len(cams) + 2, show, "design", unit="step")
+    clock: dict[str, float] = {}
+    try:
+        t0 = time.perf_counter()
+        ms, Ws = _measurements(cams, grid, flame, noise=noise, wavelength=float(wavelength),
+                               rays_per_pixel=rays_per_pixel, data_rays_per_pixel=data_rays, seed=seed, sa=sa,
+                               bar=bar)
+        clock["render_and_weights"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        rec = None
+        if regularization == "auto":
+            bar.set_postfix_str("reconstruct one draw (λ)")
+            rec = reconstruct(ms if len(ms) > 1 else ms[0], Ws if len(Ws) > 1 else Ws[0], prior=prior_name,
+                              bounds=bounds)
+            lam = float(rec.regularization)
+        else:
+            lam = float(regularization)
+        bar.update(1)
+        clock["regularization"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        bar.set_postfix_str("linear algebra")
+        problem = stack_problems([problem_on_grid(m, W, grid)[0] for m, W in zip(ms, Ws)])
+        J, Ls = precision_factors(problem, T, prior=prior_name, bounds=bounds)
+        G, C, R, spread2, bias = _linear_predictions(J, Ls, lam, T.ravel())
+        crb = cramer_rao_bound(G, T.ravel() > hot)
+        flat = [np.ravel_multi_index(p, grid.shape) for p in probes]
+        psf = np.stack([R[:, j].reshape(grid.shape) for j in flat])
+        widths = np.stack([psf_widths(p, grid, v) for p, v in zip(psf, probes)])
+        bar.update(1)
+        clock["linear_algebra"] = time.perf_counter() - t0
+    finally:
+        bar.close()
+    shape = grid.shape
+    return Design(grid=grid, T_true=T, T_std=np.sqrt(np.diag(C)).reshape(shape),
+                  T_spread=np.sqrt(spread2).reshape(shape), T_bias=bias.reshape(shape), crb=crb.reshape(shape),
+                  probes=probes, psf=psf, psf_widths=widths, regularization=lam,
+                  lambda_rule="fixed" if rec is None else rec.lambda_rule, prior=prior_name, hot=float(hot),
+                  n_data=int(problem.y.size), cameras=cams, wavelength=float(wavelength), noise=float(noise),
+                  rays_per_pixel=int(rays_per_pixel), reconstruction=rec, measurements=tuple(ms), weights=tuple(Ws),
+                  timing=clock)
+
+
+def _cos_sin_degrees(a: float) -> tuple[float, float]:
+    """cos and sin of ``a`` degrees, exact at multiples of 90° (so that quarter turns permute axes exactly)."""
+    if a % 90.0 == 0.0:
+        return {0: (1.0, 0.0), 1: (0.0, 1.0), 2: (-1.0, 0.0), 3: (0.0, -1.0)}[int(a // 90.0) % 4]
+    t = math.radians(a)
+    return math.cos(t), math.sin(t)
+
+
+def rig_around(camera: Any, center: Sequence[float], angles_deg: Sequence[float]) -> tuple:
+    """Copies of ``camera`` on a circle about the vertical (+y) axis through ``center``.
+
+    Camera ``k`` looks at ``center`` from the distance of ``camera``'s stop
+    to ``center``, rotated by ``angles_deg[k]`` about +y from ``camera``'s own
+    position (0° is ``camera`` itself), with +y up.
+
+    Parameters
+    ----------
+    camera : Camera
+    center : (x, y, z)
+        m, world frame.
+    angles_deg : sequence of float
+
+    Returns
+    -------
+    tuple of Camera
+    """
+    from ..forward.pose import Pose
+
+    c = np.asarray(center, dtype=float)
+    pose = camera.pose if camera.pose is not None else Pose.identity()
+    eye0 = np.asarray(pose.position, dtype=float) - c
+    out = []
+    for a in angles_deg:
+        co, si = _cos_sin_degrees(float(a))
+        rot = np.array([[co, 0.0, si], [0.0, 1.0, 0.0], [-si, 0.0, co]])
+        eye = c + rot @ eye0
+        out.append(camera.with_pose(Pose.look_at(eye=tuple(eye), target=tuple(c), up=(0.0, 1.0, 0.0))))
+    return tuple(out)
+
+
+def compare_designs(designs: Mapping[str, Design]) -> list[dict[str, Any]]:
+    """One summary row per named design (:meth:`Design.summary` plus ``name``), ranked by predicted error."""
+    rows = [{"name": str(k), **d.summary()} for k, d in designs.items()]
+    return sorted(rows, key=lambda r: r["predicted_mean_rel"])
+
+
+def design_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """A Markdown table of :func:`compare_designs` rows (percentages, mm)."""
+    head = ("| configuration | cameras | data | λ | predicted mean error | posterior std | CRB median "
+            "| CRB < 1 % | PSF width x / y / z (mm) | one draw |\n|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        wx, wy, wz = (1e3 * v for v in r["psf_width_mean_m"])
+        draw = f"{100 * r['reconstruction_mean_rel']:.2f} %" if "reconstruction_mean_rel" in r else "—"
+        lines.append(
+            f"| {r['name']} | {r['n_cameras']} | {r['n_data']} | {r['regularization']:.3g} "
+            f"| {100 * r['predicted_mean_rel']:.2f} % | {100 * r['posterior_std_mean_rel']:.2f} % "
+            f"| {100 * r['crb_median_rel']:.2f} % | {100 * r['crb_below_1pct']:.0f} % "
+            f"| {wx:.1f} / {wy:.1f} / {wz:.1f} | {draw} |")
+    return "\n".join(lines) + "\n"
+
+
+def standard_configurations(camera: Any, grid: Grid, *, wavelength: float = 650e-9) -> dict[str, dict[str, Any]]:
+    """The configurations an experimenter compares first, built around ``camera``.
+
+    Returns
+    -------
+    dict
+        name → ``{"rig": tuple of Camera, "wavelength": float, "ray_share": int}``
+        (``ray_share``: the number of cameras the rays are shared by, so that
+        every configuration traces the same total rays): one camera; two at
+        90° and three at 60° about the vertical axis through the grid centre;
+        the aperture stop halved; the focus on the grid's front face; 900 nm
+        against ``wavelength``; 8 pixels per microlens (the seed camera has 10).
+    """
+    import dataclasses
+
+    from ..forward.camera import Camera, Sensor
+
+    c = tuple(float(v) for v in grid.center)
+    stop = dataclasses.replace(camera.main_lens, stop_diameter=0.5 * camera.main_lens.stop_diameter)
+    front = float(grid.lower[2]) - float(camera.pose.position[2] if camera.pose is not None else 0.0)
+    ppl8 = Sensor(pixel_pitch=camera.mla.pitch / 8)
+
+    def refocused(**parts):
+        cam = Camera.focused(parts.pop("focus", camera.focus_distance or 1.0), main_lens=parts.get("main_lens",
+                             camera.main_lens), mla=camera.mla, sensor=parts.get("sensor", camera.sensor))
+        return cam if camera.pose is None else cam.with_pose(camera.pose)
+
+    one = {"wavelength": wavelength, "ray_share": 1}
+    return {
+        "one camera": {"rig": (camera,), **one},
+        "two cameras at 90°": {"rig": rig_around(camera, c, (0.0, 90.0)), "wavelength": wavelength, "ray_share": 2},
+        "three cameras at 60°": {"rig": rig_around(camera, c, (0.0, 60.0, 120.0)), "wavelength": wavelength,
+                                 "ray_share": 3},
+        "stop diameter / 2": {"rig": (refocused(main_lens=stop),), **one},
+        "focus on the front face": {"rig": (refocused(focus=front),), **one},
+        "900 nm": {"rig": (camera,), "wavelength": 900e-9, "ray_share": 1},
+        "8 px per microlens": {"rig": (refocused(sensor=ppl8),), **one},
+    }
+
+
+def design_configurations(configs: Mapping[str, Mapping[str, Any]], grid: Grid, flame: Any, *,
+                          rays_per_pixel: int = 64, progress: bool | None = None, **options: Any) -> dict[str, Design]:
+    """:func:`design` of each configuration of :func:`standard_configurations` (or the same form).
+
+    Each camera of a rig of ``ray_share`` cameras traces
+    ``rays_per_pixel // ray_share`` rays per pixel (the same total).
+    ``options`` go to :func:`design`.  Returns name → Design, in order.
+    """
+    from ..progress import progress_bar
+    import sys
+
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    bar = progress_bar(len(configs), show, "configurations", unit="config")
+    out = {}
+    try:
+        for name, cfg in configs.items():
+            bar.set_postfix_str(name)
+            rays = max(1, int(rays_per_pixel) // int(cfg.get("ray_share", 1)))
+            out[name] = design(cfg["rig"], grid, flame, wavelength=cfg.get("wavelength", 650e-9),
+                               rays_per_pixel=rays, progress=False, **options)
+            bar.update(1)
+    finally:
+        bar.close()
+    return out

@@ -1,0 +1,139 @@
+"""lt.design: the linearised predictions of a rig's reconstruction, checked against reconstructions."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import lftomo as lt
+from lftomo import radiation as rad
+from lftomo.inverse.design import compare_designs, cramer_rao_bound, design, design_table, psf_widths
+from lftomo.inverse.reconstruct import reconstruct
+
+WL = 650e-9
+
+
+@pytest.fixture(scope="module")
+def blob_design():
+    """A 12 x 12-lenslet seed camera, a Gaussian flame on a 10³ grid, its design on the 5³ grid of the same box."""
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    grid = lt.Grid(shape=(5, 5, 5), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    fine = lt.Grid(shape=(10, 10, 10), lower=grid.lower, upper=grid.upper)
+    flame = lt.phantoms.gaussian_blob(fine, center=(0.0, 0.0, 1.0), width=0.004, T_peak=1800.0,
+                                      T_ambient=300.0, sigma_a_peak=30.0)
+    d = design(cam, grid, flame, noise=0.01, rays_per_pixel=64, regularization=100.0, progress=False)
+    return cam, grid, flame, d
+
+
+def _model_data(d):
+    """The model's noise-free data at the true field (the linearisation's own setting) and the problem."""
+    m, W = d.measurements[0], d.weights[0]
+    p = m.problem(W, d.grid)
+    return m, W, p.A @ rad.planck(d.T_true.ravel(), WL) + p.background
+
+
+@pytest.mark.heavy  # ten reconstructions: ~2 min on 2 cores
+def test_predicted_spread_matches_reconstructions_over_noise_draws(blob_design):
+    """The design's spread sqrt(diag(H⁻¹JᵀJH⁻¹)) against the standard deviation of 10 reconstructions (fixed λ,
+    noise drawn with the design's σ about the model's data at the true field).  Per voxel the sample std of 10
+    draws has a relative standard error of 1/√18 ≈ 24 %; the median over the 57 voxels above 1000 K has ≈ 4 %,
+    so a median ratio within 25 % of 1 is a > 5σ check of the prediction (a factor √2 error in σ fails it)."""
+    cam, grid, flame, d = blob_design
+    m, W, y0 = _model_data(d)
+    rng = np.random.default_rng(5)
+    Ts = np.array([reconstruct(dataclasses.replace(m, y=y0 + m.sigma * rng.standard_normal(y0.size)), W,
+                               regularization=d.regularization).T for _ in range(10)])
+    hot = d.T_true > 1000.0
+    ratio = np.median(Ts.std(axis=0, ddof=1)[hot] / d.T_spread[hot])
+    assert 0.75 <= ratio <= 1.25, ratio
+    assert np.all(d.T_std >= d.T_spread * (1 - 1e-9))  # the posterior std includes the prior's share
+
+
+def test_point_spread_function_is_the_reconstruction_of_a_point_change(blob_design):
+    """R[:, j] against (T̂(T + δ e_j) − T̂(T − δ e_j)) / 2δ from noise-free model data, fixed λ: the same kernel (within
+    15 % in L2 over the flame) and the same widths (within 0.1 voxel) at the hottest voxel."""
+    cam, grid, flame, d = blob_design
+    m, W, _ = _model_data(d)
+    probe = d.probes[0]
+    j = np.ravel_multi_index(probe, grid.shape)
+    delta = 30.0  # central difference: Planck's second order cancels; the solves' ~0.03 K error is 5e-4 of 2δ
+    p = m.problem(W, grid)
+    kw = dict(regularization=d.regularization, max_steps=1000)
+    fields = []
+    for sign in (1.0, -1.0):
+        T1 = d.T_true.ravel().copy()
+        T1[j] += sign * delta
+        y1 = p.A @ rad.planck(T1, WL) + p.background
+        fields.append(reconstruct(dataclasses.replace(m, y=y1), W, **kw).T)
+    kernel = (fields[0] - fields[1]) / (2 * delta)
+    psf = d.psf[0]
+    # over the flame (> 800 K): a voxel at the 300 K lower bound cannot move in the bounded fit, only in the
+    # linearisation (the prediction is made for the hot voxels).  The design linearises at the truth, the fit's
+    # kernel is about its own (prior-biased, up to 107 K here) field: measured 12.6 % apart in L2 (2.9 % when
+    # the linearisation is made at the fit's field), hence 15 %; the kernel of λ/2 or 4λ is 17.8–18.9 % away.
+    hot = d.T_true > 800.0
+    assert np.linalg.norm((kernel - psf)[hot]) <= 0.15 * np.linalg.norm(psf[hot])
+    assert np.allclose(psf_widths(kernel, grid, probe), d.psf_widths[0], atol=0.1 * float(grid.spacing.min()))
+
+
+def test_cramer_rao_bound_is_the_inverse_fisher_diagonal():
+    """On a well-posed random Fisher matrix the bound is sqrt(diag F⁻¹) of the hot block; a direction the data
+    do not see makes the voxels on it unbounded."""
+    rng = np.random.default_rng(0)
+    J = rng.standard_normal((40, 6))
+    G = J.T @ J
+    hot = np.array([True, True, False, True, True, False])
+    idx = np.flatnonzero(hot)
+    expect = np.sqrt(np.diag(np.linalg.inv(G[np.ix_(idx, idx)])))
+    got = cramer_rao_bound(G, hot)
+    assert np.allclose(got[idx], expect, rtol=1e-10) and np.isnan(got[~hot]).all()
+    J[:, 0] = 0.0  # voxel 0 unseen
+    got = cramer_rao_bound(J.T @ J, hot)
+    assert np.isinf(got[0]) and np.isfinite(got[[1, 3, 4]]).all()
+
+
+def test_summary_table_and_figures(blob_design, tmp_path):
+    cam, grid, flame, d = blob_design
+    s = d.summary()
+    assert s["n_cameras"] == 1 and s["hot_voxels"] == int((d.T_true > 800).sum())
+    assert s["posterior_std_mean_rel"] >= s["spread_mean_rel"] > 0
+    rows = compare_designs({"one camera": d, "same again": d})
+    table = design_table(rows)
+    assert table.count("\n") == 4 and "one camera" in table
+    paths = d.figures(tmp_path)
+    assert len(paths) == 3 + len(d.probes) and all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_design_refuses_bad_input(blob_design):
+    cam, grid, flame, d = blob_design
+    with pytest.raises(lt.LftomoError, match="rig has no cameras"):
+        design([], grid, flame)
+    with pytest.raises(lt.LftomoError, match=r"rig\[1\] must be an lftomo.Camera"):
+        design([cam, "camera"], grid, flame)
+    with pytest.raises(lt.LftomoError, match="noise must be > 0"):
+        design(cam, grid, flame, noise=0.0)
+    with pytest.raises(lt.LftomoError, match="wavelength must be in m"):
+        design(cam, grid, flame, wavelength=650.0)
+    big = lt.Grid(shape=(17, 17, 17), lower=grid.lower, upper=grid.upper)
+    with pytest.raises(lt.LftomoError, match="at most dense_max=4096"):
+        design(cam, big, flame)
+    with pytest.raises(ValueError, match="Gaussian prior"):
+        design(cam, grid, flame, prior="tv")
+    with pytest.raises(lt.LftomoError, match="probe"):
+        design(cam, grid, flame, probes=[(5, 0, 0)])
+
+
+def test_a_second_camera_can_only_shrink_the_posterior(blob_design):
+    """At a fixed λ a second camera adds J₂ᵀJ₂ ⪰ 0 to the precision, so every voxel's posterior variance can only
+    fall; the camera at 90° (rig_around) is the issue's pose, sees the blob from the side (other data), and the
+    rig's data are the two cameras' together."""
+    cam, grid, flame, d = blob_design
+    rig = lt.rig_around(cam, grid.center, (0.0, 90.0))
+    assert rig[0] == cam and rig[1].pose == lt.Pose.look_at(eye=(-1.0, 0.0, 1.0), target=(0.0, 0.0, 1.0))
+    d2 = design(rig, grid, flame, noise=0.01, rays_per_pixel=64, regularization=d.regularization, progress=False)
+    side = d2.weights[1]
+    assert d2.n_data == d.n_data + d2.measurements[1].y.size
+    assert abs(side.matrix - d.weights[0].matrix).sum() > 0.1 * abs(side.matrix).sum()
+    assert np.all(d2.T_std <= d.T_std * (1 + 1e-9))
+    hot = d.T_true > 1200
+    assert np.mean(d2.T_std[hot]) < 0.9 * np.mean(d.T_std[hot])
