@@ -86,11 +86,12 @@ NB07 = [
     deviations of two designs are not comparable voxel by voxel (at one λ a second camera can only lower
     them).  What is compared is the predicted error against the error of the design's reconstruction.
     On the standard flame the second camera is predicted to cut the error by more than half, and the
-    reconstruction confirms it.  On the two-lobed flame at 8³ the lobes are 1–2 voxels wide: the one
-    camera's rule falls back to a small λ, where the linearised prediction explodes (the data do not fix
-    the depth), while the reconstructions of both configurations are limited by the coarse grid's model
-    error (which the prediction does not include).  The ranking still agrees; the 16³ numbers on the full
-    seed camera are in `docs/experiment_design.md`.
+    reconstruction confirms it.  On the two-lobed flame at 8³ the lobes are 1–2 voxels wide.  The single
+    camera's predicted error and posterior std are of order 100 %: the curvature prior leaves linear
+    trends free, and one camera does not fix them along its line of sight (its Cramér–Rao bound is of
+    the same order).  The reconstructions of both configurations are limited by the coarse grid's model
+    error, which the prediction does not include (16.4 % and 16.3 % in one run).  The ranking still
+    agrees; the 16³ numbers on the full seed camera are in `docs/experiment_design.md`.
     """),
     code("""
     rows = []
