@@ -36,10 +36,6 @@ from __future__ import annotations
 import collections
 import functools
 import hashlib
-import itertools
-import threading
-import weakref
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -48,15 +44,13 @@ import scipy.sparse as sp
 from jax.custom_derivatives import SymbolicZero, linear_call
 
 from ..interrupt import check_interrupt
+from .hostregistry import ContentRegistry, content_hash
 from .hostsparse import SCIPY_LOCK, csr_product
 
 __all__ = ["HostForward", "host_forward"]
 
-_TABLES: dict[int, Any] = {}
-_CACHES: dict[int, collections.OrderedDict] = {}
-_LIVE: dict[int, int] = {}  # handle -> number of live HostForward objects made by host_forward with it
-_COUNTER = itertools.count(1)  # fresh handles after a hash collision: 1, 2, ... (content handles are >= 2**32)
-_REGISTRY_LOCK = threading.RLock()  # re-entrant: a finaliser may run while host_forward holds it
+_STORE = ContentRegistry()  # handle -> (table, its cache of linearisation points)
+_TABLES = _STORE.values
 _CACHE_POINTS = 6  # two or three channels × (current point, trial point)
 
 
@@ -80,11 +74,11 @@ def _point(handle: int, Ib, sa) -> _Point:
     Ib = np.ascontiguousarray(Ib, dtype=np.float64)
     sa = np.ascontiguousarray(sa, dtype=np.float64)
     key = hashlib.blake2b(Ib.tobytes() + sa.tobytes(), digest_size=16).digest()
-    cache = _CACHES[handle]
+    table, cache = _TABLES[handle]
     p = cache.get(key)
     if p is None:
         with SCIPY_LOCK:
-            p = _Point(_TABLES[handle], Ib, sa)
+            p = _Point(table, Ib, sa)
         cache[key] = p
         while len(cache) > _CACHE_POINTS:
             cache.popitem(last=False)
@@ -102,30 +96,13 @@ def _table_arrays(segments) -> tuple:
 
 
 def _content_handle(arrays: tuple) -> int:
-    """A handle >= 2**32 from a table's arrays (64-bit BLAKE2b of their dtypes, shapes and bytes)."""
-    h = hashlib.blake2b(digest_size=8)
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(a.tobytes())
-    return int.from_bytes(h.digest(), "little") | (1 << 32)
+    """A handle >= 2**32 from a table's arrays."""
+    return content_hash(arrays)
 
 
 def _same_table(a, b) -> bool:
     return a is b or all(x.dtype == y.dtype and np.array_equal(x, y)
                          for x, y in zip(_table_arrays(a), _table_arrays(b)))
-
-
-def _release(key: int) -> None:
-    """One :class:`HostForward` with ``key`` is gone; drop the table with the last one."""
-    with _REGISTRY_LOCK:
-        n = _LIVE.get(key, 0) - 1
-        if n > 0:
-            _LIVE[key] = n
-        else:
-            _LIVE.pop(key, None)
-            _TABLES.pop(key, None)
-            _CACHES.pop(key, None)
 
 
 @functools.lru_cache(maxsize=None)
@@ -224,17 +201,8 @@ def host_forward(segments) -> HostForward:
         alive.
     """
     arrays = _table_arrays(segments)
-    key = _content_handle(arrays)
-    with _REGISTRY_LOCK:
-        _LIVE[key] = _LIVE.get(key, 0) + 1  # counted first: a finaliser running meanwhile keeps the entry
-        table = _TABLES.get(key)
-        if table is not None and not _same_table(table, segments):  # hash collision with another table
-            _LIVE[key] -= 1  # >= 1: the other table's objects are alive
-            key, table = next(_COUNTER), None
-            _LIVE[key] = 1
-        if table is None:
-            _TABLES[key] = segments
-            _CACHES[key] = collections.OrderedDict()
+    key = _STORE.register(_content_handle(arrays), lambda: (segments, collections.OrderedDict()),
+                          lambda entry: _same_table(entry[0], segments))
     F = HostForward(key, segments.n_rows, segments.n_voxels)
-    weakref.finalize(F, _release, key)
+    _STORE.hold(F, key)
     return F

@@ -30,10 +30,7 @@ numba's default threading layer does not allow concurrent parallel launches.
 
 from __future__ import annotations
 
-import hashlib
-import itertools
 import threading
-import weakref
 from typing import Any
 
 import jax
@@ -44,13 +41,12 @@ from jax.custom_derivatives import linear_call
 from numba import get_num_threads, njit, prange
 
 from ..interrupt import check_interrupt
+from .hostregistry import ContentRegistry, content_hash
 
 __all__ = ["HostCSR", "host_csr", "projected_normal_equations", "SCIPY_LOCK"]
 
-_REGISTRY: dict[int, tuple[sp.csr_matrix, sp.csr_matrix]] = {}
-_LIVE: dict[int, int] = {}  # handle -> number of live HostCSR objects with it
-_COUNTER = itertools.count(1)  # fresh handles after a hash collision: 1, 2, ... (content handles are >= 2**32)
-_REGISTRY_LOCK = threading.RLock()  # re-entrant: a finaliser may run while host_csr holds it
+_STORE = ContentRegistry()  # handle -> (A, Aᵀ) as CSR
+_REGISTRY = _STORE.values
 
 
 #: Serialises the host kernels' calls into scipy / numba (held by hostsegments too).
@@ -163,44 +159,20 @@ def host_csr(matrix: Any) -> HostCSR:
     A = sp.csr_matrix(matrix, dtype=np.float64, copy=True)
     A.sum_duplicates()
     A.sort_indices()
-    key = _content_handle(A)
-    with _REGISTRY_LOCK:
-        _LIVE[key] = _LIVE.get(key, 0) + 1  # counted first: a finaliser running meanwhile keeps the entry
-        entry = _REGISTRY.get(key)
-        if entry is not None and not _same_csr(entry[0], A):  # hash collision with another matrix
-            _LIVE[key] -= 1  # >= 1: the other matrix's objects are alive
-            key, entry = next(_COUNTER), None
-            _LIVE[key] = 1
-        if entry is None:
-            _REGISTRY[key] = (A, A.T.tocsr())
+    key = _STORE.register(_content_handle(A), lambda: (A, A.T.tocsr()), lambda entry: _same_csr(entry[0], A))
     op = HostCSR(key, A.shape)
-    weakref.finalize(op, _release, key)
+    _STORE.hold(op, key)
     return op
 
 
 def _content_handle(A: sp.csr_matrix) -> int:
-    """A handle >= 2**32 from the shape and CSR arrays of ``A`` (64-bit BLAKE2b)."""
-    h = hashlib.blake2b(digest_size=8)
-    h.update(np.asarray(A.shape, dtype=np.int64).tobytes())
-    for a in (A.indptr, A.indices, A.data):
-        h.update(np.ascontiguousarray(a).tobytes())
-    return int.from_bytes(h.digest(), "little") | (1 << 32)
+    """A handle >= 2**32 from the shape and CSR arrays of ``A``."""
+    return content_hash((np.asarray(A.shape, dtype=np.int64), A.indptr, A.indices, A.data))
 
 
 def _same_csr(A: sp.csr_matrix, B: sp.csr_matrix) -> bool:
     return (A.shape == B.shape and np.array_equal(A.indptr, B.indptr) and np.array_equal(A.indices, B.indices)
             and np.array_equal(A.data, B.data))
-
-
-def _release(key: int) -> None:
-    """One :class:`HostCSR` with ``key`` is gone; drop the matrix with the last one."""
-    with _REGISTRY_LOCK:
-        n = _LIVE.get(key, 0) - 1
-        if n > 0:
-            _LIVE[key] = n
-        else:
-            _LIVE.pop(key, None)
-            _REGISTRY.pop(key, None)
 
 
 @njit(cache=True, parallel=True)
