@@ -498,6 +498,49 @@ def _add_sampler(p: argparse.ArgumentParser, what: str) -> None:
                         f"else {DEFAULT_SAMPLER!r}")
 
 
+def _add_series_parser(sub) -> None:
+    """The ``series`` sub-command (its options mirror ``reconstruct``'s)."""
+    sr = sub.add_parser("series", help="reconstruct a time-resolved series of light fields, one Dask task per "
+                                       "frame (resumable; a summary figure)")
+    sr.add_argument("frames", nargs="+", metavar="FRAMES",
+                    help="light-field .npz files (lftomo render / LightField.save), or raw frames with --calibration, "
+                         "in time order; and one SCENE.toml among them, whose camera and [medium] give the weight "
+                         "matrix (or --weights)")
+    sr.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
+    sr.add_argument("-o", "--output", default="lftomo-series", help="output directory (a rerun resumes there)")
+    sr.add_argument("--scheduler", default=None, help="address of a Dask scheduler, e.g. tcp://host:8786 "
+                                                      "(default: a local cluster)")
+    sr.add_argument("--workers", type=_pos_int, default=None,
+                    help="processes of the local cluster, one thread each (default: the usable cores)")
+    sr.add_argument("--noise", type=_pos_float, default=None,
+                    help="relative Gaussian noise added to noise-free frames (seed --seed + frame index)")
+    sr.add_argument("--seed", type=_seed, default=0, help="base noise seed (default 0)")
+    sr.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
+    sr.add_argument("--depths", type=_depths, default=None, help="refocus depths in m, comma-separated")
+    sr.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
+    sr.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
+                    help="lambda rule with --regularization auto")
+    sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
+                    help="smoothness prior (default: the library's, curvature)")
+    sr.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
+                    help="discrepancy rule: trust sigma (given, the default) or estimate its scale")
+    sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
+    sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
+    sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")
+    sr.add_argument("--frame-rate", type=_pos_float, default=None, help="frames per second, for the figure's time axis")
+    sr.add_argument("--calibration", default=None, help="raw frames (PNG, TIFF, .npy) of the SCENE's camera: the "
+                                                        "calibration .npz of lftomo calibrate with --blackbody")
+    sr.add_argument("--dark", default=None, help="with --calibration: dark frame (same exposure, lens capped)")
+    sr.add_argument("--dark-frames", type=_pos_int, default=None, help="with --calibration: frames averaged in --dark")
+    sr.add_argument("--camera", default=None, help="with --calibration: camera TOML (gain, read noise, bit depth) "
+                                                   "if the calibration did not record them")
+    sr.add_argument("--recon-shape", type=_shape3, default=None,
+                    help="with --calibration: reconstruction grid nx,ny,nz (default half the [medium] shape)")
+    sr.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_allow_outside(sr)
+    sr.set_defaults(func=cmd_series)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -597,45 +640,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_allow_outside(rc)
     rc.set_defaults(func=cmd_reconstruct)
-    sr = sub.add_parser("series", help="reconstruct a time-resolved series of light fields, one Dask task per "
-                                       "frame (resumable; a summary figure)")
-    sr.add_argument("frames", nargs="+", metavar="FRAMES",
-                    help="light-field .npz files (lftomo render / LightField.save), or raw frames with --calibration, "
-                         "in time order; and one SCENE.toml among them, whose camera and [medium] give the weight "
-                         "matrix (or --weights)")
-    sr.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
-    sr.add_argument("-o", "--output", default="lftomo-series", help="output directory (a rerun resumes there)")
-    sr.add_argument("--scheduler", default=None, help="address of a Dask scheduler, e.g. tcp://host:8786 "
-                                                      "(default: a local cluster)")
-    sr.add_argument("--workers", type=_pos_int, default=None,
-                    help="processes of the local cluster, one thread each (default: the usable cores)")
-    sr.add_argument("--noise", type=_pos_float, default=None,
-                    help="relative Gaussian noise added to noise-free frames (seed --seed + frame index)")
-    sr.add_argument("--seed", type=_seed, default=0, help="base noise seed (default 0)")
-    sr.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
-    sr.add_argument("--depths", type=_depths, default=None, help="refocus depths in m, comma-separated")
-    sr.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
-    sr.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
-                    help="lambda rule with --regularization auto")
-    sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
-                    help="smoothness prior (default: the library's, curvature)")
-    sr.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
-                    help="discrepancy rule: trust sigma (given, the default) or estimate its scale")
-    sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
-    sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
-    sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")
-    sr.add_argument("--frame-rate", type=_pos_float, default=None, help="frames per second, for the figure's time axis")
-    sr.add_argument("--calibration", default=None, help="raw frames (PNG, TIFF, .npy) of the SCENE's camera: the "
-                                                        "calibration .npz of lftomo calibrate with --blackbody")
-    sr.add_argument("--dark", default=None, help="with --calibration: dark frame (same exposure, lens capped)")
-    sr.add_argument("--dark-frames", type=_pos_int, default=None, help="with --calibration: frames averaged in --dark")
-    sr.add_argument("--camera", default=None, help="with --calibration: camera TOML (gain, read noise, bit depth) "
-                                                   "if the calibration did not record them")
-    sr.add_argument("--recon-shape", type=_shape3, default=None,
-                    help="with --calibration: reconstruction grid nx,ny,nz (default half the [medium] shape)")
-    sr.add_argument("--quiet", action="store_true", help="no progress bar")
-    _add_allow_outside(sr)
-    sr.set_defaults(func=cmd_series)
+    _add_series_parser(sub)
     cal = sub.add_parser("calibrate", help="microlens grid (and radiometric factors) of a real camera from a "
                                            "white frame (and a blackbody frame): PNG, TIFF or .npy")
     cal.add_argument("white", help="white (flat-field) raw frame")
