@@ -669,9 +669,9 @@ class Camera:
         return _sampler.microlens_images(self.packed, self.microlens_image_centers, self.microlens_image_radius)
 
     @cached_property
-    def lenslet_sampling_disc(self) -> tuple[float, float]:
-        """``(kappa, rho)`` of the lenslet disc the stratified sampler draws
-        from (:func:`lftomo.forward.sampler.lenslet_disc`)."""
+    def lenslet_sampling_disc(self) -> tuple[float, float, float, np.ndarray]:
+        """``(kappa, rho, d_step, radii)`` of the lenslet disc the stratified
+        sampler draws from (:func:`lftomo.forward.sampler.lenslet_disc`)."""
         return _sampler.lenslet_disc(self.packed)
 
     def sampler_arrays(self, sampler: str, n_rays: int) -> tuple[np.ndarray, np.ndarray]:

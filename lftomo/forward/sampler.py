@@ -19,13 +19,15 @@ unbiased for ``Φ``.  Two samplers:
     pixel-area pair is mapped to a box that contains the part of the pixel
     inside its microlens image (the image of the main-lens exit pupil; the
     box is the bounding box of pixel ∩ a conservative disc about the image
-    centre), the lenslet pair to a disc that contains every crossing point of
-    a ray that passes the lenslet's clear aperture from that sensor point
-    (concentric map of Shirley & Chiu 1997, area preserving).  A defensive
+    centre, :func:`microlens_images`).  The lenslet pair is mapped to a disc that contains every
+    crossing point of a ray that passes the lenslet's clear aperture from
+    that sensor point, its radius tabulated against the sensor point's
+    distance from the lenslet axis (:func:`lenslet_disc`; concentric map of
+    Shirley & Chiu 1997, area preserving).  A defensive
     mixture (Hesterberg 1995) of probability ``alpha`` draws the sample
-    from the whole pixel and the whole sampling disc instead, and every
+    from the whole pixel and the whole clear aperture instead, and every
     sample is weighted by the mixture density, so the estimator stays
-    unbiased even where the restricted region would miss light.  Groups are
+    unbiased even where the lenslet disc or the box would miss light.  Groups are
     independent unbiased estimates: their spread gives an honest standard
     error (:func:`group_variance`).
 ``"independent"`` (the default, :data:`DEFAULT_SAMPLER`)
@@ -74,8 +76,13 @@ S_KIND = 0  # 0: independent, 1: stratified
 S_GROUPS = 1  # K, number of independent randomizations
 S_ALPHA = 2  # defensive mixture probability
 S_KAPPA = 3  # centre of the passing lenslet disc: c + kappa (s - c)
-S_RHO = 4  # its radius (m), on the back surface projected on the xy plane
-S_SIZE = 5
+S_RHO = 4  # its largest radius (m), on the back surface projected on the xy plane
+S_DSTEP = 5  # spacing (m) of the radius table in the sensor offset |s − c|
+S_NTAB = 6  # number of table entries
+S_TAB = 7  # first entry: radius (m) at |s − c| = 0, S_DSTEP, 2 S_DSTEP, ...
+#: Entries of the lenslet-disc radius table.
+N_RHO_TABLE = 17
+S_SIZE = S_TAB + N_RHO_TABLE
 
 # ---- microlens-image table, (n_lenslets, 3): centre row, centre col, radius
 # in pixel-corner coordinates (pixel (r, c) covers [r, r+1) x [c, c+1)).
@@ -301,15 +308,6 @@ def pixel_ray_world(row, col, m, n_rays, key, state, optics, sampler, mli):
 def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
     sp = optics[_o.O_S_PITCH]
     ppl = int(optics[_o.O_S_PPL])
-    k_groups = int(sampler[S_GROUPS])
-    g = m % k_groups
-    idx = m // k_groups
-    # one well-mixed scrambling seed per (group, dimension): the Laine–Karras
-    # hash only scrambles, related seeds would give correlated dimensions
-    u1 = scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1))
-    u2 = scrambled_sobol(idx, 1, rng_init(key, 4 * g + 2))
-    a1 = scrambled_sobol(idx, 2, rng_init(key, 4 * g + 3))
-    a2 = scrambled_sobol(idx, 3, rng_init(key, 4 * g + 4))
     i = row // ppl
     j = col // ppl
     psel = 1.0
@@ -327,6 +325,15 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     if has_box and a_box <= 0.0:
         has_box = False
         alpha = 1.0
+    k_groups = int(sampler[S_GROUPS])
+    g = m % k_groups
+    idx = m // k_groups
+    # one well-mixed scrambling seed per (group, dimension): the Laine–Karras
+    # hash only scrambles, related seeds would give correlated dimensions
+    u1 = scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1))
+    u2 = scrambled_sobol(idx, 1, rng_init(key, 4 * g + 2))
+    a1 = scrambled_sobol(idx, 2, rng_init(key, 4 * g + 3))
+    a2 = scrambled_sobol(idx, 3, rng_init(key, 4 * g + 4))
     use_full = alpha >= 1.0 or _hash_uniform(key, m, 0xDEFE75E) < alpha
     if use_full:
         fr = r0 + u2
@@ -342,7 +349,7 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     # pass both lenslet apertures, or (defensive) the whole clear aperture
     cx, cy = _o.lenslet_center(i, j, optics)
     rc = optics[_o.O_M_R]
-    rho = sampler[S_RHO]
+    rho = disc_radius(math.sqrt((sx - cx) ** 2 + (sy - cy) ** 2), sampler)
     bx = cx + sampler[S_KAPPA] * (sx - cx)
     by = cy + sampler[S_KAPPA] * (sy - cy)
     ax, ay = concentric_disc(a1, a2)
@@ -379,6 +386,23 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     return state, True, x, y, 0.0, dx, dy, dz, w
 
 
+@njit(cache=True, inline="always")
+def disc_radius(d, sampler):
+    """Radius (m) of the lenslet sampling disc for a sensor point ``d`` (m)
+    from the lenslet's axis: linear in the table of :func:`lenslet_disc`,
+    its largest radius beyond the table."""
+    step = sampler[S_DSTEP]
+    n = int(sampler[S_NTAB])
+    if n < 2 or step <= 0.0:
+        return sampler[S_RHO]
+    t = d / step
+    k = int(t)
+    if k >= n - 1:
+        return sampler[S_RHO]
+    f = t - k
+    return (1.0 - f) * sampler[S_TAB + k] + f * sampler[S_TAB + k + 1]
+
+
 # ---------------------------------------------------------------------------
 # per-camera tables
 # ---------------------------------------------------------------------------
@@ -389,24 +413,37 @@ def group_count(n_rays: int) -> int:
     return int(min(N_GROUPS, max(int(n_rays), 1)))
 
 
-def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0) -> np.ndarray:
+def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0,
+                 d_step: float = 0.0, radii=None) -> np.ndarray:
     """Packed sampler (``S_*`` layout) for ``n_rays`` samples per pixel.
 
-    ``kappa`` and ``rho`` (m) are the lenslet sampling disc of
-    :func:`lenslet_disc`; the stratified sampler needs ``rho > 0`` (its
-    restricted component would have zero measure otherwise).
+    ``kappa``, ``rho`` (m), ``d_step`` (m) and ``radii`` (m, up to
+    :data:`N_RHO_TABLE` entries) are the lenslet sampling disc of
+    :func:`lenslet_disc`: its centre ``c + kappa (s − c)``, its radius
+    ``radii`` tabulated at sensor offsets ``|s − c| = 0, d_step, …`` and
+    ``rho`` beyond the table.  Without a table every sensor point uses
+    ``rho``.  The stratified sampler needs ``rho > 0`` (its restricted
+    component would have zero measure otherwise).
     """
     if kind not in SAMPLERS:
         raise ValueError(f"sampler must be one of {SAMPLERS}, got {kind!r}")
     if kind == "stratified" and not (math.isfinite(rho) and rho > 0.0 and math.isfinite(kappa)):
         raise ValueError(f"the stratified sampler needs the lenslet sampling disc (kappa, rho) of "
                          f":func:`lenslet_disc`, with rho > 0 m; got kappa = {kappa!r}, rho = {rho!r}")
+    radii = np.zeros(0) if radii is None else np.asarray(radii, dtype=float)
+    if radii.size > N_RHO_TABLE or not np.all(np.isfinite(radii)) or np.any(radii <= 0.0) or np.any(radii > rho):
+        raise ValueError(f"radii must be at most {N_RHO_TABLE} positive radii no larger than rho = {rho!r} m, "
+                         f"got {radii!r}")
     s = np.zeros(S_SIZE)
     s[S_KIND] = 1.0 if kind == "stratified" else 0.0
     s[S_GROUPS] = group_count(n_rays)
     s[S_ALPHA] = DEFENSIVE_FRACTION
     s[S_KAPPA] = kappa
     s[S_RHO] = rho
+    if radii.size >= 2 and d_step > 0.0:
+        s[S_DSTEP] = d_step
+        s[S_NTAB] = radii.size
+        s[S_TAB:S_TAB + radii.size] = radii
     s.setflags(write=False)
     return s
 
@@ -447,16 +484,46 @@ def _bisect_edge(sx, sy, bx, by, ux, uy, i, j, optics):
     return hi
 
 
-def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float]:
+def _edge_radius(optics, cx, cy, kappa, d, n_dirs, n_angles, i, j):
+    """Largest distance from the disc centre ``c + κ (s − c)`` to the edge of
+    the passing set, over sensor points ``s`` at distance ``d`` from the
+    lenslet axis in ``n_dirs`` directions and ``n_angles`` edge directions."""
+    out = 0.0
+    for t in range(n_dirs if d > 0.0 else 1):
+        psi = 2.0 * math.pi * (t + 0.125) / n_dirs
+        ox, oy = d * math.cos(psi), d * math.sin(psi)
+        bx, by = cx + kappa * ox, cy + kappa * oy
+        for a in range(n_angles):
+            phi = 2.0 * math.pi * (a + 0.5) / n_angles
+            out = max(out, _bisect_edge(cx + ox, cy + oy, bx, by, math.cos(phi), math.sin(phi), i, j, optics))
+    return out
+
+
+def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float, float, np.ndarray]:
     """Disc on the lenslet's back surface that holds the rays passing the lenslet.
 
     From a sensor point ``s`` the rays that pass both clear apertures of a
     lenslet cross its back surface (coordinates projected on the xy plane) in
     a near-disc whose centre moves with ``s``: ``c + κ (s − c)``.  κ is fitted
     to the centres of the passing sets of 24 sensor points over the central
-    lenslet's pixel block (their extents found by bisection); the radius is
-    the largest edge distance, by bisection along ``n_angles`` directions from
-    each fitted centre, padded by 0.3 %.  Returns ``(kappa, rho)`` (1, m).
+    lenslet's pixel block (their extents found by bisection).  The disc's
+    radius grows with ``d = |s − c|`` (at ``d = 0`` the passing set is the
+    clear aperture itself): it is tabulated at :data:`N_RHO_TABLE` offsets
+    from 0 to the block's corner as the largest edge distance (bisection
+    along ``n_angles`` directions from the centre, four directions of
+    ``s``), raised wherever linear interpolation would fall short of the
+    edge distance found half-way between entries, and padded by 0.02 %.
+
+    Returns
+    -------
+    kappa : float
+        Centre factor (1).
+    rho : float
+        Largest radius (m), used beyond the table.
+    d_step : float
+        Spacing of the table in ``d`` (m).
+    radii : ndarray, shape (N_RHO_TABLE,)
+        Radius (m) at ``d = 0, d_step, 2 d_step, …``.
     """
     ppl = int(optics[_o.O_S_PPL])
     half = 0.5 * ppl * optics[_o.O_S_PITCH]
@@ -478,13 +545,19 @@ def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float]
     if den == 0.0:
         raise ValueError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
     kappa = num / den
-    rho = 0.0
-    for ox, oy in offs:
-        bx, by = cx + kappa * ox, cy + kappa * oy
-        for a in range(n_angles):
-            phi = 2.0 * math.pi * (a + 0.5) / n_angles
-            rho = max(rho, _bisect_edge(cx + ox, cy + oy, bx, by, math.cos(phi), math.sin(phi), i, j, optics))
-    return float(kappa), float(1.003 * rho)
+    d_step = math.sqrt(2.0) * half / (N_RHO_TABLE - 1)
+    radii = np.array([_edge_radius(optics, cx, cy, kappa, k * d_step, 4, n_angles, i, j)
+                      for k in range(N_RHO_TABLE)])
+    for k in range(N_RHO_TABLE - 1):
+        mid = _edge_radius(optics, cx, cy, kappa, (k + 0.5) * d_step, 4, n_angles, i, j)
+        short = mid - 0.5 * (radii[k] + radii[k + 1])
+        if short > 0.0:
+            radii[k] += short
+            radii[k + 1] += short
+    radii *= 1.0002
+    if not radii.max() > 0.0:
+        raise ValueError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
+    return float(kappa), float(radii.max()), float(d_step), radii
 
 
 @njit(cache=True, parallel=True)
