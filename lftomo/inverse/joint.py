@@ -47,6 +47,102 @@ first, at 10⁻², often has not converged within ``max_steps``), ``ν = tr(2H �
 the residual degrees of freedom of the first solve (Hutchinson, 8 probes, one
 LSMR solve each).  With a coarse-to-fine ``start`` the search then begins two
 decades below the start's λ.
+
+Options
+-------
+The longer definitions of :func:`solve_temperature_absorption`'s options.
+
+method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}
+    ``"levenberg-marquardt"`` (default) and ``"gauss-newton"``: optimistix,
+    matrix-free (LSMR on the JAX linearisation, Jacobi-scaled chunks of
+    10 steps), with ``T`` and ``σ_ref`` bounded by the sigmoid
+    parameterisation above.  ``"dense-lm"``: projected
+    Levenberg–Marquardt on exact dense normal equations
+    (:mod:`lftomo.inverse.denselm`) in ``(T, σ_ref)`` scaled to the unit
+    box, the bounds held by projection instead of the sigmoid (an
+    optimum on a bound — cold cells at ``T_min``, soot-free cells at
+    ``σ_a = 0`` — is reached instead of approached as the log-odds run
+    off); the damping persists through the solve, and the residual
+    degrees of freedom of ``noise_scale="estimated"`` are the exact trace
+    instead of Hutchinson's estimate.  Meant for few unknowns
+    (axisymmetric ring cells, up to ~10³; timings in docs/accuracy.md,
+    *Joint fit: measurements*).  ``linear_rtol``,
+    ``linear_max_steps``, ``rtol``, ``atol`` and ``engine`` do not apply
+    to it.
+sigma_a_space : {"linear", "log"}
+    What the ``σ_a`` unknowns and their smoothness prior are linear in.
+    ``"linear"`` (default): ``σ_ref`` in ``[0, sigma_a_max]``, the prior
+    on ``σ_ref``.  ``"log"``: ``ln σ_ref`` in ``[ln sigma_a_min,
+    ln sigma_a_max]``, the prior on ``ln σ_ref`` — soot absorption spans
+    decades and falls off smoothly in its logarithm, so a linear
+    smoothness prior cannot hold it above 0 where the data are dark
+    (the fit drops σₐ to the bound and raises T to keep σₐ I_b(T)),
+    while the log prior extrapolates it from where the flame emits.  A
+    factor ``k`` error in ``σ_a`` then costs only ``ln k / (hc/λkT)`` in
+    T where one channel still sees the emission (``hc/λkT`` ≈ 19 at
+    900 nm and 850 K).
+sigma_a_scale : float, optional
+    With ``sigma_a_space="log"``: the scale (nepers) ``ln σ_ref`` is
+    divided by in the prior, default ``ln(sigma_a_max / sigma_a_min)``.
+    Otherwise the scale (m⁻¹) that ``σ_a`` is divided by in the prior: the prior is
+    ``λ (‖L (T − T_min)/(T_max − T_min)‖² + ‖L σ_a/scale‖² + ridge ‖σ_a/scale‖²)``
+    (``ln(σ_a/σ_min)`` for ``σ_a`` in log space).
+    Default ``sigma_a_max``.  A larger scale makes σₐ's roughness cheaper
+    than T's (soot is thin and intermittent, temperature smooth), so that
+    T's prior, not σₐ's, shapes the fit where the data leave the two
+    free; pair it with a larger ``lambda_max``.
+polish_steps : int
+    **Polish** (default 0: none): after λ is chosen, continue that λ's
+    solve from where the search left it for up to ``polish_steps`` more
+    steps, until the objective changes by less than 1e-4 (relative) over
+    10 steps.  λ is not re-chosen.  The chunks of Jacobi-scaled steps carry
+    no state from one to the next, so this is the solve that
+    ``max_steps + polish_steps`` steps would have made, spent on the chosen
+    λ only (what a long polish does to the error: docs/accuracy.md).
+    ``details["polish"]`` records the steps, χ²/m and ‖R‖ before and after,
+    and the fields before (``T_before``, ``sigma_a_before``).  With
+    ``method="dense-lm"`` the polish restarts the damping (not bit-equal
+    to one longer solve).
+engine : {"host", "jax"}
+    How the forward model and its exact derivatives are evaluated:
+    ``"host"`` (default) builds the sparse Jacobians ``W(σ_a)`` and
+    ``∂F/∂σ_a`` of the segment table once per evaluation point and applies
+    them in every Jacobian product (:mod:`lftomo.inverse.hostsegments`);
+    ``"jax"`` differentiates :meth:`lftomo.RaySegments.forward_jax` with
+    JAX autodiff (same values to rounding, each product walks every segment:
+    about 30× slower per step).
+start : Reconstruction, optional
+    **Coarse-to-fine start**: a joint fit (``unknowns="T+sigma_a"``) of the
+    same measurements on a coarser grid over the same box (its own,
+    cheaper segment table).  ``T0`` and ``sigma_a0`` are its fields
+    interpolated trilinearly to ``grid`` (:func:`lftomo.interpolate_field`),
+    and the discrepancy search starts at its λ instead of 1e-2 (one solve
+    when that λ is the cap, as when σ is overestimated).  The fine fit's
+    two-colour start is far from the solution and its λ path is slow to
+    converge.  ``rule="lcurve"`` keeps its fixed path.
+rule : {"discrepancy-bracket", "lcurve"}
+    How ``regularization="auto"`` chooses λ (module docstring;
+    :class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`,
+    :class:`~lftomo.inverse.lambdarules.LCurveDecades`).  ``"discrepancy"``,
+    this search's old name, still selects it with a DeprecationWarning: it is
+    not :func:`~lftomo.inverse.solvers.solve_temperature`'s discrepancy rule
+    (a root search for χ²/m = target).  When the
+    noise σ is overestimated, χ²/m stays below 1 at every λ and the
+    discrepancy rule takes its largest λ, ``lambda_max``; ``lambda_rule`` says so.
+noise_scale : {"given", "estimated"}
+    ``"given"`` (default): the discrepancy target is χ²/m = 1 (σ calibrated).
+    ``"estimated"``: σ known up to a common factor, the target the
+    estimated ``s²`` (module docstring); ``details["noise_scale"]`` holds
+    ``s2``, ``dof`` (ν), ``dof_se``, ``dof_lambda``, ``chi2_ref`` and
+    ``lambda_ref``, ``details["chi2_target"]`` the target used.
+grid : Grid, optional
+    Reconstruction grid; default the segment table's.  A coarser grid
+    (same box) turns on **sub-voxel emission**, as in :func:`lftomo.reconstruct`:
+    ``T`` and ``σ_ref`` are values at ``grid``'s voxel centres,
+    interpolated trilinearly (:func:`lftomo.interpolation_matrix`) to the
+    segment table's finer *quadrature* grid, where Planck's law, the
+    emission and the exact transmittance are evaluated.  ``T0`` and
+    ``sigma_a0`` are then given on ``grid``.
 """
 
 from __future__ import annotations
@@ -738,25 +834,8 @@ def solve_temperature_absorption(
     regularization, prior, bounds
         As in :func:`lftomo.reconstruct`.
     method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}
-        ``"levenberg-marquardt"`` (default) and ``"gauss-newton"``: optimistix,
-        matrix-free (LSMR on the JAX linearisation, Jacobi-scaled chunks of
-        10 steps), with ``T`` and ``σ_ref`` bounded by the sigmoid
-        parameterisation above.  ``"dense-lm"``: projected
-        Levenberg–Marquardt on exact dense normal equations
-        (:mod:`lftomo.inverse.denselm`) in ``(T, σ_ref)`` scaled to the unit
-        box, the bounds held by projection instead of the sigmoid (an
-        optimum on a bound — cold cells at ``T_min``, soot-free cells at
-        ``σ_a = 0`` — is reached instead of approached as the log-odds run
-        off); the damping persists through the solve, and the residual
-        degrees of freedom of ``noise_scale="estimated"`` are the exact trace
-        instead of Hutchinson's estimate.  For few unknowns (axisymmetric ring
-        cells, up to ~10³): on the 4³ test problems it converges in 20–50 steps
-        where optimistix stops at 100 unconverged, 10–25× faster; at 12³
-        (912 unknowns) a step costs ~1 s against ~2 s; at 24³ (3072 unknowns)
-        the normal matrices cost ~10 s a step against optimistix's 5–7 s
-        (docs/accuracy.md).  ``linear_rtol``,
-        ``linear_max_steps``, ``rtol``, ``atol`` and ``engine`` do not apply
-        to it.
+        Optimistix matrix-free (sigmoid-bounded unknowns) or projected dense
+        Levenberg–Marquardt for few unknowns (module docstring, *Options*).
     T0 : ndarray of shape grid.shape, optional
         Initial temperature (K).  Default: tomographic two-colour pyrometry
         (see ``_two_colour_start``: optically thin linear inversion per channel, then the
@@ -766,38 +845,16 @@ def solve_temperature_absorption(
     sigma_a_max : float
         Upper bound of ``σ_a`` at the first wavelength (m⁻¹).
     sigma_a_space : {"linear", "log"}
-        What the ``σ_a`` unknowns and their smoothness prior are linear in.
-        ``"linear"`` (default): ``σ_ref`` in ``[0, sigma_a_max]``, the prior
-        on ``σ_ref``.  ``"log"``: ``ln σ_ref`` in ``[ln sigma_a_min,
-        ln sigma_a_max]``, the prior on ``ln σ_ref`` — soot absorption spans
-        decades and falls off smoothly in its logarithm, so a linear
-        smoothness prior cannot hold it above 0 where the data are dark
-        (the fit drops σₐ to the bound and raises T to keep σₐ I_b(T)),
-        while the log prior extrapolates it from where the flame emits.  A
-        factor ``k`` error in ``σ_a`` then costs only ``ln k / (hc/λkT)`` in
-        T where one channel still sees the emission (``hc/λkT`` ≈ 19 at
-        900 nm and 850 K).  Measured (650 + 900 nm, 24³ from a 12³ start,
-        axisymmetric, sub-voxel emission, curvature prior, ``"dense-lm"``,
-        noise scale estimated, ``sigma_a_scale=145``): 1.7–2.7 % mean
-        |ΔT|/T above 800 K at the discrepancy rule's λ on three noise draws,
-        against 5.4 % with ``"linear"`` (docs/accuracy.md).
+        What the ``σ_a`` unknowns and their prior are linear in: ``σ_ref`` in
+        ``[0, sigma_a_max]`` (default) or ``ln σ_ref`` in
+        ``[ln sigma_a_min, ln sigma_a_max]`` (module docstring, *Options*).
     sigma_a_min : float
         Lower bound of ``σ_a`` at the first wavelength for ``sigma_a_space="log"``
         (m⁻¹, > 0; default 1e-4: optical depth 5e-6 over 5 cm).
     sigma_a_scale : float, optional
-        With ``sigma_a_space="log"``: the scale (nepers) ``ln σ_ref`` is
-        divided by in the prior, default ``ln(sigma_a_max / sigma_a_min)``.
-        Otherwise the scale (m⁻¹) that ``σ_a`` is divided by in the prior: the prior is
-        ``λ (‖L (T − T_min)/(T_max − T_min)‖² + ‖L σ_a/scale‖² + ridge ‖σ_a/scale‖²)``
-        (``ln(σ_a/σ_min)`` for ``σ_a`` in log space).
-        Default ``sigma_a_max``.  A larger scale makes σₐ's roughness cheaper
-        than T's (soot is thin and intermittent, temperature smooth), so that
-        T's prior, not σₐ's, shapes the fit where the data leave the two
-        free; pair it with a larger ``lambda_max``.  10× the default in
-        either space was measured (``2000`` m⁻¹ linear, ``145`` nepers log):
-        with ``"linear"`` and ``method="dense-lm"`` it lets the fit drop σₐ
-        to 0 over the dark fringe (5.4 % above 800 K at 24³), with ``"log"``
-        it meets the 3 % target (above; docs/accuracy.md).
+        Scale that ``σ_a`` (m⁻¹; nepers for ``ln σ_ref`` in log space) is
+        divided by in the prior; default ``sigma_a_max`` (log space:
+        ``ln(sigma_a_max / sigma_a_min)``).  Module docstring, *Options*.
     sigma_a_ridge : float
         Weight (≥ 0, relative to the smoothness term) of the ridge on ``σ_a/scale``
         (default 0).
@@ -807,55 +864,24 @@ def solve_temperature_absorption(
     lambda_max : float
         Largest λ the ``"auto"`` search tries (default 1e4; the L-curve path
         runs from 1e-2 to it).  With a large ``sigma_a_scale`` (σₐ's curvature
-        cheap) χ²/m can stay below the target up to 1e4 (measured: 650 + 900 nm,
-        24³, scale 2000 m⁻¹, ``noise_scale="estimated"``); a larger cap lets the
-        discrepancy rule find its λ instead of stopping at the cap.
+        cheap) χ²/m can stay below the target up to that cap; a larger cap
+        lets the discrepancy rule find its λ instead of stopping there.
     max_steps : int
         Nonlinear steps per solve of the λ search (and of a fixed-λ fit).
     polish_steps : int
-        **Polish** (default 0: none): after λ is chosen, continue that λ's
-        solve from where the search left it for up to ``polish_steps`` more
-        steps, until the objective changes by less than 1e-4 (relative) over
-        10 steps.  λ is not re-chosen.  The chunks of Jacobi-scaled steps carry
-        no state from one to the next, so this is the solve that
-        ``max_steps + polish_steps`` steps would have made, spent on the chosen
-        λ only.  At 24³ the search's solves stop unconverged at 100 steps
-        (650 + 900 nm, σₐ scale 2000 m⁻¹, the rule's λ 3.16·10⁴): 600 more
-        steps took T above 800 K from 3.48 % to 2.97 %, 1000 more to 2.25 %,
-        but the emitting core then got worse (1.1 % → 1.8 %) and χ²/m rose past
-        the rule's target, so a long polish over-regularizes relative to the
-        rule (docs/accuracy.md; 4–7 s a step on 2 cores).
-        Converged (``method="dense-lm"``) the error rises with λ above 31.6
-        on this case (5.0 % there, 9.7 % at 3162): the lower numbers come
-        from stopping on the way from the start, not from the rule's λ.
-        ``details["polish"]`` records the steps, χ²/m and ‖R‖ before and after,
-        and the fields before (``T_before``, ``sigma_a_before``).  With
-        ``method="dense-lm"`` the polish restarts the damping (not bit-equal
-        to one longer solve).
+        After λ is chosen, continue that λ's solve for up to this many more
+        steps (default 0; module docstring, *Options*); ``details["polish"]``
+        records them.
 
     rule : {"discrepancy-bracket", "lcurve"}
-        How ``regularization="auto"`` chooses λ (module docstring;
-        :class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`,
-        :class:`~lftomo.inverse.lambdarules.LCurveDecades`).  ``"discrepancy"``,
-        this search's old name, still selects it with a DeprecationWarning: it is
-        not :func:`~lftomo.inverse.solvers.solve_temperature`'s discrepancy rule
-        (a root search for χ²/m = target).  When the
-        noise σ is overestimated, χ²/m stays below 1 at every λ and the
-        discrepancy rule takes its largest λ, ``lambda_max``; ``lambda_rule`` says so.
+        How ``regularization="auto"`` chooses λ (module docstring, *Options*).
     noise_scale : {"given", "estimated"}
-        ``"given"`` (default): the discrepancy target is χ²/m = 1 (σ calibrated).
-        ``"estimated"``: σ known up to a common factor, the target the
-        estimated ``s²`` (module docstring); ``details["noise_scale"]`` holds
-        ``s2``, ``dof`` (ν), ``dof_se``, ``dof_lambda``, ``chi2_ref`` and
-        ``lambda_ref``, ``details["chi2_target"]`` the target used.
+        Discrepancy target χ²/m = 1 (σ calibrated, default) or the estimated
+        ``s²`` (σ known up to a common factor; module docstring, *Options*).
     engine : {"host", "jax"}
-        How the forward model and its exact derivatives are evaluated:
-        ``"host"`` (default) builds the sparse Jacobians ``W(σ_a)`` and
-        ``∂F/∂σ_a`` of the segment table once per evaluation point and applies
-        them in every Jacobian product (:mod:`lftomo.inverse.hostsegments`);
-        ``"jax"`` differentiates :meth:`lftomo.RaySegments.forward_jax` with
-        JAX autodiff (same values to rounding, each product walks every segment:
-        about 30× slower per step).
+        Forward model and exact derivatives from host sparse Jacobians
+        (default) or JAX autodiff of :meth:`lftomo.RaySegments.forward_jax`
+        (same values, ~30× slower per step).
     symmetry : None, "axisymmetric" or RingGrid, optional
         Fit axisymmetric ``T`` and ``σ_a``: the unknowns are the ring cells
         (:func:`lftomo.ring_grid` on the segments' grid), the prior the
@@ -863,23 +889,11 @@ def solve_temperature_absorption(
         ``sigma_a0`` may be given on the voxel grid (their ring means are used).
     grid : Grid, optional
         Reconstruction grid; default the segment table's.  A coarser grid
-        (same box) turns on **sub-voxel emission**, as in :func:`lftomo.reconstruct`:
-        ``T`` and ``σ_ref`` are values at ``grid``'s voxel centres,
-        interpolated trilinearly (:func:`lftomo.interpolation_matrix`) to the
-        segment table's finer *quadrature* grid, where Planck's law, the
-        emission and the exact transmittance are evaluated.  ``T0`` and
-        ``sigma_a0`` are then given on ``grid``.
+        (same box) turns on sub-voxel emission (module docstring, *Options*).
     start : Reconstruction, optional
-        **Coarse-to-fine start**: a joint fit (``unknowns="T+sigma_a"``) of the
-        same measurements on a coarser grid over the same box (its own,
-        cheaper segment table).  ``T0`` and ``sigma_a0`` are its fields
-        interpolated trilinearly to ``grid`` (:func:`lftomo.interpolate_field`),
-        and the discrepancy search starts at its λ instead of 1e-2 (one solve
-        when that λ is the cap, as when σ is overestimated).  The fine fit's
-        two-colour start is far from the solution and its λ path is slow to
-        converge; at 24³ (docs/accuracy.md) a 12³ start gave 3.7 % over the
-        voxels above 800 K in 1470 s where the full path from the two-colour
-        start gave 15.2 % in 4569 s.  ``rule="lcurve"`` keeps its fixed path.
+        Coarse-to-fine start: a joint fit on a coarser grid of the same box;
+        its fields (interpolated) and λ start this fit (module docstring,
+        *Options*).
     progress : bool, optional
         A tqdm bar on stderr counting the nonlinear steps of every λ solve,
         with the current λ and χ²/m.  Default: shown when the segment table
