@@ -1106,28 +1106,20 @@ def sample_posterior(
     max_field_elements : float
         Memory cap (number of floats) of the T samples used for the quantiles.
     likelihood : {"auto", "exact", "taylor"}
-        What the walkers evaluate.  "exact": the log-posterior above (cost
-        per step: one ``(n_walkers, n) @ H`` product).  "taylor": its
-        second-order Taylor model in the coefficients about the start
+        What the walkers evaluate: the log-posterior above ("exact"), or its
+        second-order Taylor model about the start
         (:class:`~lftomo.inverse.surrogate.TaylorLogPosterior`, linear bases
-        only; cost per step independent of n), then importance weights
-        ``exp(log p - log p_taylor)`` on ``n_importance`` evenly thinned samples
-        make every summary exact up to Monte Carlo error (temperature bounds
-        included).  "auto" (default): "taylor" for a linear basis on a grid
-        above ``dense_max`` voxels if the weights of a pilot (64 draws from the
-        Laplace approximation at the start) have an ESS of at least half
-        their number, else "exact" (:attr:`Posterior.likelihood_note` says which
-        and why).
+        only) corrected by importance weights on ``n_importance`` thinned
+        samples ("taylor").  "auto" (default): "taylor" for a linear basis on a
+        grid above ``dense_max`` voxels if a 64-draw Laplace pilot's weights
+        have an ESS of at least half their number, else "exact"
+        (:attr:`Posterior.likelihood_note` says which and why).
     n_importance : int
         Samples given exact log-posteriors and weights ("taylor"), >= 10.
     moves : emcee move(s), optional
         Passed to :class:`emcee.EnsembleSampler`.  Default: the mixture
-        ``[(DEMove(), 0.8), (StretchMove(), 0.2)]``, which on Gaussian-like
-        posteriors of 8 coefficients gives integrated autocorrelation times
-        about 2.5× shorter than the stretch move alone.  Avoid emcee 3.1's
-        ``DESnookerMove``: its direction vector is not normalised
-        (``delta / sqrt(norm)``) and it samples a Gaussian with ~40 % too little
-        variance.
+        ``[(DEMove(), 0.8), (StretchMove(), 0.2)]`` (why, and a move to
+        avoid: docs/accuracy.md, *Posterior sampler moves*).
 
     Returns
     -------
@@ -1156,29 +1148,9 @@ def sample_posterior(
         emission=emission, dense_max=dense_max,
     )
     K = basis.n_params
-    n_walkers = 2 * max(K + 1, 8) if n_walkers is None else require_int("n_walkers", n_walkers, minimum=1)
-    if n_walkers < 2 * K:
-        raise ValueError(f"n_walkers must be >= 2 K = {2 * K} for K = {K} coefficients, got {n_walkers}")
-    n_steps = require_int("n_steps", n_steps, minimum=2)
-    thin = require_int("thin", thin, minimum=1)
-    burn = n_steps // 4 if burn is None else require_int("burn", burn, minimum=0)
-    if burn >= n_steps:
-        raise ValueError(f"burn must be < n_steps = {n_steps}, got {burn}")
-    # emcee allocates the whole chain and its log-posterior up front; the results copy them
-    check_allocation(f"a chain of n_steps = {n_steps} x n_walkers = {n_walkers} x {K} coefficients",
-                     2.0 * n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
-    init_scale = require_positive("init_scale", init_scale)
-    level = require_finite_scalar("credible_level", credible_level)
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"credible_level must be in (0, 1), got {level!r}")
-    if likelihood not in ("auto", "exact", "taylor"):
-        raise ValueError(f"likelihood must be 'auto', 'exact' or 'taylor', got {likelihood!r}")
-    if likelihood == "taylor" and not _basis_is_linear(logpost):
-        raise ValueError(
-            f"likelihood='taylor' needs a linear basis (DCTBasis, BSplineBasis, LinearBasis), "
-            f"got {type(basis).__name__}; use likelihood='exact'"
-        )
-    n_importance = require_int("n_importance", n_importance, minimum=10)
+    n_walkers, n_steps, thin, burn, init_scale, level, n_importance = _check_sampling_options(
+        logpost, basis, n_walkers=n_walkers, n_steps=n_steps, thin=thin, burn=burn, init_scale=init_scale,
+        credible_level=credible_level, likelihood=likelihood, n_importance=n_importance)
     auto = likelihood == "auto"
     if auto:
         large = any(not ch.stats.dense for ch in logpost.channels)
@@ -1203,6 +1175,63 @@ def sample_posterior(
 
     chain = sampler.get_chain()
     lp_trace = sampler.get_log_prob()
+    tau, converged, samples, log_prob, n_eff, weights, ess = _chain_summary(
+        sampler, logpost, target, likelihood, n_walkers=n_walkers, n_steps=n_steps, burn=burn, thin=thin,
+        n_importance=n_importance, strict=strict)
+    if likelihood == "taylor":
+        elapsed = time.perf_counter() - t0
+    w = np.full(len(samples), 1.0 / len(samples)) if weights is None else weights
+    mean_c = w @ samples
+    Dc = samples - mean_c
+    cov_c = (Dc.T * w) @ Dc / max(1.0 - float(w @ w), 1e-12)
+    T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, max_field_elements, weights)
+    return Posterior(
+        basis=basis, names=tuple(basis.names), samples=samples, log_prob=log_prob, chain=chain,
+        log_prob_trace=lp_trace, coeff_mean=mean_c, coeff_cov=np.atleast_2d(cov_c),
+        T_mean=T_mean, T_std=T_std, T_lower=T_lo, T_upper=T_hi, credible_level=level, n_field_samples=nq,
+        acceptance_fraction=np.asarray(sampler.acceptance_fraction), tau=tau,
+        n_eff=n_eff, converged=converged,
+        c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=n_steps, burn=burn,
+        thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
+        likelihood_note=note,
+    )
+
+
+def _check_sampling_options(logpost: Any, basis: Any, *, n_walkers, n_steps, thin, burn, init_scale,
+                            credible_level, likelihood, n_importance):
+    """:func:`sample_posterior`'s sampler options, checked and with their defaults:
+    ``(n_walkers, n_steps, thin, burn, init_scale, level, n_importance)``."""
+    K = basis.n_params
+    n_walkers = 2 * max(K + 1, 8) if n_walkers is None else require_int("n_walkers", n_walkers, minimum=1)
+    if n_walkers < 2 * K:
+        raise ValueError(f"n_walkers must be >= 2 K = {2 * K} for K = {K} coefficients, got {n_walkers}")
+    n_steps = require_int("n_steps", n_steps, minimum=2)
+    thin = require_int("thin", thin, minimum=1)
+    burn = n_steps // 4 if burn is None else require_int("burn", burn, minimum=0)
+    if burn >= n_steps:
+        raise ValueError(f"burn must be < n_steps = {n_steps}, got {burn}")
+    # emcee allocates the whole chain and its log-posterior up front; the results copy them
+    check_allocation(f"a chain of n_steps = {n_steps} x n_walkers = {n_walkers} x {K} coefficients",
+                     2.0 * n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
+    init_scale = require_positive("init_scale", init_scale)
+    level = require_finite_scalar("credible_level", credible_level)
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"credible_level must be in (0, 1), got {level!r}")
+    if likelihood not in ("auto", "exact", "taylor"):
+        raise ValueError(f"likelihood must be 'auto', 'exact' or 'taylor', got {likelihood!r}")
+    if likelihood == "taylor" and not _basis_is_linear(logpost):
+        raise ValueError(
+            f"likelihood='taylor' needs a linear basis (DCTBasis, BSplineBasis, LinearBasis), "
+            f"got {type(basis).__name__}; use likelihood='exact'"
+        )
+    n_importance = require_int("n_importance", n_importance, minimum=10)
+    return n_walkers, n_steps, thin, burn, init_scale, level, n_importance
+
+
+def _chain_summary(sampler: Any, logpost: Any, target: Any, likelihood: str, *, n_walkers: int, n_steps: int,
+                   burn: int, thin: int, n_importance: int, strict: bool):
+    """Autocorrelation, convergence and the kept samples of a finished emcee run (importance-corrected
+    for the Taylor likelihood): ``(tau, converged, samples, log_prob, n_eff, weights, ess)``."""
     tau = np.asarray(sampler.get_autocorr_time(discard=burn, quiet=True, tol=0), dtype=np.float64)
     kept = n_steps - burn
     tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.inf
@@ -1228,22 +1257,7 @@ def sample_posterior(
                 f"samples (< {floor:.0f}); use likelihood='exact'",
                 strict,
             )
-        elapsed = time.perf_counter() - t0
-    w = np.full(len(samples), 1.0 / len(samples)) if weights is None else weights
-    mean_c = w @ samples
-    Dc = samples - mean_c
-    cov_c = (Dc.T * w) @ Dc / max(1.0 - float(w @ w), 1e-12)
-    T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, max_field_elements, weights)
-    return Posterior(
-        basis=basis, names=tuple(basis.names), samples=samples, log_prob=log_prob, chain=chain,
-        log_prob_trace=lp_trace, coeff_mean=mean_c, coeff_cov=np.atleast_2d(cov_c),
-        T_mean=T_mean, T_std=T_std, T_lower=T_lo, T_upper=T_hi, credible_level=level, n_field_samples=nq,
-        acceptance_fraction=np.asarray(sampler.acceptance_fraction), tau=tau,
-        n_eff=n_eff, converged=converged,
-        c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=n_steps, burn=burn,
-        thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
-        likelihood_note=note,
-    )
+    return tau, converged, samples, log_prob, n_eff, weights, ess
 
 
 def _sampler_start(logpost: Any, basis: Any, *, optimize: bool, T_start: Any):
