@@ -32,6 +32,37 @@ def save_figure(fig, path: str | Path, *, dpi: int = 110) -> Path:
     return path
 
 
+def rig_figure(lightfields, names, path: str | Path, *, channel: int = 0) -> Path:
+    """One row per camera of a rig: its raw sensor image (as recorded) and its
+    most lit sub-aperture view (upright), on a colour scale shared by all
+    cameras so that their signals compare."""
+    plt = pyplot()
+    raws = [lf.raw if lf.n_channels == 1 else lf.raw[channel] for lf in lightfields]
+    vmax = max(float(np.max(r)) for r in raws) or 1.0
+    fig, ax = plt.subplots(len(raws), 2, figsize=(10, 4.6 * len(raws)), constrained_layout=True, squeeze=False)
+    for k, (lf, raw, name) in enumerate(zip(lightfields, raws, names)):
+        im = ax[k, 0].imshow(raw, cmap="inferno", vmin=0.0, vmax=vmax)
+        ax[k, 0].set_title(f"{name}: raw sensor image (as recorded)")
+        fig.colorbar(im, ax=ax[k, 0], shrink=0.8, label="pixel signal")
+        et = lf.etendue.ravel()
+        weight = np.where(lf.view_mask, et[np.maximum(lf.view_index, 0)], 0.0).sum(axis=(2, 3))
+        v, u = np.unravel_index(np.argmax(weight), weight.shape)
+        view = lf.subaperture(u, v, channel=channel if lf.n_channels > 1 else None)
+        im = ax[k, 1].imshow(view, cmap="inferno")
+        ax[k, 1].set_title(f"{name}: sub-aperture view (u={u}, v={v}), upright")
+        fig.colorbar(im, ax=ax[k, 1], shrink=0.8)
+    for a in ax.ravel():
+        a.set_xticks([])
+        a.set_yticks([])
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:  # never a partial figure at ``path``
+            fig.savefig(tmp, dpi=90)
+    finally:
+        plt.close(fig)
+    return path
+
+
 def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 12) -> Path:
     """One figure: a raw crop (microlens images), the central view, the view mosaic."""
     plt = pyplot()

@@ -25,7 +25,7 @@ from lftomo.cli import build_parser
 from lftomo.demo import run_demo
 
 STAGES = ("camera", "render", "weights", "measurement", "reconstruct", "reconstruct_axisymmetric", "posterior",
-          "field_posterior", "compare", "total")
+          "field_posterior", "compare", "rig", "total")
 IMG_RE = re.compile(r'<img src="data:image/png;base64,([^"]*)" alt="[^"]*" data-file="([^"]+)">')
 
 # Counts the figures that really decoded once the page has loaded, into an
@@ -86,7 +86,8 @@ def test_metrics_are_complete_and_finite(demo):
     m = json.loads(text)
     assert m == json.loads(json.dumps(returned))
     for key in ("parameters", "environment", "camera", "render", "weights", "measurement", "reconstruction",
-                "reconstruction_axisymmetric", "posterior", "field_posterior", "compare", "timings_s", "warnings"):
+                "reconstruction_axisymmetric", "posterior", "field_posterior", "compare", "rig", "timings_s",
+                "warnings"):
         assert key in m, key
     p = m["parameters"]
     assert p["mode"] == "quick" and p["seed"] == 0
@@ -203,3 +204,17 @@ def test_report_renders_in_headless_chromium_with_every_figure(demo, tmp_path):
     nonwhite = np.mean(a < 200)
     assert nonwhite > 0.05, f"screenshot nearly blank: {nonwhite:.3%} non-white pixels"
     assert a.std() > 20
+
+
+def test_the_second_camera_records_what_the_first_does(demo):
+    """Stage 8: a quarter turn about the axisymmetric flame's axis maps its voxel
+    grid onto itself, so the posed camera's image equals the first camera's within
+    their Monte Carlo errors: total signal within 5 combined standard errors, and
+    the mean squared per-pixel difference over the summed variances in the band
+    0.8–1.25 that honest error bars give (a mirrored or shifted image: far above)."""
+    out, _ = demo
+    rig = json.loads((out / "metrics.json").read_text())["rig"]
+    assert abs(rig["total_signal_ratio"] - 1.0) < 5.0 * rig["total_signal_ratio_std"], rig
+    assert 0.8 < rig["chi2_per_pixel"] < 1.25, rig
+    assert rig["lit_pixels"] > 1000
+    assert (out / "rig_raw_images.png").exists()
