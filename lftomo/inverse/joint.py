@@ -52,8 +52,11 @@ Options
 -------
 The longer definitions of :func:`solve_temperature_absorption`'s options.
 
-method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}
-    ``"levenberg-marquardt"`` (default) and ``"gauss-newton"``: optimistix,
+method : {"auto", "levenberg-marquardt", "gauss-newton", "dense-lm"}
+    ``"auto"`` (default): ``"dense-lm"`` up to :data:`DENSE_LM_MAX_UNKNOWNS`
+    unknowns (T and σ together: ring cells, coarse grids), else
+    ``"levenberg-marquardt"``.
+    ``"levenberg-marquardt"`` and ``"gauss-newton"``: optimistix,
     matrix-free (LSMR on the JAX linearisation, Jacobi-scaled chunks of
     10 steps), with ``T`` and ``σ_ref`` bounded by the sigmoid
     parameterisation above.  ``"dense-lm"``: projected
@@ -71,8 +74,8 @@ method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}
     to it.
 sigma_a_space : {"linear", "log"}
     What the ``σ_a`` unknowns and their smoothness prior are linear in.
-    ``"linear"`` (default): ``σ_ref`` in ``[0, sigma_a_max]``, the prior
-    on ``σ_ref``.  ``"log"``: ``ln σ_ref`` in ``[ln sigma_a_min,
+    ``"linear"``: ``σ_ref`` in ``[0, sigma_a_max]``, the prior
+    on ``σ_ref``.  ``"log"`` (default): ``ln σ_ref`` in ``[ln sigma_a_min,
     ln sigma_a_max]``, the prior on ``ln σ_ref`` — soot absorption spans
     decades and falls off smoothly in its logarithm, so a linear
     smoothness prior cannot hold it above 0 where the data are dark
@@ -83,11 +86,12 @@ sigma_a_space : {"linear", "log"}
     900 nm and 850 K).
 sigma_a_scale : float, optional
     With ``sigma_a_space="log"``: the scale (nepers) ``ln σ_ref`` is
-    divided by in the prior, default ``ln(sigma_a_max / sigma_a_min)``.
+    divided by in the prior, default :data:`SIGMA_A_SCALE_FACTOR` ×
+    ``ln(sigma_a_max / sigma_a_min)`` (145 nepers with the defaults).
     Otherwise the scale (m⁻¹) that ``σ_a`` is divided by in the prior: the prior is
     ``λ (‖L (T − T_min)/(T_max − T_min)‖² + ‖L σ_a/scale‖² + ridge ‖σ_a/scale‖²)``
-    (``ln(σ_a/σ_min)`` for ``σ_a`` in log space).
-    Default ``sigma_a_max``.  A larger scale makes σₐ's roughness cheaper
+    (``ln(σ_a/σ_min)`` for ``σ_a`` in log space),
+    default :data:`SIGMA_A_SCALE_FACTOR` × ``sigma_a_max``.  A larger scale makes σₐ's roughness cheaper
     than T's (soot is thin and intermittent, temperature smooth), so that
     T's prior, not σₐ's, shapes the fit where the data leave the two
     free; pair it with a larger ``lambda_max``.
@@ -129,9 +133,11 @@ rule : {"discrepancy-bracket", "lcurve"}
     (a root search for χ²/m = target).  When the
     noise σ is overestimated, χ²/m stays below 1 at every λ and the
     discrepancy rule takes its largest λ, ``lambda_max``; ``lambda_rule`` says so.
-noise_scale : {"given", "estimated"}
-    ``"given"`` (default): the discrepancy target is χ²/m = 1 (σ calibrated).
-    ``"estimated"``: σ known up to a common factor, the target the
+noise_scale : {"given", "estimated"}, optional
+    ``"given"``: the discrepancy target is χ²/m = 1 (σ calibrated).
+    ``"estimated"`` (the default with ``regularization="auto"`` and the
+    discrepancy rule, when there are more data than unknowns; otherwise
+    ``"given"``): σ known up to a common factor, the target the
     estimated ``s²`` (module docstring); ``details["noise_scale"]`` holds
     ``s2``, ``dof`` (ν), ``dof_se``, ``dof_lambda``, ``chi2_ref`` and
     ``lambda_ref``, ``details["chi2_target"]`` the target used.
@@ -184,7 +190,7 @@ from .symmetry import resolve_symmetry
 
 #: Solvers of the joint fit: optimistix's (matrix-free LSMR steps) or Levenberg–Marquardt
 #: on exact dense normal equations (:mod:`lftomo.inverse.denselm`).
-JOINT_METHODS = ("levenberg-marquardt", "gauss-newton", "dense-lm")
+JOINT_METHODS = ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm")
 
 #: What the σ_a unknowns and their prior are linear in: ``"linear"`` (σ_ref in [0, σ_max],
 #: smoothness of σ_ref) or ``"log"`` (ln σ_ref in [ln σ_min, ln σ_max], smoothness of ln σ_ref).
@@ -198,6 +204,15 @@ _OBJECTIVE_RTOL = 1e-4
 #: moves by factors of 10 within [``_LAMBDA_MIN``, ``_LAMBDA_MAX``] (a
 #: continuation: each solve warm-started from the nearest λ solved).
 _LAMBDA_START, _LAMBDA_MIN, _LAMBDA_MAX = 1e-2, 1e-8, 1e4
+#: ``lambda_max``'s default: with σₐ's prior scaled 10× (the default ``sigma_a_scale``) χ²/m can stay
+#: below the target beyond 1e4 (docs/accuracy.md, *Joint fit: measurements*).
+_LAMBDA_MAX_DEFAULT = 1e6
+#: ``method="auto"`` takes the dense Levenberg–Marquardt solver up to this many unknowns (T and σ
+#: together), optimistix's matrix-free one above.
+DENSE_LM_MAX_UNKNOWNS = 4096
+#: ``sigma_a_scale``'s default as a multiple of σₐ's span (``sigma_a_max`` in linear space,
+#: ``ln(sigma_a_max / sigma_a_min)`` in log space): σₐ's roughness 100× cheaper than T's.
+SIGMA_A_SCALE_FACTOR = 10.0
 
 #: ``progress=None`` shows a progress bar for segment tables larger than this
 #: (the 16³ standard flame with quadrature 2: 12 M segments, about 30 min on 2 cores).
@@ -274,7 +289,7 @@ class SigmaSpace:
     def __init__(self, space: str, sigma_max: float, sigma_min: float, scale: float | None) -> None:
         self.space, self.sigma_max, self.sigma_min = space, float(sigma_max), sigma_min
         self.span = math.log(sigma_max / sigma_min) if space == "log" else float(sigma_max)
-        self.scale = float(self.span if scale is None else scale)
+        self.scale = float(SIGMA_A_SCALE_FACTOR * self.span if scale is None else scale)
         self.b_prior = self.span / self.scale
 
     def sigma_of_unit(self, u, xp=np):
@@ -774,6 +789,8 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
     if engine not in ("host", "jax"):
         raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
     rule_cls = resolve_rule(rule, fit="T+sigma_a", stacklevel=4)
+    if noise_scale is None:  # the default: estimated where the discrepancy search runs
+        noise_scale = "estimated" if (rule_cls is DiscrepancyBracket and regularization == "auto") else "given"
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
     if noise_scale == "estimated" and (rule_cls is not DiscrepancyBracket or regularization != "auto"):
         raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only "
@@ -797,18 +814,18 @@ def solve_temperature_absorption(
     segments,
     *,
     regularization: str | float = "auto",
-    prior: str = "gradient",
+    prior: str = "curvature",
     bounds: tuple[float, float] = (300.0, 3000.0),
-    method: str = "levenberg-marquardt",
+    method: str = "auto",
     T0: Any = None,
     alpha: float = 1.38,
     sigma_a_max: float = 200.0,
-    sigma_a_space: str = "linear",
+    sigma_a_space: str = "log",
     sigma_a_min: float = 1e-4,
     sigma_a_scale: float | None = None,
     sigma_a_ridge: float = 0.0,
     sigma_a0: Any = None,
-    lambda_max: float = _LAMBDA_MAX,
+    lambda_max: float = _LAMBDA_MAX_DEFAULT,
     max_steps: int = 100,
     polish_steps: int = 0,
     rtol: float = 1e-6,
@@ -817,7 +834,7 @@ def solve_temperature_absorption(
     linear_max_steps: int = 50,
     engine: str = "host",
     rule: str = "discrepancy-bracket",
-    noise_scale: str = "given",
+    noise_scale: str | None = None,
     symmetry: Any = None,
     grid: Grid | None = None,
     start: Reconstruction | None = None,
@@ -833,9 +850,10 @@ def solve_temperature_absorption(
         Ray-segment table on the reconstruction grid (same camera and decode).
     regularization, prior, bounds
         As in :func:`lftomo.reconstruct`.
-    method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}
+    method : {"auto", "levenberg-marquardt", "gauss-newton", "dense-lm"}
         Optimistix matrix-free (sigmoid-bounded unknowns) or projected dense
-        Levenberg–Marquardt for few unknowns (module docstring, *Options*).
+        Levenberg–Marquardt for few unknowns; ``"auto"`` (default) picks by the
+        number of unknowns (module docstring, *Options*).
     T0 : ndarray of shape grid.shape, optional
         Initial temperature (K).  Default: tomographic two-colour pyrometry
         (see ``_two_colour_start``: optically thin linear inversion per channel, then the
@@ -846,15 +864,16 @@ def solve_temperature_absorption(
         Upper bound of ``σ_a`` at the first wavelength (m⁻¹).
     sigma_a_space : {"linear", "log"}
         What the ``σ_a`` unknowns and their prior are linear in: ``σ_ref`` in
-        ``[0, sigma_a_max]`` (default) or ``ln σ_ref`` in
-        ``[ln sigma_a_min, ln sigma_a_max]`` (module docstring, *Options*).
+        ``[0, sigma_a_max]`` or ``ln σ_ref`` in ``[ln sigma_a_min,
+        ln sigma_a_max]`` (default; module docstring, *Options*).
     sigma_a_min : float
         Lower bound of ``σ_a`` at the first wavelength for ``sigma_a_space="log"``
         (m⁻¹, > 0; default 1e-4: optical depth 5e-6 over 5 cm).
     sigma_a_scale : float, optional
         Scale that ``σ_a`` (m⁻¹; nepers for ``ln σ_ref`` in log space) is
-        divided by in the prior; default ``sigma_a_max`` (log space:
-        ``ln(sigma_a_max / sigma_a_min)``).  Module docstring, *Options*.
+        divided by in the prior; default :data:`SIGMA_A_SCALE_FACTOR` × σₐ's
+        span (``sigma_a_max``, or ``ln(sigma_a_max / sigma_a_min)`` in log
+        space).  Module docstring, *Options*.
     sigma_a_ridge : float
         Weight (≥ 0, relative to the smoothness term) of the ridge on ``σ_a/scale``
         (default 0).
@@ -862,7 +881,7 @@ def solve_temperature_absorption(
         Initial ``σ_a`` at the first wavelength (m⁻¹); default from the same
         two-colour start.
     lambda_max : float
-        Largest λ the ``"auto"`` search tries (default 1e4; the L-curve path
+        Largest λ the ``"auto"`` search tries (default 1e6; the L-curve path
         runs from 1e-2 to it).  With a large ``sigma_a_scale`` (σₐ's curvature
         cheap) χ²/m can stay below the target up to that cap; a larger cap
         lets the discrepancy rule find its λ instead of stopping there.
@@ -875,9 +894,10 @@ def solve_temperature_absorption(
 
     rule : {"discrepancy-bracket", "lcurve"}
         How ``regularization="auto"`` chooses λ (module docstring, *Options*).
-    noise_scale : {"given", "estimated"}
-        Discrepancy target χ²/m = 1 (σ calibrated, default) or the estimated
-        ``s²`` (σ known up to a common factor; module docstring, *Options*).
+    noise_scale : {"given", "estimated"}, optional
+        Discrepancy target χ²/m = 1 (σ calibrated) or the estimated ``s²`` (σ
+        known up to a common factor; the default where the discrepancy search
+        runs; module docstring, *Options*).
     engine : {"host", "jax"}
         Forward model and exact derivatives from host sparse Jacobians
         (default) or JAX autodiff of :meth:`lftomo.RaySegments.forward_jax`
@@ -915,6 +935,7 @@ def solve_temperature_absorption(
     # a non-quadratic prior (TV) is refused, never replaced by another one
     prior = resolve_prior(prior, quadratic_only=True, where="the joint T + sigma_a fit (unknowns='T+sigma_a')")
     ms, wls = _check_channels(measurements, segments)
+    noise_scale_given = noise_scale
     rule_obj, noise_scale, bounds, lam_max = _check_options(
         method=method, engine=engine, rule=rule, noise_scale=noise_scale, regularization=regularization,
         bounds=bounds, lambda_max=lambda_max, polish_steps=polish_steps, max_steps=max_steps,
@@ -922,6 +943,11 @@ def solve_temperature_absorption(
     space, ridge = _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge)
     model = JointModel(ms, wls, segments, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
                        space=space, ridge=ridge, engine=engine)
+    if method == "auto":
+        method = "dense-lm" if 2 * model.n_u <= DENSE_LM_MAX_UNKNOWNS else "levenberg-marquardt"
+    if noise_scale == "estimated" and model.m_total <= 2 * model.n_u and noise_scale_given is None:
+        noise_scale = "given"  # the default falls back: too few data to estimate the scale
+        rule_obj = DiscrepancyBracket(noise_scale)
     if noise_scale == "estimated" and model.m_total <= 2 * model.n_u:
         raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data for "
                          f"{2 * model.n_u} unknowns")

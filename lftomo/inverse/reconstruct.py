@@ -165,7 +165,9 @@ def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solve
     regularization = opts.pop("regularization", regularization)
     method = opts.pop("method", method)
     rule = opts.pop("rule", rule)
-    return regularization, ("levenberg-marquardt" if method is None else method), rule, opts
+    if method is None:  # the joint fit picks its solver by the number of unknowns
+        method = "auto" if fit == "T+sigma_a" else "levenberg-marquardt"
+    return regularization, method, rule, opts
 
 
 def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
@@ -193,7 +195,7 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
     rule_kw = {} if rule is None else {"rule": rule}
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         return solve_temperature_absorption(ms, weights, regularization=regularization,
-                                            prior="gradient" if prior is None else prior, bounds=bounds,
+                                            prior=DEFAULT_PRIOR if prior is None else prior, bounds=bounds,
                                             method=method, T0=T0, symmetry=symmetry, grid=grid, **rule_kw,
                                             **options)
 
