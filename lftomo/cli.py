@@ -21,24 +21,28 @@ def _load(scene_path, args=None):
 
 def cmd_camera(args) -> int:
     cfg = _load(args.scene, args)
-    d = cfg.camera.describe(warn=False)  # the report prints its warnings itself
+    names = list(cfg.camera_names) if cfg.is_rig else [None]
+    cams = list(cfg.cameras) if cfg.is_rig else [cfg.camera]
+    reports = [c.describe(warn=False) for c in cams]  # the report prints its warnings itself
     if args.json:
-        print(json.dumps(d, indent=2))
+        out = reports[0] if not cfg.is_rig else {n: d for n, d in zip(names, reports)}
+        print(json.dumps(out, indent=2))
         return 0
-    print(f"camera of {cfg.source}")
     units = {
         "f_number": "", "px": "px", "views": "", "magnification": "", "per_metre": "px/m",
     }
-    for k, v in d.items():
-        if k == "warnings":
-            continue
-        unit = next((u for key, u in units.items() if key in k), "m")
-        if isinstance(v, float):
-            print(f"  {k:40s} {v:.6g} {unit}")
-        else:
-            print(f"  {k:40s} {v}")
-    for w in d["warnings"]:
-        print(f"WARNING: {w}")
+    for name, d in zip(names, reports):
+        print(f"camera of {cfg.source}" if name is None else f"camera {name!r} of {cfg.source}")
+        for k, v in d.items():
+            if k == "warnings":
+                continue
+            unit = next((u for key, u in units.items() if key in k), "m")
+            if isinstance(v, float):
+                print(f"  {k:40s} {v:.6g} {unit}")
+            else:
+                print(f"  {k:40s} {v}")
+        for w in d["warnings"]:
+            print(f"WARNING: {w}")
     return 0
 
 
@@ -544,7 +548,8 @@ def _add_series_parser(sub) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
-    c = sub.add_parser("camera", help="print the camera design report of a scene file (default: built-in scene)")
+    c = sub.add_parser("camera", help="print the camera design report of a scene file, one per camera of a rig "
+                                                "(default: built-in scene)")
     c.add_argument("scene", nargs="?", default=None, help="TOML scene file")
     c.add_argument("--json", action="store_true", help="print JSON")
     _add_allow_outside(c)

@@ -3,6 +3,7 @@
 Loading only: nothing here renders (the CLI test at the end renders 2 tiny cameras).
 """
 
+import numpy as np
 import pytest
 
 import lftomo as lt
@@ -121,3 +122,21 @@ def test_example_rig_file_loads():
     cfg = load_scene_file(Path(__file__).parent.parent / "examples" / "flame_two_cameras.toml")
     assert cfg.camera_names == ("front", "side")
     assert cfg.cameras[1].pose == lt.Pose.look_at((-1, 0, 1), (0, 0, 1))
+
+
+def test_cli_camera_reports_every_camera_of_a_rig(tmp_path, capsys):
+    import json
+
+    from lftomo.cli import main
+
+    scene = tmp_path / "rig.toml"
+    scene.write_text(_rig())
+    assert main(["camera", str(scene), "--json"]) == 0
+    reports = json.loads(capsys.readouterr().out)
+    assert sorted(reports) == ["front", "side"]
+    assert reports["front"]["pose"] is None
+    side = lt.Pose.look_at((-1, 0, 1), (0, 0, 1)).to_dict()
+    np.testing.assert_allclose(reports["side"]["pose"]["position"], side["position"])
+    assert main(["camera", str(scene)]) == 0
+    text = capsys.readouterr().out
+    assert "camera 'front' of" in text and "camera 'side' of" in text
