@@ -32,6 +32,14 @@ def save_figure(fig, path: str | Path, *, dpi: int = 110) -> Path:
     return path
 
 
+def most_lit_view(lf, channel: int = 0):
+    """``(u, v, image)`` of the sub-aperture view with the largest total étendue."""
+    et = lf.etendue.ravel()
+    weight = np.where(lf.view_mask, et[np.maximum(lf.view_index, 0)], 0.0).sum(axis=(2, 3))
+    v, u = np.unravel_index(np.argmax(weight), weight.shape)
+    return u, v, lf.subaperture(u, v, channel=channel if lf.n_channels > 1 else None)
+
+
 def rig_figure(lightfields, names, path: str | Path, *, channel: int = 0) -> Path:
     """One row per camera of a rig: its raw sensor image (as recorded) and its
     most lit sub-aperture view (upright), on a colour scale shared by all
@@ -44,23 +52,14 @@ def rig_figure(lightfields, names, path: str | Path, *, channel: int = 0) -> Pat
         im = ax[k, 0].imshow(raw, cmap="inferno", vmin=0.0, vmax=vmax)
         ax[k, 0].set_title(f"{name}: raw sensor image (as recorded)")
         fig.colorbar(im, ax=ax[k, 0], shrink=0.8, label="pixel signal")
-        et = lf.etendue.ravel()
-        weight = np.where(lf.view_mask, et[np.maximum(lf.view_index, 0)], 0.0).sum(axis=(2, 3))
-        v, u = np.unravel_index(np.argmax(weight), weight.shape)
-        view = lf.subaperture(u, v, channel=channel if lf.n_channels > 1 else None)
+        u, v, view = most_lit_view(lf, channel)
         im = ax[k, 1].imshow(view, cmap="inferno")
         ax[k, 1].set_title(f"{name}: sub-aperture view (u={u}, v={v}), upright")
         fig.colorbar(im, ax=ax[k, 1], shrink=0.8)
     for a in ax.ravel():
         a.set_xticks([])
         a.set_yticks([])
-    path = Path(path)
-    try:
-        with atomic_path(path) as tmp:  # never a partial figure at ``path``
-            fig.savefig(tmp, dpi=90)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90)
 
 
 def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 12) -> Path:
@@ -74,11 +73,7 @@ def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 1
     im = ax[0].imshow(raw[r0 : r0 + crop * p, c0 : c0 + crop * p], cmap="inferno")
     ax[0].set_title(f"raw sensor (centre {crop}x{crop} microlenses;\nas recorded: scene rotated 180°)")
     fig.colorbar(im, ax=ax[0], shrink=0.8, label="pixel signal")
-    nv, nu = lf.camera.views_shape[:2]
-    et = lf.etendue.ravel()
-    weight = np.where(lf.view_mask, et[np.maximum(lf.view_index, 0)], 0.0).sum(axis=(2, 3))
-    v, u = np.unravel_index(np.argmax(weight), weight.shape)
-    view = lf.subaperture(u, v, channel=channel if lf.n_channels > 1 else None)
+    u, v, view = most_lit_view(lf, channel)
     im = ax[1].imshow(view, cmap="inferno")
     ax[1].set_title(f"sub-aperture view (u={u}, v={v})\nupright: +x right, +y up")
     fig.colorbar(im, ax=ax[1], shrink=0.8)
@@ -87,13 +82,7 @@ def lightfield_overview(lf, path: str | Path, *, channel: int = 0, crop: int = 1
     for a in ax:
         a.set_xticks([])
         a.set_yticks([])
-    path = Path(path)
-    try:
-        with atomic_path(path) as tmp:  # never a partial figure at ``path``
-            fig.savefig(tmp, dpi=110)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def focal_stack_figure(lf, depths: Sequence[float], path: str | Path, *, channel: int = 0) -> Path:
