@@ -857,12 +857,12 @@ def _demo_rig(d: _DemoRun) -> None:
         fig = plot.rig_figure([d.r["lf"], lf2], ["camera 1 (on the z axis)", "camera 2 (90° about the flame axis)"],
                               d.out / "rig_raw_images.png")
     a, b = np.asarray(d.r["lf"].raw, float), np.asarray(lf2.raw, float)
-    var = np.asarray(d.r["lf"].std_error, float) ** 2 + np.asarray(lf2.std_error, float) ** 2
+    va, vb = np.asarray(d.r["lf"].std_error, float) ** 2, np.asarray(lf2.std_error, float) ** 2
+    var = va + vb
     lit = (np.maximum(a, b) > 1e-3 * max(a.max(), b.max())) & (var > 0)
     chi2 = float(np.mean((a[lit] - b[lit]) ** 2 / var[lit])) if lit.any() else float("nan")
     ratio = float(b.sum() / a.sum())
-    ratio_std = ratio * float(np.sqrt(np.sum(np.asarray(d.r["lf"].std_error, float) ** 2) / a.sum() ** 2
-                                      + np.sum(np.asarray(lf2.std_error, float) ** 2) / b.sum() ** 2))
+    ratio_std = ratio * float(np.sqrt(va.sum() / a.sum() ** 2 + vb.sum() / b.sum() ** 2))
     d.metrics["rig"] = {"pose_camera_2": pose.to_dict(),
                         "seed": cfg["seeds"]["render"] + 7, "rays_per_pixel": d.n_d,
                         "total_signal_ratio": ratio, "total_signal_ratio_std": ratio_std,

@@ -307,6 +307,21 @@ class SigmaSpace:
         return self.span * s if self.space == "log" else np.full(np.shape(s), self.span)
 
 
+def _sized_defaults(model, method: str, noise_scale_arg, noise_scale: str, rule_obj):
+    """The choices that depend on the problem's size: ``method="auto"`` (dense LM up to
+    :data:`DENSE_LM_MAX_UNKNOWNS` unknowns) and the default noise scale, which falls back to σ as
+    given when there are too few data to estimate it.  Returns ``(method, noise_scale, rule_obj)``."""
+    n_unknowns = 2 * model.n_u
+    if method == "auto":
+        method = "dense-lm" if n_unknowns <= DENSE_LM_MAX_UNKNOWNS else "levenberg-marquardt"
+    if noise_scale == "estimated" and model.m_total <= n_unknowns:
+        if noise_scale_arg is not None:
+            raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data "
+                             f"for {n_unknowns} unknowns")
+        noise_scale, rule_obj = "given", DiscrepancyBracket("given")
+    return method, noise_scale, rule_obj
+
+
 def _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge) -> tuple[SigmaSpace, float]:
     """The checked σₐ coordinate and ridge weight (ValueError naming the argument otherwise)."""
     if not (sigma_a_max > 0):
@@ -856,8 +871,7 @@ def solve_temperature_absorption(
         number of unknowns (module docstring, *Options*).
     T0 : ndarray of shape grid.shape, optional
         Initial temperature (K).  Default: tomographic two-colour pyrometry
-        (see ``_two_colour_start``: optically thin linear inversion per channel, then the
-        Planck ratio of the shortest and longest wavelengths per voxel).
+        (optically thin inversion per channel, then the Planck ratio per voxel).
     alpha : float
         Soot exponent of ``σ_a(λ) ∝ λ^-α``.
     sigma_a_max : float
@@ -882,9 +896,7 @@ def solve_temperature_absorption(
         two-colour start.
     lambda_max : float
         Largest λ the ``"auto"`` search tries (default 1e6; the L-curve path
-        runs from 1e-2 to it).  With a large ``sigma_a_scale`` (σₐ's curvature
-        cheap) χ²/m can stay below the target up to that cap; a larger cap
-        lets the discrepancy rule find its λ instead of stopping there.
+        runs from 1e-2 to it).
     max_steps : int
         Nonlinear steps per solve of the λ search (and of a fixed-λ fit).
     polish_steps : int
@@ -925,6 +937,7 @@ def solve_temperature_absorption(
         ``sigma_a`` is the field at the first wavelength.  With
         ``regularization="auto"``, ``details["lambda_path"]`` lists
         ``(λ, χ²/m, ‖R‖)`` of every solve of the search (in the order solved),
+        ``details["method"]`` the solver used,
         and ``details["lambda_path_T"]`` / ``["lambda_path_sigma_a"]`` their
         fields on ``grid`` (for an L-curve, or to pick another λ).
     """
@@ -935,22 +948,14 @@ def solve_temperature_absorption(
     # a non-quadratic prior (TV) is refused, never replaced by another one
     prior = resolve_prior(prior, quadratic_only=True, where="the joint T + sigma_a fit (unknowns='T+sigma_a')")
     ms, wls = _check_channels(measurements, segments)
-    noise_scale_given = noise_scale
-    rule_obj, noise_scale, bounds, lam_max = _check_options(
+    rule_obj, noise_scale_checked, bounds, lam_max = _check_options(
         method=method, engine=engine, rule=rule, noise_scale=noise_scale, regularization=regularization,
         bounds=bounds, lambda_max=lambda_max, polish_steps=polish_steps, max_steps=max_steps,
         linear_max_steps=linear_max_steps)
     space, ridge = _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge)
     model = JointModel(ms, wls, segments, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
                        space=space, ridge=ridge, engine=engine)
-    if method == "auto":
-        method = "dense-lm" if 2 * model.n_u <= DENSE_LM_MAX_UNKNOWNS else "levenberg-marquardt"
-    if noise_scale == "estimated" and model.m_total <= 2 * model.n_u and noise_scale_given is None:
-        noise_scale = "given"  # the default falls back: too few data to estimate the scale
-        rule_obj = DiscrepancyBracket(noise_scale)
-    if noise_scale == "estimated" and model.m_total <= 2 * model.n_u:
-        raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data for "
-                         f"{2 * model.n_u} unknowns")
+    method, noise_scale, rule_obj = _sized_defaults(model, method, noise_scale, noise_scale_checked, rule_obj)
     p, T_init, s_init, start_label, lam_start = _initial_fields(model, T0=T0, sigma_a0=sigma_a0, start=start,
                                                                 lam_max=lam_max, prior=prior,
                                                                 sigma_a_max=sigma_a_max)
@@ -974,11 +979,11 @@ def solve_temperature_absorption(
     finally:
         path.bar.close()
     return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, alpha=alpha,
-                   start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start)
+                   start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method)
 
 
 def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polish, scale_info, target, alpha,
-            start_label, T_init, s_init, t_start) -> Reconstruction:
+            start_label, T_init, s_init, t_start, method) -> Reconstruction:
     """The joint fit's :class:`Reconstruction` (fields on ``grid``, the λ path and the start in ``details``)."""
     grid, ring = model.grid, model.ring
     path_fields = [model.fields(e.theta) for e in path.evals]
@@ -1003,7 +1008,7 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
                  "lambda_path_T": [f[0] for f in path_fields], "lambda_path_sigma_a": [f[1] for f in path_fields],
                  "wavelengths": model.wls, "alpha": alpha, "start": start_label,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape),
-                 "noise_scale": scale_info, "chi2_target": target, "polish": polish},
+                 "noise_scale": scale_info, "chi2_target": target, "polish": polish, "method": method},
         symmetry=ring,
         metadata={} if model.E is None else {"quadrature_grid": model.seg_grid.to_dict()},
     )

@@ -1140,8 +1140,6 @@ def sample_posterior(
         When the chain after burn-in is shorter than 50 integrated
         autocorrelation times, or the importance ESS is low (and ``strict`` is False).
     """
-    import emcee
-
     logpost = build_log_posterior(
         problem, basis=basis, prior_mean=prior_mean, prior_std=prior_std, prior=prior,
         regularization=regularization, L=L, T_scale=T_scale, T_ref=T_ref, bounds=bounds,
@@ -1160,17 +1158,8 @@ def sample_posterior(
     c_start, chol, lap = _sampler_start(logpost, basis, optimize=optimize, T_start=T_start)
     p0 = _walker_ball(logpost, c_start, chol, n_walkers, init_scale, rng)
     likelihood, target, note = _sampling_target(logpost, likelihood, auto, c_start, chol, lap, rng)
-    if moves is None:
-        moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
-    def checked_target(Z, _target=target):  # Ctrl-C is honoured between two ensemble steps
-        check_interrupt()
-        return _target(Z)
-
-    sampler = emcee.EnsembleSampler(n_walkers, K, checked_target, vectorize=True, moves=moves)
-    sampler.random_state = np.random.RandomState(int(rng.integers(2**32 - 1))).get_state()
     t0 = time.perf_counter()
-    with stop_between_steps("the posterior sampling"):  # Ctrl-C: between two ensemble steps
-        sampler.run_mcmc(p0, n_steps, progress=progress)
+    sampler = _run_ensemble(target, p0, n_walkers, K, n_steps, moves=moves, rng=rng, progress=progress)
     elapsed = time.perf_counter() - t0
 
     chain = sampler.get_chain()
@@ -1195,6 +1184,26 @@ def sample_posterior(
         thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
         likelihood_note=note,
     )
+
+
+def _run_ensemble(target: Callable, p0: np.ndarray, n_walkers: int, K: int, n_steps: int, *, moves: Any,
+                  rng: np.random.Generator, progress: bool):
+    """emcee's ensemble sampler over ``target`` run for ``n_steps`` from ``p0`` (seeded from ``rng``;
+    Ctrl-C honoured between two ensemble steps); the default moves are ``DEMove`` 0.8 + ``StretchMove`` 0.2."""
+    import emcee
+
+    if moves is None:
+        moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
+
+    def checked_target(Z):
+        check_interrupt()
+        return target(Z)
+
+    sampler = emcee.EnsembleSampler(n_walkers, K, checked_target, vectorize=True, moves=moves)
+    sampler.random_state = np.random.RandomState(int(rng.integers(2**32 - 1))).get_state()
+    with stop_between_steps("the posterior sampling"):
+        sampler.run_mcmc(p0, n_steps, progress=progress)
+    return sampler
 
 
 def _check_sampling_options(logpost: Any, basis: Any, *, n_walkers, n_steps, thin, burn, init_scale,

@@ -385,3 +385,37 @@ def test_rig_refuses_mismatched_pairs(setup):
     with pytest.raises(ValueError, match="share the reconstruction grid"):
         coarse = lt.Grid(shape=(5, 5, 5), lower=(-0.007, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
         stack_problems([p, dataclasses.replace(p, grid=coarse)])
+
+
+def test_joint_defaults_pick_the_solver_and_noise_scale_by_problem_size(monkeypatch):
+    """``method="auto"`` takes dense LM up to ``DENSE_LM_MAX_UNKNOWNS`` unknowns and optimistix's LM
+    above; the default noise scale is estimated where the discrepancy search runs, and falls back
+    to σ as given (instead of failing) when the data do not outnumber the unknowns, where an
+    explicit ``noise_scale="estimated"`` is refused."""
+    from lftomo.inverse import joint
+
+    flame, ms, seg, kw = _blob_two_colour(1.15)
+    rec = reconstruct(ms, seg, regularization=1e3, max_steps=2, **kw)
+    assert rec.details["method"] == "dense-lm"
+    monkeypatch.setattr(joint, "DENSE_LM_MAX_UNKNOWNS", 2 * rec.symmetry.n_voxels - 1)
+    rec = reconstruct(ms, seg, regularization=1e3, max_steps=2, **kw)
+    assert rec.details["method"] == "levenberg-marquardt"
+    monkeypatch.undo()
+    rec = reconstruct(ms, seg, max_steps=2, **kw)
+    assert rec.details["noise_scale"] is not None and rec.lambda_rule.startswith("noise scale estimated")
+    # one view per channel on free 6³ voxels: fewer data than the 432 unknowns
+    cam = ms[0].camera
+    grid6 = lt.Grid(shape=(6, 6, 6), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=4, seed=2, wavelengths=(650e-9, 800e-9),
+                   progress=False)
+    lf = dataclasses.replace(lf, noise_std=0.01 * lf.raw + 1e-4 * lf.raw.max())
+    view = [lf.lit_views[len(lf.lit_views) // 2]]
+    few = [lt.Measurement.from_lightfield(lf, data="subaperture", channel=c, views=view) for c in range(2)]
+    seg6 = lt.ray_segments(cam, grid6, rays_per_pixel=4, seed=2, views=view, progress=False)
+    assert sum(m.size for m in few) <= 2 * grid6.n_voxels
+    opts = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), max_steps=1, lambda_max=1.0)
+    with pytest.raises(ValueError, match="noise_scale='estimated' needs more data than unknowns"):
+        reconstruct(few, seg6, noise_scale="estimated", **opts)
+    with pytest.warns(UserWarning):  # fewer data than unknowns: the underdetermination warning
+        rec = reconstruct(few, seg6, **opts)
+    assert rec.details["noise_scale"] is None and not rec.lambda_rule.startswith("noise scale estimated")
