@@ -396,6 +396,41 @@ def client_for(client: Any = None, scheduler: Any = None, workers: Any = None):
         cluster.close()
 
 
+# Tasks resubmitted after a shared input was lost, per task: a worker that dies
+# may hold the only copy (Dask's active memory manager drops broadcast replicas
+# that no waiting task needs), and the scheduler cannot recompute scattered data.
+LOST_INPUT_RETRIES = 3
+
+
+class _SharedInputs:
+    """Objects scattered once to every worker, scattered again when the cluster loses them."""
+
+    def __init__(self, client: Any, objects: Sequence[Any]) -> None:
+        self.client, self.objects = client, list(objects)
+        self.futures = self._scatter()
+
+    def _scatter(self) -> list:
+        return [self.client.scatter(x, broadcast=True) for x in self.objects]
+
+    def lost(self) -> bool:
+        return any(f.status != "finished" for f in self.futures)
+
+    def recover(self, exc: BaseException, tries: int) -> bool:
+        """True when a task that failed with ``exc`` should be resubmitted (inputs scattered anew if lost)."""
+        from concurrent.futures import CancelledError  # a dependency forgotten: Dask cancelled the task
+
+        if tries >= LOST_INPUT_RETRIES or not (self.lost() or isinstance(exc, CancelledError)):
+            return False
+        if self.lost():
+            self.client.wait_for_workers(1, timeout=120)  # the nannies restart killed workers
+            self.futures = self._scatter()
+        return True
+
+    def release(self) -> None:
+        with contextlib.suppress(Exception):
+            self.client.cancel(self.futures)
+
+
 def run_tasks(fn: Callable, keys: Sequence[tuple], *shared: Any, client: Any = None, scheduler: str | None = None,
               workers: int | None = None, serial: bool = False):
     """Yield ``(key, fn(*key, *shared))`` for every tuple ``key``: as Dask tasks, as they finish.
@@ -427,13 +462,26 @@ def run_tasks(fn: Callable, keys: Sequence[tuple], *shared: Any, client: Any = N
     from distributed import as_completed
 
     with client_for(client, scheduler, workers) as (c, _):
-        scattered = [c.scatter(x, broadcast=True) for x in shared]
-        futs = {c.submit(fn, *k, *scattered, pure=False): k for k in keys}
+        held = _SharedInputs(c, shared)
+        futs = {c.submit(fn, *k, *held.futures, pure=False): k for k in keys}
+        tries = dict.fromkeys(futs, 0)
+        ac = as_completed(list(futs))
         try:
-            for fut in as_completed(futs):
-                yield futs[fut], fut.result()
+            for fut in ac:
+                k, n = futs.pop(fut), tries.pop(fut)
+                try:
+                    result = fut.result()
+                except Exception as exc:  # noqa: BLE001 - resubmitted only when a shared input was lost
+                    if not held.recover(exc, n):
+                        raise
+                    new = c.submit(fn, *k, *held.futures, pure=False)
+                    futs[new], tries[new] = k, n + 1
+                    ac.add(new)
+                    continue
+                yield k, result
         finally:  # Ctrl-C, an error, or the caller stopped early: the other tasks are not needed
             c.cancel([f for f in futs if not f.done()])
+            held.release()
 
 
 # ---------------------------------------------------------------- the series
@@ -664,9 +712,10 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame,
     from distributed import as_completed
 
     run = manifest.runs[-1]["run"]
-    W = c.scatter(forward, broadcast=True)  # once per worker; tasks get the worker's copy
+    held = _SharedInputs(c, [forward])  # once per worker; tasks get the worker's copy
     window = max(2, 2 * sum(c.nthreads().values()))
     in_flight: dict[Any, int] = {}
+    tries: dict[int, int] = {}
     ac = as_completed()
 
     def record(res: dict) -> None:
@@ -690,7 +739,7 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame,
             except (ValueError, OSError) as exc:  # LftomoError is a ValueError
                 record({"index": i, "status": "failed", "message": f"frame {i}: {exc}"})
                 continue
-            fut = c.submit(solve_frame, i, frame, W, settings, pure=False,
+            fut = c.submit(solve_frame, i, frame, *held.futures, settings, pure=False,
                            key=f"lftomo-frame-{i}-{os.urandom(4).hex()}")
             in_flight[fut] = i
             ac.add(fut)
@@ -702,6 +751,11 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame,
             try:
                 res = fut.result()
             except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: the frame's workers kept dying
+                if held.recover(exc, tries.get(i, 0)):  # the forward model was lost with a worker
+                    tries[i] = tries.get(i, 0) + 1
+                    todo.appendleft(i)
+                    submit()
+                    continue
                 res = {"index": i, "status": "failed", "message": f"frame {i}: the task failed "
                                                                  f"({type(exc).__name__}: {exc})"}
             record(res)
@@ -711,8 +765,7 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame,
         raise
     finally:
         bar.close()
-        with contextlib.suppress(Exception):
-            c.cancel([W])
+        held.release()
 
 
 def _frame_result(out: Path, rec: dict) -> FrameResult:

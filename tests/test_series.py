@@ -72,14 +72,22 @@ def test_killed_worker_the_series_still_completes(gray_blob, serial, client, tmp
     pids = client.run(os.getpid)
     killed = []
 
-    def kill_one(frame):  # after the first frame: kill a worker process (its running task is lost)
+    def kill_holders(frame):
+        """After the first frame: kill every worker process that holds the forward model.
+
+        Its running task is lost, and so is the scattered weight matrix, which
+        the scheduler cannot recompute (Dask's memory manager may have dropped
+        all replicas but one): the series must send it again.
+        """
         if not killed:
-            pid = sorted(pids.values())[0]
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
+            holders = {a for k, who in client.who_has().items() if str(k).startswith("WeightMatrix-") for a in who}
+            assert holders
+            for addr in holders:
+                os.kill(pids[addr], signal.SIGKILL)
+                killed.append(pids[addr])
 
     res = reconstruct_series([lf] * 3, W, out=tmp_path, client=client, noise=NOISE, seed=SEED,
-                             on_frame=kill_one, **OPTS)
+                             on_frame=kill_holders, **OPTS)
     assert killed and res.n_done == 3, [f.message for f in res.failed]
     assert np.array_equal(res.stack(), serial[:3])
     client.wait_for_workers(2, timeout=60)  # the nanny restarts it for the next tests
