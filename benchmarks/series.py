@@ -12,6 +12,11 @@ The fields are bit-identical when this process runs with the workers' thread set
 (``lftomo.series.WORKER_ENV``: ``OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1
 MKL_NUM_THREADS=1``); a multithreaded BLAS sums the solver's dot products in another order.
 
+The machine's own ceiling is measured in the same run: the frames split over ``--workers``
+plain processes at once (no Dask; each compiles the solver once, as a worker does).  On
+``--workers`` cores it bounds what any scheduler can reach; ``series / plain processes`` is
+Dask's share.
+
 Printed: the serial and series wall times and their ratio (the speed-up; the cluster's start-up
 is timed separately and excluded; both include compiling the solver, once in the serial process
 and once in each worker), the first and later frames' times of both, whether the fields are bit-identical, the peak resident memory
@@ -40,6 +45,43 @@ def _peak_rss_mb() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+
+
+def _import_solvers() -> None:
+    import lftomo.inverse.solvers  # noqa: F401 - JAX imported, as in the serial process and the workers
+
+
+def _plain_share(frames, W, opts, first: int, step: int) -> list:
+    """Frames ``first::step`` reconstructed as the serial loop does, in a plain (non-Dask) process."""
+    out = []
+    for i in range(first, len(frames), step):
+        m = lt.Measurement.from_lightfield(lt.add_noise(frames[i], relative_std=0.01, seed=100 + i), channel=0)
+        out.append((i, lt.reconstruct(m, W, **opts).T))
+    return out
+
+
+def _plain_processes(frames, W, opts, n: int) -> tuple[float, list]:
+    """Wall time of the frames split over ``n`` plain processes at once (the machine's ceiling), and the fields."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from lftomo.series import WORKER_ENV
+
+    saved = {k: os.environ.get(k) for k in WORKER_ENV}
+    os.environ.update(WORKER_ENV)  # inherited by the spawned processes
+    try:
+        with ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"), initializer=_import_solvers) as ex:
+            list(ex.map(time.sleep, [0.5] * n))  # every process started and imported before the clock runs
+            t0 = time.perf_counter()
+            parts = [ex.submit(_plain_share, frames, W, opts, k, n) for k in range(n)]
+            fields = dict(x for p in parts for x in p.result())
+            return time.perf_counter() - t0, [fields[i] for i in range(len(frames))]
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def main() -> None:
@@ -78,15 +120,12 @@ def main() -> None:
           f"solver's compilation, later frames median {np.median(t_frames[1:]) if a.frames > 1 else np.nan:.2f} s); "
           f"load average {os.getloadavg()[0]:.1f}")
 
-    import logging
+    from distributed import Client
 
-    from distributed import Client, LocalCluster
-
-    from lftomo.series import WORKER_ENV
+    from lftomo.series import local_cluster
 
     t0 = time.perf_counter()
-    cluster = LocalCluster(n_workers=a.workers, threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
-                           dashboard_address=":0", silence_logs=logging.ERROR)
+    cluster = local_cluster(a.workers)  # the cluster reconstruct_series starts by default
     client = Client(cluster)
     client.run(lambda: __import__("lftomo.inverse.solvers"))  # imports (JAX) in every worker, as serial had
     t_start = time.perf_counter() - t0
@@ -114,6 +153,11 @@ def main() -> None:
         secs = [f["seconds"] for f in sorted(man["frames"], key=lambda f: f["completed"]) if f["worker"] == w]
         print(f"  worker {w}: {len(secs)} frames, first {secs[0]:.1f} s, later median "
               f"{np.median(secs[1:]) if len(secs) > 1 else np.nan:.2f} s")
+    t_plain, plain = _plain_processes(frames, W, opts, a.workers)
+    print(f"ceiling: the same frames split over {a.workers} plain processes at once (no Dask) {t_plain:.1f} s: "
+          f"speed-up {t_serial / t_plain:.2f}x; series / plain processes {t_series / t_plain:.2f}; "
+          f"bit-identical: {bool(np.array_equal(np.stack(plain), np.stack(serial)))}; load average "
+          f"{os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -48,12 +48,18 @@ import numpy as np
 
 from .errors import LftomoError
 
-__all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "MANIFEST", "frame_metrics",
-           "series_figure", "series_strip", "fingerprint", "solve_frame", "client_for", "run_tasks"]
+__all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "WORKER_DASK_CONFIG", "MANIFEST",
+           "frame_metrics", "series_figure", "series_strip", "fingerprint", "solve_frame", "client_for",
+           "local_cluster", "run_tasks"]
 
 #: Environment of the default LocalCluster's worker processes: one thread per library.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
               "MKL_NUM_THREADS": "1"}
+#: Dask settings of the default LocalCluster: glibc's malloc left at its defaults.  Dask's nanny
+#: sets ``MALLOC_TRIM_THRESHOLD_=65536`` in its workers, which also turns off glibc's adaptive
+#: mmap threshold, so every array above 128 KiB is a fresh mmap with its pages faulted in anew:
+#: a frame's solve then takes 1.5-1.8x as long (docs/series.md).  ``None`` unsets it.
+WORKER_DASK_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 #: Name of the manifest in the output folder.
 MANIFEST = "manifest.json"
 FORMAT = "lftomo-series-1"
@@ -356,13 +362,36 @@ def _usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def local_cluster(workers: int):
+    """A ``distributed.LocalCluster`` of ``workers`` single-threaded processes, set up for lftomo.
+
+    Each worker runs with :data:`WORKER_ENV` (one numba, OpenMP and BLAS thread)
+    and :data:`WORKER_DASK_CONFIG` (glibc's malloc not tuned by Dask); the
+    dashboard takes a free port.  The caller closes it.
+
+    Dask's nannies also write their variables into this process's
+    ``os.environ``, where every later worker would inherit them: a
+    ``MALLOC_TRIM_THRESHOLD_`` equal to Dask's own default is taken to be
+    such a leftover and removed from it.
+    """
+    import logging
+
+    import dask
+    from distributed import LocalCluster
+
+    key = "MALLOC_TRIM_THRESHOLD_"
+    if os.environ.get(key) == str(dask.config.get("distributed.nanny.pre-spawn-environ", {}).get(key)):
+        del os.environ[key]  # a nanny's leftover (an earlier default LocalCluster), not the user's setting
+    with dask.config.set(WORKER_DASK_CONFIG):  # read by the nannies when they start
+        return LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
+                            dashboard_address=":0", silence_logs=logging.ERROR)
+
+
 @contextlib.contextmanager
 def client_for(client: Any = None, scheduler: Any = None, workers: Any = None):
     """Yield ``(client, description)``: the given client, one connected to ``scheduler``, or a new
     LocalCluster of ``workers`` single-threaded processes (closed on exit, also on Ctrl-C)."""
-    import logging
-
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if client is not None and (scheduler is not None or workers is not None):
         raise LftomoError("give either client or scheduler/workers, not both")
@@ -386,8 +415,7 @@ def client_for(client: Any = None, scheduler: Any = None, workers: Any = None):
     n = _usable_cores() if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise LftomoError(f"workers must be an integer >= 1, got {workers!r}")
-    cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
-                           dashboard_address=":0", silence_logs=logging.ERROR)
+    cluster = local_cluster(int(n))
     c = Client(cluster)
     try:
         yield c, f"LocalCluster {int(n)} workers x 1 thread"
