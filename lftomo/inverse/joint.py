@@ -179,11 +179,12 @@ from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
 from .hostsparse import projected_normal_equations
-from .problem import LinearProblem
+from .problem import LinearProblem, taken_by_camera_of
 from .regularizers import resolve_prior, to_bcoo
 from .lambdarules import NOISE_SCALES, DiscrepancyBracket, Eval, LCurveDecades, resolve_rule
 from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
+from .rigsegments import SegmentStack, rows_of_pixels
 from .solvers import baseline_start
 from .subvoxel import format_vector, interpolate_field, resolve_quadrature
 from .symmetry import resolve_symmetry
@@ -219,14 +220,6 @@ SIGMA_A_SCALE_FACTOR = 10.0
 PROGRESS_MIN_SEGMENTS = 2_000_000
 
 
-def _rows_for(measurement, segments) -> np.ndarray:
-    """Segment row of each datum (-1 where the pixel's rays never meet the grid)."""
-    lookup = np.full(int(np.prod(segments.sensor_shape)) if hasattr(segments, "sensor_shape") else
-                     int(max(segments.pixel_index.max(), measurement.raw_index.max()) + 1), -1, dtype=np.int64)
-    lookup[segments.pixel_index] = np.arange(segments.pixel_index.size)
-    return lookup[measurement.raw_index]
-
-
 def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_max, grid, E=None):
     """Starting fields ``(T, σ_ref)`` (flat, K and m⁻¹) by tomographic two-colour pyrometry.
 
@@ -246,21 +239,25 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
     W0 = segments.weights(eps)
     P = sp.csr_matrix(W0.matrix) / eps
     bg0 = np.asarray(W0.background, dtype=np.float64)
-    S = []
-    for m, r, wl in zip(ms, rows, wls):
-        valid = (r >= 0).astype(np.float64)
-        rr = np.maximum(r, 0)
-        A = sp.diags(valid) @ P[rr]
-        if E is not None:
-            A = (A @ E).tocsr()
-        problem = LinearProblem(A, np.asarray(m.y, float), np.asarray(m.sigma, float), grid,
-                                wavelength=wl, background=bg0[rr] * valid)
-        S.append(baseline_start(problem, bounds=(lo, hi), prior=prior).I_b.ravel())
-    order = np.argsort(wls)
-    a, b = int(order[0]), int(order[-1])
+    S = {}  # wavelength -> emission coefficient, from every channel (camera) at that wavelength
+    for wl in sorted(set(wls)):
+        parts = []
+        for m, r in ((m, r) for m, r, w in zip(ms, rows, wls) if w == wl):
+            valid = (r >= 0).astype(np.float64)
+            rr = np.maximum(r, 0)
+            A = sp.diags(valid) @ P[rr]
+            if E is not None:
+                A = (A @ E).tocsr()
+            parts.append((A, np.asarray(m.y, float), np.asarray(m.sigma, float), bg0[rr] * valid))
+        A, y, sigma, bg = parts[0] if len(parts) == 1 else (
+            sp.vstack([q[0] for q in parts], format="csr"), *(np.concatenate([q[i] for q in parts]) for i in (1, 2, 3)))
+        problem = LinearProblem(A, y, sigma, grid, wavelength=wl, background=bg)
+        S[wl] = baseline_start(problem, bounds=(lo, hi), prior=prior).I_b.ravel()
+    factor = dict(zip(wls, factors))
+    a, b = min(wls), max(wls)
     T_tab = np.linspace(lo, hi, 4001)
-    ratio_tab = (np.log(factors[a] * blackbody(T_tab, wls[a]))
-                 - np.log(factors[b] * blackbody(T_tab, wls[b])))
+    ratio_tab = (np.log(factor[a] * blackbody(T_tab, a))
+                 - np.log(factor[b] * blackbody(T_tab, b)))
     ok = (S[a] > 0.05 * S[a].max()) & (S[b] > 0.05 * S[b].max())
     T = np.empty(S[a].size)
     if ok.any():
@@ -272,7 +269,7 @@ def _two_colour_start(ms, segments, rows, wls, factors, prior, lo, hi, sigma_a_m
         T[:] = 0.5 * (lo + hi)
     T = np.clip(T, lo + 1e-3 * (hi - lo), hi - 1e-3 * (hi - lo))
     sref = np.full(T.size, 1e-3 * sigma_a_max)
-    sref[ok] = S[0][ok] / blackbody(T[ok], wls[0])
+    sref[ok] = S[wls[0]][ok] / blackbody(T[ok], wls[0])
     sref = np.clip(sref, 1e-3 * sigma_a_max, 0.99 * sigma_a_max)
     return T, sref
 
@@ -341,13 +338,34 @@ def _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, s
     return space, ridge
 
 
-def _check_channels(measurements, segments) -> tuple[list, list[float]]:
-    """The measurements (two or more sub-aperture channels at distinct wavelengths) and their wavelengths."""
-    if not isinstance(segments, RaySegments):
-        raise ValueError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, ...)) "
-                         f"as its forward model, got {type(segments).__name__}: a weight matrix is built for one "
-                         "known sigma_a")
+def _check_channels(measurements, segments) -> tuple[list, list[float], Any, list[np.ndarray]]:
+    """The channels, their wavelengths, the forward model and each channel's rows of it.
+
+    One camera: ``segments`` is its :class:`~lftomo.RaySegments`, the measurements
+    two or more sub-aperture channels at distinct wavelengths.  A rig: ``segments``
+    is a sequence as long as ``measurements``, ``segments[c]`` the table of the
+    camera that took ``measurements[c]``; the distinct tables (by identity) become a
+    :class:`~lftomo.inverse.rigsegments.SegmentStack`.
+    """
     ms = list(measurements)
+    if isinstance(segments, (list, tuple)):
+        if len(segments) != len(ms):
+            raise ValueError(f"a rig's segments must be one table per measurement (camera of each channel): got "
+                             f"{len(segments)} tables for {len(ms)} measurements")
+        tables, camera = [], []
+        for t in segments:
+            k = next((i for i, u in enumerate(tables) if u is t), None)
+            if k is None:
+                tables.append(t)
+                k = len(tables) - 1
+            camera.append(k)
+        forward = SegmentStack(tables)
+    elif isinstance(segments, RaySegments):
+        forward, camera = segments, None
+    else:
+        raise ValueError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, ...)) "
+                         f"as its forward model, or one per measurement for a rig, got {type(segments).__name__}: a "
+                         "weight matrix is built for one known sigma_a")
     if len(ms) < 2:
         raise ValueError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got {len(ms)}")
     wls = []
@@ -357,9 +375,25 @@ def _check_channels(measurements, segments) -> tuple[list, list[float]]:
         if m.wavelength is None:
             raise ValueError(f"measurements[{k}] is gray; the joint fit needs spectral channels")
         wls.append(float(m.wavelength))
-    if len(set(wls)) != len(wls):
-        raise ValueError(f"the measurements' wavelengths must differ, got {wls}")
-    return ms, wls
+    channels = list(zip(wls, camera or [0] * len(ms)))
+    if len(set(channels)) != len(channels):
+        where = "" if camera is None else " (per camera)"
+        raise ValueError(f"the measurements' wavelengths must differ{where}, got {wls}")
+    if len(set(wls)) < 2:
+        raise ValueError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got only {wls[0] * 1e9:g} nm")
+    if camera is None:
+        rows = [rows_of_pixels(m, forward) for m in ms]
+    else:
+        for c, (m, t) in enumerate(zip(ms, segments)):
+            if not taken_by_camera_of(m, t):
+                raise ValueError(f"segments[{c}] was built for another camera (or pose) than the one that took "
+                                 f"measurements[{c}]: pair each channel with its camera's ray-segment table")
+        rows = [forward.rows_for(m, k) for m, k in zip(ms, camera)]
+    for k, (m, r) in enumerate(zip(ms, rows)):
+        if not (r >= 0).any():
+            raise ValueError(f"measurements[{k}]: none of its pixels has a row in its ray-segment table (a "
+                             "measurement of another camera, or of pixels whose rays miss the grid)")
+    return ms, wls, forward, rows
 
 
 @functools.lru_cache(maxsize=None)
@@ -411,7 +445,8 @@ class JointModel:
     the ring expansion ``P``, the interpolation ``E`` or ``E P``).
     """
 
-    def __init__(self, ms, wls, segments, *, grid, symmetry, prior, bounds, alpha, space: SigmaSpace, ridge, engine):
+    def __init__(self, ms, wls, segments, rows, *, grid, symmetry, prior, bounds, alpha, space: SigmaSpace, ridge,
+                 engine):
         self.ms, self.wls, self.segments, self.space, self.ridge = ms, wls, segments, space, ridge
         self.lo, self.hi = bounds
         self.seg_grid = Grid.from_dict(segments.metadata["grid"])
@@ -426,7 +461,7 @@ class JointModel:
             to_seg = (E @ ring.expansion).tocsr()
         self.to_seg = to_seg
         self.to_seg_j = None if to_seg is None else to_bcoo(to_seg)
-        self.rows = [_rows_for(m, segments) for m in ms]
+        self.rows = list(rows)
         self.ys = [jnp.asarray(m.y) for m in ms]
         self.inv_s = [jnp.asarray(1.0 / m.sigma) for m in ms]
         self.rows_j = [jnp.asarray(np.maximum(r, 0)) for r in self.rows]
@@ -441,7 +476,8 @@ class JointModel:
         if engine == "host":
             from .hostsegments import host_forward
 
-            self.seg, self.host_F = None, host_forward(segments)
+            self.seg = None
+            self.host_F = segments.host_forward() if isinstance(segments, SegmentStack) else host_forward(segments)
         else:
             self.seg, self.host_F = segments.to_jax(), None
         self.m_total = sum(m.y.size for m in ms)
@@ -947,13 +983,13 @@ def solve_temperature_absorption(
     # R = L x is what the σ terms, the Jacobi scaling and the dense normal equations are built on:
     # a non-quadratic prior (TV) is refused, never replaced by another one
     prior = resolve_prior(prior, quadratic_only=True, where="the joint T + sigma_a fit (unknowns='T+sigma_a')")
-    ms, wls = _check_channels(measurements, segments)
+    ms, wls, segments, rows = _check_channels(measurements, segments)
     rule_obj, noise_scale_checked, bounds, lam_max = _check_options(
         method=method, engine=engine, rule=rule, noise_scale=noise_scale, regularization=regularization,
         bounds=bounds, lambda_max=lambda_max, polish_steps=polish_steps, max_steps=max_steps,
         linear_max_steps=linear_max_steps)
     space, ridge = _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge)
-    model = JointModel(ms, wls, segments, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
+    model = JointModel(ms, wls, segments, rows, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
                        space=space, ridge=ridge, engine=engine)
     method, noise_scale, rule_obj = _sized_defaults(model, method, noise_scale, noise_scale_checked, rule_obj)
     p, T_init, s_init, start_label, lam_start = _initial_fields(model, T0=T0, sigma_a0=sigma_a0, start=start,

@@ -131,6 +131,16 @@ class LinearProblem:
         return sp.diags(w) @ self.A, w * (self.y - self.background)
 
 
+def taken_by_camera_of(measurement: Any, forward: Any) -> bool:
+    """Whether ``forward`` (weight matrix or ray-segment table) was built for the camera, with its pose,
+    that took ``measurement`` (True when ``forward`` does not record its camera)."""
+    import json
+
+    meta = getattr(forward, "metadata", None)
+    built_for = meta.get("camera") if isinstance(meta, dict) else None
+    return built_for is None or built_for == json.loads(json.dumps(measurement.camera.to_dict()))
+
+
 def stack_problems(problems: Sequence[LinearProblem]) -> LinearProblem:
     """One problem from the channels of several cameras at one wavelength.
 

@@ -12,7 +12,6 @@ transmittance in JAX.
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from typing import Any
@@ -76,7 +75,7 @@ def _temperature_problem(measurement, weights, grid: Grid | None):
     """The T-only problem of one camera (``Measurement``, ``WeightMatrix``) or of
     a rig (sequences of equal length: camera ``k``'s data with its own weights),
     stacked by :func:`lftomo.inverse.problem.stack_problems`."""
-    from .problem import stack_problems
+    from .problem import stack_problems, taken_by_camera_of
 
     if not isinstance(measurement, (list, tuple)):
         if isinstance(weights, (list, tuple)):
@@ -92,8 +91,7 @@ def _temperature_problem(measurement, weights, grid: Grid | None):
     if len(measurement) == 0:
         raise ValueError("measurement is an empty sequence: give at least one Measurement")
     for k, (m, w) in enumerate(zip(measurement, weights)):
-        built_for = getattr(w, "metadata", {}).get("camera") if isinstance(getattr(w, "metadata", None), dict) else None
-        if built_for is not None and built_for != json.loads(json.dumps(m.camera.to_dict())):
+        if not taken_by_camera_of(m, w):
             raise ValueError(f"weights[{k}] was built for another camera (or pose) than the one that took "
                              f"measurement[{k}]: pair each camera's data with its own weight matrix")
     parts = [problem_on_grid(m, w, grid) for m, w in zip(measurement, weights)]
@@ -187,8 +185,9 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
     ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
     if len(ms) < 2:
         raise ValueError(f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}")
-    if isinstance(getattr(weights, "metadata", None), dict) and weights.metadata.get("grid") is not None:
-        g = grid if grid is not None else _grid_of(weights)
+    first = weights[0] if isinstance(weights, (list, tuple)) and weights else weights  # a rig: one table per channel
+    if isinstance(getattr(first, "metadata", None), dict) and first.metadata.get("grid") is not None:
+        g = grid if grid is not None else _grid_of(first)
         ring = resolve_symmetry(symmetry, g)
         # unknowns: T and σ_ref per voxel (or ring cell)
         warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
@@ -222,13 +221,17 @@ def reconstruct(
     ----------
     measurement : Measurement or sequence of Measurement
         Noisy data (:meth:`Measurement.from_lightfield`); one per wavelength
-        for ``unknowns="T+sigma_a"``; for ``"T"`` one per camera of a rig
-        (same wavelength), with ``weights`` the matching sequence.
-    weights : WeightMatrix or sequence of WeightMatrix, or RaySegments for ``"T+sigma_a"``
+        for ``unknowns="T+sigma_a"`` (a rig: one per camera and wavelength);
+        for ``"T"`` one per camera of a rig (same wavelength), with
+        ``weights`` the matching sequence.
+    weights : WeightMatrix or sequence of WeightMatrix, or RaySegments (or a sequence) for ``"T+sigma_a"``
         Forward model on the reconstruction grid, built for the known
         ``sigma_a`` (``"T"``); rows must cover the raw pixels the data use.
         For a rig, ``weights[k]`` is camera ``k``'s matrix (the camera that
-        took ``measurement[k]``, with its pose) on the common grid.
+        took ``measurement[k]``, with its pose) on the common grid; for
+        ``"T+sigma_a"`` likewise ``weights[k]`` the ray-segment table of the
+        camera that took ``measurement[k]`` (the same object for each of its
+        wavelengths).
     unknowns : {"T", "T+sigma_a"}
     regularization : "auto" or float
         λ, or ``"auto"`` to choose it by ``rule`` (``rule=Fixed(λ)`` is the same as a float).
