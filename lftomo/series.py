@@ -767,8 +767,10 @@ def _run(c, frames, keys, todo, forward, settings, manifest, out, bar, on_frame,
             except (ValueError, OSError) as exc:  # LftomoError is a ValueError
                 record({"index": i, "status": "failed", "message": f"frame {i}: {exc}"})
                 continue
-            fut = c.submit(solve_frame, i, frame, *held.futures, settings, pure=False,
-                           key=f"lftomo-frame-{i}-{os.urandom(4).hex()}")
+            with warnings.catch_warnings():  # a frame is megabytes and is sent once: Dask's advice does not apply
+                warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
+                fut = c.submit(solve_frame, i, frame, *held.futures, settings, pure=False,
+                               key=f"lftomo-frame-{i}-{os.urandom(4).hex()}")
             in_flight[fut] = i
             ac.add(fut)
 
