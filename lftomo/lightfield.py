@@ -403,6 +403,7 @@ class LightField:
             "wavelengths": None if self.wavelengths is None else list(self.wavelengths),
             "arrays": sorted(arrays),
             "metadata": self.metadata,
+            "min_etendue_fraction": float(self.min_etendue_fraction),
         }
         with atomic_path(path) as tmp:
             np.savez_compressed(tmp, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
@@ -427,8 +428,14 @@ class LightField:
         meta = _check_lightfield_meta(data, path)
         camera, wl = _lightfield_camera(meta, path)
         kw = _check_lightfield_arrays(data, meta, camera, wl, path)
+        # the decode's threshold (which view pixels are data); files written before it was kept: the default
+        cut = meta.get("min_etendue_fraction", 0.05)
+        if isinstance(cut, bool) or not isinstance(cut, (int, float)) or not 0.0 <= cut < 1.0:
+            raise LftomoError(f"{what} {str(path)!r}: member 'meta' key 'min_etendue_fraction' must be a number in "
+                              f"[0, 1), got {cut!r}")
         try:
-            return cls(camera=camera, wavelengths=wl, metadata=meta.get("metadata", {}), **kw)
+            return cls(camera=camera, wavelengths=wl, metadata=meta.get("metadata", {}),
+                       min_etendue_fraction=float(cut), **kw)
         except (LftomoError, ValueError) as exc:
             raise LftomoError(f"{what} {str(path)!r}: {exc}") from None
 

@@ -1,5 +1,7 @@
 """Decoding, orientation, calibration and refocusing of the light field."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -154,6 +156,12 @@ def test_save_load_round_trip(tmp_path, targets_lf):
     assert np.array_equal(lf2.centers, lf.centers)
     assert np.array_equal(lf2.camera.packed, lf.camera.packed)
     assert lf2.metadata["seed"] == 3
+    # the decode's threshold travels with the file: the same view pixels are data after loading
+    cut = dataclasses.replace(lf, min_etendue_fraction=0.3)
+    lf3 = lt.LightField.load(cut.save(tmp_path / "cut.npz"))
+    assert lf3.min_etendue_fraction == 0.3 and lf2.min_etendue_fraction == lf.min_etendue_fraction
+    assert np.array_equal(np.ma.getmaskarray(lf3.views), np.ma.getmaskarray(cut.views))
+    assert not np.array_equal(np.ma.getmaskarray(lf3.views), np.ma.getmaskarray(lf.views))
     files = lf.export_images(tmp_path / "img")
     from PIL import Image
 
