@@ -447,9 +447,10 @@ class _SharedInputs:
         """True when a task that failed with ``exc`` should be resubmitted (inputs scattered anew if lost)."""
         from concurrent.futures import CancelledError  # a dependency forgotten: Dask cancelled the task
 
-        if tries >= LOST_INPUT_RETRIES or not (self.lost() or isinstance(exc, CancelledError)):
+        lost = self.lost()
+        if tries >= LOST_INPUT_RETRIES or not (lost or isinstance(exc, CancelledError)):
             return False
-        if self.lost():
+        if lost:
             self.client.wait_for_workers(1, timeout=120)  # the nannies restart killed workers
             self.futures = self._scatter()
         return True

@@ -992,21 +992,15 @@ def solve_temperature_absorption(
     model = JointModel(ms, wls, segments, rows, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
                        space=space, ridge=ridge, engine=engine)
     method, noise_scale, rule_obj = _sized_defaults(model, method, noise_scale, noise_scale_checked, rule_obj)
-    p, T_init, s_init, start_label, lam_start = _initial_fields(model, T0=T0, sigma_a0=sigma_a0, start=start,
-                                                                lam_max=lam_max, prior=prior,
-                                                                sigma_a_max=sigma_a_max)
-    if method == "dense-lm":
-        path = DenseLMPath(model, max_steps)
-    else:
-        path = MatrixFreePath(model, max_steps, method=method, rtol=rtol, atol=atol, linear_rtol=linear_rtol,
-                              linear_max_steps=linear_max_steps)
+    p, T_init, s_init, start_label, lam_start = _initial_fields(
+        model, T0=T0, sigma_a0=sigma_a0, start=start, lam_max=lam_max, prior=prior, sigma_a_max=sigma_a_max)
+    path = _solver_path(model, method, max_steps, progress, rtol=rtol, atol=atol, linear_rtol=linear_rtol,
+                        linear_max_steps=linear_max_steps)
     if noise_scale == "estimated" and start is not None:
         # s² is estimated from this fit's own least-regularized solves, two decades below the start's λ (the
         # T-only rule's λ_ref · 1e-2), not taken from the coarse fit: its misfit includes the coarse grid's
         # (measured, 650 + 900 nm: χ²/m 0.957 on 12³ at λ 10, 0.913 on 24³ after 40 steps at the same λ)
         lam_start = max(lam_start * 1e-2, _LAMBDA_MIN)
-    show = progress if progress is not None else segments.n_segments > PROGRESS_MIN_SEGMENTS
-    path.bar = progress_bar(None, bool(show), "reconstruct T+σa", unit="step")
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
             best, lam, note, polish, scale_info, target = _choose_lambda(
@@ -1016,6 +1010,18 @@ def solve_temperature_absorption(
         path.bar.close()
     return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, alpha=alpha,
                    start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method)
+
+
+def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool | None, **linear) -> _JointPath:
+    """The λ path of ``method`` (``linear``: the matrix-free solver's tolerances) with its progress bar
+    (default: shown for tables above :data:`PROGRESS_MIN_SEGMENTS` segments)."""
+    if method == "dense-lm":
+        path = DenseLMPath(model, max_steps)
+    else:
+        path = MatrixFreePath(model, max_steps, method=method, **linear)
+    show = progress if progress is not None else model.segments.n_segments > PROGRESS_MIN_SEGMENTS
+    path.bar = progress_bar(None, bool(show), "reconstruct T+σa", unit="step")
+    return path
 
 
 def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polish, scale_info, target, alpha,

@@ -18,6 +18,7 @@ finer quadrature grid (:mod:`lftomo.inverse.subvoxel`)::
 from __future__ import annotations
 
 import functools
+import json
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -134,8 +135,6 @@ class LinearProblem:
 def taken_by_camera_of(measurement: Any, forward: Any) -> bool:
     """Whether ``forward`` (weight matrix or ray-segment table) was built for the camera, with its pose,
     that took ``measurement`` (True when ``forward`` does not record its camera)."""
-    import json
-
     meta = getattr(forward, "metadata", None)
     built_for = meta.get("camera") if isinstance(meta, dict) else None
     return built_for is None or built_for == json.loads(json.dumps(measurement.camera.to_dict()))
