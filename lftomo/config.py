@@ -7,8 +7,9 @@ Format (lengths in m, temperatures in K, radiance in W m^-2 sr^-1 [m^-1])::
     focus_distance = 1.0
     [camera.main_lens]         # optional overrides of MainLens fields
     stop_diameter = 0.1        # r1, r2, thickness, diameter, index, stop_to_vertex, ideal
-    [camera.mla]               # count = [60, 60], pitch, diameter, r1, r2, thickness, index
-    [camera.sensor]            # pixel_pitch
+    [camera.mla]               # count = [60, 60], pitch, diameter, r1, r2, thickness, index,
+                               #   rotation (rad), offset = [x, y] (m): a real array's lattice
+    [camera.sensor]            # pixel_pitch, shape = [rows, cols] (default: the array's footprint)
     [camera.pose]              # optional: where the camera stands (default: stop at the
     eye = [-1.0, 0.0, 1.0]     #   origin looking along +z, +y up); eye, target (m) and
     target = [0.0, 0.0, 1.0]   #   up (default [0, 1, 0]), or position (m) and rotation
@@ -256,12 +257,17 @@ def _camera_part(part: str, t: Any) -> dict[str, Any]:
             if not isinstance(v, bool):
                 raise LftomoError(f"{where} must be true or false, got {v!r}")
             out[key] = v
-        elif isinstance(default, tuple):
-            if not isinstance(v, list) or len(v) != len(default):
-                raise LftomoError(f"{where} must be a list of {len(default)} integers >= 1, got {v!r}")
+        elif key == "offset":  # (x, y) of the lattice centre, m
+            if not isinstance(v, list) or len(v) != 2:
+                raise LftomoError(f"{where} must be a list of 2 lengths (x, y) in m, got {v!r}")
+            out[key] = tuple(toml_number(f"{where}[{i}]", x, unit="m") for i, x in enumerate(v))
+        elif isinstance(default, tuple) or key == "shape":  # counts: lenslets (x, y), pixels (rows, cols)
+            if not isinstance(v, list) or len(v) != 2:
+                raise LftomoError(f"{where} must be a list of 2 integers >= 1, got {v!r}")
             out[key] = tuple(toml_int(f"{where}[{i}]", x, minimum=1) for i, x in enumerate(v))
-        else:  # lengths and indices; radii may be inf (a plane)
-            out[key] = toml_number(where, v, allow_inf=key in ("r1", "r2"), unit=None if key == "index" else "m")
+        else:  # lengths, indices, angles; radii may be inf (a plane)
+            unit = {"index": None, "rotation": "rad"}.get(key, "m")
+            out[key] = toml_number(where, v, allow_inf=key in ("r1", "r2"), unit=unit)
     return out
 
 

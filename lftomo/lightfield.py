@@ -106,6 +106,11 @@ def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float 
     ndarray, shape (n_y, n_x, 2)
         Fitted (row, col) centres in pixel coordinates.
     """
+    _require_camera(camera)
+    if not camera.regular_grid:
+        raise LftomoError("calibrate_centers refines a regular grid's lenslet blocks; this camera's microlens "
+                          f"array is rotated, offset or {camera.lenslet_pitch_px:.4g} px in pitch: use "
+                          "lftomo.calibrate_grid(white), which estimates any lattice")
     white = require_array("white", white, ndim=2, shape=camera.sensor_shape, minimum=0.0)
     p = camera.pixels_per_lenslet
     nrows, ncols = camera.sensor_shape

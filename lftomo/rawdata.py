@@ -105,14 +105,15 @@ def check_grid_matches_camera(grid: Any, camera: Any, *, rms_tol: float = GRID_R
     ------
     LftomoError
         If the image shape or lenslet count differs, or the centres differ by
-        more than the tolerances: lftomo's forward model does not model a
-        rotated or non-integer microlens array.
+        more than the tolerances; the message gives the scene-file keys of
+        the camera whose array matches the calibration.
     """
     geo = geometric_centers(camera)
     if tuple(grid.image_shape) != tuple(camera.sensor_shape):
         raise LftomoError(f"{what}: the microlens grid was calibrated on {grid.image_shape[0]}x{grid.image_shape[1]} "
                           f"px frames, but the scene camera's sensor is {camera.sensor_shape[0]}x"
-                          f"{camera.sensor_shape[1]} px")
+                          f"{camera.sensor_shape[1]} px; the camera of this calibration is "
+                          f"{_grid_as_toml(grid, camera)}")
     d = grid.describe()
     model = model_lattice(geo)
     ij = np.linalg.solve(grid.basis.T, (geo.reshape(-1, 2) - grid.origin).T).T + np.asarray(grid.center_index)
@@ -131,10 +132,23 @@ def check_grid_matches_camera(grid: Any, camera: Any, *, rms_tol: float = GRID_R
             f"{what}: the calibrated microlens grid (pitch {d['pitch_px'][0]:.4f} x {d['pitch_px'][1]:.4f} px, "
             f"rotation {d['rotation_deg']:.4f} deg, offset ({d['offset_px'][0]:.3f}, {d['offset_px'][1]:.3f}) px "
             f"from the image centre) is not the scene camera's lenslet grid (pitch {model['pitch_px'][0]:.4f} x "
-            f"{model['pitch_px'][1]:.4f} px, rotation {model['rotation_deg']:.4f} deg): {why}. lftomo's forward "
-            "model does not yet model a rotated or non-integer microlens array; reconstructing these data with "
-            "it would be wrong (docs/real_cameras.md)")
+            f"{model['pitch_px'][1]:.4f} px, rotation {model['rotation_deg']:.4f} deg): {why}. Describe the "
+            f"calibrated array in the scene file, {_grid_as_toml(grid, camera)}, or build the camera with "
+            "lftomo.Camera.seed(..., mla_grid=grid) (docs/real_cameras.md)")
     return out
+
+
+def _grid_as_toml(grid: Any, camera: Any) -> str:
+    """The ``[camera.mla]`` and ``[camera.sensor]`` keys of the camera whose
+    microlens images lie on ``grid`` (:meth:`Camera.with_microlens_grid`)."""
+    try:
+        cam = camera.with_microlens_grid(grid)
+    except LftomoError as exc:  # e.g. a lattice too dense for these lenslets
+        return f"which this camera's lenslets cannot form ({exc})"
+    mla, sensor = cam.mla, cam.sensor
+    return (f"[camera.mla] count = [{mla.count[0]}, {mla.count[1]}], pitch = {mla.pitch!r}, "
+            f"diameter = {mla.diameter!r}, rotation = {mla.rotation!r}, offset = [{mla.offset[0]!r}, "
+            f"{mla.offset[1]!r}] and [camera.sensor] shape = [{sensor.shape[0]}, {sensor.shape[1]}]")
 
 
 def model_etendue(camera: Any) -> np.ndarray:

@@ -43,17 +43,27 @@ def _sensor(responsivity):
                           black_level=BLACK)
 
 
+# A real array's lattice: 10.37 px pitch (50 µm pixels), turned 0.2°, shifted off the axis
+GENERAL_SCENE = SCENE.replace("count = [12, 12]", """count = [12, 12]
+pitch = 5.185e-4
+diameter = 4.9776e-4
+rotation = 0.0034906585
+offset = [1.55e-5, -2.1e-5]""")
+
+
 class Frames:
     """A 12 × 12-lenslet seed camera looking at a Gaussian flame: its TIFF frames and what made them.
 
     Per-pixel response ``R · prnu`` (e⁻ per W/m, ±10 % non-uniformity), so the true factor from
-    counts to signal is ``f_true = GAIN / (R prnu)``; a 100-count black level (the dark)."""
+    counts to signal is ``f_true = GAIN / (R prnu)``; a 100-count black level (the dark).  ``scene``
+    may give the camera a general microlens lattice (``GENERAL_SCENE``)."""
 
-    def __init__(self, d):
+    def __init__(self, d, scene=SCENE):
         self.d = d
-        (d / "scene.toml").write_text(SCENE)
-        (d / "camera.toml").write_text(CAMERA_TOML)
+        (d / "scene.toml").write_text(scene)
         self.cfg = load_scene_file(d / "scene.toml")
+        rows, cols = self.cfg.camera.sensor_shape
+        (d / "camera.toml").write_text(CAMERA_TOML.replace("shape = [120, 120]", f"shape = [{rows}, {cols}]"))
         self.cam = self.cfg.camera
         # the flame at 4x the weight matrix's rays: its Monte Carlo error (which a real frame has not) is
         # then small beside the matrix's, which the noise model holds
@@ -94,6 +104,11 @@ class Frames:
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     return Frames(tmp_path_factory.mktemp("raw"))
+
+
+@pytest.fixture(scope="module")
+def general_frames(tmp_path_factory):
+    return Frames(tmp_path_factory.mktemp("raw_general"), GENERAL_SCENE)
 
 
 def test_raw_signal_and_noise_model_match_the_truth(frames):
@@ -149,10 +164,14 @@ def _reconstruct(lf, W, grid):
     return lt.reconstruct(m, W, bounds=(300.0, 3000.0), max_steps=50, grid=grid).T   # the CLI's defaults
 
 
-def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(frames, tmp_path, capsys):
+@pytest.mark.parametrize("lattice", ["regular", "general"])
+def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(lattice, request, tmp_path, capsys):
     """The CLI on the TIFF frames against the API on the same counts with the true factors and dark:
     the RMS difference of the hot voxels is below that between two noise draws of the flame frame
-    (the calibration's noise is ~1/2 of the frame's at the flame's peak, so the expected ratio is ~0.5)."""
+    (the calibration's noise is ~1/2 of the frame's at the flame's peak, so the expected ratio is ~0.5).
+    Also for a camera whose microlens array is rotated, offset and 10.37 px in pitch: the scene file
+    describes it, the white image calibrates to it, and the same path reconstructs."""
+    frames = request.getfixturevalue("frames" if lattice == "regular" else "general_frames")
     out = tmp_path / "rec"
     rc = main(["reconstruct", str(frames.d / "scene.toml"), "--raw", str(frames.d / "flame.tif"), "--calibration",
                str(frames.cal), "--dark", str(frames.d / "dark.tif"), "-o", str(out), *FAST])
@@ -217,14 +236,16 @@ def _run(frames, tmp_path, capsys, *extra, cal=None):
     return err
 
 
-def test_rotated_non_integer_grid_is_refused_before_work(frames, tmp_path, capsys, no_long_work):
+def test_a_grid_other_than_the_scene_cameras_is_refused_before_work(frames, tmp_path, capsys, no_long_work):
+    """A calibration of a rotated, non-integer lattice against the scene's regular camera: refused, with
+    the scene-file keys of the camera that would match it."""
     _, radio, _ = lt.load_calibration(frames.cal)
     grid = lt.calibrate_grid(_disc_white((120, 120), 10.37, 0.2, (0.31, -0.42)), dark=float(BLACK))
     bad = lt.save_calibration(tmp_path / "rot.npz", grid, radiometric=radio,
                               metadata={"camera": {"gain": GAIN, "read_noise": READ, "bit_depth": BITS}})
     err = _run(frames, tmp_path, capsys, cal=bad)
     assert "pitch 10.37" in err and re.search(r"rotation 0\.(19|20)", err) and "offset (0.3" in err, err
-    assert "does not yet model a rotated or non-integer microlens array" in err
+    assert "[camera.mla] count = [" in err and "rotation = 0.003" in err and "mla_grid=grid" in err, err
 
 
 def test_missing_radiometry_and_sensor_settings_are_refused(frames, tmp_path, capsys, no_long_work):

@@ -11,6 +11,16 @@ Raw sensor orientation: ``raw[row, col]`` with the column index increasing
 along +x and the row index increasing along -y of the frame (row 0 at +y), i.e.
 the sensor as seen from behind the camera looking along +z.  Lenslet ``(i, j)``
 covers rows ``i*ppl .. i*ppl+ppl-1`` and columns ``j*ppl .. j*ppl+ppl-1``.
+
+A real microlens array is rarely that regular: its pitch is a non-integer
+number of pixels, and it is rotated and shifted on the sensor.
+:class:`MicrolensArray` takes a ``rotation`` and an ``offset`` and
+:class:`Sensor` a ``shape``; a pixel then belongs to the lenslet nearest its
+centre (:func:`lftomo.forward.optics.own_lenslet`), and views are decoded
+about the microlens-image centres (:func:`lftomo.decode_index`).
+:meth:`Camera.seed` with ``mla_grid=`` builds the camera whose microlens
+images lie on a grid calibrated from a white image
+(:func:`lftomo.calibrate_grid`).
 """
 
 from __future__ import annotations
@@ -166,6 +176,16 @@ class MicrolensArray:
         Seed: 0.48 mm.
     r1, r2, thickness, index :
         Lenslet surfaces as for :class:`MainLens`.  Seed: ±1.15 mm, 0.1 mm, 1.5.
+    rotation : float
+        Rotation θ (rad) of the lattice about the optical axis, in the
+        convention of :class:`lftomo.calibration.MicrolensGrid`: lenslet
+        ``(i, j)``'s centre is ``R(θ) b + offset`` with ``b`` its position on
+        the unrotated grid and ``R = [[cos θ, sin θ], [−sin θ, cos θ]]`` in
+        (x, y), so θ > 0 turns a lenslet row towards increasing sensor rows.
+        At most π/8 in magnitude.  Seed: 0.
+    offset : (float, float)
+        (x, y) of the lattice centre in the MLA plane (m), relative to the
+        optical axis.  Seed: (0, 0).
     """
 
     count: tuple[int, int] = (60, 60)
@@ -175,6 +195,8 @@ class MicrolensArray:
     r2: float = -1.15e-3
     thickness: float = 0.1e-3
     index: float = 1.5
+    rotation: float = 0.0
+    offset: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         try:
@@ -183,6 +205,15 @@ class MicrolensArray:
             raise LftomoError(f"mla.count must be two integers (nx, ny), got {self.count!r}") from None
         object.__setattr__(self, "count", (require_int("mla.count[0]", cx, minimum=1), require_int("mla.count[1]", cy, minimum=1)))
         require_positive("mla.pitch", self.pitch)
+        rot = require_finite_scalar("mla.rotation", self.rotation)
+        if abs(rot) > math.pi / 8:
+            raise LftomoError(f"mla.rotation must be within ±π/8 rad (the lattice's rows stay rows), got {rot!r} rad")
+        object.__setattr__(self, "rotation", rot)
+        try:
+            ox, oy = (require_finite_scalar("mla.offset", v) for v in self.offset)
+        except (TypeError, ValueError):
+            raise LftomoError(f"mla.offset must be two lengths (x, y) in m, got {self.offset!r}") from None
+        object.__setattr__(self, "offset", (ox, oy))
         _check_lens("mla", self.r1, self.r2, self.thickness, self.diameter, self.index)
         if self.diameter > self.pitch * (1 + 1e-12):
             raise LftomoError(
@@ -218,24 +249,40 @@ class Sensor:
     ----------
     pixel_pitch : float
         Pixel size (m), square pixels.  Seed: 0.05 mm.  ``mla.pitch /
-        pixel_pitch`` must be an integer: the pixels per lenslet.
+        pixel_pitch``, the lenslet pitch in pixels, may be any number of at
+        least 2 (the seed's is 10).
+    shape : (int, int) or None
+        (rows, cols) of the sensor, centred on the optical axis.  Default: the
+        array's footprint, ``count × mla.pitch / pixel_pitch`` rounded up.
     """
 
     pixel_pitch: float = 0.05e-3
+    shape: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         require_positive("sensor.pixel_pitch", self.pixel_pitch)
+        if self.shape is not None:
+            try:
+                r, c = self.shape
+            except (TypeError, ValueError):
+                raise LftomoError(f"sensor.shape must be two integers (rows, cols), got {self.shape!r}") from None
+            object.__setattr__(self, "shape", (require_int("sensor.shape[0]", r, minimum=1),
+                                               require_int("sensor.shape[1]", c, minimum=1)))
 
 
-def _pixels_per_lenslet(mla: MicrolensArray, sensor: Sensor) -> int:
+def _lenslet_pitch_px(mla: MicrolensArray, sensor: Sensor) -> tuple[int, float]:
+    """(whole pixels per lenslet, pitch in pixels); the pitch is snapped to the
+    integer when within 1e-6 of it (the regular grid's test)."""
     ratio = mla.pitch / sensor.pixel_pitch
     n = int(round(ratio))
-    if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
+    if abs(ratio - n) <= 1e-6 * max(1.0, ratio):
+        ratio = float(n)
+    if ratio < 2.0:
         raise LftomoError(
             f"mla.pitch / sensor.pixel_pitch = {mla.pitch!r} / {sensor.pixel_pitch!r} = {ratio:.6g} "
-            "pixels per microlens; it must be a positive integer"
+            "pixels per microlens; it must be at least 2"
         )
-    return n
+    return int(math.floor(ratio)), ratio
 
 
 @njit(cache=True)
@@ -368,8 +415,13 @@ class Camera:
                 object.__setattr__(self, "pose", None)
         for name, kind in (("main_lens", MainLens), ("mla", MicrolensArray), ("sensor", Sensor)):
             require_instance(name, getattr(self, name), kind, f"an lftomo.{kind.__name__}")
-        ppl = _pixels_per_lenslet(self.mla, self.sensor)
-        n_px = self.mla.count[0] * self.mla.count[1] * ppl * ppl
+        ppl, pitch_px = _lenslet_pitch_px(self.mla, self.sensor)
+        nx, ny = self.mla.count
+        footprint = (int(math.ceil(ny * pitch_px - 1e-9)), int(math.ceil(nx * pitch_px - 1e-9)))
+        shape = footprint if self.sensor.shape is None else self.sensor.shape
+        general = (pitch_px != ppl or self.mla.rotation != 0.0 or self.mla.offset != (0.0, 0.0)
+                   or shape != footprint)
+        n_px = shape[0] * shape[1]
         check_allocation(f"a camera of {self.mla.count[0]} x {self.mla.count[1]} microlenses ({n_px:.3g} pixels)",
                          n_px * BYTES_PER_PIXEL, hint="use fewer microlenses (mla.count)")
         d = require_positive("mla_distance", self.mla_distance)
@@ -391,6 +443,9 @@ class Camera:
         if self.focus_distance is not None:
             require_positive("focus_distance", self.focus_distance)
         object.__setattr__(self, "_ppl", ppl)
+        object.__setattr__(self, "_pitch_px", pitch_px)
+        object.__setattr__(self, "_sensor_shape", shape)
+        object.__setattr__(self, "_general", general)
 
     # ---- construction -----------------------------------------------------
     @classmethod
@@ -442,15 +497,23 @@ class Camera:
         mla: Mapping[str, Any] | MicrolensArray | None = None,
         sensor: Mapping[str, Any] | Sensor | None = None,
         pose: Pose | None = None,
+        mla_grid: Any = None,
     ) -> "Camera":
-        """The reference camera (DESIGN §1), focused at ``focus_distance`` (m).
+        """The reference camera (the seed of docs/design.md), focused at ``focus_distance`` (m).
 
         Any component parameter can be overridden with a mapping, e.g.
         ``Camera.seed(0.8, main_lens={"stop_diameter": 0.05}, mla={"count": (40, 40)})``,
         or a component object.  ``main_lens={"ideal": True}`` gives the ideal
         thin-lens variant.  ``pose`` places the camera in the world, e.g.
         ``pose=lftomo.Pose.look_at(eye=(-1, 0, 1), target=(0, 0, 1))``.
+        ``mla_grid``, a :class:`lftomo.calibration.MicrolensGrid` calibrated
+        from a white image, sets the array's count, pitch, rotation and offset
+        and the sensor's shape so that the camera's microlens images lie on
+        that grid (:meth:`with_microlens_grid`).
         """
+        if mla_grid is not None:
+            cam = cls.seed(focus_distance, main_lens=main_lens, mla=mla, sensor=sensor, pose=pose)
+            return cam.with_microlens_grid(mla_grid)
 
         def build(kind, value):
             if value is None:
@@ -477,18 +540,65 @@ class Camera:
         """The same camera placed at ``pose`` (``None``: the camera frame)."""
         return dataclasses.replace(self, pose=pose)
 
+    def with_microlens_grid(self, grid: Any) -> "Camera":
+        """This camera with the microlens array that images onto ``grid``.
+
+        ``grid`` (:class:`lftomo.calibration.MicrolensGrid`, from a white image)
+        gives the microlens-image lattice in pixels: its mean pitch, rotation
+        and the position of one image.  A lenslet's image centre is its centre
+        scaled by :attr:`microlens_image_scale` (the same lens distances), so
+        the array's pitch is the image pitch over that scale and its offset
+        follows from the image position; the count is the grid's shape, the
+        sensor shape the grid's image shape, and the lenslet diameter keeps its
+        ratio to the pitch.  The result's :func:`lftomo.geometric_centers` are
+        the grid's centres (to rounding, for a square lattice).
+        """
+        for name in ("pitch", "rotation", "offset", "shape", "image_shape", "center_index"):
+            if not hasattr(grid, name):
+                raise LftomoError(f"mla_grid must be an lftomo.MicrolensGrid (from lftomo.calibrate_grid), "
+                                  f"got {type(grid).__name__}")
+        sp = self.sensor.pixel_pitch
+        scale = self.microlens_image_scale
+        pitch = float(np.mean(grid.pitch)) * sp / scale
+        ny, nx = (int(v) for v in grid.shape)
+        rows, cols = (int(v) for v in grid.image_shape)
+        t = float(grid.rotation)
+        i0, j0 = (int(v) for v in grid.center_index)
+        bx = (j0 + 0.5 - 0.5 * nx) * pitch
+        by = (0.5 * ny - i0 - 0.5) * pitch
+        # image of lenslet (i0, j0) at (offset_r, offset_c) px from the sensor centre
+        img_x, img_y = grid.offset[1] * sp, -grid.offset[0] * sp
+        off = (img_x / scale - (math.cos(t) * bx + math.sin(t) * by),
+               img_y / scale - (-math.sin(t) * bx + math.cos(t) * by))
+        mla = dataclasses.replace(self.mla, count=(nx, ny), pitch=pitch, rotation=t, offset=off,
+                                  diameter=self.mla.diameter * pitch / self.mla.pitch)
+        return dataclasses.replace(self, mla=mla, sensor=dataclasses.replace(self.sensor, shape=(rows, cols)))
+
     # ---- derived geometry -------------------------------------------------
     # numba-free helper state (stop-sample cache) lives in __dict__ of the frozen instance
 
     @property
     def pixels_per_lenslet(self) -> int:
+        """Whole pixels per lenslet along each axis: the views per axis
+        (the lenslet pitch in pixels, rounded down)."""
         return self._ppl  # type: ignore[attr-defined]
+
+    @property
+    def lenslet_pitch_px(self) -> float:
+        """Lenslet pitch in pixels, ``mla.pitch / sensor.pixel_pitch``."""
+        return self._pitch_px  # type: ignore[attr-defined]
+
+    @property
+    def regular_grid(self) -> bool:
+        """True for the regular grid: an integer number of pixels per lenslet,
+        no rotation or offset, the sensor the array's footprint (lenslet
+        ``(i, j)`` covers the pixel block ``i*ppl…``, ``j*ppl…``)."""
+        return not self._general  # type: ignore[attr-defined]
 
     @property
     def sensor_shape(self) -> tuple[int, int]:
         """(n_rows, n_cols) of the raw image."""
-        nx, ny = self.mla.count
-        return (ny * self.pixels_per_lenslet, nx * self.pixels_per_lenslet)
+        return self._sensor_shape  # type: ignore[attr-defined]
 
     @property
     def views_shape(self) -> tuple[int, int, int, int]:
@@ -520,14 +630,18 @@ class Camera:
         o[_o.O_M_N] = mla.index
         o[_o.O_S_Z] = self.z_sensor
         o[_o.O_S_PITCH] = self.sensor.pixel_pitch
-        o[_o.O_S_PPL] = self.pixels_per_lenslet
+        o[_o.O_S_PPL] = self.lenslet_pitch_px
         o[_o.O_NROWS], o[_o.O_NCOLS] = self.sensor_shape
+        if not self.regular_grid:
+            o[_o.O_M_GENERAL] = 1.0
+            o[_o.O_M_COS], o[_o.O_M_SIN] = math.cos(mla.rotation), math.sin(mla.rotation)
+            o[_o.O_M_OX], o[_o.O_M_OY] = mla.offset
         # The disc sampled on the lenslet back-vertex plane must contain every
         # crossing point of a ray that reaches the clear aperture of the back
         # surface: clear radius + sag * max tan(angle from the sensor).
         rclear = 0.5 * mla.diameter
         sag_back = abs(_sag(o[_o.O_M2_C], rclear))
-        reach = (1.5 * self.pixels_per_lenslet * self.sensor.pixel_pitch + rclear) * 1.5
+        reach = (1.5 * self.lenslet_pitch_px * self.sensor.pixel_pitch + rclear) * 1.5
         tan_max = reach / self.sensor_gap
         o[_o.O_SAMPLE_R] = rclear + sag_back * tan_max * 1.05
         o[_o.O_RINGS] = 0.0
@@ -559,16 +673,39 @@ class Camera:
         nrow, ncol = self.sensor_shape
         p = self.pixels_per_lenslet
         rows, cols = [], []
-        for bi in {0, nrow // p // 2, nrow // p - 1}:
-            for bj in {0, ncol // p // 2, ncol // p - 1}:
-                for r in range(p):
-                    for c in range(p):
-                        rows.append(bi * p + r)
-                        cols.append(bj * p + c)
+        if self.regular_grid:
+            for bi in {0, nrow // p // 2, nrow // p - 1}:
+                for bj in {0, ncol // p // 2, ncol // p - 1}:
+                    for r in range(p):
+                        for c in range(p):
+                            rows.append(bi * p + r)
+                            cols.append(bj * p + c)
+        else:  # every pixel within 1.5 pitches of the nine lenslets' centres (and those off the array)
+            nx, ny = self.mla.count
+            half = int(math.ceil(1.5 * self.lenslet_pitch_px)) + 1
+            for bi in {0, ny // 2, ny - 1}:
+                for bj in {0, nx // 2, nx - 1}:
+                    r0, c0 = self.lenslet_pixel_center(bi, bj)
+                    rr, cc = np.mgrid[int(r0) - half:int(r0) + half + 1, int(c0) - half:int(c0) + half + 1]
+                    keep = (rr >= 0) & (rr < nrow) & (cc >= 0) & (cc < ncol)
+                    rows.extend(rr[keep].tolist())
+                    cols.extend(cc[keep].tolist())
         indep = _sampler.pack_sampler("independent", 400)
         res = _pixel_throughput(np.array(rows, np.int64), np.array(cols, np.int64), 400, 12345, probe,
                                 indep, _NO_TABLE)
         return bool(np.any(res[:, 0] > 0.0))
+
+    def lenslet_pixel_center(self, i: int, j: int) -> tuple[float, float]:
+        """(row, col) pixel coordinates (pixel ``(r, c)`` centred at ``(r, c)``)
+        of the point straight under lenslet ``(i, j)``'s centre."""
+        mla = self.mla
+        nx, ny = mla.count
+        bx, by = (j + 0.5 - 0.5 * nx) * mla.pitch, (0.5 * ny - i - 0.5) * mla.pitch
+        c, s = math.cos(mla.rotation), math.sin(mla.rotation)
+        cx, cy = c * bx + s * by + mla.offset[0], -s * bx + c * by + mla.offset[1]
+        nrows, ncols = self.sensor_shape
+        p = self.sensor.pixel_pitch
+        return 0.5 * nrows - 0.5 - cy / p, cx / p + 0.5 * ncols - 0.5
 
     # ---- paraxial optics --------------------------------------------------
     def paraxial_matrix(self) -> np.ndarray:
@@ -637,15 +774,36 @@ class Camera:
         z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
         dist = z_h2 - self.z_sensor
         scale = 1.0 + dist / (z_xp - z_h1)
-        cx = (np.arange(nx) + 0.5 - 0.5 * nx) * mla.pitch * scale
-        cy = (0.5 * ny - np.arange(ny) - 0.5) * mla.pitch * scale
         nrows, ncols = self.sensor_shape
         p = self.sensor.pixel_pitch
         out = np.empty((ny, nx, 2))
-        out[..., 0] = (0.5 * nrows - 0.5 - cy / p)[:, None]
-        out[..., 1] = (cx / p + 0.5 * ncols - 0.5)[None, :]
+        if self.regular_grid:
+            cx = (np.arange(nx) + 0.5 - 0.5 * nx) * mla.pitch * scale
+            cy = (0.5 * ny - np.arange(ny) - 0.5) * mla.pitch * scale
+            out[..., 0] = (0.5 * nrows - 0.5 - cy / p)[:, None]
+            out[..., 1] = (cx / p + 0.5 * ncols - 0.5)[None, :]
+        else:
+            bx = ((np.arange(nx) + 0.5 - 0.5 * nx) * mla.pitch)[None, :]
+            by = ((0.5 * ny - np.arange(ny) - 0.5) * mla.pitch)[:, None]
+            c, s = math.cos(mla.rotation), math.sin(mla.rotation)
+            cx = (c * bx + s * by + mla.offset[0]) * scale
+            cy = (-s * bx + c * by + mla.offset[1]) * scale
+            out[..., 0] = 0.5 * nrows - 0.5 - cy / p
+            out[..., 1] = cx / p + 0.5 * ncols - 0.5
         out.setflags(write=False)
         return out
+
+    @cached_property
+    def microlens_image_scale(self) -> float:
+        """Paraxial ratio of a microlens image's centre to its lenslet's centre
+        (both from the optical axis): the projection from the exit-pupil
+        centre through the lenslet's principal points onto the sensor."""
+        mla = self.mla
+        z_xp, _ = self.exit_pupil
+        z_h1 = self.z_mla - mla.front_principal_plane
+        f = mla.focal_length
+        z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
+        return float(1.0 + (z_h2 - self.z_sensor) / (z_xp - z_h1))
 
     @cached_property
     def microlens_image_radius(self) -> float:
@@ -722,11 +880,7 @@ class Camera:
         Unlit views are NaN.
         """
         p = self.pixels_per_lenslet
-        nrow, ncol = self.sensor_shape
-        i0, j0 = nrow // p // 2, ncol // p // 2
-        rr, cc = np.indices((p, p))
-        rows = (i0 * p + rr).ravel()
-        cols = (j0 * p + cc).ravel()
+        rows, cols = (a.ravel() for a in self.central_block)
         res = _pixel_throughput(rows.astype(np.int64), cols.astype(np.int64), 20000, 7, self.packed,
                                 *self.sampler_arrays(DEFAULT_SAMPLER, 20000))
         xy = res[:, 1:3].reshape(p, p, 2)  # noqa: E501
@@ -757,10 +911,7 @@ class Camera:
         cache = self.__dict__.setdefault("_stop_sample_cache", {})
         if key not in cache:
             p = self.pixels_per_lenslet
-            i0, j0 = self.central_lenslet
-            rr, cc = np.indices((p, p))
-            rows = (i0 * p + rr).ravel().astype(np.int64)
-            cols = (j0 * p + cc).ravel().astype(np.int64)
+            rows, cols = (a.ravel() for a in self.central_block)
             res = _pixel_stop_samples(rows, cols, key[0], key[1], key[2], 11, self.packed,
                                       *self.sampler_arrays(DEFAULT_SAMPLER, key[2]))
             cache[key] = res.reshape(p, p, -1, 3)[::-1, ::-1].copy()
@@ -769,18 +920,32 @@ class Camera:
     @property
     def central_lenslet(self) -> tuple[int, int]:
         """(i, j) of the lenslet used as the reference for view geometry."""
+        if not self.regular_grid:
+            return self.mla.count[1] // 2, self.mla.count[0] // 2
         p = self.pixels_per_lenslet
         nrow, ncol = self.sensor_shape
         return nrow // p // 2, ncol // p // 2
 
+    @property
+    def central_block(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols), each (p, p) int64 in raw order: the pixels decoded from
+        the central lenslet's image (its block on the regular grid; on a
+        general lattice the p x p pixels about its image centre, as
+        :func:`lftomo.decode_index` takes them)."""
+        p = self.pixels_per_lenslet
+        i0, j0 = self.central_lenslet
+        rr, cc = np.indices((p, p))
+        if self.regular_grid:
+            return (i0 * p + rr).astype(np.int64), (j0 * p + cc).astype(np.int64)
+        r, c = self.microlens_image_centers[i0, j0]
+        r0, c0 = int(np.round(r - 0.5 * (p - 1))), int(np.round(c - 0.5 * (p - 1)))
+        return (r0 + rr).astype(np.int64), (c0 + cc).astype(np.int64)
+
     @cached_property
     def _central_etendue(self) -> np.ndarray:
         """Étendue (m² sr) of the pixels under the central lenslet, (n_v, n_u) in view order."""
-        p = self.pixels_per_lenslet
-        nrow, ncol = self.sensor_shape
-        i0, j0 = nrow // p // 2, ncol // p // 2
-        rr, cc = np.indices((p, p))
-        et = self.pixel_etendue(i0 * p + rr, j0 * p + cc, n_rays=20000, seed=7)
+        rows, cols = self.central_block
+        et = self.pixel_etendue(rows, cols, n_rays=20000, seed=7)
         return et[::-1, ::-1].copy()
 
     @cached_property
@@ -862,6 +1027,9 @@ class Camera:
             "microlens_f_number": mla.focal_length / mla.diameter,
             "microlens_image_diameter_px": img_diam_px,
             "pixels_per_microlens": ppl,
+            "microlens_pitch_px": self.lenslet_pitch_px,
+            "microlens_rotation_deg": math.degrees(mla.rotation),
+            "regular_grid": self.regular_grid,
             "sensor_shape": list(self.sensor_shape),
             "views_shape": list(self.views_shape),
             "lit_views": self.lit_views,
@@ -900,10 +1068,19 @@ class Camera:
         The ``"pose"`` key is present only for a posed camera, so the
         description (and the files that store it) of an unposed camera is
         the same as before poses existed."""
+        mla = {**dataclasses.asdict(self.mla), "count": list(self.mla.count), "offset": list(self.mla.offset)}
+        sensor = dataclasses.asdict(self.sensor)
+        # a regular grid's description stays what it was before lattices could be general
+        if mla["rotation"] == 0.0 and mla["offset"] == [0.0, 0.0]:
+            del mla["rotation"], mla["offset"]
+        if sensor["shape"] is None:
+            del sensor["shape"]
+        else:
+            sensor["shape"] = list(sensor["shape"])
         d = {
             "main_lens": dataclasses.asdict(self.main_lens),
-            "mla": {**dataclasses.asdict(self.mla), "count": list(self.mla.count)},
-            "sensor": dataclasses.asdict(self.sensor),
+            "mla": mla,
+            "sensor": sensor,
             "mla_distance": self.mla_distance,
             "sensor_gap": self.sensor_gap,
             "focus_distance": self.focus_distance,
@@ -917,8 +1094,10 @@ class Camera:
         try:
             return cls(
                 main_lens=MainLens(**d["main_lens"]),
-                mla=MicrolensArray(**{**d["mla"], "count": tuple(d["mla"]["count"])}),
-                sensor=Sensor(**d["sensor"]),
+                mla=MicrolensArray(**{**d["mla"], "count": tuple(d["mla"]["count"]),
+                                      "offset": tuple(d["mla"].get("offset", (0.0, 0.0)))}),
+                sensor=Sensor(**{**d["sensor"], "shape": None if d["sensor"].get("shape") is None
+                                 else tuple(d["sensor"]["shape"])}),
                 mla_distance=float(d["mla_distance"]),
                 sensor_gap=float(d["sensor_gap"]),
                 focus_distance=None if d.get("focus_distance") is None else float(d["focus_distance"]),

@@ -59,7 +59,16 @@ O_XP_R2 = 27  # squared cull radius at the exit pupil (0: no cull)
 O_POSE = 28  # 1.0: the camera has a pose other than the identity (lftomo.forward.pose)
 O_R = 29  # pose rotation R, row-major, 9 entries: R[i, j] at O_R + 3 i + j (camera -> world)
 O_T = 38  # pose position (stop centre in the world), 3 entries
-O_SIZE = 41
+# A general microlens lattice (rotated, offset, or with a non-integer number of
+# pixels per lenslet, ``O_S_PPL`` then the float pitch in pixels).  With
+# ``O_M_GENERAL`` = 0 every kernel takes the regular grid's own arithmetic (a
+# lenslet's pixels are the ``O_S_PPL`` x ``O_S_PPL`` block under it), bit for bit.
+O_M_GENERAL = 41  # 1.0: the lattice below is used
+O_M_COS = 42  # cos θ of the lattice rotation θ (lftomo.forward.camera.MicrolensArray.rotation)
+O_M_SIN = 43  # sin θ
+O_M_OX = 44  # lattice centre x (m) in the MLA plane
+O_M_OY = 45  # lattice centre y (m)
+O_SIZE = 46
 
 
 @njit(cache=True, inline="always")
@@ -251,11 +260,56 @@ def main_lens_forward(ox, oy, oz, dx, dy, dz, optics):
 
 @njit(cache=True, inline="always")
 def lenslet_center(i, j, optics):
-    """Centre (x, y) of lenslet row ``i`` (0 at +y) and column ``j`` (0 at -x)."""
+    """Centre (x, y) of lenslet row ``i`` (0 at +y) and column ``j`` (0 at -x).
+
+    On a general lattice the regular grid's position ``b`` is rotated and
+    shifted: ``c = R(θ) b + o`` with ``R = [[cos θ, sin θ], [−sin θ, cos θ]]``
+    (θ > 0 turns the lattice's rows towards +row on the sensor, the convention
+    of :class:`lftomo.calibration.MicrolensGrid`)."""
     p = optics[O_M_PITCH]
     cx = (j + 0.5 - 0.5 * optics[O_M_NX]) * p
     cy = (0.5 * optics[O_M_NY] - i - 0.5) * p
-    return cx, cy
+    if optics[O_M_GENERAL] == 0.0:
+        return cx, cy
+    c = optics[O_M_COS]
+    s = optics[O_M_SIN]
+    return c * cx + s * cy + optics[O_M_OX], -s * cx + c * cy + optics[O_M_OY]
+
+
+@njit(cache=True, inline="always")
+def lattice_index(x, y, optics):
+    """Fractional lattice coordinates ``(fi, fj)`` of the MLA-plane point (x, y):
+    lenslet ``(int(fi), int(fj))`` holds it when both are in range."""
+    p = optics[O_M_PITCH]
+    if optics[O_M_GENERAL] != 0.0:
+        c = optics[O_M_COS]
+        s = optics[O_M_SIN]
+        ux = x - optics[O_M_OX]
+        uy = y - optics[O_M_OY]
+        x = c * ux - s * uy
+        y = s * ux + c * uy
+    return 0.5 * optics[O_M_NY] - y / p, x / p + 0.5 * optics[O_M_NX]
+
+
+@njit(cache=True, inline="always")
+def own_lenslet(row, col, optics):
+    """The lenslet ``(i, j)`` whose pixels pixel ``(row, col)`` belongs to.
+
+    Regular grid: the ``O_S_PPL`` x ``O_S_PPL`` block under the lenslet.
+    General lattice: the lenslet nearest the pixel centre (its Voronoi cell),
+    clamped to the array, so that pixels beyond the array's edge belong to the
+    edge lenslets (light reaching them through any other lenslet is found by
+    the camera's crosstalk check, which then samples neighbours too)."""
+    if optics[O_M_GENERAL] == 0.0:
+        ppl = int(optics[O_S_PPL])
+        return row // ppl, col // ppl
+    sp = optics[O_S_PITCH]
+    x = (col + 0.5 - 0.5 * optics[O_NCOLS]) * sp
+    y = (0.5 * optics[O_NROWS] - row - 0.5) * sp
+    fi, fj = lattice_index(x, y, optics)
+    i = min(max(int(math.floor(fi)), 0), int(optics[O_M_NY]) - 1)
+    j = min(max(int(math.floor(fj)), 0), int(optics[O_M_NX]) - 1)
+    return i, j
 
 
 @njit(cache=True, inline="always")
@@ -291,11 +345,9 @@ def mla_forward(px, py, pz, dx, dy, dz, optics):
     t = (optics[O_M1_ZV] - pz) / dz
     x = px + t * dx
     y = py + t * dy
-    p = optics[O_M_PITCH]
     nx = int(optics[O_M_NX])
     ny = int(optics[O_M_NY])
-    fj = x / p + 0.5 * nx
-    fi = 0.5 * ny - y / p
+    fi, fj = lattice_index(x, y, optics)
     if fj < 0.0 or fi < 0.0:
         return False, -1, -1, 0.0, 0.0
     j = int(fj)
@@ -424,14 +476,12 @@ def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
     lenslet of (row, col).  Used to tabulate how a view's aperture zone moves
     with the sub-pixel position of a pixel relative to its microlens image."""
     sp = optics[O_S_PITCH]
-    ppl = int(optics[O_S_PPL])
     state, u1 = rng_uniform(state)
     state, u2 = rng_uniform(state)
     sx = (col + off_c + u1 - 0.5 * optics[O_NCOLS]) * sp
     sy = (0.5 * optics[O_NROWS] - row - off_r - u2) * sp
     sz = optics[O_S_Z]
-    i = row // ppl
-    j = col // ppl
+    i, j = own_lenslet(row, col, optics)
     psel = 1.0
     if int(optics[O_RINGS]) > 0:
         state, us = rng_uniform(state)

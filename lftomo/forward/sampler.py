@@ -260,7 +260,7 @@ def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, ml
     Parameters
     ----------
     row, col : int
-        The pixel; its lenslet is ``(row // ppl, col // ppl)``.
+        The pixel; its lenslet is :func:`lftomo.forward.optics.own_lenslet`'s.
     off_r, off_c : float
         Displacement (pixels) of the sampled square from the pixel, seen
         through the pixel's lenslet (0 for the pixel itself).
@@ -307,9 +307,7 @@ def pixel_ray_world(row, col, m, n_rays, key, state, optics, sampler, mli):
 @njit(cache=True)
 def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
     sp = optics[_o.O_S_PITCH]
-    ppl = int(optics[_o.O_S_PPL])
-    i = row // ppl
-    j = col // ppl
+    i, j = _o.own_lenslet(row, col, optics)
     psel = 1.0
     if int(optics[_o.O_RINGS]) > 0:
         inside, i, j, psel = _o.select_lenslet(i, j, _hash_uniform(key, m, 0x5E1EC7), optics)
@@ -525,8 +523,7 @@ def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float,
     radii : ndarray, shape (N_RHO_TABLE,)
         Radius (m) at ``d = 0, d_step, 2 d_step, …``.
     """
-    ppl = int(optics[_o.O_S_PPL])
-    half = 0.5 * ppl * optics[_o.O_S_PITCH]
+    half = 0.5 * optics[_o.O_S_PPL] * optics[_o.O_S_PITCH]
     i = int(optics[_o.O_M_NY]) // 2
     j = int(optics[_o.O_M_NX]) // 2
     cx, cy = _o.lenslet_center(i, j, optics)
@@ -564,9 +561,11 @@ def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float,
 def _lenslet_block_hits(lenses_i, lenses_j, n, seed, optics):
     """Sensor points (pixel-corner coordinates row, col) of passing rays from
     an n x n stratified grid of sensor points over each lenslet's pixel block
-    (one extra ring of pixels around it), each with a uniform lenslet-disc
-    point: (n_lenses, n*n, 3) = (row, col, passed)."""
-    ppl = int(optics[_o.O_S_PPL])
+    (one extra ring of pixels around it; on a general lattice the square of
+    the lenslet's pitch about the point under its centre, widened by one pixel
+    and by its rotation), each with a uniform lenslet-disc point:
+    (n_lenses, n*n, 3) = (row, col, passed)."""
+    ppl = optics[_o.O_S_PPL]
     sp = optics[_o.O_S_PITCH]
     nrows = optics[_o.O_NROWS]
     ncols = optics[_o.O_NCOLS]
@@ -575,11 +574,18 @@ def _lenslet_block_hits(lenses_i, lenses_j, n, seed, optics):
         i = lenses_i[L]
         j = lenses_j[L]
         cx, cy = _o.lenslet_center(i, j, optics)
+        r_lo = i * ppl - 1.0
+        c_lo = j * ppl - 1.0
+        width = ppl + 2.0
+        if optics[_o.O_M_GENERAL] != 0.0:
+            width = ppl * (abs(optics[_o.O_M_COS]) + abs(optics[_o.O_M_SIN])) + 2.0
+            r_lo = 0.5 * nrows - cy / sp - 0.5 * width
+            c_lo = cx / sp + 0.5 * ncols - 0.5 * width
         state = rng_init(seed, L)
         for a in range(n):
             for b in range(n):
-                fr = i * ppl - 1.0 + (ppl + 2.0) * (a + 0.5) / n
-                fc = j * ppl - 1.0 + (ppl + 2.0) * (b + 0.5) / n
+                fr = r_lo + width * (a + 0.5) / n
+                fc = c_lo + width * (b + 0.5) / n
                 sx = (fc - 0.5 * ncols) * sp
                 sy = (0.5 * nrows - fr) * sp
                 sz = optics[_o.O_S_Z]
@@ -617,7 +623,10 @@ def microlens_images(optics: np.ndarray, centres: np.ndarray, radius: float, *, 
     lj = np.array([b for _ in sel_i for b in sel_j], np.int64)
     hits = _lenslet_block_hits(li, lj, n_grid, 97, optics)
     worst = 0.0
-    cell = 1.0 / n_grid * (int(optics[_o.O_S_PPL]) + 2.0)
+    width = optics[_o.O_S_PPL]
+    if optics[_o.O_M_GENERAL] != 0.0:
+        width *= abs(optics[_o.O_M_COS]) + abs(optics[_o.O_M_SIN])
+    cell = (width + 2.0) / n_grid
     for L in range(len(li)):
         ok = hits[L, :, 2] > 0
         if not np.any(ok):
