@@ -1,13 +1,15 @@
 """Raw frames of an lftomo camera as reconstruction data (``lftomo reconstruct --raw``).
 
-lftomo's forward model (render, weights) knows only its own camera: a
-microlens array on an integer pixel grid aligned with the sensor.  A raw
-frame can therefore be reconstructed when the camera that took it *is* such
-a camera, as far as the white-image calibration can tell.  This module
+lftomo's forward model (render, weights) models the camera of the scene
+file, whose microlens array may have any pitch, rotation and offset on the
+sensor (:class:`lftomo.MicrolensArray`).  A raw frame is reconstructed with it
+when that camera *is* the one that took the frame, as far as the white-image
+calibration can tell.  This module
 
 1. checks a calibrated :class:`~lftomo.calibration.MicrolensGrid` against the
    model camera's microlens-image centres (:func:`check_grid_matches_camera`)
-   and refuses a rotated or non-integer array;
+   and refuses another lattice, naming the scene-file keys of the camera that
+   matches it;
 2. turns a raw frame (counts), a dark frame and a radiometric calibration into
    a noisy :class:`~lftomo.LightField`: the calibrated signal (W/m at the
    filter wavelength, the signal lftomo models), its per-pixel noise, and the
