@@ -15,7 +15,7 @@ from lftomo.forward.optics import trace_to_sensor_batch
 from lftomo.forward.rng import rng_init
 from lftomo.forward.sampler import pixel_ray
 
-from conftest import white_plane
+from conftest import stratified_etendue_check, white_plane
 
 SP = 0.05e-3  # the seed's pixel pitch, m
 PITCH_PX, ROT_DEG, OFFSET_PX = 10.37, 0.2, (0.31, -0.42)
@@ -115,12 +115,7 @@ def test_stratified_etendue_is_unbiased_on_a_general_lattice(general_camera):
     r0, c0 = cam.central_block[0][0, 0], cam.central_block[1][0, 0]
     rows = np.concatenate([rows, np.full(14, r0 + 4)])
     cols = np.concatenate([cols, np.arange(c0 + 3, c0 + 17)])
-    ref = _pixel_throughput(rows, cols, 200000, 9, cam.packed, *cam.sampler_arrays("independent", 200000))
-    runs = np.array([_pixel_throughput(rows, cols, 64, s, cam.packed, *cam.sampler_arrays("stratified", 64))[:, 0]
-                     for s in range(40)])
-    lit = ref[:, 0] > 0.05 * ref[:, 0].max()
-    se = np.sqrt(runs.var(axis=0, ddof=1) / len(runs) + ref[:, 3] ** 2)
-    z = (runs.mean(axis=0) - ref[:, 0])[lit] / se[lit]
+    z, diff, se, lit = stratified_etendue_check(cam, rows, cols)
     assert lit.sum() >= 20
     assert abs(z.mean()) < 4 / np.sqrt(lit.sum())
     assert 0.6 < z.std() < 1.5

@@ -10,6 +10,7 @@ from numba import njit
 from scipy.stats import qmc
 
 import lftomo as lt
+from conftest import stratified_etendue_check
 from lftomo.forward import sampler as S
 from lftomo.forward.camera import _pixel_throughput
 from lftomo.forward import optics as O
@@ -96,18 +97,12 @@ def test_stratified_etendue_is_unbiased(small_camera, corner):
     if corner:
         rows = rows % cam.pixels_per_lenslet
         cols = cols % cam.pixels_per_lenslet
-    ref = _pixel_throughput(rows, cols, 200000, 9, cam.packed, *cam.sampler_arrays("independent", 200000))
-    runs = np.array([_pixel_throughput(rows, cols, 64, s, cam.packed, *cam.sampler_arrays("stratified", 64))[:, 0]
-                     for s in range(40)])
-    lit = ref[:, 0] > 0.05 * ref[:, 0].max()
-    se = np.sqrt(runs.var(axis=0, ddof=1) / len(runs) + ref[:, 3] ** 2)
-    z = (runs.mean(axis=0) - ref[:, 0])[lit] / se[lit]
+    z, diff, se, lit = stratified_etendue_check(cam, rows, cols)
     assert lit.sum() >= 15
     assert abs(z.mean()) < 4 / np.sqrt(lit.sum())
     assert 0.6 < z.std() < 1.5
     # and the block total within 3 standard errors
-    tot_se = np.sqrt((se[lit] ** 2).sum())
-    assert abs((runs.mean(axis=0) - ref[:, 0])[lit].sum()) < 3 * tot_se
+    assert abs(diff.sum()) < 3 * np.sqrt((se**2).sum())
 
 
 def test_stratified_standard_error_is_honest(small_camera):
