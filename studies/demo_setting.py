@@ -3,9 +3,9 @@
 The demo's flame (standard axisymmetric flame, 12 mm base width) on a 32³ truth
 grid, rendered at 650 nm with 64 rays/pixel (seed 0) by the seed camera at
 1 m; the weight matrix on the 16³ reconstruction grid for the known
-(block-mean) σₐ with 64 rays/pixel (seed 2); 1 % Gaussian noise (seed 1) plus
-the Monte Carlo error of data and model (``lt.with_monte_carlo_noise`` with
-``--mc-floor``), rim pixels below 20 % of the peak étendue left out.  Free
+(block-mean) σₐ with 64 rays/pixel (seed 2); 1 % Gaussian noise (``--noise-seeds``,
+default 1: one row per draw) plus the Monte Carlo error of data and model
+(``lt.with_monte_carlo_noise`` with ``--mc-floor``), rim pixels below 20 % of the peak étendue left out.  Free
 voxels.  For each ``--config`` (``kind:prior:noise_scale``, λ by the
 discrepancy rule) and each fixed ``--lambdas`` value it prints λ, χ²/m and the
 mean / max |ΔT|/T where the effective true T exceeds 800 K and 1400 K.
@@ -69,12 +69,19 @@ def main():
     ap.add_argument("--config", default="", help="comma-separated kind:prior:noise_scale (λ by the discrepancy rule)")
     ap.add_argument("--lambdas", default="", help="comma-separated fixed λ (gradient prior, sub-aperture data)")
     ap.add_argument("--cache", default="demo_setting_cache")
+    ap.add_argument("--noise-seeds", default="1", help="comma-separated seeds of the 1 %% noise draws (one row each)")
     a = ap.parse_args()
     lf, W, coarse, T_eff = inputs(a.sampler, Path(a.cache), a.rays)
-    noisy = lt.add_noise(lf, relative_std=demo.NOISE, seed=1)
+    for noise_seed in (int(s) for s in a.noise_seeds.split(",")):
+        run_draw(a, lf, W, T_eff, noise_seed)
+
+
+def run_draw(a, lf, W, T_eff, noise_seed: int) -> None:
+    """Every ``--config`` and ``--lambdas`` row on one noise draw."""
+    noisy = lt.add_noise(lf, relative_std=demo.NOISE, seed=noise_seed)
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.rays,
                                    min_etendue_fraction=demo.MIN_ETENDUE_FRACTION, floor=a.mc_floor)
-    head = f"{a.sampler} floor={a.mc_floor}"
+    head = f"{a.sampler} floor={a.mc_floor} noise_seed={noise_seed}"
     for cfg in filter(None, a.config.split(",")):
         kind, prior, scale = cfg.split(":")
         m = lt.Measurement.from_lightfield(noisy, data=kind,
