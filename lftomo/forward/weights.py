@@ -1744,7 +1744,7 @@ class RaySegments:
         n = self.rays_per_pixel
         k = _smp.group_count(n)
         sampler = np.zeros(_smp.S_SIZE)  # what mean_variance reads: the kind and K
-        sampler[_smp.S_KIND] = 1.0 if self.metadata.get("sampler", DEFAULT_SAMPLER) == "stratified" else 0.0
+        sampler[_smp.S_KIND] = 1.0 if self.metadata.get("sampler", "independent") == "stratified" else 0.0
         sampler[_smp.S_GROUPS] = k
         gs = np.bincount(self.ray_row * k + self.ray_sample % k, weights=score,
                          minlength=self.n_rows * k).reshape(self.n_rows, k)
