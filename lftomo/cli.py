@@ -228,6 +228,10 @@ def cmd_calibrate(args) -> int:
         raise ValueError(f"--blackbody: camera file {cam.source!r} needs [sensor] gain_e_per_count for the noise "
                          "of the calibration factors")
     out = npz_output_path(args.output, what="-o/--output")
+    scene_camera = None
+    if args.scene is not None:
+        from .config import load_scene_file
+        scene_camera = load_scene_file(args.scene).camera
     bits = cam.bit_depth if cam else None
     white = read_raw(args.white, bit_depth=bits, what="white frame")
     if cam is not None and cam.sensor_shape is not None and white.shape != cam.sensor_shape:
@@ -271,8 +275,28 @@ def cmd_calibrate(args) -> int:
               f"{np.median(f):.4g} W/m per count over {f.size} px, noise {100 * np.median(radio.rel_std_noise[radio.valid]):.2f} %, "
               f"source temperature {100 * radio.rel_std_temperature:.2f} % (paraxial etendue "
               f"{cam.paraxial_pixel_etendue:.4g} m2 sr)")
+    if scene_camera is not None:
+        _print_scene_match(grid, scene_camera, args.scene)
     print(f"wrote {out}, {fig}")
     return 0
+
+
+def _print_scene_match(grid, camera, scene) -> None:
+    """Whether ``grid`` is the scene camera's microlens lattice, and if not the scene-file keys that make it so."""
+    from .errors import LftomoError
+    from .rawdata import check_grid_matches_camera
+
+    try:
+        r = check_grid_matches_camera(grid, camera, what="the calibrated grid")
+        print(f"  scene camera     {scene}: matches ({r['rms_px']:.3f} px RMS, {r['max_px']:.3f} px max)")
+    except LftomoError:
+        cam = camera.with_microlens_grid(grid)
+        mla, sensor = cam.mla, cam.sensor
+        print(f"the camera of {scene} has another microlens lattice; for these frames set in it:")
+        print(f"  [camera.mla]\n  count = [{mla.count[0]}, {mla.count[1]}]\n  pitch = {mla.pitch!r}\n"
+              f"  diameter = {mla.diameter!r}\n  rotation = {mla.rotation!r}\n"
+              f"  offset = [{mla.offset[0]!r}, {mla.offset[1]!r}]\n  [camera.sensor]\n"
+              f"  shape = [{sensor.shape[0]}, {sensor.shape[1]}]")
 
 
 def _series_forward(args, frames, out):
@@ -656,6 +680,9 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--temperature-std", type=_float_where_nonneg, default=0.0,
                      help="standard uncertainty of the blackbody temperature, K (default 0)")
     cal.add_argument("--camera", default=None, help="camera/acquisition TOML (bit depth, wavelength, gain, f-number)")
+    cal.add_argument("--scene", default=None, help="scene TOML whose camera will reconstruct these frames: says "
+                     "whether its microlens lattice is the calibrated one, else prints the [camera.mla] and "
+                     "[camera.sensor] keys that make it so")
     cal.add_argument("-o", "--output", default="calibration.npz", help="output .npz (a .png figure beside it)")
     cal.set_defaults(func=cmd_calibrate)
     from .designcli import add_design_parser

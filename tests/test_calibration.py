@@ -7,6 +7,7 @@ import pytest
 
 import lftomo as lt
 from lftomo.cli import main
+from lftomo.config import load_scene_file
 
 PITCH, ROT_DEG, OFFSET = 10.37, 0.2, (0.31, -0.42)
 
@@ -288,6 +289,26 @@ def test_cli_calibrate_end_to_end(tmp_path, capsys):
     # without a radiometric frame
     rc = main(["calibrate", str(tmp_path / "white.tif"), "-o", str(tmp_path / "g.npz")])
     assert rc == 0 and lt.load_calibration(tmp_path / "g.npz")[1] is None
+
+
+def test_cli_calibrate_gives_the_scene_keys_of_the_calibrated_lattice(tmp_path, capsys):
+    """--scene: the seed scene's regular camera is not this 10.37 px, 0.2° lattice, so the keys that make it
+    so are printed; pasted into the scene file they give a camera the grid matches."""
+    white, _, _ = as_if_real_white(shape=(160, 170), seed=7)
+    lt.write_raw(tmp_path / "white.tif", white, bit_depth=12)
+    plane = "\n[[surface]]\ncenter = [0.0, 0.0, 1.0]\nsize = [0.4, 0.4]\nradiance = 1.0\n"
+    (tmp_path / "scene.toml").write_text("[camera]\nfocus_distance = 1.0\n" + plane)
+    args = ["calibrate", str(tmp_path / "white.tif"), "-o", str(tmp_path / "g.npz"), "--scene"]
+    assert main(args + [str(tmp_path / "scene.toml")]) == 0
+    text = capsys.readouterr().out
+    assert "has another microlens lattice" in text, text
+    keys = text[text.index("  [camera.mla]"):text.index("wrote")]
+    (tmp_path / "fitted.toml").write_text("[camera]\nfocus_distance = 1.0\n" + keys + plane)
+    cam = load_scene_file(tmp_path / "fitted.toml").camera
+    assert cam.sensor_shape == (160, 170) and not cam.regular_grid
+    assert np.degrees(cam.mla.rotation) == pytest.approx(0.2, abs=0.01)
+    assert main(args + [str(tmp_path / "fitted.toml")]) == 0
+    assert re.search(r"scene camera .*fitted.toml: matches \(0\.0\d\d px RMS", capsys.readouterr().out)
 
 
 @pytest.mark.parametrize("extra, message", [
