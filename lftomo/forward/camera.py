@@ -994,15 +994,16 @@ class Camera:
         steps = np.nanmean(np.diff(ux, axis=1)) if self.lit_views > 1 else float("nan")
         disparity = self._disparity_per_metre(d)
         warns: list[str] = []
-        if img_diam_px > ppl * 1.0:
+        block = self.lenslet_pitch_px  # px between image centres (10 on the seed's regular grid)
+        if img_diam_px > block:
             warns.append(
-                f"microlens images ({img_diam_px:.2f} px) are wider than their {ppl}-px block and overlap: "
+                f"microlens images ({img_diam_px:.2f} px) are wider than their {block:g}-px cells and overlap: "
                 "stop the main lens down (smaller stop_diameter) or use lenslets of a larger F-number"
             )
-        elif img_diam_px < 0.7 * ppl:
+        elif img_diam_px < 0.7 * block:
             warns.append(
-                f"microlens images ({img_diam_px:.2f} px) fill only {100 * img_diam_px / ppl:.0f}% of their "
-                f"{ppl}-px block (main-lens working F-number {working_f:.2f} vs microlens F-number "
+                f"microlens images ({img_diam_px:.2f} px) fill only {100 * img_diam_px / block:.0f}% of their "
+                f"{block:g}-px cell (main-lens working F-number {working_f:.2f} vs microlens F-number "
                 f"{mla.focal_length / mla.diameter:.2f}): open the stop, focus farther, or use lenslets "
                 "of a smaller F-number to use more views"
             )
