@@ -81,6 +81,12 @@ def test_focal_stack_depths_elements(tmp_path, value, bad):
         ("[camera.mla]\ncount = [10, 10.5]", r"\[camera.mla\] count\[1\] must be an integer >= 1, got 10.5"),
         ("[camera.sensor]\npixel_pitch = [1]", r"\[camera.sensor\] pixel_pitch must be a number"),
         ("[camera.main_lens]\nstop_diameter = 0.2", r"^\[camera\]: main_lens.stop_diameter"),
+        ("[camera.mla]\nrotation = \"0.1\"", r"\[camera.mla\] rotation must be a number .*\(rad\)"),
+        ("[camera.mla]\nrotation = 1.0", r"^\[camera\]: mla.rotation must be within ±π/8 rad"),
+        ("[camera.mla]\noffset = [0.0]", r"\[camera.mla\] offset must be a list of 2 lengths \(x, y\) in m"),
+        ("[camera.mla]\noffset = [0.0, \"a\"]", r"\[camera.mla\] offset\[1\] must be a number"),
+        ("[camera.sensor]\nshape = [100]", r"\[camera.sensor\] shape must be a list of 2 integers >= 1"),
+        ("[camera.sensor]\nshape = [100, 0]", r"\[camera.sensor\] shape\[1\] must be an integer >= 1, got 0"),
     ],
 )
 def test_camera_table_types(tmp_path, text, match):
