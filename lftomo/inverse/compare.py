@@ -83,12 +83,9 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     partly vignetted, have larger ones; :func:`monte_carlo_floor`):
 
     * ``floor="bound"`` (default): ``max(se_d, floor)``.  It overestimates the
-      Monte Carlo variance itself 7–9× in total (it acts on 72 % of the
-      pixels, mostly at the flame's edges; true field's predicted χ²/m
-      0.77–0.81 on the 12 mm flame), and in doing so allows for the model
-      error of uniform voxels at those edges: with ``"prior"`` the 16³
-      free fit of the standard flame (χ²/m of the true field 3.98) chases that
-      error, 18–20 % mean error at any λ rule, against 7.7 % with the bound.
+      Monte Carlo variance itself several times over, mostly at the flame's
+      edges, and in doing so allows for the model error of uniform voxels
+      there.
     * ``floor="prior"``: the posterior mean of the pixel's variance with a
       scaled-inverse-χ² prior of scale ``floor`` worth one ray (conjugate
       normal model, Gelman et al., *Bayesian Data Analysis*, 3rd ed., §3.3),
@@ -96,17 +93,15 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
       of ``se_d``: ``R − 1`` for the independent sampler (``R =
       rays_per_pixel``), ``K − 1`` for the stratified one (``K`` independent
       randomizations, :func:`lftomo.forward.sampler.group_count`): the
-      Monte Carlo error as it is (true field's predicted χ²/m 0.92–1.06).
-      For models with little discretisation error (sub-voxel emission), with
-      the discrepancy rule's ``noise_scale="estimated"``: standard flame at
-      900 nm, 32³, 0.52 % / 3.4 % (docs/accuracy.md).
+      Monte Carlo error as it is; for models with little discretisation error
+      (sub-voxel emission), with the discrepancy rule's
+      ``noise_scale="estimated"``.
 
-    Both checked against the difference of two independent renders of the
-    standard flame (12 mm wide, and 3 mm, the phantom's default; truth grids
-    24³–64³; 650 and 900 nm; 16–64 rays per pixel; pixels of étendue ≥ 20 %
-    of the peak; 1 % noise; ``studies/mc_noise_model.py``).  Pixels of low
-    étendue (rim of the microlens images) have Monte Carlo errors far above
-    this model: leave them out (``LightField.min_etendue_fraction = 0.2``).
+    Both are checked against the difference of two independent renders
+    (``studies/mc_noise_model.py``; the measurements are in docs/accuracy.md,
+    *Measurements behind the solvers' choices*).  Pixels of low étendue (rim
+    of the microlens images) have Monte Carlo errors far above this model:
+    leave them out (``LightField.min_etendue_fraction = 0.2``).
 
     Parameters
     ----------

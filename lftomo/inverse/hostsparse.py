@@ -1,9 +1,8 @@
 """A scipy CSR matrix applied from JAX through a host callback.
 
-JAX's own sparse ``BCOO`` matvec (and its transpose) runs 7–12x slower on the
-CPU than scipy's CSR kernel on the weight matrices of this package (133 k rows,
-60 entries per row: 207 ms vs 17 ms, transpose 118 ms vs 14 ms, measured with
-``python benchmarks/reconstruct.py --matvec``).  :class:`HostCSR` keeps the
+JAX's own sparse ``BCOO`` matvec (and its transpose) is several times slower on
+the CPU than scipy's CSR kernel on the weight matrices of this package
+(``python benchmarks/reconstruct.py --matvec``; docs/performance.md).  :class:`HostCSR` keeps the
 matrix on the host and applies it with ``jax.pure_callback``; the product is
 declared *linear* with an exact transpose through
 ``jax.custom_derivatives.linear_call``, so ``jax.jvp``, ``jax.linearize``,

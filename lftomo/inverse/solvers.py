@@ -82,15 +82,12 @@ Candidate λ are multiples of it.
   the largest λ among them.
   The same when the bracket closes on a jump of χ²/m across the target (more
   than 2 % off: the non-convex problem has a structured and a nearly flat
-  branch of solutions, and no λ attains the target — measured on the standard
-  flame at 24³ with Monte Carlo data, χ²/m 0.83 → 1.09 between λ = 4.9e3 and
-  5.4e3): the corner of the structured branch is used.  Likewise when the
+  branch of solutions, and no λ attains the target): the corner of the
+  structured branch is used.  Likewise when the
   solution meeting the target turns out to be a local minimum only (the solve
   at that λ from the initial guess lands on the flat branch with a lower
   objective).  With Monte Carlo data these fallbacks are the rule rather than
-  the exception: the noise model is only approximate.  Morozov's rule is known to over-smooth somewhat: on the 8³ test
-  problems (m = 3n–8n rows, 2–5 % noise) it gave 1.9–2.9 × the error-optimal
-  λ.
+  the exception: the noise model is only approximate.  Morozov's rule is known to over-smooth somewhat.
   With ``noise_scale="estimated"`` σ is trusted up to a common factor only,
   estimated from the least-regularized fit of the search, at ``λ_s = λ_ref ·
   1e-2``: ``s² = χ²(λ_s) / (m − ν)``, ``ν = tr(2H − H²)`` the degrees of
@@ -103,14 +100,11 @@ Candidate λ are multiples of it.
   of freedom of a linear smoother: Hastie & Tibshirani 1990, *Generalized
   Additive Models*, ch. 3; σ² estimated from a residual: Wahba 1990, *Spline
   Models for Observational Data*, ch. 4).  Not the number of unknowns n for ν:
-  on a ring grid most cells are dark and undetermined (24³: ν = 95 of 1536
-  cells at 650 nm), and n/m sent λ 20× too high (900 nm, 24³: 5e4 against
-  2.6e3).  For Monte Carlo data: their error model
-  (:func:`lftomo.inverse.compare.monte_carlo_std`, ``floor="prior"``) is
-  right to a few per cent, but with m ≫ ν, χ²/m changes by only ~ν/m ≈ 0.5 % between an under-
-  and an over-smoothed field (standard flame 32³ at 900 nm: 0.963 at λ 35,
-  0.970 at 3.5e4, 1.0 only at 2e5, where the field is over-smoothed), so the
-  given-σ target lands wherever the model's few per cent put it.
+  on a ring grid most cells are dark and undetermined.  For Monte Carlo
+  data, whose error model is right to a few per cent only, the estimated
+  scale matters because with m ≫ ν, χ²/m changes by only ~ν/m between an
+  under- and an over-smoothed field.  The measurements behind these choices
+  are in docs/accuracy.md, *Measurements behind the solvers' choices*.
 * ``"gcv"``: generalised cross-validation of the problem *linearised* about the
   current nonlinear solution ``θ̂`` (first at ``λ_ref · 1e-2``):
   ``GCV(λ) = m' ‖r_d + J δ_λ‖² / (m' − tr H_λ)²`` over the non-empty rows
@@ -796,10 +790,9 @@ def solve_temperature(
         LSMR tolerance (``rtol = atol``) of each Gauss–Newton step, > 0.
     linear_max_steps : int, keyword-only
         LSMR iteration cap per step (truncated step beyond it), ≥ 1.  The
-        default suits nearly unregularized, noise-free problems; on noisy
-        regularized ones 20 gives the same solution faster (measured: standard
-        flame 16³ from Monte Carlo data, λ 315 and 7.8 % mean error with both
-        20 and 100, 50 s against 65 s).
+        default suits nearly unregularized, noise-free problems; noisy
+        regularized ones reach the same solution with fewer (docs/accuracy.md,
+        *Measurements behind the solvers' choices*).
     search_steps : int or None, keyword-only
         Nonlinear step cap of each candidate solve of the discrepancy search
         (≥ 1; default ``max_steps``).
@@ -814,10 +807,9 @@ def solve_temperature(
         cheaper model ``A E`` (``I_b`` interpolated linearly, the same model to
         first order; ``A`` on the quadrature grid has several times more
         non-zeros), then solves the sub-voxel model once at that λ from the
-        surrogate's solution; ``"full"`` runs the rule on the sub-voxel model.
-        Measured on the 24³ standard flame (axisymmetric, Laplacian): λ 230
-        (uniform voxels) against 227 (full search), 1299 s for the full search.
-        When the surrogate misses the discrepancy target at every λ (its own
+        surrogate's solution; ``"full"`` runs the rule on the sub-voxel model
+        (both compared in docs/accuracy.md, *Measurements behind the solvers'
+        choices*).  When the surrogate misses the discrepancy target at every λ (its own
         model error exceeds the noise: coarse grids, small noise), the rule
         runs on the sub-voxel model instead, as with ``"full"``.
     noise_scale : {"given", "estimated"}, keyword-only

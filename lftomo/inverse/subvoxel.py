@@ -5,9 +5,8 @@ uniformly hot.  At the edge of a flame the emission ``σ_a I_b(T)`` varies by an
 order of magnitude across one voxel (at 650 nm, 1224 K → 1471 K over one 2 mm
 voxel of the standard flame's base multiplies ``I_b`` by 21), so a pixel whose
 line of sight crosses the hot side of a voxel sees far more than one crossing
-its cold side, and no uniform value fits both: measured on the 24³ standard
-flame rendered at 48³, rows through the flame base misfit by χ² 13–31 per datum
-with the effective truth itself.
+its cold side, and no uniform value fits both, even the effective truth itself
+(docs/accuracy.md, *Measurements behind the solvers' choices*).
 
 The sub-voxel model keeps the unknowns on the reconstruction grid (the
 temperature at its voxel centres) and evaluates the emission on a finer
