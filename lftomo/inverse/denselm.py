@@ -159,9 +159,8 @@ def levenberg_marquardt_dense(
         reduced ``F`` by less than ``slow_rtol · F``: in a curved, poorly
         determined valley (T against σ_a where the flame is dark) Levenberg–Marquardt
         creeps with small accepted steps long after the objective has settled
-        to this precision (measured: 12³ joint fit at λ 31.6, χ²/m within 1e-4
-        of its 150-step value after 60 steps, still falling by ~1e-8 per step
-        after 400).
+        to this precision (docs/accuracy.md, *Measurements behind the solvers'
+        choices*).
     xtol, gtol : float
         Converged when the step is below ``xtol (‖p‖ + xtol)``, unless the
         box cut that step while the projected gradient, scaled like

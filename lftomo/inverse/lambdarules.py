@@ -166,16 +166,13 @@ def structured_branch(path: list) -> list:
     """The solutions (sorted by λ) before the jump to the nearly flat branch.
 
     The flat branch starts at the first λ whose ‖R‖ falls below a quarter of
-    both its predecessor's and the path's largest (measured paths: ‖R‖ 2.2 →
-    0.41 at the standard flame 24³, 1.5 → 0.009 in the quick demo, where the
-    flat branch's χ²/m stays below the target and an L-curve over the whole
-    path found its "corner" on the flat branch, λ = 3.5e6).
+    both its predecessor's and the path's largest.
 
     A drop of ‖R‖ alone is not a jump: from an under-regularised, noisy
-    solution at the smallest λ ‖R‖ also falls steeply (measured: the
-    curvature prior at 24³, ‖R‖ 3.8 → 0.91 from λ 4.4 to 44 with χ²/m 0.8033
-    → 0.8037, which took the whole path for the flat branch and λ = 4.4).  The
-    flat branch also fits worse, so χ²/m must rise by more than 1 % too.
+    solution at the smallest λ ‖R‖ also falls steeply.  The flat branch also
+    fits worse, so χ²/m must rise by more than 1 % too.  (The paths that set
+    these thresholds: docs/accuracy.md, *Measurements behind the solvers'
+    choices*.)
     """
     if not path:
         return path
@@ -399,9 +396,7 @@ def discrepancy_local_minimum(run: Any, e: Eval, e2: Eval, choice: LambdaChoice,
 
     When ``e2`` has the lower objective and a χ²/m far above the target while
     ``e`` meets it, the solution meeting the target is only a local minimum: at
-    this λ the global one lies on the nearly flat branch (measured: two-lobed
-    flame 16³, χ²/m 0.99 structured vs 1.34 flat with the lower objective).
-    The target is then unattainable by a minimiser; take the corner of the
+    this λ the global one lies on the nearly flat branch.  The target is then unattainable by a minimiser; take the corner of the
     structured branch below this λ (:func:`branch_corner`) and solve there
     from the initial guess.  Returns ``(e, e2, choice)``.
     """
