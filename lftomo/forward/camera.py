@@ -226,6 +226,16 @@ class MicrolensArray:
         """Paraxial effective focal length (m) of one lenslet."""
         return thick_lens_focal_length(self.r1, self.r2, self.thickness, self.index)
 
+    def lenslet_centers(self, i: Any, j: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(x, y) (m) in the MLA plane of the centres of lenslets ``(i, j)``
+        (row i from +y, column j from −x; array-like, broadcast): ``R(θ) b +
+        offset``, the numpy twin of :func:`lftomo.forward.optics.lenslet_center`."""
+        nx, ny = self.count
+        bx = (np.asarray(j, dtype=float) + 0.5 - 0.5 * nx) * self.pitch
+        by = (0.5 * ny - np.asarray(i, dtype=float) - 0.5) * self.pitch
+        c, s = math.cos(self.rotation), math.sin(self.rotation)
+        return c * bx + s * by + self.offset[0], -s * bx + c * by + self.offset[1]
+
     @property
     def back_focal_distance(self) -> float:
         """Distance (m) from the lenslet back vertex to its back focal point."""
@@ -562,16 +572,12 @@ class Camera:
         pitch = float(np.mean(grid.pitch)) * sp / scale
         ny, nx = (int(v) for v in grid.shape)
         rows, cols = (int(v) for v in grid.image_shape)
-        t = float(grid.rotation)
-        i0, j0 = (int(v) for v in grid.center_index)
-        bx = (j0 + 0.5 - 0.5 * nx) * pitch
-        by = (0.5 * ny - i0 - 0.5) * pitch
-        # image of lenslet (i0, j0) at (offset_r, offset_c) px from the sensor centre
-        img_x, img_y = grid.offset[1] * sp, -grid.offset[0] * sp
-        off = (img_x / scale - (math.cos(t) * bx + math.sin(t) * by),
-               img_y / scale - (-math.sin(t) * bx + math.cos(t) * by))
-        mla = dataclasses.replace(self.mla, count=(nx, ny), pitch=pitch, rotation=t, offset=off,
-                                  diameter=self.mla.diameter * pitch / self.mla.pitch)
+        centred = dataclasses.replace(self.mla, count=(nx, ny), pitch=pitch, rotation=float(grid.rotation),
+                                      offset=(0.0, 0.0), diameter=self.mla.diameter * pitch / self.mla.pitch)
+        # the image of lenslet center_index lies at grid.offset (row, col) px from the sensor centre
+        x0, y0 = centred.lenslet_centers(*grid.center_index)
+        off = (float(grid.offset[1] * sp / scale - x0), float(-grid.offset[0] * sp / scale - y0))
+        mla = dataclasses.replace(centred, offset=off)
         return dataclasses.replace(self, mla=mla, sensor=dataclasses.replace(self.sensor, shape=(rows, cols)))
 
     # ---- derived geometry -------------------------------------------------
@@ -698,14 +704,8 @@ class Camera:
     def lenslet_pixel_center(self, i: int, j: int) -> tuple[float, float]:
         """(row, col) pixel coordinates (pixel ``(r, c)`` centred at ``(r, c)``)
         of the point straight under lenslet ``(i, j)``'s centre."""
-        mla = self.mla
-        nx, ny = mla.count
-        bx, by = (j + 0.5 - 0.5 * nx) * mla.pitch, (0.5 * ny - i - 0.5) * mla.pitch
-        c, s = math.cos(mla.rotation), math.sin(mla.rotation)
-        cx, cy = c * bx + s * by + mla.offset[0], -s * bx + c * by + mla.offset[1]
-        nrows, ncols = self.sensor_shape
-        p = self.sensor.pixel_pitch
-        return 0.5 * nrows - 0.5 - cy / p, cx / p + 0.5 * ncols - 0.5
+        r, c = self._pixel_coordinates(*self.mla.lenslet_centers(i, j))
+        return float(r), float(c)
 
     # ---- paraxial optics --------------------------------------------------
     def paraxial_matrix(self) -> np.ndarray:
@@ -766,32 +766,18 @@ class Camera:
         through the lenslet's principal points meets the sensor (paraxial);
         pixel ``(r, c)`` has its centre at coordinates ``(r, c)``.
         """
-        mla = self.mla
-        nx, ny = mla.count
-        z_xp, _ = self.exit_pupil
-        z_h1 = self.z_mla - mla.front_principal_plane
-        f = mla.focal_length
-        z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
-        dist = z_h2 - self.z_sensor
-        scale = 1.0 + dist / (z_xp - z_h1)
-        nrows, ncols = self.sensor_shape
-        p = self.sensor.pixel_pitch
-        out = np.empty((ny, nx, 2))
-        if self.regular_grid:
-            cx = (np.arange(nx) + 0.5 - 0.5 * nx) * mla.pitch * scale
-            cy = (0.5 * ny - np.arange(ny) - 0.5) * mla.pitch * scale
-            out[..., 0] = (0.5 * nrows - 0.5 - cy / p)[:, None]
-            out[..., 1] = (cx / p + 0.5 * ncols - 0.5)[None, :]
-        else:
-            bx = ((np.arange(nx) + 0.5 - 0.5 * nx) * mla.pitch)[None, :]
-            by = ((0.5 * ny - np.arange(ny) - 0.5) * mla.pitch)[:, None]
-            c, s = math.cos(mla.rotation), math.sin(mla.rotation)
-            cx = (c * bx + s * by + mla.offset[0]) * scale
-            cy = (-s * bx + c * by + mla.offset[1]) * scale
-            out[..., 0] = 0.5 * nrows - 0.5 - cy / p
-            out[..., 1] = cx / p + 0.5 * ncols - 0.5
+        nx, ny = self.mla.count
+        ii, jj = np.indices((ny, nx))
+        x, y = self.mla.lenslet_centers(ii, jj)
+        out = np.stack(self._pixel_coordinates(x * self.microlens_image_scale, y * self.microlens_image_scale), axis=-1)
         out.setflags(write=False)
         return out
+
+    def _pixel_coordinates(self, x: Any, y: Any) -> tuple[Any, Any]:
+        """(row, col) pixel coordinates (pixel ``(r, c)`` centred at ``(r, c)``) of sensor-plane points (x, y) m."""
+        nrows, ncols = self.sensor_shape
+        p = self.sensor.pixel_pitch
+        return 0.5 * nrows - 0.5 - y / p, x / p + 0.5 * ncols - 0.5
 
     @cached_property
     def microlens_image_scale(self) -> float:

@@ -557,6 +557,15 @@ def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float,
     return float(kappa), float(radii.max()), float(d_step), radii
 
 
+@njit(cache=True)
+def lenslet_block_width(optics):
+    """Side (px) of the axis-aligned square that holds a lenslet's cell: the
+    pitch in pixels, widened by the lattice's rotation on a general lattice."""
+    if optics[_o.O_M_GENERAL] == 0.0:
+        return optics[_o.O_S_PPL]
+    return optics[_o.O_S_PPL] * (abs(optics[_o.O_M_COS]) + abs(optics[_o.O_M_SIN]))
+
+
 @njit(cache=True, parallel=True)
 def _lenslet_block_hits(lenses_i, lenses_j, n, seed, optics):
     """Sensor points (pixel-corner coordinates row, col) of passing rays from
@@ -576,9 +585,8 @@ def _lenslet_block_hits(lenses_i, lenses_j, n, seed, optics):
         cx, cy = _o.lenslet_center(i, j, optics)
         r_lo = i * ppl - 1.0
         c_lo = j * ppl - 1.0
-        width = ppl + 2.0
+        width = lenslet_block_width(optics) + 2.0
         if optics[_o.O_M_GENERAL] != 0.0:
-            width = ppl * (abs(optics[_o.O_M_COS]) + abs(optics[_o.O_M_SIN])) + 2.0
             r_lo = 0.5 * nrows - cy / sp - 0.5 * width
             c_lo = cx / sp + 0.5 * ncols - 0.5 * width
         state = rng_init(seed, L)
@@ -623,10 +631,7 @@ def microlens_images(optics: np.ndarray, centres: np.ndarray, radius: float, *, 
     lj = np.array([b for _ in sel_i for b in sel_j], np.int64)
     hits = _lenslet_block_hits(li, lj, n_grid, 97, optics)
     worst = 0.0
-    width = optics[_o.O_S_PPL]
-    if optics[_o.O_M_GENERAL] != 0.0:
-        width *= abs(optics[_o.O_M_COS]) + abs(optics[_o.O_M_SIN])
-    cell = (width + 2.0) / n_grid
+    cell = (lenslet_block_width(optics) + 2.0) / n_grid
     for L in range(len(li)):
         ok = hits[L, :, 2] > 0
         if not np.any(ok):
