@@ -283,7 +283,6 @@ def cmd_calibrate(args) -> int:
 
 def _print_scene_match(grid, camera, scene) -> None:
     """Whether ``grid`` is the scene camera's microlens lattice, and if not the scene-file keys that make it so."""
-    from .errors import LftomoError
     from .rawdata import check_grid_matches_camera
 
     try:
