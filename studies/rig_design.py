@@ -30,6 +30,7 @@ import time
 import numpy as np
 
 import lftomo as lt
+from lftomo.forward.sampler import DEFAULT_SAMPLER
 from lftomo.inverse.design import compare_designs, design_configurations, design_table, standard_configurations
 
 
@@ -43,6 +44,10 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=1, help="noise draws (independent renders) per configuration")
     ap.add_argument("--configs", default="one camera,two cameras at 90°,three cameras at 60°",
                     help="comma-separated names of standard_configurations, or 'all'")
+    ap.add_argument("--sampler", default=DEFAULT_SAMPLER,
+                    choices=["stratified", "independent"], help="pixel sampler of the renders and the weights")
+    ap.add_argument("--noise-scale", default="default", choices=["default", "given", "estimated"],
+                    help="the discrepancy rule's noise scale (lt.Discrepancy); default: the library's rule")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     t0 = time.perf_counter()
@@ -59,7 +64,9 @@ def main() -> None:
     rows_by_draw = []
     for draw in range(a.draws):
         designs = design_configurations(configs, grid, flame, rays_per_pixel=a.rays, noise=a.noise, hot=a.hot,
-                                        seed=1000 * draw, progress=True)
+                                        seed=1000 * draw, sampler=a.sampler,
+                                        rule=None if a.noise_scale == "default" else lt.Discrepancy(noise_scale=a.noise_scale),
+                                        progress=True)
         rows_by_draw.append(compare_designs(designs))
     # mean over draws of the achieved error; the predictions barely depend on the draw (λ does)
     rows = rows_by_draw[0]

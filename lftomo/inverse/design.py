@@ -58,6 +58,7 @@ import scipy.linalg as sla
 
 from ..errors import LftomoError
 from ..forward.grid import Grid
+from ..forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 
 __all__ = ["Design", "design", "psf_widths", "rig_around", "compare_designs", "design_table",
            "standard_configurations", "design_configurations", "cramer_rao_bound",
@@ -224,7 +225,8 @@ def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, 
             f"and handles at most dense_max={dense_max} (16³): use a coarser reconstruction grid")
 
 
-def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar):
+def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar,
+                  sampler):
     """Per camera: the simulated measurement and its weights on ``grid``.
 
     As the library's synthetic studies do: the flame rendered with
@@ -242,14 +244,14 @@ def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_
     for k, cam in enumerate(cams):
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render")
         lf = render(Scene(medium=flame), cam, rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k,
-                    wavelengths=(wavelength,), progress=False)
+                    wavelengths=(wavelength,), sampler=sampler, progress=False)
         bar.update(1)
         noisy = with_monte_carlo_noise(add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), lf,
                                        rays_per_pixel=data_rays_per_pixel, weights_rays_per_pixel=rays_per_pixel,
                                        floor="prior")
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: weights")
         Ws.append(weights(cam, grid, sigma_a=sa, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
-                          seed=seed + 3 * k + 1, lightfield=noisy, progress=False))
+                          seed=seed + 3 * k + 1, lightfield=noisy, sampler=sampler, progress=False))
         bar.update(1)
         ms.append(Measurement.from_lightfield(noisy))
     return ms, Ws
@@ -368,10 +370,12 @@ def design(
     data_rays_per_pixel: int | None = None,
     regularization: str | float = "auto",
     prior: Any = None,
+    rule: Any = None,
     bounds: tuple[float, float] = (300.0, 3000.0),
     hot: float = 800.0,
     probes: Any = None,
     seed: int = 0,
+    sampler: str = DEFAULT_SAMPLER,
     progress: bool | None = None,
     dense_max: int = DESIGN_DENSE_MAX,
 ) -> Design:
@@ -401,6 +405,9 @@ def design(
         library's default rule and uses its λ; a float fixes it.
     prior : str or Prior, optional
         A quadratic prior; default :data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`.
+    rule : LambdaRule, optional
+        How ``regularization="auto"`` chooses λ (e.g.
+        ``lftomo.Discrepancy(noise_scale="estimated")``); default the library's.
     bounds : (T_min, T_max)
         K, as for :func:`lftomo.reconstruct` (they scale the prior).
     hot : float
@@ -410,6 +417,9 @@ def design(
         voxel and the hot region's central voxel.
     seed : int
         Seed of the renders, weights and noise.
+    sampler : {"stratified", "independent"}
+        Pixel sampler of the simulated images and of the weights
+        (:mod:`lftomo.forward.sampler`).
     progress : bool, optional
         A progress bar over the stages (default: when stderr is a terminal).
     dense_max : int
@@ -433,6 +443,8 @@ def design(
     rays_per_pixel = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
     data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
     _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max)
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
     prior_name = resolve_prior(DEFAULT_PRIOR if prior is None else prior, quadratic_only=True,
                                where="design (a Gaussian prior)").name
     sa, T = effective_truth(flame, grid, float(wavelength))
@@ -444,14 +456,14 @@ def design(
         t0 = time.perf_counter()
         ms, Ws = _measurements(cams, grid, flame, noise=noise, wavelength=float(wavelength),
                                rays_per_pixel=rays_per_pixel, data_rays_per_pixel=data_rays, seed=seed, sa=sa,
-                               bar=bar)
+                               bar=bar, sampler=sampler)
         clock["render_and_weights"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         rec = None
         if regularization == "auto":
             bar.set_postfix_str("reconstruct one draw (λ)")
             rec = reconstruct(ms if len(ms) > 1 else ms[0], Ws if len(Ws) > 1 else Ws[0], prior=prior_name,
-                              bounds=bounds)
+                              bounds=bounds, rule=rule)
             lam = float(rec.regularization)
         else:
             lam = float(regularization)

@@ -137,3 +137,16 @@ def test_a_second_camera_can_only_shrink_the_posterior(blob_design):
     assert np.all(d2.T_std <= d.T_std * (1 + 1e-9))
     hot = d.T_true > 1200
     assert np.mean(d2.T_std[hot]) < 0.9 * np.mean(d.T_std[hot])
+
+
+def test_design_uses_the_sampler_it_is_given_for_images_and_weights(blob_design):
+    """``sampler=`` reaches both the simulated images and the weight matrices; an unknown name is refused
+    before any render."""
+    cam, grid, flame, d = blob_design
+    assert d.weights[0].metadata["sampler"] == "independent"
+    with pytest.raises(ValueError, match="sampler must be one of"):
+        design(cam, grid, flame, sampler="sobol")
+    ds = design(cam, grid, flame, noise=0.01, rays_per_pixel=16, regularization=100.0, sampler="stratified",
+                progress=False)
+    assert ds.weights[0].metadata["sampler"] == "stratified"
+    assert ds.weights[0].row_std_error is not None
