@@ -780,15 +780,20 @@ class Camera:
         return 0.5 * nrows - 0.5 - y / p, x / p + 0.5 * ncols - 0.5
 
     @cached_property
+    def lenslet_principal_planes(self) -> tuple[float, float]:
+        """z (m) of a lenslet's front and back principal planes, ``(z_h1, z_h2)``."""
+        mla = self.mla
+        z_h1 = self.z_mla - mla.front_principal_plane
+        z_h2 = self.z_mla - mla.thickness + (mla.focal_length - mla.back_focal_distance)
+        return float(z_h1), float(z_h2)
+
+    @cached_property
     def microlens_image_scale(self) -> float:
         """Paraxial ratio of a microlens image's centre to its lenslet's centre
         (both from the optical axis): the projection from the exit-pupil
         centre through the lenslet's principal points onto the sensor."""
-        mla = self.mla
         z_xp, _ = self.exit_pupil
-        z_h1 = self.z_mla - mla.front_principal_plane
-        f = mla.focal_length
-        z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
+        z_h1, z_h2 = self.lenslet_principal_planes
         return float(1.0 + (z_h2 - self.z_sensor) / (z_xp - z_h1))
 
     @cached_property
@@ -798,9 +803,8 @@ class Camera:
         aperture when the sensor is not in its focal plane."""
         mla = self.mla
         z_xp, d_xp = self.exit_pupil
-        z_h1 = self.z_mla - mla.front_principal_plane
+        z_h1, z_h2 = self.lenslet_principal_planes
         f = mla.focal_length
-        z_h2 = self.z_mla - mla.thickness + (f - mla.back_focal_distance)
         dist = z_h2 - self.z_sensor
         r = 0.5 * d_xp * dist / (z_xp - z_h1) + 0.5 * mla.diameter * abs(dist - f) / f
         return float(r / self.sensor.pixel_pitch)

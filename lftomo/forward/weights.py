@@ -1854,6 +1854,19 @@ class RaySegments:
 
 
 @interruptible
+def _redo_overflow_rows(run, pixels, cap_max, o_rw, o_rL, o_rns, o_nr, o_rm):
+    """Recompute, with the capacity bound ``cap_max``, the rows of a chunk that
+    overflowed the pilot's capacity (``o_nr < 0``); their per-ray outputs are
+    written in place.  Returns row → (voxels, lengths) of their segments."""
+    extra = {}
+    for k in np.flatnonzero(o_nr < 0):
+        e = run(pixels[k:k + 1], cap_max)
+        o_rw[k], o_rL[k], o_rns[k], o_nr[k], o_rm[k] = e[0][0], e[1][0], e[2][0], e[3][0], e[7][0]
+        ns_k = int(e[2][0].sum())
+        extra[int(k)] = (e[5][:ns_k].copy(), e[6][:ns_k].copy())
+    return extra
+
+
 def ray_segments(
     camera,
     grid,
@@ -1959,12 +1972,7 @@ def ray_segments(
     for r0, r1 in ChunkSizer(chunk_rows, start=numba.get_num_threads()).ranges(n_rows):  # ~0.25 s: Ctrl-C
         o_rw, o_rL, o_rns, o_nr, seg_off, o_sv, o_sl, o_rm = run(pixel_index[r0:r1], cap, bufs)
         bufs = (o_sv, o_sl)
-        extra = {}
-        for k in np.flatnonzero(o_nr < 0):  # rows above the pilot capacity: recompute with the bound
-            e = run(pixel_index[r0 + k:r0 + k + 1], cap_max)
-            o_rw[k], o_rL[k], o_rns[k], o_nr[k], o_rm[k] = e[0][0], e[1][0], e[2][0], e[3][0], e[7][0]
-            ns_k = int(e[2][0].sum())
-            extra[int(k)] = (e[5][:ns_k].copy(), e[6][:ns_k].copy())
+        extra = _redo_overflow_rows(run, pixel_index[r0:r1], cap_max, o_rw, o_rL, o_rns, o_nr, o_rm)
         cnt = o_rns.sum(axis=1)
         tot = int(cnt.sum())
         seg_store.reserve(tot)

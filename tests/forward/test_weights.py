@@ -488,3 +488,19 @@ def test_refocus_weights_equal_refocused_render(cam, W_blob, lf_blob, blob):
     # W of one view lacks the pixels the refocus needs
     with pytest.raises(ValueError, match="not rows of W"):
         weights_refocus(W_blob.select([W_blob.views[0]]), cam, [1.0])
+
+
+def test_ray_segments_rows_beyond_the_pilot_capacity_are_rebuilt_whole(cam, monkeypatch):
+    """Rows with more segments than the pilot's capacity are recomputed with the bound; the table is the same
+    as when the pilot sized the capacity (no pilot: capacity 64 segments, far below a row's ~16 rays x 12 voxels)."""
+    from lftomo.forward import weights as wmod
+
+    grid = box_grid(n=12)
+    ref = ray_segments(cam, grid, rays_per_pixel=NRAYS, seed=5)
+    monkeypatch.setattr(wmod, "_pilot_rows", lambda n_rows: np.zeros(0, np.int64))
+    redo = ray_segments(cam, grid, rays_per_pixel=NRAYS, seed=5)
+    assert np.diff(ref.row_ray_ptr).size == np.diff(redo.row_ray_ptr).size
+    per_row = ref.ray_ptr[ref.row_ray_ptr[1:]] - ref.ray_ptr[ref.row_ray_ptr[:-1]]
+    assert per_row.max() > 64  # the overflow path did run
+    for name in ("ray_row", "ray_weight", "ray_radiance", "ray_ptr", "row_ray_ptr", "voxel", "length"):
+        np.testing.assert_array_equal(getattr(ref, name), getattr(redo, name), err_msg=name)
