@@ -28,6 +28,7 @@ import json
 import time
 
 import numpy as np
+from scipy.stats import spearmanr
 
 import lftomo as lt
 from lftomo.forward.sampler import DEFAULT_SAMPLER
@@ -83,8 +84,14 @@ def main() -> None:
               f"{by['two cameras at 90°']['predicted_mean_rel'] / by['one camera']['predicted_mean_rel']:.2f}")
     pred_order = [r["name"] for r in sorted(rows, key=lambda r: r["predicted_mean_rel"])]
     real_order = [r["name"] for r in sorted(rows, key=lambda r: r["reconstruction_mean_rel"])]
+    rho = spearmanr([r["predicted_mean_rel"] for r in rows], [r["reconstruction_mean_rel"] for r in rows])[0]
     print(f"order by prediction: {pred_order}\norder by reconstruction: {real_order}\n"
-          f"same order: {pred_order == real_order}; {time.perf_counter() - t0:.0f} s")
+          f"same order: {pred_order == real_order}; Spearman rho {rho:.2f}; {time.perf_counter() - t0:.0f} s")
+    if a.draws > 1:
+        for r in sorted(rows, key=lambda r: r["reconstruction_mean_rel"]):
+            d = np.asarray(r["reconstruction_draws"])
+            print(f"  {r['name']}: achieved {100 * d.mean():.2f} ± {100 * d.std(ddof=1) / np.sqrt(d.size):.2f} % "
+                  f"(mean ± standard error over {d.size} draws), predicted {100 * r['predicted_mean_rel']:.2f} %")
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"args": vars(a), "rows": rows, "same_order": pred_order == real_order}, f, indent=1)
