@@ -64,7 +64,7 @@ def draw_row(d, reg, lf, W, a, ctx):
     e["mean_rel_visible"] = float(np.mean(np.abs(rec.T[visible] / T_true[visible] - 1))) if visible.any() else None
     e["n_visible"] = int(visible.sum())
     # by how visible the voxels are at this wavelength: T bands, and the emitting voxels
-    for lo_T in (1100, 1400):
+    for lo_T in (1100, 1200, 1400):
         band = rec.errors(T_true, hot=lo_T)
         e[f"mean_rel_T_gt_{lo_T}"], e[f"max_rel_T_gt_{lo_T}"] = band["mean_rel"], band["max_rel"]
     rel = np.abs(rec.T / T_true - 1)
@@ -74,7 +74,7 @@ def draw_row(d, reg, lf, W, a, ctx):
     # against the point temperature at the voxel centres (same voxels: T_true > 800 K)
     rel_p = np.abs(rec.T / T_point - 1)
     e["mean_rel_point"], e["max_rel_point"] = float(rel_p[hot].mean()), float(rel_p[hot].max())
-    for lo_T in (1100, 1400):
+    for lo_T in (1100, 1200, 1400):
         band = T_true > lo_T
         e[f"mean_rel_point_T_gt_{lo_T}"] = float(rel_p[band].mean())
         e[f"max_rel_point_T_gt_{lo_T}"] = float(rel_p[band].max())
@@ -108,7 +108,7 @@ def main():
     ap.add_argument("--sampler", default=None, choices=["stratified", "independent"],
                     help="pixel sampler of the render and the weights (default: the library's)")
     ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
-    ap.add_argument("--flame", default="axisymmetric", choices=["axisymmetric", "two_lobed"])
+    ap.add_argument("--flame", default="axisymmetric", choices=["axisymmetric", "two_lobed", "crossflow"])
     ap.add_argument("--data", default="subaperture")
     ap.add_argument("--min-etendue", type=float, default=0.2,
                     help="pixels with étendue below this fraction of the peak are left out")
@@ -131,6 +131,8 @@ def main():
     fine = lt.phantoms.default_flame_grid((n * a.refine,) * 3)
     coarse = lt.phantoms.default_flame_grid((n,) * 3)
     if a.flame == "axisymmetric":
+        kw = {"width_base": a.width} if a.width > 0 else {}
+    elif a.flame == "crossflow":
         kw = {"width_base": a.width} if a.width > 0 else {}
     else:  # two lobes: --width scales the default lobe widths (3 and 2 mm) so that the main lobe is --width
         kw = {"width_scale": a.width / (0.06 * fine.size[0])} if a.width > 0 else {}

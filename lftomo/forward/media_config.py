@@ -43,6 +43,7 @@ PHANTOMS = {
         "gaussian_blob",
         "axisymmetric_flame",
         "two_lobed_flame",
+        "crossflow_flame",
         "reference_absorbing",
         "reference_scattering",
         "reference_emitting",

@@ -22,6 +22,7 @@ __all__ = [
     "gaussian_blob",
     "axisymmetric_flame",
     "two_lobed_flame",
+    "crossflow_flame",
     "precessing_flame",
     "precessing_flame_sequence",
     "reference_absorbing",
@@ -139,8 +140,8 @@ def _flame_shape(
     Y: np.ndarray,
     Z: np.ndarray,
     *,
-    xc: float,
-    zc: float,
+    xc: Any,
+    zc: Any,
     y_base: float,
     height_peak: float,
     width_base: float,
@@ -341,6 +342,85 @@ def two_lobed_flame(
     return _flame_medium(
         grid, theta, T_peak=T_peak, T_ambient=T_ambient, sigma_a_peak=sigma_a_peak,
         soot_exponent=soot_exponent, sigma_s=sigma_s, g=g,
+        reference_wavelength=reference_wavelength, alpha=alpha,
+    )
+
+
+def crossflow_flame(
+    grid: Grid,
+    *,
+    bend: float | None = None,
+    crossflow_angle: float = 0.25 * np.pi,
+    trajectory_exponent: float = 3.0,
+    T_peak: float = 1900.0,
+    T_ambient: float = 300.0,
+    height_peak: float | None = None,
+    width_base: float | None = None,
+    width_growth: float = 0.06,
+    sigma_a_peak: float = 10.0,
+    soot_exponent: float = 2.0,
+    reference_wavelength: float = 650e-9,
+    alpha: float = 1.38,
+) -> Medium:
+    """A jet flame bent by a crossflow: the profile of :func:`axisymmetric_flame`
+    about an axis that leans downstream with height.
+
+    Box size ``(Lx, Ly, Lz)``, centre ``(cx, cy, cz)``, base ``y0 = grid.lower[1]``,
+    height ``h = y − y0``.  The crossflow blows along ``u = (cos φ, sin φ)`` in the
+    x–z plane (``φ = crossflow_angle`` from +x towards +z; the default 45° bends the
+    flame as much along the line of sight as across it).  The axis at height ``h``
+    is displaced along ``u`` by ``s(h) = bend · (h / Ly)^q``, starting half the
+    displacement at the peak height upstream of the box centre so that the hot
+    core stays near the centre::
+
+        (xc, zc)(h) = (cx, cz) + (s(h) − s(height_peak)/2) · u
+        θ = A(h) · exp(−|(x, z) − (xc, zc)(h)|² / (2 w(h)²))
+
+    with ``A``, ``w`` and the temperature and soot laws of :func:`axisymmetric_flame`.
+    ``q = trajectory_exponent`` = 3 follows the jet-in-crossflow trajectory
+    ``y ∝ x^b`` with ``b ≈ 0.28–0.33`` (Pratte & Baines 1967): the flame rises
+    nearly vertically at its base and bends over higher up.  No mirror plane and
+    no vertical symmetry axis exist.
+
+    Parameters
+    ----------
+    grid : Grid
+        Voxel grid (:func:`default_flame_grid`).
+    bend : float, optional
+        Displacement of the axis at the top of the box (m), ≥ 0; default 0.4 Lx.
+    crossflow_angle : float
+        φ (rad).
+    trajectory_exponent : float
+        q > 0.
+    T_peak, T_ambient, height_peak, width_base, width_growth, sigma_a_peak, soot_exponent,
+    reference_wavelength, alpha :
+        As for :func:`axisymmetric_flame` (``width_base`` default 0.06 Lx,
+        ``height_peak`` 0.35 Ly).
+
+    References
+    ----------
+    Pratte, B. D. & Baines, W. D. (1967). Profiles of the round turbulent jet in a
+    cross flow. J. Hydraul. Div. ASCE 93, 53–64.
+    """
+    _require_grid(grid)
+    L = grid.size
+    c = grid.center
+    y0 = grid.lower[1]
+    b = 0.4 * L[0] if bend is None else require_nonnegative("bend", bend)
+    q = require_positive("trajectory_exponent", trajectory_exponent)
+    phi = require_finite_scalar("crossflow_angle", crossflow_angle)
+    hp = 0.35 * L[1] if height_peak is None else require_positive("height_peak", height_peak)
+    wb = 0.06 * L[0] if width_base is None else require_positive("width_base", width_base)
+    X, Y, Z = _mesh(grid)
+    shift = b * (np.maximum(Y - y0, 0.0) / L[1]) ** q - 0.5 * b * (hp / L[1]) ** q
+    theta = _flame_shape(
+        X, Y, Z, xc=c[0] + shift * np.cos(phi), zc=c[2] + shift * np.sin(phi), y_base=y0,
+        height_peak=hp, width_base=wb, width_growth=require_nonnegative("width_growth", width_growth),
+        axial_order=2.0,
+    )
+    return _flame_medium(
+        grid, theta, T_peak=T_peak, T_ambient=T_ambient, sigma_a_peak=sigma_a_peak,
+        soot_exponent=soot_exponent, sigma_s=0.0, g=0.0,
         reference_wavelength=reference_wavelength, alpha=alpha,
     )
 

@@ -13,6 +13,7 @@ from lftomo.forward.phantoms import (
     reference_emitting,
     reference_scattering,
     two_lobed_flame,
+    crossflow_flame,
     uniform_box,
 )
 
@@ -153,3 +154,27 @@ def test_two_lobed_width_scale_widens_both_lobes():
     assert abs(wide.T.max() - base.T.max()) < 50.0
     with pytest.raises(ValueError, match="width_scale"):
         two_lobed_flame(g, width_scale=0.0)
+
+
+def test_crossflow_flame_axis_leans_downstream_as_documented():
+    """The hottest point of each horizontal slice follows (xc, zc)(h) = centre + (s(h) − s(h_peak)/2) u with
+    s = bend (h / Ly)^q; no mirror plane; without bend it is the axisymmetric flame."""
+    g = default_flame_grid((40, 40, 40))
+    m = crossflow_flame(g, bend=0.02, crossflow_angle=np.pi / 6)
+    X, Y, Z = g.centers_mesh()
+    L, c = g.size, g.center
+    for k in (10, 20, 30):
+        h = Y[0, k, 0] - g.lower[1]
+        shift = 0.02 * (h / L[1]) ** 3 - 0.01 * 0.35**3
+        i, j = np.unravel_index(np.argmax(m.T[:, k, :]), m.T[:, k, :].shape)
+        assert abs(X[i, k, j] - (c[0] + shift * np.cos(np.pi / 6))) <= 0.5 * g.spacing[0] + 1e-12
+        assert abs(Z[i, k, j] - (c[2] + shift * np.sin(np.pi / 6))) <= 0.5 * g.spacing[2] + 1e-12
+    T = m.T
+    for mirrored in (T[::-1], T[:, :, ::-1]):
+        assert np.max(np.abs(mirrored - T)) > 200.0
+    straight = crossflow_flame(g, bend=0.0)
+    np.testing.assert_allclose(straight.T, axisymmetric_flame(g).T, rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="bend"):
+        crossflow_flame(g, bend=-0.01)
+    with pytest.raises(ValueError, match="trajectory_exponent"):
+        crossflow_flame(g, trajectory_exponent=0.0)
