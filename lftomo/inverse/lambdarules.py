@@ -12,8 +12,9 @@ Rules (:data:`RULE_CLASSES`; the string names select them):
 * :class:`Discrepancy` (``"discrepancy"``): Morozov's principle as a root
   search, the λ with ``χ²/m = target`` (factor-10 bracket, Illinois regula
   falsi), target 1 + safety with the noise scale given, or ``(1 + safety) s²``
-  with it estimated (``s² = χ²/(m − ν)`` of the least-regularized fit).  The
-  T-only fit's rule.
+  with it estimated (``s² = χ²/(m − ν)`` of the least-regularized fit).  With
+  the noise scale given and χ²/m below the target at every λ (σ overestimated),
+  the search is redone with the scale estimated.  The T-only fit's rule.
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
   as "the largest λ with ``χ²/m ≤ target``" on a factor-10 ladder, refined by
   two bisections in log λ, given or estimated noise scale.  The joint fit's
@@ -243,7 +244,9 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
     then Illinois regula falsi on ``log(χ²/m / target)`` against ``log λ``; the
     L-curve corner of the structured branch (:func:`branch_corner`) when no λ
-    attains the target.  ``estimate_scale``: the target is ``(1 + safety) s²``,
+    attains the target.  When χ²/m stays below ``1 + safety`` at every λ (σ
+    overestimated) and there are more data than unknowns, the search is redone
+    with ``estimate_scale``.  ``estimate_scale``: the target is ``(1 + safety) s²``,
     ``s² = χ²/(m − ν)`` of the first, least-regularized fit (``ν =
     run.fit_dof(e)``).  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
     target, note)``.  (The algorithm is described in
@@ -299,9 +302,17 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
         if hi is None:
             # χ² below the target everywhere: the noise σ is overestimated (e.g. a
             # conservative Monte Carlo error model), and the largest λ would give a
-            # featureless field.  Fall back on the corner of the L-curve of the
-            # structured branch of the solutions already computed (λ_ref·1e-2 …
-            # λ_ref·1e4, factors of 10).
+            # featureless field.  σ is then known only up to a factor: search again
+            # with that factor estimated (docs/accuracy.md, *Defaults*: the L-curve
+            # corner used before chose λ over three decades between noise draws).
+            # With too few data for the estimate, fall back on the corner of the
+            # L-curve of the structured branch of the solutions already computed
+            # (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
+            if not estimate_scale and m > run.n_unknowns:
+                e, target, note = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
+                                                     estimate_scale=True)
+                return e, target, (f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated): "
+                                   f"{note}")
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
@@ -627,7 +638,9 @@ class Fixed(LambdaRule):
 
 class Discrepancy(LambdaRule):
     """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
-    (``"estimated"``): :func:`discrepancy_search`."""
+    (``"estimated"``): :func:`discrepancy_search`.  A given σ that proves too large
+    (χ²/m below the target at every λ) is treated as known up to a factor: the
+    search is redone with the scale estimated."""
 
     name = "discrepancy"
     fits = ("T",)

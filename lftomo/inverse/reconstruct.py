@@ -27,9 +27,11 @@ from .symmetry import resolve_symmetry, ring_problem, ring_start
 #: The T-only fit's prior when none is given: second differences per axis, no boundary
 #: condition at the box faces (docs/accuracy.md, "Defaults").
 DEFAULT_PRIOR = "curvature"
-#: The T-only discrepancy rule's noise scale when none is given: σ as given.  (``"estimated"``,
-#: σ trusted up to a factor estimated from the residual, under-regularized the focal-stack data of
-#: the standard flame into a 28 % error; docs/accuracy.md, "Defaults".)
+#: The T-only discrepancy rule's noise scale when none is given: σ as given, estimated only where
+#: the given σ is too large for any λ to meet the target.  (``"estimated"`` everywhere
+#: under-regularized the focal-stack data of the standard flame into a 28 % error; where σ is
+#: overestimated it beats the L-curve corner used before on non-axisymmetric flames;
+#: docs/accuracy.md, "Defaults".)
 DEFAULT_NOISE_SCALE = "given"
 
 
@@ -253,7 +255,8 @@ def reconstruct(
         ``Discrepancy(noise_scale="estimated")``, ``GCV(n_lambda=9)``,
         ``Fixed(300.0)``.  Default each fit's own: for ``"T"`` the discrepancy
         rule with σ as given (:data:`DEFAULT_NOISE_SCALE`; ``noise_scale="estimated"``
-        trusts σ only up to a common factor);
+        trusts σ only up to a common factor, and a given σ that is too large for
+        any λ to meet the target is treated so);
         ``"discrepancy"`` for ``"T"``, ``"discrepancy-bracket"`` for
         ``"T+sigma_a"`` (which takes it or ``"lcurve"``).
     T0 : ndarray, optional

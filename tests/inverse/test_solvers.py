@@ -392,7 +392,11 @@ def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
 
 class _FlatBelowTargetRunner(_BranchRunner):
     """χ²/m below the target at every λ, and beyond λ = 1e3 a flat branch whose
-    ‖R‖ keeps falling tenfold per decade (the quick demo's path)."""
+    ‖R‖ keeps falling tenfold per decade (the quick demo's path).  As many
+    unknowns as data: the noise scale cannot be estimated, the L-curve corner
+    is the fallback."""
+
+    n_unknowns = _BranchRunner.m_total
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None):
         from lftomo.inverse.lambdarules import Eval as _Eval
@@ -418,16 +422,19 @@ def test_discrepancy_fallback_ignores_the_flat_branch():
     assert e.lam < 1e3, (e.lam, note)
 
 
-def test_discrepancy_falls_back_on_lcurve_corner_when_sigma_is_overestimated(gray_noisy):
-    """σ stated 1000x too large: χ²/m < 1 at every λ; the rule must not return the
-    largest λ (a featureless field) but the L-curve corner of its path, and say so."""
+def test_discrepancy_estimates_the_noise_scale_when_sigma_is_overestimated(gray_noisy):
+    """σ stated 1000x too large: χ²/m < 1 at every λ.  The rule must not return the
+    largest λ (a featureless field): σ is then known only up to a factor, and the
+    search is the one with the noise scale estimated -- the same field as that rule
+    gives with the true σ (χ² and λ scale by 1e-6 together), and the note says so."""
     problem, T = gray_noisy
     inflated = LinearProblem(problem.A, problem.y, problem.sigma * 1000.0, problem.grid, problem.wavelength)
     sol = solve_temperature(inflated, rule="discrepancy")
     ch = sol.lambda_choice
-    assert "L-curve corner" in ch.note
-    assert sol.chi2 < 1.0
-    assert sol.regularization < ch.candidates.max() / 10
+    assert "stays below the target" in ch.note and "noise scale estimated" in ch.note, ch.note
+    ref = solve_temperature(problem, rule="discrepancy", noise_scale="estimated")
+    assert sol.regularization == pytest.approx(1e-6 * ref.regularization, rel=0.05)
+    np.testing.assert_allclose(sol.T, ref.T, rtol=2e-3)
     err = np.sqrt(np.mean((sol.T / T - 1) ** 2))
     flat = np.sqrt(np.mean((np.full_like(T, np.average(T)) / T - 1) ** 2))
     assert err < 0.5 * flat, (err, flat)
