@@ -238,7 +238,7 @@ def lcurve_curvature(evals: list) -> np.ndarray:
 
 # --------------------------------------------------------------------------- the T-only fit's searches
 def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
-                       search_rtol: float, *, estimate_scale: bool = False):
+                       search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None):
     """Morozov's discrepancy principle as a root search: the λ with ``χ²/m = target``.
 
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
@@ -248,7 +248,8 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     overestimated) and there are more data than unknowns, the search is redone
     with ``estimate_scale``.  ``estimate_scale``: the target is ``(1 + safety) s²``,
     ``s² = χ²/(m − ν)`` of the first, least-regularized fit (``ν =
-    run.fit_dof(e)``).  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
+    run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2`` from ``theta0``,
+    when already done.  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
     target, note)``.  (The algorithm is described in
     :mod:`lftomo.inverse.solvers`.)
     """
@@ -270,7 +271,8 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
         return run.solve(lam, start, search_steps, objective_rtol=search_rtol)
 
     lam = lam_ref * 1e-2
-    e = solve(lam, theta0)
+    e = solve(lam, theta0) if first is None else first
+    first = e
     note = ""
     scale_note = ""
     if estimate_scale:
@@ -310,7 +312,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
             if not estimate_scale and m > run.n_unknowns:
                 e, target, note = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
-                                                     estimate_scale=True)
+                                                     estimate_scale=True, first=first)
                 return e, target, (f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated): "
                                    f"{note}")
             found = branch_corner(run.evals, math.inf, target)
