@@ -24,7 +24,8 @@ from .inverse.problem import LinearProblem
 from .inverse.reconstruct import Reconstruction, reconstruct
 from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.regularizers import Prior, GradientPrior, LaplacianPrior, CurvaturePrior, TotalVariationPrior
-from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, Fixed
+from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, LCurveDecades, Fixed
+from .inverse.unknowns import Unknowns, Temperature, TemperatureAbsorption
 from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
@@ -96,6 +97,10 @@ __all__ = [
     "DiscrepancyBracket",
     "GCV",
     "LCurve",
+    "LCurveDecades",
+    "Unknowns",
+    "Temperature",
+    "TemperatureAbsorption",
     "Fixed",
     "Solver",
     "LevenbergMarquardt",

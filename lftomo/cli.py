@@ -389,13 +389,16 @@ def cmd_series(args) -> int:
         W, raw_kw = _series_raw_forward(args, out)
     else:
         W = _series_forward(args, frames, out)
-    opts = {"regularization": args.regularization, "bounds": tuple(args.bounds), "max_steps": args.max_steps}
+    from .inverse.reconstruct import rule_from_names
+    from .inverse.solverchoice import LevenbergMarquardt
+
+    try:
+        rule = rule_from_names(args.rule, args.regularization, args.noise_scale)
+    except ValueError as exc:
+        raise LftomoError(f"--rule/--regularization/--noise-scale: {exc}") from None
+    opts = {"rule": rule, "bounds": tuple(args.bounds), "solver": LevenbergMarquardt(max_steps=args.max_steps)}
     if args.prior is not None:
         opts["prior"] = args.prior
-    if args.regularization == "auto":
-        opts["rule"] = args.rule
-        if args.noise_scale is not None:
-            opts["noise_scale"] = args.noise_scale
     t0 = time.perf_counter()
     res = reconstruct_series(frames, W, out=out, scheduler=args.scheduler, workers=args.workers,
                              progress=not args.quiet, noise=args.noise, seed=args.seed, data=args.data,

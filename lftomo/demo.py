@@ -41,7 +41,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import LftomoError
-from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_PRIOR
+from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, rule_from_names
 
 #: Folder inside the report folder that keeps the long stages of an unfinished run.
 RESUME_DIR = ".lftomo-resume"
@@ -473,6 +473,13 @@ class _DemoRun:
     def opts(self) -> dict[str, int]:
         return {"max_steps": self.cfg["max_steps"], "linear_max_steps": self.cfg["linear_max_steps"]}
 
+    @property
+    def solver(self) -> Any:
+        """The demo's solver: the library's (matrix-free Levenberg–Marquardt) with the run's step caps."""
+        from .inverse.solverchoice import LevenbergMarquardt
+
+        return LevenbergMarquardt(**self.opts)
+
 
 def _demo_into(out: Path, *, quick: bool, seed: int, progress: bool, resume: Path) -> dict[str, Any]:
     """The stages of :func:`run_demo`, writing into ``out`` (the staging folder).
@@ -632,7 +639,7 @@ def _demo_reconstruct(d: _DemoRun) -> None:
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct", "reconstruction (optimistix LM, λ by the discrepancy rule)"):
-        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, **d.opts)   # the library's defaults
+        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, solver=d.solver)   # the library's defaults
     d.r["rec"] = rec
     err = temperature_errors(rec.T, T_eff, HOT)
     err_core = temperature_errors(rec.T, T_eff, HOT_CORE)
@@ -665,7 +672,7 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, the defaults)"):
-        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, symmetry="axisymmetric", **d.opts)
+        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, symmetry="axisymmetric", solver=d.solver)
     d.r["rec_ax"] = rec_ax
     err_ax = temperature_errors(rec_ax.T, T_eff, HOT)
     err_ax_core = temperature_errors(rec_ax.T, T_eff, HOT_CORE)
@@ -804,7 +811,7 @@ def _demo_compare(d: _DemoRun) -> None:
             d.r["scene"], d.r["camera"], d.r["coarse"], noise=NOISE, depths=list(COMPARE_DEPTHS),
             seed=cfg["seeds"]["compare"], rays_per_pixel=d.n_d, weights_rays_per_pixel=d.n_w, wavelength=WAVELENGTH,
             regularization="auto", bounds=BOUNDS, n_singular=cfg["n_singular"], hot=HOT, progress=d.progress,
-            lightfield=d.r["lf"], weights=d.r["W"], **extra, **d.opts)
+            lightfield=d.r["lf"], weights=d.r["W"], solver=d.solver, **extra)
     same = bool(np.allclose(comp.subaperture.T, d.r["rec"].T))
     csum = comp.summary()
     d.metrics["compare"] = {**csum, "depth_profile": comp.depth_profile, "singular_values": comp.singular_values,
@@ -1493,12 +1500,12 @@ def run_reconstruct(
     prior = DEFAULT_PRIOR if prior is None else prior  # the library's defaults, named in metrics.json
     if noise_scale is None and rule == "discrepancy" and regularization == "auto":
         noise_scale = DEFAULT_NOISE_SCALE
-    scale_kw = {} if noise_scale is None else {"noise_scale": noise_scale}
     sym_text = ", axisymmetric" if symmetry else ""
     with st("reconstruct", f"reconstruct ({rule} rule, {prior} prior{sym_text})"):
         try:
-            rec = lt.reconstruct(m, inp.W, regularization=regularization, rule=rule, prior=prior, bounds=tuple(bounds),
-                                 max_steps=max_steps, symmetry=symmetry, grid=inp.grid, **scale_kw)
+            rec = lt.reconstruct(m, inp.W, rule=rule_from_names(rule, regularization, noise_scale), prior=prior,
+                                 bounds=tuple(bounds), solver=lt.LevenbergMarquardt(max_steps=max_steps),
+                                 symmetry=symmetry, grid=inp.grid)
         except ValueError as exc:
             raise LftomoError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")

@@ -281,7 +281,7 @@ def compare_refocus_subaperture(
     lightfield: Any = None,
     weights: Any = None,
     progress: bool = False,
-    **solver_options: Any,
+    **reconstruct_options: Any,
 ) -> Comparison:
     """Reconstruct the same flame from sub-aperture views and from a focal stack.
 
@@ -302,8 +302,12 @@ def compare_refocus_subaperture(
     rays_per_pixel, weights_rays_per_pixel : int
         Rays of the truth render and of the weight matrix (default: same).
     wavelength : float or None
-    regularization, bounds, **solver_options
-        Passed to :func:`lftomo.reconstruct` for both data kinds.
+    regularization : "auto" or float
+        ``"auto"``: λ by the λ rule (``rule=`` in ``reconstruct_options``,
+        default the library's) for each data kind; a number fixes λ for both.
+    bounds, **reconstruct_options
+        Passed to :func:`lftomo.reconstruct` for both data kinds (``prior``,
+        ``rule``, ``solver``, ``symmetry``, …).
     n_singular : int
         Leading singular values computed per operator.
     hot : float
@@ -328,6 +332,7 @@ def compare_refocus_subaperture(
     from ..forward.render import render
     from ..forward.weights import weights as build_weights
     from .measurement import Measurement, add_noise
+    from .lambdarules import Fixed
     from .reconstruct import reconstruct
     from .. import radiation as rad
     from .regularizers import prior_operator
@@ -366,12 +371,17 @@ def compare_refocus_subaperture(
     from .reconstruct import DEFAULT_PRIOR
 
     # the resolution kernels use the reconstruction's own prior (the solver's is the dimensionless operator)
-    L = prior_operator(recon_grid, solver_options.get("prior") or DEFAULT_PRIOR)
+    L = prior_operator(recon_grid, reconstruct_options.get("prior") or DEFAULT_PRIOR)
+    if regularization != "auto":
+        if "rule" in reconstruct_options:
+            raise ValueError(f"give regularization ({regularization!r}) or rule "
+                             f"({reconstruct_options['rule']!r}), not both")
+        reconstruct_options = {**reconstruct_options, "rule": Fixed(regularization)}
     hot_mask = T_true > hot
     j0 = int(np.argmax(np.where(hot_mask, T_true, -np.inf)))
     for kind in ("subaperture", "refocus"):
         m = Measurement.from_lightfield(noisy, data=kind, depths=list(depths) if kind == "refocus" else None)
-        rec = reconstruct(m, W, regularization=regularization, bounds=bounds, **solver_options)
+        rec = reconstruct(m, W, bounds=bounds, **reconstruct_options)
         results[kind] = rec
         errors[kind] = rec.errors(T_true, hot=hot)
         rel = np.where(hot_mask, np.abs(rec.T - T_true) / T_true, np.nan)

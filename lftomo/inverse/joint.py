@@ -188,6 +188,7 @@ from .rigsegments import SegmentStack, rows_of_pixels
 from .solvers import baseline_start
 from .subvoxel import format_vector, interpolate_field, resolve_quadrature
 from .symmetry import resolve_symmetry
+from .unknowns import SIGMA_A_SPACES
 
 #: Solvers of the joint fit: optimistix's (matrix-free LSMR steps) or Levenberg–Marquardt
 #: on exact dense normal equations (:mod:`lftomo.inverse.denselm`).
@@ -195,7 +196,6 @@ JOINT_METHODS = ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm")
 
 #: What the σ_a unknowns and their prior are linear in: ``"linear"`` (σ_ref in [0, σ_max],
 #: smoothness of σ_ref) or ``"log"`` (ln σ_ref in [ln σ_min, ln σ_max], smoothness of ln σ_ref).
-SIGMA_A_SPACES = ("linear", "log")
 
 #: A solve also stops when its objective changes by less than this fraction
 #: over a chunk of 10 steps (or ``rtol`` if larger).

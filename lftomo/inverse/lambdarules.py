@@ -642,19 +642,38 @@ class Discrepancy(LambdaRule):
     """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
     (``"estimated"``): :func:`discrepancy_search`.  A given σ that proves too large
     (χ²/m below the target at every λ) is treated as known up to a factor: the
-    search is redone with the scale estimated."""
+    search is redone with the scale estimated.
+
+    Parameters
+    ----------
+    noise_scale : {"given", "estimated"}
+        σ is the noise standard deviation, or right up to a common factor that
+        is estimated from the least-regularized fit of the search.
+    safety : float
+        Target ``χ²/m = 1 + safety`` (times ``s²`` when estimated), ≥ 0.
+    search_steps : int, optional
+        Nonlinear step cap of each candidate solve (default the solver's ``max_steps``).
+    search_rtol : float
+        A candidate solve stops when its objective changes by less than this
+        fraction over a chunk of steps.
+    subvoxel_search : {"surrogate", "full"}, optional
+        With sub-voxel emission: run the rule on the linearly interpolated
+        surrogate model, then solve the sub-voxel model once at its λ
+        (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+    """
 
     name = "discrepancy"
     fits = ("T",)
 
     def __init__(self, noise_scale: str = "given", safety: float = 0.0, search_steps: int | None = None,
-                 search_rtol: float = 1e-3) -> None:
+                 search_rtol: float = 1e-3, subvoxel_search: str | None = None) -> None:
         self.noise_scale = _noise_scale(noise_scale)
         self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
+        self.subvoxel_search = _subvoxel_search(subvoxel_search)
 
     def keywords(self) -> dict[str, Any]:
         return {"rule": self.name, "noise_scale": self.noise_scale, "discrepancy_safety": self.safety,
-                "search_steps": self.search_steps, "search_rtol": self.search_rtol}
+                "search_steps": self.search_steps, "search_rtol": self.search_rtol, **_subvoxel_kw(self)}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float) -> tuple[Eval, float, str]:
         return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
@@ -662,16 +681,25 @@ class Discrepancy(LambdaRule):
 
 
 class DiscrepancyBracket(LambdaRule):
-    """Largest λ with ``χ²/m ≤ target`` on a factor-10 ladder and two bisections: :func:`bracket_search`."""
+    """Largest λ with ``χ²/m ≤ target`` on a factor-10 ladder and two bisections: :func:`bracket_search`.
+
+    Parameters
+    ----------
+    noise_scale : {"given", "estimated"}
+        As for :class:`Discrepancy`.
+    lambda_max : float, optional
+        Largest λ the search tries (default the joint fit's, 1e6).
+    """
 
     name = "discrepancy-bracket"
     fits = ("T+sigma_a",)
 
-    def __init__(self, noise_scale: str = "given") -> None:
+    def __init__(self, noise_scale: str = "given", lambda_max: float | None = None) -> None:
         self.noise_scale = _noise_scale(noise_scale)
+        self.lambda_max = _lambda_max(lambda_max)
 
     def keywords(self) -> dict[str, Any]:
-        return {"rule": self.name, "noise_scale": self.noise_scale}
+        return {"rule": self.name, "noise_scale": self.noise_scale, **_lambda_max_kw(self)}
 
     def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
         return bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
@@ -679,47 +707,114 @@ class DiscrepancyBracket(LambdaRule):
 
 
 class GCV(LambdaRule):
-    """Generalised cross-validation of the linearised problem: :func:`gcv_search`."""
+    """Generalised cross-validation of the linearised problem: :func:`gcv_search`.
+
+    Parameters
+    ----------
+    lambda_range : (float, float)
+        Candidates span ``λ_ref · lambda_range`` (log-spaced).
+    n_lambda : int
+        Number of candidates.
+    probes, seed : int
+        Hutchinson probe vectors of the trace, and their seed.
+    subvoxel_search : {"surrogate", "full"}, optional
+        With sub-voxel emission: run the rule on the linearly interpolated
+        surrogate model, then solve the sub-voxel model once at its λ
+        (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+    """
 
     name = "gcv"
     fits = ("T",)
 
     def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13, probes: int = 8,
-                 seed: int = 0) -> None:
+                 seed: int = 0, subvoxel_search: str | None = None) -> None:
         self.lambda_range, self.n_lambda, self.probes, self.seed = tuple(lambda_range), int(n_lambda), int(probes), int(seed)
+        self.subvoxel_search = _subvoxel_search(subvoxel_search)
 
     def keywords(self) -> dict[str, Any]:
         return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda,
-                "gcv_probes": self.probes, "seed": self.seed}
+                "gcv_probes": self.probes, "seed": self.seed, **_subvoxel_kw(self)}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float):
         return gcv_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda, self.probes, self.seed)
 
 
 class LCurve(LambdaRule):
-    """Corner of the L-curve of ``n_lambda`` log-spaced solves in ``λ_ref · lambda_range``: :func:`lcurve_search`."""
+    """Corner of the L-curve of ``n_lambda`` log-spaced solves in ``λ_ref · lambda_range``: :func:`lcurve_search`.
+
+    Parameters
+    ----------
+    lambda_range : (float, float)
+    n_lambda : int
+        As for :class:`GCV`.
+    subvoxel_search : {"surrogate", "full"}, optional
+        With sub-voxel emission: run the rule on the linearly interpolated
+        surrogate model, then solve the sub-voxel model once at its λ
+        (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+    """
 
     name = "lcurve"
     fits = ("T",)
 
-    def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13) -> None:
+    def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13,
+                 subvoxel_search: str | None = None) -> None:
         self.lambda_range, self.n_lambda = tuple(lambda_range), int(n_lambda)
+        self.subvoxel_search = _subvoxel_search(subvoxel_search)
 
     def keywords(self) -> dict[str, Any]:
-        return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda}
+        return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda, **_subvoxel_kw(self)}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float):
         return lcurve_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda)
 
 
 class LCurveDecades(LambdaRule):
-    """Corner of the structured branch of solves at decades of λ up to a cap: :func:`decade_lcurve_search`."""
+    """Corner of the structured branch of solves at decades of λ up to a cap: :func:`decade_lcurve_search`.
+
+    Parameters
+    ----------
+    lambda_max : float, optional
+        The cap (default the joint fit's, 1e6).
+    """
 
     name = "lcurve"
     fits = ("T+sigma_a",)
 
+    def __init__(self, lambda_max: float | None = None) -> None:
+        self.lambda_max = _lambda_max(lambda_max)
+
+    def keywords(self) -> dict[str, Any]:
+        return {"rule": self.name, **_lambda_max_kw(self)}
+
     def choose(self, path: Any, theta0: Any, *, lam_first: float, lam_max: float):
         return decade_lcurve_search(path, theta0, lam_first=lam_first, lam_max=lam_max)
+
+
+def _subvoxel_search(value: Any) -> str | None:
+    if value is not None and value not in SUBVOXEL_SEARCHES:
+        raise ValueError(f"subvoxel_search must be one of {SUBVOXEL_SEARCHES} or None (the fit's default), got {value!r}")
+    return value
+
+
+def _subvoxel_kw(rule: LambdaRule) -> dict[str, Any]:
+    return {} if rule.subvoxel_search is None else {"subvoxel_search": rule.subvoxel_search}
+
+
+def _lambda_max(value: Any) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not (
+            math.isfinite(value) and value > 0):
+        raise ValueError(f"lambda_max must be a finite number > 0 or None (the fit's default), got {value!r}")
+    return float(value)
+
+
+def _lambda_max_kw(rule: LambdaRule) -> dict[str, Any]:
+    return {} if rule.lambda_max is None else {"lambda_max": rule.lambda_max}
+
+
+#: How a T-only λ rule treats a sub-voxel model (:func:`lftomo.inverse.solvers.solve_temperature`).
+SUBVOXEL_SEARCHES = ("surrogate", "full")
 
 
 def _noise_scale(value: Any) -> str:

@@ -22,6 +22,7 @@ from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
 from .symmetry import resolve_symmetry, ring_problem, ring_start
+from .unknowns import Unknowns, resolve_unknowns
 
 
 #: The T-only fit's prior when none is given: second differences per axis, no boundary
@@ -179,8 +180,7 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
                       "coarser grid", UserWarning, stacklevel=3)
 
 
-def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, method, rule, T0, symmetry, grid,
-                       options):
+def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, method, rule, symmetry, grid, options):
     """The ``unknowns="T+sigma_a"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
     from .joint import solve_temperature_absorption
 
@@ -197,27 +197,148 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         return solve_temperature_absorption(ms, weights, regularization=regularization,
                                             prior=DEFAULT_PRIOR if prior is None else prior, bounds=bounds,
-                                            method=method, T0=T0, symmetry=symmetry, grid=grid, **rule_kw,
+                                            method=method, symmetry=symmetry, grid=grid, **rule_kw,
                                             **options)
+
+
+#: Keywords that :func:`reconstruct` took before its options moved onto objects, and where each lives now.
+MOVED_OPTIONS: dict[str, str] = {
+    "regularization": "rule=lt.Fixed(λ) (leave it out for the default λ rule)",
+    "method": "solver=lt.LevenbergMarquardt(), lt.GaussNewton() or lt.DenseLM()",
+    "T0": "start=T0",
+    "sigma_a0": "start=(T0, sigma_a0)",
+    "noise_scale": "rule=lt.Discrepancy(noise_scale=...) (lt.DiscrepancyBracket(noise_scale=...) for "
+                   "unknowns='T+sigma_a')",
+    "discrepancy_safety": "rule=lt.Discrepancy(safety=...)",
+    "search_steps": "rule=lt.Discrepancy(search_steps=...)",
+    "search_rtol": "rule=lt.Discrepancy(search_rtol=...)",
+    "subvoxel_search": "rule=lt.Discrepancy(subvoxel_search=...) (or lt.GCV(...), lt.LCurve(...))",
+    "lambda_range": "rule=lt.GCV(lambda_range=...) or lt.LCurve(lambda_range=...)",
+    "n_lambda": "rule=lt.GCV(n_lambda=...) or lt.LCurve(n_lambda=...)",
+    "gcv_probes": "rule=lt.GCV(probes=...)",
+    "seed": "rule=lt.GCV(seed=...)",
+    "lambda_max": "rule=lt.DiscrepancyBracket(lambda_max=...) or lt.LCurveDecades(lambda_max=...)",
+    **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))"
+       for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},
+    **{k: f"solver=lt.LevenbergMarquardt({k}=...) or lt.DenseLM({k}=...)" for k in ("polish_steps", "engine")},
+    **{k: f"unknowns=lt.Temperature({k}=...)" for k in ("penalize", "T_ref")},
+    "tv_eps": "prior=lt.TotalVariationPrior(eps=...)",
+    **{k: f"unknowns=lt.TemperatureAbsorption({k}=...)"
+       for k in ("alpha", "sigma_a_space", "sigma_a_min", "sigma_a_max", "sigma_a_scale", "sigma_a_ridge")},
+}
+
+
+def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noise_scale: str | None = None) -> Any:
+    """The T-only λ rule object named by the command line's ``--rule``, ``--regularization`` and ``--noise-scale``.
+
+    Parameters
+    ----------
+    rule : {"discrepancy", "gcv", "lcurve"}
+    regularization : "auto" or float
+        A number fixes λ (:class:`~lftomo.inverse.lambdarules.Fixed`).
+    noise_scale : {"given", "estimated"}, optional
+        The discrepancy rule's; default :data:`DEFAULT_NOISE_SCALE`.
+
+    Returns
+    -------
+    LambdaRule
+    """
+    from .lambdarules import RULE_CLASSES, Discrepancy, Fixed
+
+    if noise_scale == "estimated" and (rule != "discrepancy" or regularization != "auto"):
+        raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only (with regularization='auto'), "
+                         f"got rule={rule!r}, regularization={regularization!r}")
+    if regularization != "auto":
+        return Fixed(regularization)
+    if rule == "discrepancy":
+        return Discrepancy(noise_scale=noise_scale or DEFAULT_NOISE_SCALE)
+    if rule not in RULE_CLASSES["T"]:
+        raise ValueError(f"rule must be one of {tuple(RULE_CLASSES['T'])}, got {rule!r}")
+    return RULE_CLASSES["T"][rule]()
+
+
+def moved_options(given: dict[str, Any]) -> dict[str, Any]:
+    """The fit keywords among ``given``, each with a DeprecationWarning naming where it lives now.
+
+    Raises
+    ------
+    TypeError
+        A keyword that :func:`reconstruct` never took, as Python itself would.
+    """
+    unknown = sorted(set(given) - set(MOVED_OPTIONS))
+    if unknown:
+        raise TypeError(f"reconstruct() got an unexpected keyword argument {unknown[0]!r}")
+    for name in given:
+        warnings.warn(f"reconstruct({name}=...) is deprecated: pass {MOVED_OPTIONS[name]}", DeprecationWarning,
+                      stacklevel=3)
+    return dict(given)
+
+
+def _fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tuple[Unknowns, dict[str, Any]]:
+    """Add the unknowns object's parameters to the fit keywords.  Its parameters given the old way
+    (as keywords) build the object when ``unknowns`` is a name, and are refused next to an object."""
+    moved = {k: options.pop(k) for k in what.keywords() if k in options}
+    if moved and isinstance(unknowns, Unknowns):
+        raise ValueError(f"{', '.join(moved)} set twice: by unknowns={unknowns!r} and as keywords; give it one way")
+    if moved:
+        what = type(what)(**moved)
+    return what, {**options, **what.keywords()}
+
+
+def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]:
+    """``start`` as the fit's keywords: ``T0`` (and ``sigma_a0``), or ``start`` (a joint fit's
+    coarse-to-fine Reconstruction)."""
+    if start is None:
+        return options
+    if "T0" in options or "sigma_a0" in options:
+        raise ValueError("give either start or T0 / sigma_a0, not both")
+    opts = dict(options)
+    if isinstance(start, Reconstruction):
+        if fit == "T+sigma_a":
+            opts["start"] = start
+        else:
+            opts["T0"] = start
+    elif isinstance(start, tuple) and len(start) == 2 and not isinstance(start[0], (int, float, str)):
+        if fit != "T+sigma_a":
+            raise ValueError("start=(T, sigma_a) is for unknowns='T+sigma_a'; give a temperature field for 'T'")
+        opts["T0"], opts["sigma_a0"] = start
+    else:
+        opts["T0"] = start
+    return opts
+
+
+def _temperature_start(T0: Any, grid: Grid) -> Any:
+    """``T0`` as :func:`~lftomo.inverse.solvers.solve_temperature` takes it: a Reconstruction's
+    temperature is interpolated to ``grid`` (same box, same or coarser grid)."""
+    if not isinstance(T0, Reconstruction):
+        return T0
+    from .subvoxel import format_vector, interpolate_field
+
+    src = T0.grid
+    tol = 1e-9 * min(grid.spacing)
+    if not (np.allclose(src.lower, grid.lower, rtol=0, atol=tol) and np.allclose(src.upper, grid.upper, rtol=0,
+                                                                                  atol=tol)):
+        raise ValueError(f"start's grid box {format_vector(src.lower)}..{format_vector(src.upper)} is not the "
+                         f"reconstruction grid's {format_vector(grid.lower)}..{format_vector(grid.upper)}")
+    return np.asarray(T0.T, dtype=float) if src == grid else interpolate_field(T0.T, src, grid)
 
 
 def reconstruct(
     measurement,
     weights,
     *,
-    unknowns: str = "T",
-    regularization: str | float = "auto",
+    unknowns: Any = "T",
     prior: Any = None,
-    bounds: tuple[float, float] = (300.0, 3000.0),
-    method: str | None = None,
     rule: Any = None,
-    T0: Any = None,
+    solver: Any = None,
     symmetry: Any = None,
     grid: Grid | None = None,
-    solver: Any = None,
-    **options: Any,
+    bounds: tuple[float, float] = (300.0, 3000.0),
+    start: Any = None,
+    progress: bool | None = None,
+    **moved: Any,
 ) -> Reconstruction:
-    """Reconstruct the temperature field from a measurement.
+    """Reconstruct the temperature field (and the absorption field) from measurements.
 
     Parameters
     ----------
@@ -234,33 +355,32 @@ def reconstruct(
         ``"T+sigma_a"`` likewise ``weights[k]`` the ray-segment table of the
         camera that took ``measurement[k]`` (the same object for each of its
         wavelengths).
-    unknowns : {"T", "T+sigma_a"}
-    regularization : "auto" or float
-        λ, or ``"auto"`` to choose it by ``rule`` (``rule=Fixed(λ)`` is the same as a float).
+    unknowns : "T", "T+sigma_a" or Unknowns
+        What is fitted (:mod:`lftomo.inverse.unknowns`): the temperature with
+        the absorption known (``"T"`` = :class:`~lftomo.Temperature`), or
+        temperature and soot absorption from two or more wavelengths
+        (``"T+sigma_a"`` = :class:`~lftomo.TemperatureAbsorption`, whose
+        parameters set the soot law and the absorption's coordinate).
     prior : str or Prior, optional
         ``"gradient"``, ``"laplacian"``, ``"tv"``, ``"curvature"`` or a
         :class:`~lftomo.inverse.regularizers.Prior`.  Default
-        :data:`DEFAULT_PRIOR` (``"curvature"``) for ``"T"``, ``"gradient"`` for
-        ``"T+sigma_a"``.
-    bounds : (T_min, T_max)
-        Temperature bounds (K), enforced by parameterisation.
-    method : {"levenberg-marquardt", "gauss-newton"}, or "dense-lm" for "T+sigma_a"
-        Default ``"levenberg-marquardt"`` (or that of ``solver``). optimistix's matrix-free solvers; ``"dense-lm"``: Levenberg–Marquardt on
-        exact dense normal equations, for joint fits with few unknowns
-        (:func:`lftomo.inverse.joint.solve_temperature_absorption`).
+        :data:`DEFAULT_PRIOR` (``"curvature"``) for both kinds of unknowns.
     rule : str or LambdaRule, optional
-        λ rule (:mod:`lftomo.inverse.lambdarules`): a name, ``"discrepancy"``,
-        ``"gcv"``, ``"lcurve"`` (``"discrepancy-bracket"``, ``"lcurve"`` for
-        ``"T+sigma_a"``), or a rule object with its parameters, e.g.
-        ``Discrepancy(noise_scale="estimated")``, ``GCV(n_lambda=9)``,
-        ``Fixed(300.0)``.  Default each fit's own: for ``"T"`` the discrepancy
-        rule with σ as given (:data:`DEFAULT_NOISE_SCALE`; ``noise_scale="estimated"``
-        trusts σ only up to a common factor, and a given σ that is too large for
-        any λ to meet the target is treated so);
-        ``"discrepancy"`` for ``"T"``, ``"discrepancy-bracket"`` for
-        ``"T+sigma_a"`` (which takes it or ``"lcurve"``).
-    T0 : ndarray, optional
-        Initial temperature field (default: from the linear baseline).
+        How λ is chosen (:mod:`lftomo.inverse.lambdarules`): a name
+        (``"discrepancy"``, ``"gcv"``, ``"lcurve"``; ``"discrepancy-bracket"``,
+        ``"lcurve"`` for ``"T+sigma_a"``) or a rule object with its
+        parameters, e.g. ``Discrepancy(noise_scale="estimated")``,
+        ``GCV(n_lambda=9)``; ``Fixed(λ)`` fixes λ.  Default each fit's own: for
+        ``"T"`` the discrepancy rule with σ as given
+        (:data:`DEFAULT_NOISE_SCALE`; a given σ too large for any λ to meet
+        the target is treated as known up to a factor), for ``"T+sigma_a"``
+        the bracketing discrepancy search with the noise scale estimated.
+    solver : Solver, optional
+        The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
+        ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``, or
+        ``DenseLM(...)`` for ``"T+sigma_a"``.  Default: matrix-free
+        Levenberg–Marquardt for ``"T"``; for ``"T+sigma_a"`` chosen by the
+        number of unknowns.
     symmetry : None, "axisymmetric" or RingGrid
         ``"axisymmetric"``: fit an axisymmetric field about the vertical (+y)
         axis through the box centre (:func:`lftomo.ring_grid`); a
@@ -280,33 +400,50 @@ def reconstruct(
         ``lftomo.interpolate_field(sigma_a, grid, quadrature_grid)``).  For
         ``"T+sigma_a"`` both ``T`` and ``sigma_a`` are interpolated, and the
         segment table is built on the quadrature grid.
-    solver : Solver, optional
-        The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
-        ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``, or
-        ``DenseLM(...)`` for ``"T+sigma_a"``.  Default: ``method``'s solver with
-        the fit's own settings.
-    **options
-        Passed to :func:`lftomo.inverse.solvers.solve_temperature` (``"T"``) or
-        :func:`lftomo.inverse.joint.solve_temperature_absorption`.
+    bounds : (T_min, T_max)
+        Temperature bounds (K), enforced by parameterisation.
+    start : optional
+        Where the fit starts.  None: the fit's own start (``"T"``: the linear
+        baseline; ``"T+sigma_a"``: tomographic two-colour pyrometry).  A
+        temperature field of shape ``grid.shape`` (K), a float, or
+        ``"uniform"``; for ``"T+sigma_a"`` also a pair ``(T, sigma_a)`` of
+        fields (``sigma_a`` at the first wavelength, m⁻¹).  A
+        :class:`Reconstruction` on the same box (a coarser grid is
+        interpolated): its temperature; for ``"T+sigma_a"`` its two fields and
+        its λ (coarse-to-fine).
+    progress : bool, optional
+        A progress bar on stderr over the solver's steps.  Default: shown for
+        large problems.
+    **moved
+        The keywords this function took before its options moved onto the
+        objects above (``regularization``, ``method``, ``T0``, ``noise_scale``,
+        ``max_steps``, …) still work, each with a DeprecationWarning naming
+        where it lives now (:data:`MOVED_OPTIONS`).
 
     Returns
     -------
     Reconstruction
     """
-    if unknowns not in ("T", "T+sigma_a"):
-        raise ValueError(f"unknowns must be 'T' or 'T+sigma_a', got {unknowns!r}")
+    what = resolve_unknowns(unknowns)
+    fit = what.name
+    options = moved_options(moved)
     _check_types(measurement, weights)
-    regularization, method, rule, options = fit_keywords(unknowns, regularization=regularization, method=method,
-                                                         rule=rule, solver=solver, options=options)
+    what, options = _fold_unknowns(unknowns, what, options)
+    options = _fold_start(start, options, fit)
+    regularization, method, rule, options = fit_keywords(
+        fit, regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
+        solver=solver, options=options)
     try:
         lo, hi = (float(b) for b in bounds)
     except (TypeError, ValueError):
         raise ValueError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
-    if unknowns == "T+sigma_a":
+    if progress is not None:
+        options["progress"] = progress
+    if fit == "T+sigma_a":
         return _reconstruct_joint(measurement, weights, regularization=regularization, prior=prior, bounds=bounds,
-                                  method=method, rule=rule, T0=T0, symmetry=symmetry, grid=grid, options=options)
+                                  method=method, rule=rule, symmetry=symmetry, grid=grid, options=options)
     from .solvers import solve_temperature
 
     if method not in ("levenberg-marquardt", "gauss-newton"):
@@ -314,6 +451,7 @@ def reconstruct(
                          + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
     t0 = time.perf_counter()
     problem, grid = _temperature_problem(measurement, weights, grid)
+    T0 = _temperature_start(options.pop("T0", None), grid)
     ring = resolve_symmetry(symmetry, grid)
     if ring is not None:
         problem = ring_problem(problem, ring)

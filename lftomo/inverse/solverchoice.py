@@ -57,16 +57,39 @@ def _tolerance(name: str, value: Any) -> float | None:
     return float(value)
 
 
+def _polish(value: Any) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"polish_steps must be an integer >= 0 or None (the fit's default), got {value!r}")
+    return int(value)
+
+
+def _engine(value: Any) -> str | None:
+    if value is not None and value not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES} or None (the fit's default), got {value!r}")
+    return value
+
+
+#: How the joint fit evaluates its forward model and derivatives: host sparse Jacobians, or JAX autodiff.
+ENGINES = ("host", "jax")
+#: Parameters that only the joint T + σₐ fit has.
+JOINT_ONLY = ("polish_steps", "engine")
+
+
 class _MatrixFree(Solver):
     fits = ("T", "T+sigma_a")
 
     def __init__(self, max_steps: int | None = None, rtol: float | None = None, atol: float | None = None,
-                 linear_max_steps: int | None = None, linear_rtol: float | None = None) -> None:
+                 linear_max_steps: int | None = None, linear_rtol: float | None = None,
+                 polish_steps: int | None = None, engine: str | None = None) -> None:
         self.max_steps = _steps("max_steps", max_steps)
         self.rtol = _tolerance("rtol", rtol)
         self.atol = _tolerance("atol", atol)
         self.linear_max_steps = _steps("linear_max_steps", linear_max_steps)
         self.linear_rtol = _tolerance("linear_rtol", linear_rtol)
+        self.polish_steps = _polish(polish_steps)
+        self.engine = _engine(engine)
 
 
 class LevenbergMarquardt(_MatrixFree):
@@ -82,6 +105,12 @@ class LevenbergMarquardt(_MatrixFree):
         LSMR iterations per step (a truncated step beyond it).
     linear_rtol : float, optional
         LSMR tolerance of each step.
+    polish_steps : int, optional
+        Joint fit only: after λ is chosen, continue that λ's solve for up to
+        this many more steps.
+    engine : {"host", "jax"}, optional
+        Joint fit only: forward model and exact derivatives from host sparse
+        Jacobians (the fit's default) or JAX autodiff (same values, slower).
     """
 
     method = "levenberg-marquardt"
@@ -101,13 +130,18 @@ class DenseLM(Solver):
     ----------
     max_steps : int, optional
         Levenberg–Marquardt iterations per solve.
+    polish_steps, engine : optional
+        As for :class:`LevenbergMarquardt`.
     """
 
     method = "dense-lm"
     fits = ("T+sigma_a",)
 
-    def __init__(self, max_steps: int | None = None) -> None:
+    def __init__(self, max_steps: int | None = None, polish_steps: int | None = None,
+                 engine: str | None = None) -> None:
         self.max_steps = _steps("max_steps", max_steps)
+        self.polish_steps = _polish(polish_steps)
+        self.engine = _engine(engine)
 
 
 def resolve_solver(solver: Any, *, fit: str) -> Solver:
@@ -123,4 +157,8 @@ def resolve_solver(solver: Any, *, fit: str) -> Solver:
         raise ValueError(f"solver must be one of lftomo's solver objects ({', '.join(allowed)}), got {solver!r}")
     if fit not in solver.fits:
         raise ValueError(f"solver {solver!r} does not run unknowns={fit!r}; use one of {', '.join(allowed)}")
+    given = [k for k in JOINT_ONLY if getattr(solver, k, None) is not None]
+    if fit != "T+sigma_a" and given:
+        raise ValueError(f"{', '.join(given)} of solver {solver!r} appl{'ies' if len(given) == 1 else 'y'} to the "
+                         "joint fit (unknowns='T+sigma_a') only")
     return solver

@@ -184,6 +184,7 @@ from .lambdarules import (  # noqa: E402
 )
 from .problem import LinearProblem  # noqa: E402
 from .regularizers import Prior, resolve_prior  # noqa: E402
+from .unknowns import PENALIZED as PENALIZE  # noqa: E402  (what the prior acts on)
 
 __all__ = [
     "METHODS",
@@ -205,9 +206,6 @@ __all__ = [
 METHODS = ("levenberg-marquardt", "gauss-newton")
 #: λ rules of :func:`solve_temperature` for ``regularization="auto"``.
 RULES = ("discrepancy", "gcv", "lcurve")
-#: What the prior acts on.
-PENALIZE = ("temperature", "intensity")
-
 CHUNK = 10
 
 #: ``progress=None`` shows a progress bar when the operator has more nonzeros
