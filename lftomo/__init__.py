@@ -26,7 +26,7 @@ from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.regularizers import Prior, GradientPrior, LaplacianPrior, CurvaturePrior, TotalVariationPrior
 from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, LCurveDecades, Fixed
 from .inverse.unknowns import Unknowns, Temperature, TemperatureAbsorption
-from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM
+from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM, AutoSolver
 from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.design import Design, design, compare_designs, design_table, rig_around, standard_configurations
@@ -106,6 +106,7 @@ __all__ = [
     "LevenbergMarquardt",
     "GaussNewton",
     "DenseLM",
+    "AutoSolver",
     "Reconstruction",
     "reconstruct",
     "solve_temperature",

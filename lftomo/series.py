@@ -681,8 +681,9 @@ def reconstruct_series(
         Raw frames: view pixels below this fraction of the peak étendue are left
         out (default :data:`lftomo.demo.MIN_ETENDUE_FRACTION`, as ``lftomo reconstruct``).
     **reconstruct_options
-        Passed to :func:`lftomo.reconstruct` (JSON-serialisable values; they
-        are recorded in the manifest).
+        Passed to :func:`lftomo.reconstruct` (``prior``, ``rule``, ``solver``,
+        ``symmetry``, …: values or lftomo's option objects, recorded in the
+        manifest by their repr, which a resumed series must match).
 
     Returns
     -------

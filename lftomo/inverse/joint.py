@@ -132,7 +132,7 @@ rule : {"discrepancy-bracket", "lcurve"}
     not :func:`~lftomo.inverse.solvers.solve_temperature`'s discrepancy rule
     (a root search for χ²/m = target).  When the
     noise σ is overestimated, χ²/m stays below 1 at every λ and the
-    discrepancy rule takes its largest λ, ``lambda_max``; ``lambda_rule`` says so.
+    discrepancy rule takes its largest λ, ``lambda_max``; ``Reconstruction.lambda_note`` says so.
 noise_scale : {"given", "estimated"}, optional
     ``"given"``: the discrepancy target is χ²/m = 1 (σ calibrated).
     ``"estimated"`` (the default with ``regularization="auto"`` and the
@@ -1001,6 +1001,7 @@ def solve_temperature_absorption(
         # T-only rule's λ_ref · 1e-2), not taken from the coarse fit: its misfit includes the coarse grid's
         # (measured, 650 + 900 nm: χ²/m 0.957 on 12³ at λ 10, 0.913 on 24³ after 40 steps at the same λ)
         lam_start = max(lam_start * 1e-2, _LAMBDA_MIN)
+    t_lambda = time.perf_counter()
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
             best, lam, note, polish, scale_info, target = _choose_lambda(
@@ -1008,8 +1009,10 @@ def solve_temperature_absorption(
                 polish_steps=polish_steps)
     finally:
         path.bar.close()
+    rule_name = rule_obj.name if regularization == "auto" else "fixed"
     return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, alpha=alpha,
-                   start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method)
+                   start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method,
+                   rule_name=rule_name, t_lambda=t_lambda)
 
 
 def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool | None, **linear) -> _JointPath:
@@ -1025,7 +1028,7 @@ def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool 
 
 
 def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polish, scale_info, target, alpha,
-            start_label, T_init, s_init, t_start, method) -> Reconstruction:
+            start_label, T_init, s_init, t_start, method, rule_name, t_lambda) -> Reconstruction:
     """The joint fit's :class:`Reconstruction` (fields on ``grid``, the λ path and the start in ``details``)."""
     grid, ring = model.grid, model.ring
     path_fields = [model.fields(e.theta) for e in path.evals]
@@ -1037,13 +1040,14 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
         sigma_a=sref.reshape(grid.shape),
         grid=grid,
         regularization=lam,
-        lambda_rule=note,
+        lambda_rule=rule_name,
         chi2=best.chi2,
         residual_norm=float(np.sqrt(best.chi2 * model.m_total)),
         regularization_norm=best.reg,  # the same ‖R‖ as lambda_path's: T and σ terms and the ridge
         iterations=best.steps,
         converged=best.converged,
-        timing={"total": time.perf_counter() - t_start},
+        timing={"start": t_lambda - t_start, "lambda": time.perf_counter() - t_lambda,
+                "total": time.perf_counter() - t_start},
         unknowns="T+sigma_a",
         data_kind="subaperture",
         details={"lambda_path": [(e.lam, e.chi2, e.reg) for e in path.evals],
@@ -1053,4 +1057,6 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
                  "noise_scale": scale_info, "chi2_target": target, "polish": polish, "method": method},
         symmetry=ring,
         metadata={} if model.E is None else {"quadrature_grid": model.seg_grid.to_dict()},
+        lambda_note=note,
+        lambda_path=tuple((float(e.lam), float(e.chi2), float(e.reg)) for e in (path.evals or [best])),
     )

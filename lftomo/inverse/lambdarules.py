@@ -238,7 +238,8 @@ def lcurve_curvature(evals: list) -> np.ndarray:
 
 # --------------------------------------------------------------------------- the T-only fit's searches
 def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
-                       search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None):
+                       search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None,
+                       climbed: dict[float, Eval] | None = None):
     """Morozov's discrepancy principle as a root search: the λ with ``χ²/m = target``.
 
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
@@ -249,7 +250,8 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     with ``estimate_scale``.  ``estimate_scale``: the target is ``(1 + safety) s²``,
     ``s² = χ²/(m − ν)`` of the first, least-regularized fit (``ν =
     run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2`` from ``theta0``,
-    when already done.  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
+    when already done; ``climbed``: the solves of an earlier pass's factor-10
+    ladder up from it, by λ (the same solves from the same starts, reused).  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
     target, note)``.  (The algorithm is described in
     :mod:`lftomo.inverse.solvers`.)
     """
@@ -291,12 +293,15 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
         scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
                       f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
                       f"target chi²/m = {target:.5g}; ")
+    ladder: dict[float, Eval] = {}
     if g(e) < 0:  # too little misfit: increase λ
         lo = e
         hi = None
         while lam < hi_lim:
             lam *= 10.0
-            e = solve(lam, lo.theta)
+            # a retry climbs the ladder of the first pass: the same λ from the same start
+            e = climbed[lam] if climbed and lam in climbed else solve(lam, lo.theta)
+            ladder[lam] = e
             if g(e) >= 0:
                 hi = e
                 break
@@ -312,7 +317,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
             if not estimate_scale and m > run.n_unknowns:
                 e, target, note = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
-                                                     estimate_scale=True, first=first)
+                                                     estimate_scale=True, first=first, climbed=ladder)
                 return e, target, (f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated): "
                                    f"{note}")
             found = branch_corner(run.evals, math.inf, target)
@@ -685,8 +690,9 @@ class DiscrepancyBracket(LambdaRule):
 
     Parameters
     ----------
-    noise_scale : {"given", "estimated"}
-        As for :class:`Discrepancy`.
+    noise_scale : {"given", "estimated"}, optional
+        As for :class:`Discrepancy`; default the joint fit's (estimated where
+        there are more data than unknowns).
     lambda_max : float, optional
         Largest λ the search tries (default the joint fit's, 1e6).
     """
@@ -694,12 +700,13 @@ class DiscrepancyBracket(LambdaRule):
     name = "discrepancy-bracket"
     fits = ("T+sigma_a",)
 
-    def __init__(self, noise_scale: str = "given", lambda_max: float | None = None) -> None:
-        self.noise_scale = _noise_scale(noise_scale)
+    def __init__(self, noise_scale: str | None = None, lambda_max: float | None = None) -> None:
+        self.noise_scale = None if noise_scale is None else _noise_scale(noise_scale)
         self.lambda_max = _lambda_max(lambda_max)
 
     def keywords(self) -> dict[str, Any]:
-        return {"rule": self.name, "noise_scale": self.noise_scale, **_lambda_max_kw(self)}
+        scale = {} if self.noise_scale is None else {"noise_scale": self.noise_scale}
+        return {"rule": self.name, **scale, **_lambda_max_kw(self)}
 
     def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
         return bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,

@@ -166,7 +166,7 @@ def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solve
     regularization = opts.pop("regularization", regularization)
     method = opts.pop("method", method)
     rule = opts.pop("rule", rule)
-    if method is None:  # the joint fit picks its solver by the number of unknowns
+    if method is None or method == "auto":  # the joint fit picks its solver by the number of unknowns
         method = "auto" if fit == "T+sigma_a" else "levenberg-marquardt"
     return regularization, method, rule, opts
 
@@ -204,7 +204,7 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
 #: Keywords that :func:`reconstruct` took before its options moved onto objects, and where each lives now.
 MOVED_OPTIONS: dict[str, str] = {
     "regularization": "rule=lt.Fixed(λ) (leave it out for the default λ rule)",
-    "method": "solver=lt.LevenbergMarquardt(), lt.GaussNewton() or lt.DenseLM()",
+    "method": "solver=lt.LevenbergMarquardt(), lt.GaussNewton(), lt.DenseLM() or lt.AutoSolver()",
     "T0": "start=T0",
     "sigma_a0": "start=(T0, sigma_a0)",
     "noise_scale": "rule=lt.Discrepancy(noise_scale=...) (lt.DiscrepancyBracket(noise_scale=...) for "
@@ -220,7 +220,7 @@ MOVED_OPTIONS: dict[str, str] = {
     "lambda_max": "rule=lt.DiscrepancyBracket(lambda_max=...) or lt.LCurveDecades(lambda_max=...)",
     **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))"
        for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},
-    **{k: f"solver=lt.LevenbergMarquardt({k}=...) or lt.DenseLM({k}=...)" for k in ("polish_steps", "engine")},
+    **{k: f"solver=lt.AutoSolver({k}=...) (or lt.LevenbergMarquardt, lt.DenseLM)" for k in ("polish_steps", "engine")},
     **{k: f"unknowns=lt.Temperature({k}=...)" for k in ("penalize", "T_ref")},
     "tv_eps": "prior=lt.TotalVariationPrior(eps=...)",
     **{k: f"unknowns=lt.TemperatureAbsorption({k}=...)"
@@ -377,8 +377,9 @@ def reconstruct(
         the bracketing discrepancy search with the noise scale estimated.
     solver : Solver, optional
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
-        ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``, or
-        ``DenseLM(...)`` for ``"T+sigma_a"``.  Default: matrix-free
+        ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``,
+        ``DenseLM(...)`` for ``"T+sigma_a"``, or ``AutoSolver(...)``: the
+        default choice with settings.  Default: matrix-free
         Levenberg–Marquardt for ``"T"``; for ``"T+sigma_a"`` chosen by the
         number of unknowns.
     symmetry : None, "axisymmetric" or RingGrid
@@ -464,7 +465,9 @@ def reconstruct(
         sol = solve_temperature(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
                                 bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
                                 **options)
-    timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items()}}
+    timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
+              "total": time.perf_counter() - t0}
+    choice = sol.lambda_choice
     return Reconstruction(
         T=sol.T if ring is None else ring.expand(sol.T),
         sigma_a=None,
@@ -482,4 +485,7 @@ def reconstruct(
         details=sol,
         symmetry=ring,
         metadata={"quadrature_grid": problem.metadata["quadrature_grid"]} if problem.interpolation is not None else {},
+        lambda_note=choice.note,
+        lambda_path=tuple((float(lam), float(c), float(r)) for lam, c, r in
+                          zip(choice.candidates, choice.chi2, choice.regularization_norms)),
     )

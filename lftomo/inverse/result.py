@@ -30,7 +30,10 @@ class Reconstruction:
     grid : Grid
         Reconstruction grid.
     regularization : float
-        λ used; ``lambda_rule`` says how it was chosen.
+        λ used.
+    lambda_rule : str
+        How λ was chosen: the rule's name (``"discrepancy"``, ``"gcv"``,
+        ``"lcurve"``, ``"discrepancy-bracket"``) or ``"fixed"``.
     chi2 : float
         Whitened ``χ²/m`` at the solution.
     residual_norm, regularization_norm : float
@@ -40,7 +43,7 @@ class Reconstruction:
     iterations : int
     converged : bool
     timing : dict
-        Seconds per stage.
+        Seconds per stage; ``"total"`` for every fit.
     unknowns, data_kind : str
     details : Any
         The solver's own result object (for an axisymmetric fit its fields
@@ -48,6 +51,12 @@ class Reconstruction:
     symmetry : RingGrid or None
         The ring grid of an axisymmetric reconstruction (``T`` is then
         ``symmetry.expand`` of the ring-cell solution), else None.
+    lambda_note : str
+        What the λ rule did, in words (bracketing, fallbacks, the estimated
+        noise scale, a polish).
+    lambda_path : tuple of (float, float, float)
+        ``(λ, χ²/m, ‖R‖)`` of every solve, in the order solved (the last λ
+        chosen or not); one entry for a fixed λ.
     """
 
     T: np.ndarray
@@ -66,6 +75,8 @@ class Reconstruction:
     details: Any = None
     metadata: dict = field(default_factory=dict)
     symmetry: Any = None
+    lambda_note: str = ""
+    lambda_path: tuple = ()
 
     def __repr__(self) -> str:  # the default would print the fields and the solver's whole result
         return (f"Reconstruction(unknowns={self.unknowns!r}, data={self.data_kind!r}, grid={tuple(self.grid.shape)}, "
@@ -91,6 +102,7 @@ class Reconstruction:
             "grid_shape": list(self.grid.shape),
             "regularization": self.regularization,
             "lambda_rule": self.lambda_rule,
+            "lambda_note": self.lambda_note,
             "chi2_per_datum": self.chi2,
             "iterations": self.iterations,
             "converged": self.converged,

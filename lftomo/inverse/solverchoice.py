@@ -13,13 +13,16 @@ for ``"T+sigma_a"``).
 ``DenseLM``
     Levenberg–Marquardt on exact dense normal equations (joint fit only; for
     few unknowns, e.g. axisymmetric ring cells or a smooth basis).
+``AutoSolver``
+    The fit's own choice by problem size (what ``solver=None`` gives), with
+    settings that apply to whichever algorithm it picks.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["Solver", "LevenbergMarquardt", "GaussNewton", "DenseLM", "resolve_solver"]
+__all__ = ["Solver", "LevenbergMarquardt", "GaussNewton", "DenseLM", "AutoSolver", "resolve_solver"]
 
 
 class Solver:
@@ -120,7 +123,30 @@ class GaussNewton(_MatrixFree):
     """optimistix ``GaussNewton``, matrix-free (LSMR per step); parameters as :class:`LevenbergMarquardt`."""
 
     method = "gauss-newton"
-    fits = ("T",)
+
+
+class AutoSolver(Solver):
+    """The fit's own choice of algorithm, with settings: matrix-free Levenberg–Marquardt for
+    ``unknowns="T"``; for ``"T+sigma_a"`` dense Levenberg–Marquardt up to a number of unknowns,
+    matrix-free above it (:func:`lftomo.inverse.joint.solve_temperature_absorption`).  This is what
+    ``solver=None`` gives, with every setting at the fit's default.
+
+    Parameters
+    ----------
+    max_steps : int, optional
+        Nonlinear steps per solve, whichever algorithm is chosen.
+    polish_steps, engine : optional
+        Joint fit only, as for :class:`LevenbergMarquardt`.
+    """
+
+    method = "auto"
+    fits = ("T", "T+sigma_a")
+
+    def __init__(self, max_steps: int | None = None, polish_steps: int | None = None,
+                 engine: str | None = None) -> None:
+        self.max_steps = _steps("max_steps", max_steps)
+        self.polish_steps = _polish(polish_steps)
+        self.engine = _engine(engine)
 
 
 class DenseLM(Solver):
@@ -152,7 +178,7 @@ def resolve_solver(solver: Any, *, fit: str) -> Solver:
     ValueError
         Not a Solver, or one that does not run this fit, naming those that do.
     """
-    allowed = [c.__name__ for c in (LevenbergMarquardt, GaussNewton, DenseLM) if fit in c.fits]
+    allowed = [c.__name__ for c in (LevenbergMarquardt, GaussNewton, DenseLM, AutoSolver) if fit in c.fits]
     if not isinstance(solver, Solver):
         raise ValueError(f"solver must be one of lftomo's solver objects ({', '.join(allowed)}), got {solver!r}")
     if fit not in solver.fits:

@@ -91,7 +91,7 @@ class TemperatureAbsorption(Unknowns):
         ``ln σ_ref`` in ``[ln sigma_a_min, ln sigma_a_max]`` (default) or
         ``σ_ref`` in ``[0, sigma_a_max]``.
     sigma_a_min : float
-        Lower bound of ``σ_ref`` (m⁻¹, > 0) in log space.
+        Lower bound of ``σ_ref`` (m⁻¹, > 0) in log space (unused in linear space).
     sigma_a_max : float
         Upper bound of ``σ_ref`` (m⁻¹, > ``sigma_a_min``).
     sigma_a_scale : float, optional
@@ -110,7 +110,9 @@ class TemperatureAbsorption(Unknowns):
         self.alpha = require_positive("alpha", alpha)
         self.sigma_a_space = require_choice("sigma_a_space", sigma_a_space, SIGMA_A_SPACES)
         self.sigma_a_max = require_positive("sigma_a_max", sigma_a_max)
-        self.sigma_a_min = require_positive("sigma_a_min", sigma_a_min)
+        # the lower bound of ln σ_ref; linear space bounds σ_ref below by 0 and ignores it
+        self.sigma_a_min = (require_positive("sigma_a_min", sigma_a_min) if self.sigma_a_space == "log"
+                            else sigma_a_min)
         if self.sigma_a_space == "log" and not self.sigma_a_min < self.sigma_a_max:
             raise ValueError(f"sigma_a_min must be below sigma_a_max ({self.sigma_a_max:g}) for sigma_a_space='log', "
                              f"got {sigma_a_min!r}")

@@ -67,6 +67,11 @@ class LinearPath:
         return float(r @ r), float(np.sum((self.L @ x) ** 2)), float(np.trace(self.H(lam)))
 
 
+def _scaled(path, factor):
+    path.y = factor * path.y
+    return path
+
+
 def _root(path, target):
     return math.exp(brentq(lambda u: path.chi2(math.exp(u)) - target, math.log(1e-8), math.log(1e6), xtol=1e-12))
 
@@ -97,6 +102,24 @@ def test_discrepancy_estimated_noise_scale_targets_s2_of_the_least_regularized_f
     assert target == pytest.approx(s2, rel=1e-12) and 3.0 < s2 < 5.0
     assert "noise scale estimated" in note
     assert e.chi2 == pytest.approx(target, rel=0.011)
+
+
+def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_scale_root():
+    """Data scaled by 0.1 (noise 0.1 against σ = 1 given): χ²/m < 1 at every λ, so the search is redone
+    with the noise scale estimated.  The retry climbs the same factor-10 ladder from the same starts: it
+    must take those solves from the first pass (no λ solved twice) and find the same λ as the
+    estimated-scale rule run on its own."""
+    path = _scaled(LinearPath(), 0.1)
+    e, target, note = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    lams = [ev.lam for ev in path.evals]
+    assert "stays below the target" in note and "noise scale estimated" in note, note
+    assert len(lams) == len(set(lams)), lams
+    alone = _scaled(LinearPath(), 0.1)
+    e_alone, target_alone, _ = Discrepancy(noise_scale="estimated").choose(alone, np.zeros(alone.n_unknowns), 1.0)
+    assert target == pytest.approx(target_alone, rel=1e-12)
+    assert e.lam == pytest.approx(e_alone.lam, rel=1e-12)
+    ladder = [1e-2 * 10.0**k for k in range(1, 7)]  # λ_ref·1e-1 … λ_ref·1e4: climbed once
+    assert all(any(math.isclose(lam, x, rel_tol=1e-12) for lam in lams) for x in ladder)
 
 
 def test_discrepancy_bracket_is_the_largest_ladder_lambda_with_chi2_below_target():

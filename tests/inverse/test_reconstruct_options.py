@@ -122,8 +122,9 @@ def test_temperature_unknowns_and_solver_and_rule_parameters_are_checked():
     assert lt.TemperatureAbsorption() == lt.TemperatureAbsorption(alpha=1.38)
     assert lt.LevenbergMarquardt(polish_steps=2, engine="jax").keywords() == {
         "method": "levenberg-marquardt", "polish_steps": 2, "engine": "jax"}
-    assert lt.DiscrepancyBracket(lambda_max=1e4).keywords() == {
-        "rule": "discrepancy-bracket", "noise_scale": "given", "lambda_max": 1e4}
+    assert lt.DiscrepancyBracket(lambda_max=1e4).keywords() == {"rule": "discrepancy-bracket", "lambda_max": 1e4}
+    assert lt.DiscrepancyBracket("given").keywords() == {"rule": "discrepancy-bracket", "noise_scale": "given"}
+    assert lt.AutoSolver(max_steps=7).keywords() == {"method": "auto", "max_steps": 7}
 
 
 def test_command_line_rule_names_map_to_rule_objects():
@@ -135,3 +136,45 @@ def test_command_line_rule_names_map_to_rule_objects():
         rule_from_names("gcv", "auto", "estimated")
     with pytest.raises(ValueError, match="rule must be one of"):
         rule_from_names("evidence")
+
+
+def test_temperature_and_joint_fits_report_the_same_fields():
+    """Both fits name their λ rule, say what it did in lambda_note, list every solve in lambda_path (the chosen
+    λ among them, with the result's own χ²/m) and time their stages with a total; summaries have the same keys."""
+    import dataclasses
+
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    rng = np.random.default_rng(0)
+    flame = lt.Medium(grid, sigma_a=10.0 + 20.0 * rng.random(grid.shape), T=1500.0 + 300.0 * rng.random(grid.shape),
+                      sigma_a_rule=lt.SootRule(650e-9, 1.38))
+    lf = lt.add_noise(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=8, seed=2, wavelengths=(650e-9, 800e-9)),
+                      relative_std=0.01, seed=3)
+    ms = [lt.Measurement.from_lightfield(lf, data="subaperture", channel=c) for c in range(2)]
+    seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2)
+    W = lt.weights(cam, grid, sigma_a=flame.sigma_a_at(650e-9), wavelength=650e-9, rays_per_pixel=8, seed=2)
+    fits = {
+        "T auto": reconstruct(ms[0], W, solver=lt.LevenbergMarquardt(max_steps=20), bounds=(1000.0, 2500.0)),
+        "T fixed": reconstruct(ms[0], W, rule=lt.Fixed(1e-2), solver=lt.LevenbergMarquardt(max_steps=5),
+                               bounds=(1000.0, 2500.0)),
+        "joint auto": reconstruct(ms, seg, unknowns="T+sigma_a", solver=lt.DenseLM(max_steps=10),
+                                  bounds=(1000.0, 2500.0)),
+        "joint fixed": reconstruct(ms, seg, unknowns="T+sigma_a", rule=lt.Fixed(1e-2), solver=lt.DenseLM(max_steps=5),
+                                   bounds=(1000.0, 2500.0)),
+    }
+    names = {"T auto": "discrepancy", "T fixed": "fixed", "joint auto": "discrepancy-bracket", "joint fixed": "fixed"}
+    keys = {k: set(rec.summary()) for k, rec in fits.items()}
+    assert len({frozenset(v) for v in keys.values()}) == 1, keys
+    for k, rec in fits.items():
+        assert rec.lambda_rule == names[k], (k, rec.lambda_rule)
+        assert isinstance(rec.lambda_note, str) and rec.lambda_note, k
+        lams = [p[0] for p in rec.lambda_path]
+        assert rec.regularization in lams, (k, lams, rec.regularization)
+        chosen = [p for p in rec.lambda_path if p[0] == rec.regularization]
+        assert any(c == pytest.approx(rec.chi2, rel=1e-6) for _, c, _ in chosen), k
+        assert rec.timing["total"] >= max(v for s, v in rec.timing.items() if s != "total") - 1e-9, rec.timing
+        assert "fixed" in k or len(rec.lambda_path) > 1, (k, rec.lambda_path)
+    for k in ("joint auto",):
+        assert fits[k].lambda_path == tuple(tuple(p) for p in fits[k].details["lambda_path"])
+    assert dataclasses.is_dataclass(fits["T auto"]) and fits["T auto"].lambda_note == \
+        fits["T auto"].details.lambda_choice.note
