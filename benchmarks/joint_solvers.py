@@ -1,5 +1,5 @@
 """The joint T + σ_a solvers against each other: optimistix's matrix-free Levenberg–Marquardt
-(the default) and ``method="dense-lm"`` (exact dense normal equations, bounds by projection).
+(``solver=lt.LevenbergMarquardt()``) and ``lt.DenseLM()`` (exact dense normal equations, bounds by projection).
 
 Problem: the accuracy study's (``studies/accuracy_joint.py``): the seed camera's 16 best-lit views,
 the axisymmetric flame with a 12 mm base rendered at 650 and 900 nm on a grid twice as fine as
@@ -53,11 +53,11 @@ def main() -> None:
     m = sum(x.size for x in ms)
     print(f"{a.n}³ ring cells, {len(views)} views, {m} data, {seg.n_segments} segments, λ {a.lam:g}")
     out = {}
-    for method in ("levenberg-marquardt", "dense-lm"):
+    for method, solver in (("levenberg-marquardt", lt.LevenbergMarquardt), ("dense-lm", lt.DenseLM)):
         t = time.perf_counter()
-        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=a.lam, method=method, grid=grid,
-                             symmetry="axisymmetric", prior="curvature", sigma_a_scale=2000.0,
-                             max_steps=a.max_steps, progress=False)
+        rec = lt.reconstruct(ms, seg, unknowns=lt.TemperatureAbsorption(sigma_a_scale=2000.0), rule=lt.Fixed(a.lam),
+                             solver=solver(max_steps=a.max_steps), grid=grid, symmetry="axisymmetric",
+                             prior="curvature", progress=False)
         dt = time.perf_counter() - t
         obj = rec.chi2 * m + a.lam * rec.regularization_norm ** 2
         e = np.abs(rec.T / T_true - 1.0)[hot]

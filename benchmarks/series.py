@@ -106,7 +106,9 @@ def main() -> None:
     print(f"setup: {a.frames} frames of {cam.sensor_shape[0]}x{cam.sensor_shape[1]} px rendered + W {W.shape} "
           f"nnz {W.nnz} ({W.nbytes / 1e6:.1f} MB) in {time.perf_counter() - t0:.1f} s; load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    opts = {"regularization": a.lam, "max_steps": a.max_steps, "bounds": (300.0, 2500.0)}
+    # lt.reconstruct's settings; reconstruct_series takes the same (recorded in its manifest by their repr)
+    opts = series_opts = {"rule": lt.Fixed(a.lam), "solver": lt.LevenbergMarquardt(max_steps=a.max_steps),
+                          "bounds": (300.0, 2500.0)}
 
     t0 = time.perf_counter()
     serial, t_frames = [], []
@@ -131,7 +133,7 @@ def main() -> None:
     t_start = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
-        res = lt.reconstruct_series(frames, W, out=out, client=client, noise=0.01, seed=100, **opts)
+        res = lt.reconstruct_series(frames, W, out=out, client=client, noise=0.01, seed=100, **series_opts)
         t_series = time.perf_counter() - t0
         man = json.load(open(os.path.join(out, "manifest.json")))
         stack = res.stack()

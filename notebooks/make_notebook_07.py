@@ -14,7 +14,7 @@ import nbformat
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from make_notebooks_04_06 import IMPORTS, build, code, md  # noqa: E402
+from make_notebooks_04_06 import IMPORTS_NO_WARNINGS, build, code, md  # noqa: E402
 
 NB07 = [
     md("""
@@ -33,7 +33,7 @@ NB07 = [
     (30 × 30 lenslets), a 24 mm box, the flames on 16³ and an 8³ reconstruction grid; the 16³ numbers
     on the full seed camera are in `docs/experiment_design.md` (`studies/rig_design.py`).
     """),
-    IMPORTS,
+    IMPORTS_NO_WARNINGS,
     code("""
     from lftomo.inverse.design import design_configurations
 

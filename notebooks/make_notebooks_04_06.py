@@ -205,7 +205,7 @@ NB04 = [
         """
         ## 2. T-only reconstruction, λ by the discrepancy principle
 
-        Started from a uniform field (`T0="uniform"`, the middle of the bounds). The rule
+        Started from a uniform field (`start="uniform"`, the middle of the bounds). The rule
         evaluates candidate λ (multiples of the balanced weight `λ_ref`), brackets the target
         `χ²/m = 1` by factors of 10 and refines it by regula falsi.
 
@@ -221,7 +221,8 @@ NB04 = [
 
         BOUNDS = (300.0, 2500.0)
         t0 = time.perf_counter()
-        rec = lt.reconstruct(m, W, bounds=BOUNDS, rule="discrepancy", T0="uniform", max_steps=50)
+        rec = lt.reconstruct(m, W, bounds=BOUNDS, rule="discrepancy", start="uniform",
+                             solver=lt.LevenbergMarquardt(max_steps=50))
         t_rec = time.perf_counter() - t0
         lc = rec.details.lambda_choice
         err = rec.errors(T_c, hot=HOT)
@@ -294,7 +295,8 @@ NB04 = [
             if f == 1.0:
                 sweep[f] = (lam_f, err, rec.chi2, rec.T)
             else:
-                r = lt.reconstruct(m, W, regularization=lam_f, bounds=BOUNDS, T0=rec.T, max_steps=50)
+                r = lt.reconstruct(m, W, rule=lt.Fixed(lam_f), bounds=BOUNDS, start=rec.T,
+                                   solver=lt.LevenbergMarquardt(max_steps=50))
                 sweep[f] = (lam_f, r.errors(T_c, hot=HOT), r.chi2, r.T)
             tb = time.perf_counter()
             b = lt.solve_linear_baseline(problem, regularization=lam_f, bounds=BOUNDS)
@@ -387,8 +389,8 @@ NB04 = [
     code(
         """
         t0 = time.perf_counter()
-        rec_ax = lt.reconstruct(m, W, bounds=BOUNDS, rule="discrepancy", T0="uniform",
-                                max_steps=50, symmetry="axisymmetric")
+        rec_ax = lt.reconstruct(m, W, bounds=BOUNDS, rule="discrepancy", start="uniform",
+                                solver=lt.LevenbergMarquardt(max_steps=50), symmetry="axisymmetric")
         err_ax = rec_ax.errors(T_c, hot=HOT)
         print(f"{rec_ax.symmetry}: {time.perf_counter() - t0:.1f} s, lambda {rec_ax.regularization:.3g}, "
               f"chi2/m {rec_ax.chi2:.3f}")
@@ -420,7 +422,8 @@ NB04 = [
         one above 4096 unknowns). It is still much slower than the T-only solver, so it runs on a
         smaller problem: the same flame on a 12³ truth grid, a 6³ reconstruction grid, the 16
         best-lit views, 8 rays per pixel, a fixed λ = 1e-2 (one solve; the discrepancy rule costs
-        several), at most 10 steps, as printed. The same noise model as above, per channel.
+        several), at most 10 steps (`solver=lt.DenseLM(max_steps=10)`: the solver the defaults pick
+        here, named to cap its steps), as printed. The same noise model as above, per channel.
         Start: a uniform 1400 K and 2 m⁻¹ (given here; by default the solver starts from
         tomographic two-colour pyrometry). `studies/accuracy_joint.py` measures the joint fit.
 
@@ -455,8 +458,8 @@ NB04 = [
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            joint = lt.reconstruct(ms2, seg, unknowns="T+sigma_a", regularization=1e-2, bounds=BOUNDS, max_steps=10,
-                                   T0=T0_2, sigma_a0=SA0_2)
+            joint = lt.reconstruct(ms2, seg, unknowns="T+sigma_a", rule=lt.Fixed(1e-2), bounds=BOUNDS,
+                                   solver=lt.DenseLM(max_steps=10), start=(T0_2, SA0_2))
         t_joint = time.perf_counter() - t0
 
 
@@ -653,7 +656,7 @@ NB05 = [
         t0 = time.perf_counter()
         cmp = compare_refocus_subaperture(lt.Scene(medium=flame), cam, grid, noise=0.01, depths=DEPTHS, seed=0,
                                           rays_per_pixel=64, wavelength=WL, regularization="auto", bounds=BOUNDS,
-                                          hot=HOT, max_steps=30)
+                                          hot=HOT, solver=lt.LevenbergMarquardt(max_steps=30))
         print(f"compare_refocus_subaperture: {time.perf_counter() - t0:.1f} s")
         summ = cmp.summary()
         recs = {"subaperture": cmp.subaperture, "refocus": cmp.refocus}

@@ -52,11 +52,15 @@ def draw_row(d, reg, lf, W, a, ctx):
                                    min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
     m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
     t = time.perf_counter()
-    opts = {"linear_max_steps": a.linear_max_steps} if a.linear_max_steps > 0 else {}
-    if a.rule == "discrepancy":
-        opts["noise_scale"] = a.noise_scale
+    solver = lt.LevenbergMarquardt(linear_max_steps=a.linear_max_steps) if a.linear_max_steps > 0 else None
+    if reg != "auto":
+        rule = lt.Fixed(reg)
+    elif a.rule == "discrepancy":
+        rule = lt.Discrepancy(noise_scale=a.noise_scale)
+    else:
+        rule = a.rule
     sym = None if a.symmetry == "none" else a.symmetry
-    rec = lt.reconstruct(m, W, regularization=reg, rule=a.rule, prior=a.prior, symmetry=sym, grid=coarse, **opts)
+    rec = lt.reconstruct(m, W, rule=rule, solver=solver, prior=a.prior, symmetry=sym, grid=coarse)
     dt = time.perf_counter() - t
     e = rec.errors(T_true)
     sel = T_true > 800

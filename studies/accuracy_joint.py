@@ -41,7 +41,7 @@ Usage::
                                      [--mc-floor bound|prior] [--noise-scale given|estimated]
                                      [--sigma-a-space linear|log] [--sigma-a-min S] [--sigma-a-scale S]
                                      [--coarse-start NC | --start-npz file.npz] [--max-steps 100]
-                                     [--method levenberg-marquardt|gauss-newton|dense-lm]
+                                     [--method levenberg-marquardt|gauss-newton|dense-lm|auto]
                                      [--json out.json] [--npz out.npz]
 """
 from __future__ import annotations
@@ -55,8 +55,12 @@ import numpy as np
 import lftomo as lt
 from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
-from lftomo.inverse.joint import JOINT_METHODS, SIGMA_A_SPACES
+from lftomo.inverse.joint import SIGMA_A_SPACES
 from lftomo.inverse.solvers import NOISE_SCALES
+
+#: ``--method``: the joint fit's solvers, as lt.reconstruct(..., solver=...) takes them
+SOLVERS = {"levenberg-marquardt": lt.LevenbergMarquardt, "gauss-newton": lt.GaussNewton, "dense-lm": lt.DenseLM,
+           "auto": lt.AutoSolver}
 
 
 def main():
@@ -71,17 +75,18 @@ def main():
                          "allows for model error) or prior (the Monte Carlo error as it is)")
     ap.add_argument("--noise-scale", default="given", choices=NOISE_SCALES,
                     help="the joint fit's discrepancy rule: sigma as given (target chi2/m = 1) or trusted up to a "
-                         "factor, estimated from the least-regularized fit (lt.reconstruct(..., noise_scale=...))")
+                         "factor, estimated from the least-regularized fit "
+                         "(lt.reconstruct(..., rule=lt.DiscrepancyBracket(noise_scale=...)))")
     ap.add_argument("--wavelengths", default="650e-9,800e-9")
     ap.add_argument("--view-etendue", type=float, default=0.7,
                     help="use views whose median étendue is at least this fraction of the peak")
     ap.add_argument("--width", type=float, default=0.012, help="flame base width (m); 0: the phantom's default")
     ap.add_argument("--regularization", default="auto")
     ap.add_argument("--max-steps", type=int, default=100)
-    ap.add_argument("--method", default="levenberg-marquardt", choices=list(JOINT_METHODS),
-                    help="the joint solver (lt.reconstruct(..., method=...)): optimistix's matrix-free "
-                         "Levenberg-Marquardt, Gauss-Newton, or dense-lm (exact dense normal equations, bounds by "
-                         "projection); used by the coarse start too")
+    ap.add_argument("--method", default="levenberg-marquardt", choices=list(SOLVERS),
+                    help="the joint solver (lt.reconstruct(..., solver=...)): optimistix's matrix-free "
+                         "Levenberg-Marquardt or Gauss-Newton, dense-lm (exact dense normal equations, bounds by "
+                         "projection), or auto (the fit's choice by size); used by the coarse start too")
     ap.add_argument("--polish-steps", type=int, default=0,
                     help="continue the chosen λ's solve of the fit (not of a coarse start) for up to this many "
                          "more steps (polish_steps of the joint fit; default 0)")
@@ -96,7 +101,7 @@ def main():
                     help="scale of sigma_a in its prior term: 1/m, or nepers with --sigma-a-space log "
                          "(0: the solver's default)")
     ap.add_argument("--lambda-max", type=float, default=0.0,
-                    help="largest lambda the joint 'auto' search tries (0: the solver's default, 1e4)")
+                    help="largest lambda the joint 'auto' search tries (0: the solver's default, 1e6)")
     ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
                     help="axisymmetric: fit ring cells about the box's vertical axis (lt.ring_grid)")
     ap.add_argument("--prior", default="gradient", choices=["gradient", "laplacian", "curvature"])
@@ -159,7 +164,7 @@ def main():
     # with the accurate Monte Carlo floor, λ by the discrepancy rule with the noise scale estimated (the
     # given-σ target over-smooths there: 3.55 % / 16.7 % at λ 9.8e4, 24³, 650 nm)
     scale = "estimated" if a.mc_floor == "prior" else "given"
-    only = lt.reconstruct(ms[0], W, symmetry=sym, prior=a.prior, noise_scale=scale, **sub)
+    only = lt.reconstruct(ms[0], W, symmetry=sym, prior=a.prior, rule=lt.Discrepancy(noise_scale=scale), **sub)
     t_only = time.perf_counter() - t
     eO = rel(only.T, T_true)
 
@@ -174,16 +179,17 @@ def main():
     prior_opts["sigma_a_space"] = a.sigma_a_space
     if a.sigma_a_min > 0:
         prior_opts["sigma_a_min"] = a.sigma_a_min
-    if a.lambda_max > 0:
-        prior_opts["lambda_max"] = a.lambda_max
+    unknowns = lt.TemperatureAbsorption(**prior_opts)
+    lambda_max = a.lambda_max if a.lambda_max > 0 else None  # None: the joint fit's default
+    # the joint fit's discrepancy search, with the noise scale of --noise-scale
+    search = lt.DiscrepancyBracket(noise_scale=a.noise_scale, lambda_max=lambda_max)
     if a.coarse_start:
         t = time.perf_counter()
         grid_c = lt.phantoms.default_flame_grid((a.coarse_start,) * 3)
         quad_c = grid_c.refined(a.quadrature)
         seg_c = lt.ray_segments(cam, quad_c, rays_per_pixel=a.segment_rays, seed=12, views=views, progress=False)
-        rec_c = lt.reconstruct(ms, seg_c, unknowns="T+sigma_a", max_steps=a.max_steps, symmetry=sym, prior=a.prior,
-                               method=a.method,
-                               noise_scale=a.noise_scale, **prior_opts,
+        rec_c = lt.reconstruct(ms, seg_c, unknowns=unknowns, solver=SOLVERS[a.method](max_steps=a.max_steps),
+                               symmetry=sym, prior=a.prior, rule=search,
                                **({"grid": grid_c} if a.quadrature > 1 else {}))
         start_opts = {"start": rec_c}  # the fine fit starts from it, and its λ search at its λ
         T_c = lt.interpolate_field(rec_c.T, grid_c, coarse)
@@ -201,11 +207,12 @@ def main():
             print(f"  coarse λ {lam_k:9.3g}: chi2/m {chi2_k:.5f}; T > 800 K {e_k.mean():.2%} / {e_k.max():.1%}")
     if a.start_npz:
         with np.load(a.start_npz, allow_pickle=False) as f:
-            start_opts = {"T0": np.array(f["T"], dtype=np.float64), "sigma_a0": np.array(f["sigma_a"], dtype=np.float64)}
-        for key, v in start_opts.items():
+            fields = {"T": np.array(f["T"], dtype=np.float64), "sigma_a": np.array(f["sigma_a"], dtype=np.float64)}
+        for key, v in fields.items():
             if v.shape != coarse.shape or not np.all(np.isfinite(v)) or v.min() < 0:
                 ap.error(f"--start-npz: {key} must be finite, >= 0 and of shape {coarse.shape}, got {v.shape}")
-        print(f"start from {a.start_npz}: T {rel(start_opts['T0'], T_true).mean():.2%} mean", flush=True)
+        start_opts = {"start": (fields["T"], fields["sigma_a"])}
+        print(f"start from {a.start_npz}: T {rel(fields['T'], T_true).mean():.2%} mean", flush=True)
     rows = []
     rows_file = ResumableRows(a.json + ".rows.jsonl", vars(a)) if a.json else None
     regs = ["auto"] if a.regularization == "auto" else [float(v) for v in a.regularization.split(",")]
@@ -215,11 +222,9 @@ def main():
             print(f"regularization {reg}: resumed from {rows_file.path}")
             continue
         t = time.perf_counter()
-        opts = dict(prior_opts)
-        if reg == "auto":
-            opts["noise_scale"] = a.noise_scale
-        rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=reg, max_steps=a.max_steps, method=a.method,
-                             polish_steps=a.polish_steps, symmetry=sym, prior=a.prior, **opts, **sub, **start_opts)
+        solver = SOLVERS[a.method](max_steps=a.max_steps, polish_steps=a.polish_steps)
+        rec = lt.reconstruct(ms, seg, unknowns=unknowns, rule=search if reg == "auto" else lt.Fixed(reg),
+                             solver=solver, symmetry=sym, prior=a.prior, **sub, **start_opts)
         t_joint = time.perf_counter() - t
         eT, es = rel(rec.T, T_true), rel(rec.sigma_a, sa_c)
         # σ_a relative to the field's own scale (the per-voxel ratio explodes where the truth is ~0)
@@ -237,7 +242,7 @@ def main():
                       "lambda_path": rec.details["lambda_path"], "start": rec.details["start"],
                       "sigma_a_scale": prior_opts.get("sigma_a_scale"), "sigma_a_ridge": prior_opts["sigma_a_ridge"],
                       "sigma_a_space": a.sigma_a_space, "sigma_a_min": prior_opts.get("sigma_a_min"),
-                      "lambda_max": prior_opts.get("lambda_max"), "method": a.method},
+                      "lambda_max": lambda_max, "method": a.method},
             "coarse_start": coarse_info,
             "two_colour_start": {"T_mean_rel": float(eT0.mean()), "sigma_a_mean_rel": float(es0.mean())},
             "T_only_known_sigma_a": {"T_mean_rel": float(eO.mean()), "T_max_rel": float(eO.max()),

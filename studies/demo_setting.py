@@ -92,7 +92,8 @@ def run_draw(a, lf, W, T_eff, noise_seed: int) -> None:
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")
     for lam in (float(x) for x in filter(None, a.lambdas.split(","))):
         t = time.perf_counter()
-        rec = lt.reconstruct(m, W, rule=lt.Fixed(lam), bounds=demo.BOUNDS, linear_max_steps=20)
+        rec = lt.reconstruct(m, W, rule=lt.Fixed(lam), bounds=demo.BOUNDS,
+                             solver=lt.LevenbergMarquardt(linear_max_steps=20))
         report(f"{head} subaperture:gradient:fixed {lam:g}", rec, T_eff, time.perf_counter() - t)
 
 

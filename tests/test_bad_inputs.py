@@ -217,15 +217,16 @@ def test_joint_fit_with_fewer_data_than_unknowns_warns_before_the_fit():
 
 @pytest.mark.parametrize("option", ["max_steps", "linear_max_steps"])
 def test_iteration_counts_are_bounded(lf, option):
-    """2**70 steps was accepted (and would overflow JAX's int32 loop counter): refused for both fits."""
+    """2**70 steps was accepted (and would overflow JAX's int32 loop counter): refused for both fits.
+    (The joint fit checks both counts before it picks its solver; the matrix-free one takes both.)"""
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
     with pytest.raises(LftomoError, match=f"{option} must be an integer <= 1000000, got {2**70}"):
-        lt.reconstruct(m, tiny_weights(), **{option: 2**70})
+        lt.reconstruct(m, tiny_weights(), solver=lt.LevenbergMarquardt(**{option: 2**70}))
     ms, S, _ = _tiny_joint()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # fewer data than unknowns
         with pytest.raises(LftomoError, match=f"{option} must be an integer <= 1000000, got {2**70}"):
-            lt.reconstruct(ms, S, unknowns="T+sigma_a", **{option: 2**70})
+            lt.reconstruct(ms, S, unknowns="T+sigma_a", solver=lt.LevenbergMarquardt(**{option: 2**70}))
 
 
 # ============================================================== scene files and paths

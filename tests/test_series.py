@@ -17,7 +17,9 @@ distributed = pytest.importorskip("distributed")
 
 N_FRAMES = 6
 NOISE, SEED = 0.01, 20
-OPTS = {"regularization": 1e-3, "bounds": (500.0, 2500.0), "max_steps": 2}
+#: lt.reconstruct's options, given to reconstruct_series as they are (recorded in the manifest by their repr)
+OPTS = RECONSTRUCT = {"rule": lt.Fixed(1e-3), "bounds": (500.0, 2500.0),
+                      "solver": lt.LevenbergMarquardt(max_steps=2)}
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +38,7 @@ def serial(gray_blob):
     out = []
     for i in range(N_FRAMES):
         m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=NOISE, seed=SEED + i))
-        out.append(lt.reconstruct(m, W, **OPTS).T)
+        out.append(lt.reconstruct(m, W, **RECONSTRUCT).T)
     return np.stack(out)
 
 
@@ -62,7 +64,8 @@ def test_series_equals_serial_bit_for_bit(gray_blob, serial, client, tmp_path):
     assert np.array_equal(T, serial)  # bit for bit, not within a tolerance
     assert not np.array_equal(T[0], T[1])  # the frames' noise draws differ (seed + index)
     man = _manifest(tmp_path)
-    assert man["settings"]["seed"] == SEED and man["settings"]["reconstruct"]["max_steps"] == 2
+    assert man["settings"]["seed"] == SEED
+    assert man["settings"]["reconstruct"]["solver"] == repr(lt.LevenbergMarquardt(max_steps=2))
     assert man["versions"]["dask"] and man["forward_model"]["kind"] == "WeightMatrix"
     # the forward model: one copy per worker process, shared by its tasks
     copies = {(f["worker"], f["forward_copy"]) for f in man["frames"]}

@@ -26,7 +26,8 @@ def test_comparison_runs_both_inversions_on_the_same_data():
     flame = lt.phantoms.gaussian_blob(fine, center=(0.0, 0.0, 1.0), width=0.006, T_peak=1700.0, T_ambient=1100.0,
                                       sigma_a_peak=20.0)
     c = compare_refocus_subaperture(lt.Scene(medium=flame), cam, coarse, noise=0.01, depths=[0.997, 1.003],
-                                    rays_per_pixel=16, wavelength=None, bounds=(500.0, 2500.0), max_steps=20)
+                                    rays_per_pixel=16, wavelength=None, bounds=(500.0, 2500.0),
+                                    solver=lt.LevenbergMarquardt(max_steps=20))
     s = c.summary()
     for kind in ("subaperture", "refocus"):
         assert set(s["errors"][kind]) == {"mean_rel", "max_rel", "rms_K", "n_voxels"}

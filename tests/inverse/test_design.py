@@ -42,7 +42,7 @@ def test_predicted_spread_matches_reconstructions_over_noise_draws(blob_design):
     m, W, y0 = _model_data(d)
     rng = np.random.default_rng(5)
     Ts = np.array([reconstruct(dataclasses.replace(m, y=y0 + m.sigma * rng.standard_normal(y0.size)), W,
-                               regularization=d.regularization).T for _ in range(10)])
+                               rule=lt.Fixed(d.regularization)).T for _ in range(10)])
     hot = d.T_true > 1000.0
     ratio = np.median(Ts.std(axis=0, ddof=1)[hot] / d.T_spread[hot])
     assert 0.75 <= ratio <= 1.25, ratio
@@ -58,7 +58,7 @@ def test_point_spread_function_is_the_reconstruction_of_a_point_change(blob_desi
     j = np.ravel_multi_index(probe, grid.shape)
     delta = 30.0  # central difference: Planck's second order cancels; the solves' ~0.03 K error is 5e-4 of 2δ
     p = m.problem(W, grid)
-    kw = dict(regularization=d.regularization, max_steps=1000)
+    kw = dict(rule=lt.Fixed(d.regularization), solver=lt.LevenbergMarquardt(max_steps=1000))
     fields = []
     for sign in (1.0, -1.0):
         T1 = d.T_true.ravel().copy()

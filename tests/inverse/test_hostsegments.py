@@ -71,34 +71,38 @@ def test_joint_engines_agree(table):
     amplified by the ill-conditioned steps: measured 1e-7 in T)."""
     cam, grid, seg = table
     ms = _two_wavelength_measurements(cam, grid, seed=1)
-    kw = dict(unknowns="T+sigma_a", regularization=1e-3, bounds=(1000.0, 2500.0), max_steps=10,
-              T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0))
-    host = lt.reconstruct(ms, seg, engine="host", **kw)
-    ref = lt.reconstruct(ms, seg, engine="jax", **kw)
+    kw = dict(unknowns="T+sigma_a", rule=lt.Fixed(1e-3), bounds=(1000.0, 2500.0),
+              start=(np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)))
+    # the dense LM: the joint fit's own pick for these 128 unknowns
+    host = lt.reconstruct(ms, seg, solver=lt.DenseLM(max_steps=10, engine="host"), **kw)
+    ref = lt.reconstruct(ms, seg, solver=lt.DenseLM(max_steps=10, engine="jax"), **kw)
     assert np.max(np.abs(ref.T - 1600.0)) > 10.0  # the steps moved the field
     np.testing.assert_allclose(host.T, ref.T, rtol=1e-4)
     np.testing.assert_allclose(host.sigma_a, ref.sigma_a, rtol=1e-3)
     assert host.chi2 == pytest.approx(ref.chi2, rel=1e-2)
     with pytest.raises(ValueError, match="engine"):
-        lt.reconstruct(ms, seg, engine="numpy", **kw)
+        lt.reconstruct(ms, seg, solver=lt.DenseLM(max_steps=10, engine="numpy"), **kw)
 
 
 def test_joint_sigma_a_prior_options(table):
     """The ridge term pulls sigma_a towards 0; bad prior options are refused."""
     cam, grid, seg = table
     ms = _two_wavelength_measurements(cam, grid, seed=3)
-    kw = dict(unknowns="T+sigma_a", regularization=1e-2, bounds=(1000.0, 2500.0), max_steps=20,
-              T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), sigma_a_scale=20.0)
-    free = lt.reconstruct(ms, seg, **kw)
-    pulled = lt.reconstruct(ms, seg, sigma_a_ridge=1e8, **kw)
+    # the dense LM: the joint fit's own pick for these 128 unknowns
+    kw = dict(rule=lt.Fixed(1e-2), bounds=(1000.0, 2500.0), solver=lt.DenseLM(max_steps=20),
+              start=(np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)))
+    unknowns = dict(sigma_a_scale=20.0)
+    free = lt.reconstruct(ms, seg, unknowns=lt.TemperatureAbsorption(**unknowns), **kw)
+    pulled = lt.reconstruct(ms, seg, unknowns=lt.TemperatureAbsorption(sigma_a_ridge=1e8, **unknowns), **kw)
     assert pulled.sigma_a.mean() < 0.7 * free.sigma_a.mean(), (pulled.sigma_a.mean(), free.sigma_a.mean())
     for bad in ({"sigma_a_scale": -1.0}, {"sigma_a_ridge": float("nan")}, {"sigma_a_space": "sqrt"}):
         with pytest.raises(ValueError, match=next(iter(bad))):
-            lt.reconstruct(ms, seg, **{**kw, **bad})
+            lt.reconstruct(ms, seg, unknowns=lt.TemperatureAbsorption(**{**unknowns, **bad}), **kw)
     for bad_min in (0.0, -1.0, 200.0, float("nan"), "1e-3"):
-        with pytest.raises(ValueError, match=r"sigma_a_min must be a number with 0 < sigma_a_min < sigma_a_max "
-                                             rf"\(200.0\) for sigma_a_space='log', got {re.escape(repr(bad_min))}"):
-            lt.reconstruct(ms, seg, **{**kw, "sigma_a_space": "log", "sigma_a_min": bad_min})
+        # not a number > 0, or not below sigma_a_max (200) in log space
+        with pytest.raises(ValueError, match=rf"sigma_a_min must be .*got {re.escape(repr(bad_min))}$"):
+            lt.reconstruct(ms, seg, unknowns=lt.TemperatureAbsorption(sigma_a_space="log", sigma_a_min=bad_min,
+                                                                      **unknowns), **kw)
 
 
 def test_equal_tables_share_a_handle_and_compiled_functions(table, monkeypatch):

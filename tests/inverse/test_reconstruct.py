@@ -25,7 +25,7 @@ def test_noise_free_on_grid_data_recovers_the_field(setup):
     sigma = 1e-3 * lf.raw + 1e-6 * lf.raw.max()
     clean = dataclasses.replace(lf, noise_std=sigma, signal=lf.raw)
     m = lt.Measurement.from_lightfield(clean, data="subaperture")
-    rec = reconstruct(m, W, regularization=1e-9, bounds=(500.0, 2500.0))
+    rec = reconstruct(m, W, rule=lt.Fixed(1e-9), bounds=(500.0, 2500.0))
     err = rec.errors(flame.T, hot=800.0)
     assert err["max_rel"] <= 1e-3, err
     assert rec.T.shape == grid.shape and rec.unknowns == "T" and rec.data_kind == "subaperture"
@@ -39,17 +39,21 @@ def test_reconstruct_refuses_bad_input(setup):
         reconstruct(m, W, unknowns="sigma")
     with pytest.raises(ValueError, match="bounds"):
         reconstruct(m, W, bounds=(2000.0, 1000.0))
-    with pytest.raises(ValueError, match="method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', "
-                                        "got 'dense-lm'"):
+    # the deprecated method= keyword still works, and is still checked
+    with pytest.warns(DeprecationWarning, match="method"), pytest.raises(
+            ValueError, match="method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', "
+                              "got 'dense-lm'"):
         reconstruct(m, W, method="dense-lm")
     with pytest.raises(ValueError, match="method must be one of 'auto', 'levenberg-marquardt', 'gauss-newton', "
-                                        "'dense-lm' for the joint fit, got 'newton'"):
+                                        "'dense-lm' for the joint fit, got 'newton'"), pytest.warns(DeprecationWarning):
         reconstruct([m, m], W, unknowns="T+sigma_a", method="newton")
+    with pytest.raises(ValueError, match="DenseLM.*does not run unknowns='T'"):
+        reconstruct(m, W, solver=lt.DenseLM())
     with pytest.raises(ValueError, match="2 or more wavelengths"):
         reconstruct(m, W, unknowns="T+sigma_a")
     with pytest.raises(ValueError, match="needs the ray-segment table"):  # a WeightMatrix is for one known sigma_a
         reconstruct([m, m], W, unknowns="T+sigma_a")
-    rec_like = reconstruct(m, W, regularization=1e-3, bounds=(500.0, 2500.0), max_steps=5)
+    rec_like = reconstruct(m, W, rule=lt.Fixed(1e-3), bounds=(500.0, 2500.0), solver=lt.LevenbergMarquardt(max_steps=5))
     assert repr(rec_like).startswith("Reconstruction(unknowns='T'") and len(repr(rec_like)) < 400  # not the fields
     with pytest.raises(ValueError, match="does not match"):
         rec_like.errors(np.zeros((3, 3, 3)))
@@ -64,18 +68,20 @@ def test_rule_and_solver_objects_are_the_keywords_they_stand_for(setup):
     kw = dict(bounds=(500.0, 2500.0))
     by_obj = reconstruct(m, W, rule=lt.Discrepancy(noise_scale="estimated", search_rtol=1e-2),
                          solver=lt.LevenbergMarquardt(max_steps=30, linear_max_steps=20), **kw)
-    by_kw = reconstruct(m, W, rule="discrepancy", noise_scale="estimated", search_rtol=1e-2, max_steps=30,
-                        linear_max_steps=20, **kw)
+    with pytest.warns(DeprecationWarning, match="noise_scale"):  # the old keywords: still working, deprecated
+        by_kw = reconstruct(m, W, rule="discrepancy", noise_scale="estimated", search_rtol=1e-2, max_steps=30,
+                            linear_max_steps=20, **kw)
     assert np.array_equal(by_obj.T, by_kw.T) and by_obj.regularization == by_kw.regularization
     assert "estimated" in by_obj.details.lambda_choice.note or by_obj.details.lambda_choice.target != 1.0
     fixed = reconstruct(m, W, rule=lt.Fixed(1e-3), solver=lt.GaussNewton(max_steps=5), **kw)
-    plain = reconstruct(m, W, regularization=1e-3, method="gauss-newton", max_steps=5, **kw)
+    with pytest.warns(DeprecationWarning, match="regularization"):
+        plain = reconstruct(m, W, regularization=1e-3, method="gauss-newton", max_steps=5, **kw)
     assert np.array_equal(fixed.T, plain.T) and fixed.lambda_rule == "fixed"
-    with pytest.raises(ValueError, match="noise_scale is set twice"):
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="noise_scale is set twice"):
         reconstruct(m, W, rule=lt.Discrepancy(), noise_scale="estimated")
-    with pytest.raises(ValueError, match="regularization is set twice"):
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="regularization is set twice"):
         reconstruct(m, W, rule=lt.Fixed(1.0), regularization=2.0)
-    with pytest.raises(ValueError, match="max_steps is set twice"):
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="max_steps is set twice"):
         reconstruct(m, W, solver=lt.LevenbergMarquardt(max_steps=3), max_steps=4)
     with pytest.raises(ValueError, match="DenseLM.*does not run unknowns='T'"):
         reconstruct(m, W, solver=lt.DenseLM())
@@ -91,9 +97,10 @@ def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
     """progress=True draws a bar on stderr (steps, λ, χ²/m); the default for a small problem is silent."""
     cam, grid, flame, lf, W = setup
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="subaperture")
-    reconstruct(m, W, regularization=1e-3, bounds=(500.0, 2500.0), max_steps=20)
+    reconstruct(m, W, rule=lt.Fixed(1e-3), bounds=(500.0, 2500.0), solver=lt.LevenbergMarquardt(max_steps=20))
     assert capsys.readouterr().err == ""
-    rec = reconstruct(m, W, regularization=1e-3, bounds=(500.0, 2500.0), max_steps=20, progress=True)
+    rec = reconstruct(m, W, rule=lt.Fixed(1e-3), bounds=(500.0, 2500.0), solver=lt.LevenbergMarquardt(max_steps=20),
+                      progress=True)
     err = capsys.readouterr().err
     assert "reconstruct T" in err and "λ=0.001" in err and "χ²/m=" in err, err
     assert f"{rec.iterations}" in err
@@ -122,9 +129,10 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method, s
     clean = dataclasses.replace(lf, noise_std=sigma, signal=lf.raw)
     ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2)
-    rec = reconstruct(ms, seg, unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0),
-                      T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200,
-                      progress=True, method=method, sigma_a_space=space)
+    solver = {"levenberg-marquardt": lt.LevenbergMarquardt, "dense-lm": lt.DenseLM}[method](max_steps=200)
+    rec = reconstruct(ms, seg, unknowns=lt.TemperatureAbsorption(sigma_a_space=space), rule=lt.Fixed(1e-10),
+                      bounds=(1000.0, 2500.0), start=(np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)),
+                      solver=solver, progress=True)
     bar = capsys.readouterr().err
     assert "reconstruct T+σa" in bar and "λ=1e-10" in bar and "χ²/m=" in bar, bar
     assert rec.errors(T, hot=1000.0)["max_rel"] < 0.01
@@ -139,7 +147,7 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method, s
 
 #: σ as given and λ up to 1e4 (with ``kw`` of :func:`_blob_two_colour`: the discrepancy search the
 #: paths below were worked out for).
-GIVEN = {"noise_scale": "given", "lambda_max": 1e4}
+GIVEN = {"rule": lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e4)}
 
 
 def _blob_two_colour(claimed_std_factor):
@@ -158,15 +166,15 @@ def _blob_two_colour(claimed_std_factor):
     # the λ rules' mechanics are tested on one fixed configuration: σ as given, σₐ linear with its
     # prior scaled by sigma_a_max, λ up to 1e4 (the joint fit's defaults before they became log space,
     # estimated noise scale and 10x scale; these small problems' paths are worked out for it)
-    kw = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), symmetry="axisymmetric", prior="curvature",
-              sigma_a_space="linear", sigma_a_scale=200.0)
+    kw = dict(unknowns=lt.TemperatureAbsorption(sigma_a_space="linear", sigma_a_scale=200.0), bounds=(500.0, 2500.0),
+              symmetry="axisymmetric", prior="curvature")
     return flame, ms, seg, kw
 
 
 #: The λ-rule tests run the search with the dense Levenberg–Marquardt solver: the search's logic
 #: does not depend on the inner solver, its solves converge (the rule compares converged χ²), and it
 #: is ~10x faster on these 4³ problems than optimistix's matrix-free steps (tested separately).
-DENSE = {"method": "dense-lm"}
+DENSE = {"solver": lt.DenseLM()}
 
 
 def _blob_two_colour_dense(claimed_std_factor):
@@ -191,7 +199,8 @@ def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
     ok = [(lam, c) for lam, c, _ in path if c <= 1.0]
     assert (rec.regularization, rec.chi2) == max(ok), (rec.regularization, path)
     assert all(c > 1.0 for lam, c, _ in path if lam > rec.regularization), path
-    assert rec.lambda_rule.startswith("discrepancy (largest λ with chi²/m ≤ 1"), rec.lambda_rule
+    assert rec.lambda_note.startswith("discrepancy (largest λ with chi²/m ≤ 1"), rec.lambda_note
+    assert rec.lambda_rule == "discrepancy-bracket"
     # the χ² the rule compared, recomputed from the path's fields through each measurement's own
     # linear model W(σ_a) I_b(T) (weights of the segment table, the soot law σ_a ∝ λ^-1.38)
     grid = lt.Grid.from_dict(seg.metadata["grid"])
@@ -213,11 +222,11 @@ def test_joint_polish_continues_the_chosen_solve_exactly():
     fit it started from.  The 10-step solve is far from converged here (χ²/m 255 against 1.20
     after 30 steps), so the polish must lower the objective."""
     flame, ms, seg, kw = _blob_two_colour(1.15)
-    kw = {**kw, "method": "levenberg-marquardt"}  # the matrix-free chunks (dense-lm restarts its damping)
+    LM = lt.LevenbergMarquardt  # the matrix-free chunks (dense-lm restarts its damping)
     lam = 1e3
-    short = reconstruct(ms, seg, regularization=lam, max_steps=10, **kw)
-    polished = reconstruct(ms, seg, regularization=lam, max_steps=10, polish_steps=20, **kw)
-    long = reconstruct(ms, seg, regularization=lam, max_steps=30, **kw)
+    short = reconstruct(ms, seg, rule=lt.Fixed(lam), solver=LM(max_steps=10), **kw)
+    polished = reconstruct(ms, seg, rule=lt.Fixed(lam), solver=LM(max_steps=10, polish_steps=20), **kw)
+    long = reconstruct(ms, seg, rule=lt.Fixed(lam), solver=LM(max_steps=30), **kw)
     assert not short.converged and short.details["polish"] is None
     pol = polished.details["polish"]
     np.testing.assert_allclose(pol["T_before"], short.T, rtol=1e-12)
@@ -227,13 +236,14 @@ def test_joint_polish_continues_the_chosen_solve_exactly():
     np.testing.assert_allclose(polished.sigma_a, long.sigma_a, rtol=1e-9)
     assert polished.chi2 == pytest.approx(long.chi2, rel=1e-9) and pol["chi2_after"] == polished.chi2
     assert polished.iterations == long.iterations == 30 and polished.regularization == lam
-    assert polished.lambda_rule == "fixed; then polished at that λ: 20 more steps", polished.lambda_rule
+    assert polished.lambda_note == "fixed; then polished at that λ: 20 more steps", polished.lambda_note
+    assert polished.lambda_rule == "fixed"
     m = sum(mm.size for mm in ms)
     objective = [m * r.chi2 + lam * r.regularization_norm ** 2 for r in (short, polished)]
     assert objective[1] < objective[0], objective
     for bad in (-1, 2.5, True):
         with pytest.raises(ValueError, match="polish_steps must be an integer"):
-            reconstruct(ms, seg, regularization=lam, max_steps=10, polish_steps=bad, **kw)
+            reconstruct(ms, seg, rule=lt.Fixed(lam), solver=LM(max_steps=10, polish_steps=bad), **kw)
 
 
 def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale():
@@ -246,10 +256,10 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     out = {}
     for f in (3.0, 1.15):
         flame, ms, seg, kw = _blob_two_colour_dense(f)
-        rec = reconstruct(ms, seg, noise_scale="estimated", **kw)
+        rec = reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated"), **kw)
         scale = rec.details["noise_scale"]
-        assert rec.lambda_rule.startswith("noise scale estimated: s²") and "largest λ with chi²/m ≤ s²" in \
-            rec.lambda_rule, rec.lambda_rule
+        assert rec.lambda_note.startswith("noise scale estimated: s²") and "largest λ with chi²/m ≤ s²" in \
+            rec.lambda_note, rec.lambda_note
         n_unknowns = 2 * rec.symmetry.n_voxels
         assert 0 < scale["dof"] <= n_unknowns and scale["lambda_ref"] <= 1.0, scale
         path = rec.details["lambda_path"]
@@ -268,16 +278,19 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     grid = lt.Grid.from_dict(seg.metadata["grid"])
     coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
     seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
-    rec_c = reconstruct(ms, seg_c, regularization=3e3, **kw)
-    rec_s = reconstruct(ms, seg, start=rec_c, noise_scale="estimated", **kw)
+    rec_c = reconstruct(ms, seg_c, rule=lt.Fixed(3e3), **kw)
+    rec_s = reconstruct(ms, seg, start=rec_c, rule=lt.DiscrepancyBracket(noise_scale="estimated"), **kw)
     assert rec_s.details["lambda_path"][0][0] == pytest.approx(30.0, rel=1e-12)
     assert rec_s.details["noise_scale"]["dof_lambda"] == pytest.approx(30.0, rel=1e-12)
+    # the rule objects cannot put an estimated noise scale on another rule or a fixed λ; the deprecated
+    # keywords can, and are refused
     for bad, match in (({"rule": "lcurve"}, "noise_scale='estimated' applies to regularization='auto' with "
                                             "rule='discrepancy' only"),
-                       ({"regularization": 1.0}, "noise_scale='estimated' applies"),
-                       ({"noise_scale": "guess"}, "noise_scale must be one of")):
-        with pytest.raises(ValueError, match=match):
+                       ({"regularization": 1.0}, "noise_scale='estimated' applies")):
+        with pytest.warns(DeprecationWarning, match="noise_scale"), pytest.raises(ValueError, match=match):
             reconstruct(ms, seg, **{"noise_scale": "estimated", **kw, **bad})
+    with pytest.raises(ValueError, match="noise_scale must be one of"):
+        reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="guess"), **kw)
 
 
 def test_joint_lambda_rules_when_sigma_is_overestimated():
@@ -291,7 +304,7 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     path = rec.details["lambda_path"]
     assert np.allclose([p[0] for p in path], [10.0 ** k for k in range(-2, 5)], rtol=1e-12, atol=0), path
     assert all(c < 0.5 for _, c, _ in path), path
-    assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_rule
+    assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_note
     np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
     # ‖R‖ is the norm λ weighs, T and σ_a terms (here on the ring cells), as in the path
     L = prior_operator(rec.symmetry, "curvature")
@@ -301,16 +314,17 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     assert rec.regularization_norm == path[-1][2]
     # the L-curve path runs over the decades up to lambda_max and ends at lambda_max itself when that
     # is not a power of ten
-    lc = reconstruct(ms, seg, rule="lcurve", lambda_max=3e4, **kw)
-    assert lc.lambda_rule.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_rule
-    assert "λ = 1e-2 … 3e+04" in lc.lambda_rule, lc.lambda_rule
+    lc = reconstruct(ms, seg, rule=lt.LCurveDecades(lambda_max=3e4), **kw)
+    assert lc.lambda_note.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_note
+    assert lc.lambda_rule == "lcurve"
+    assert "λ = 1e-2 … 3e+04" in lc.lambda_note, lc.lambda_note
     lams = [p[0] for p in lc.details["lambda_path"]]
     assert np.allclose(lams, [10.0 ** k for k in range(-2, 5)] + [3e4], rtol=1e-12, atol=0), lams
     assert all(c < 0.5 for _, c, _ in lc.details["lambda_path"])
     k = lams.index(lc.regularization)
     np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
     err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in lc.details["lambda_path_T"]]
-    assert err[k] < err[-1], (lc.lambda_rule, err)  # the corner beats the cap
+    assert err[k] < err[-1], (lc.lambda_note, err)  # the corner beats the cap
     with pytest.raises(ValueError, match="rule must be one of \\('discrepancy-bracket', 'lcurve'"):
         reconstruct(ms, seg, rule="gcv", **kw)
     # coarse-to-fine: a fit on 2³ (its own segment table, fixed λ 3e3) starts the 4³ search at its λ,
@@ -319,7 +333,7 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     grid = lt.Grid.from_dict(seg.metadata["grid"])
     coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
     seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
-    rec_c = reconstruct(ms, seg_c, regularization=3e3, **kw)
+    rec_c = reconstruct(ms, seg_c, rule=lt.Fixed(3e3), **kw)
     rec_s = reconstruct(ms, seg, start=rec_c, **kw, **GIVEN)
     assert [p[0] for p in rec_s.details["lambda_path"]] == [3e3, 1e4] and rec_s.regularization == 1e4
     assert rec_s.details["start"].startswith("interpolated from a fit on (2, 2, 2) (λ 3e+03)"), rec_s.details["start"]
@@ -327,13 +341,15 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     objective = [r.chi2 * sum(m.size for m in ms) + 1e4 * r.regularization_norm ** 2 for r in (rec_s, rec)]
     assert objective[0] == pytest.approx(objective[1], rel=1e-3), objective
     # a higher cap (lambda_max) lets the factor-10 steps go on past 1e4, and the rule names it
-    rec_m = reconstruct(ms, seg, start=rec_c, lambda_max=1e5, noise_scale="given", **kw)
+    rec_m = reconstruct(ms, seg, start=rec_c, rule=lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e5),
+                        **kw)
     assert np.allclose([p[0] for p in rec_m.details["lambda_path"]], [3e3, 3e4, 1e5], rtol=1e-12, atol=0)
-    assert rec_m.regularization == 1e5 and "largest λ tried, 1e+05" in rec_m.lambda_rule, rec_m.lambda_rule
+    assert rec_m.regularization == 1e5 and "largest λ tried, 1e+05" in rec_m.lambda_note, rec_m.lambda_note
     for bad in (0.0, 1e-3, math.inf, math.nan):
-        with pytest.raises(ValueError, match="lambda_max must be a finite number >= 0.01"):
-            reconstruct(ms, seg, lambda_max=bad, **kw)
-    with pytest.raises(ValueError, match="either start or T0"):
+        # refused by the rule object (not a number > 0) or by the joint fit (below its first λ, 1e-2)
+        with pytest.raises(ValueError, match="lambda_max must be a finite number (> 0|>= 0.01)"):
+            reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated", lambda_max=bad), **kw)
+    with pytest.warns(DeprecationWarning, match="T0"), pytest.raises(ValueError, match="either start or T0"):
         reconstruct(ms, seg, start=rec_c, T0=rec.T, **kw)
     with pytest.raises(ValueError, match="start must be a Reconstruction with unknowns='T\\+sigma_a'"):
         reconstruct(ms, seg, start=dataclasses.replace(rec_c, unknowns="T", sigma_a=None), **kw)
@@ -352,7 +368,7 @@ def test_rig_of_measurements_is_the_stacked_least_squares_problem(setup):
     # the same σ for both draws (each draw's σ is from its own noisy signal): use m1's
     m2 = dataclasses.replace(m2, sigma=m1.sigma)
     mean = dataclasses.replace(m1, y=0.5 * (m1.y + m2.y), sigma=m1.sigma / math.sqrt(2.0))
-    kw = dict(regularization=0.3, bounds=(500.0, 2500.0))
+    kw = dict(rule=lt.Fixed(0.3), bounds=(500.0, 2500.0))
     rig = reconstruct([m1, m2], [W, W], **kw)
     one = reconstruct(mean, W, **kw)
     first = reconstruct(m1, W, **kw)  # what a rig that dropped a camera would give
@@ -395,14 +411,15 @@ def test_joint_defaults_pick_the_solver_and_noise_scale_by_problem_size(monkeypa
     from lftomo.inverse import joint
 
     flame, ms, seg, kw = _blob_two_colour(1.15)
-    rec = reconstruct(ms, seg, regularization=1e3, max_steps=2, **kw)
+    auto = lt.AutoSolver(max_steps=2)  # the default choice of algorithm, with a step cap
+    rec = reconstruct(ms, seg, rule=lt.Fixed(1e3), solver=auto, **kw)
     assert rec.details["method"] == "dense-lm"
     monkeypatch.setattr(joint, "DENSE_LM_MAX_UNKNOWNS", 2 * rec.symmetry.n_voxels - 1)
-    rec = reconstruct(ms, seg, regularization=1e3, max_steps=2, **kw)
+    rec = reconstruct(ms, seg, rule=lt.Fixed(1e3), solver=auto, **kw)
     assert rec.details["method"] == "levenberg-marquardt"
     monkeypatch.undo()
-    rec = reconstruct(ms, seg, max_steps=2, **kw)
-    assert rec.details["noise_scale"] is not None and rec.lambda_rule.startswith("noise scale estimated")
+    rec = reconstruct(ms, seg, solver=auto, **kw)
+    assert rec.details["noise_scale"] is not None and rec.lambda_note.startswith("noise scale estimated")
     # one view per channel on free 6³ voxels: fewer data than the 432 unknowns
     cam = ms[0].camera
     grid6 = lt.Grid(shape=(6, 6, 6), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
@@ -413,9 +430,9 @@ def test_joint_defaults_pick_the_solver_and_noise_scale_by_problem_size(monkeypa
     few = [lt.Measurement.from_lightfield(lf, data="subaperture", channel=c, views=view) for c in range(2)]
     seg6 = lt.ray_segments(cam, grid6, rays_per_pixel=4, seed=2, views=view, progress=False)
     assert sum(m.size for m in few) <= 2 * grid6.n_voxels
-    opts = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), max_steps=1, lambda_max=1.0)
+    opts = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), solver=lt.AutoSolver(max_steps=1))
     with pytest.raises(ValueError, match="noise_scale='estimated' needs more data than unknowns"):
-        reconstruct(few, seg6, noise_scale="estimated", **opts)
+        reconstruct(few, seg6, rule=lt.DiscrepancyBracket(noise_scale="estimated", lambda_max=1.0), **opts)
     with pytest.warns(UserWarning):  # fewer data than unknowns: the underdetermination warning
-        rec = reconstruct(few, seg6, **opts)
-    assert rec.details["noise_scale"] is None and not rec.lambda_rule.startswith("noise scale estimated")
+        rec = reconstruct(few, seg6, rule=lt.DiscrepancyBracket(lambda_max=1.0), **opts)  # the default noise scale
+    assert rec.details["noise_scale"] is None and not rec.lambda_note.startswith("noise scale estimated")

@@ -39,9 +39,8 @@ def test_rig_joint_fit_recovers_T_and_sigma_a_exactly(rig_data):
     """Four channels (2 cameras x 2 wavelengths) in one fit: the exact dense LM converges to the
     truth, which it can only do if every channel is compared with its own camera's rows."""
     grid, T, sa, ms, tables = rig_data
-    rec = reconstruct(ms, tables, unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0),
-                      T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200,
-                      method="dense-lm")
+    rec = reconstruct(ms, tables, unknowns="T+sigma_a", rule=lt.Fixed(1e-10), bounds=(1000.0, 2500.0),
+                      start=(np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)), solver=lt.DenseLM(max_steps=200))
     rel_T = np.abs(rec.T - T) / T
     rel_sa = np.abs(rec.sigma_a - sa) / sa
     assert rec.converged and rel_T.max() < 1e-8 and rel_sa.max() < 1e-8, (rel_T.max(), rel_sa.max())
@@ -51,16 +50,16 @@ def test_rig_joint_fit_recovers_T_and_sigma_a_exactly(rig_data):
 def test_rig_joint_fit_refuses_mismatched_channels(rig_data):
     grid, T, sa, ms, tables = rig_data
     with pytest.raises(ValueError, match=r"segments\[0\] was built for another camera"):
-        reconstruct(ms, [tables[2], tables[2], tables[0], tables[0]], unknowns="T+sigma_a", regularization=1.0)
+        reconstruct(ms, [tables[2], tables[2], tables[0], tables[0]], unknowns="T+sigma_a", rule=lt.Fixed(1.0))
     with pytest.raises(ValueError, match="one table per measurement"):
-        reconstruct(ms, tables[:3], unknowns="T+sigma_a", regularization=1.0)
+        reconstruct(ms, tables[:3], unknowns="T+sigma_a", rule=lt.Fixed(1.0))
     with pytest.raises(ValueError, match=r"wavelengths must differ \(per camera\)"):
         reconstruct([ms[0], ms[0], ms[2]], [tables[0], tables[0], tables[2]], unknowns="T+sigma_a",
-                    regularization=1.0)
+                    rule=lt.Fixed(1.0))
     with pytest.raises(ValueError, match="2 or more wavelengths, got only 650 nm"):
-        reconstruct([ms[0], ms[2]], [tables[0], tables[2]], unknowns="T+sigma_a", regularization=1.0)
+        reconstruct([ms[0], ms[2]], [tables[0], tables[2]], unknowns="T+sigma_a", rule=lt.Fixed(1.0))
     other = lt.ray_segments(lt.Camera.seed(1.0, mla={"count": (12, 12)}),
                             lt.Grid(shape=(3, 3, 3), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006)),
                             rays_per_pixel=1, seed=0)
     with pytest.raises(ValueError, match="must share the grid"):
-        reconstruct(ms[:2] + ms[2:], [tables[0], tables[0], other, other], unknowns="T+sigma_a", regularization=1.0)
+        reconstruct(ms[:2] + ms[2:], [tables[0], tables[0], other, other], unknowns="T+sigma_a", rule=lt.Fixed(1.0))

@@ -609,7 +609,7 @@ def test_a_second_frame_with_other_noise_reuses_the_compiled_solver(gray_blob):
     import jax
 
     cam, grid, flame, lf, W = gray_blob
-    opts = {"regularization": 1e-3, "bounds": (500.0, 2500.0), "max_steps": 3}
+    opts = {"rule": lt.Fixed(1e-3), "bounds": (500.0, 2500.0), "solver": lt.LevenbergMarquardt(max_steps=3)}
     brighter = dataclasses.replace(lf, raw=1.3 * lf.raw)  # another frame: another signal, so another sigma
     frames = [lt.Measurement.from_lightfield(lt.add_noise(f, relative_std=0.01, seed=s))
               for f, s in ((lf, 31), (brighter, 32))]

@@ -77,7 +77,7 @@ def test_subvoxel_noise_free_recovers_the_coarse_field(subvoxel_blob, gray_blob)
     """Noise-free data of an interpolated field: the sub-voxel fit returns the coarse temperatures to
     <= 0.1 %; the uniform-voxel model on the same data cannot fit them (its χ² is > 100x larger)."""
     cam, grid, quad, flame, m, W_q = subvoxel_blob
-    rec = lt.reconstruct(m, W_q, grid=grid, regularization=1e-9, bounds=(500.0, 2500.0))
+    rec = lt.reconstruct(m, W_q, grid=grid, rule=lt.Fixed(1e-9), bounds=(500.0, 2500.0))
     assert rec.T.shape == grid.shape and rec.grid == grid
     assert rec.summary()["quadrature_grid"] == quad.to_dict()
     err = rec.errors(flame.T, hot=800.0)
@@ -87,7 +87,7 @@ def test_subvoxel_noise_free_recovers_the_coarse_field(subvoxel_blob, gray_blob)
     assert rec.chi2 == pytest.approx(problem.chi2(rec.T), rel=1e-6)
     # the same data with uniform emission per coarse voxel (weights on the 5³ grid, same rays)
     W_c = gray_blob[4]
-    plain = lt.reconstruct(m, W_c, regularization=1e-9, bounds=(500.0, 2500.0))
+    plain = lt.reconstruct(m, W_c, rule=lt.Fixed(1e-9), bounds=(500.0, 2500.0))
     assert plain.chi2 > 100 * max(rec.chi2, 1e-12)
 
 
@@ -95,7 +95,7 @@ def test_subvoxel_axisymmetric_noise_free(subvoxel_blob):
     """Ring cells with sub-voxel emission (interpolation E P): the blob is axisymmetric, so the ring fit
     recovers it to <= 0.1 %."""
     cam, grid, quad, flame, m, W_q = subvoxel_blob
-    rec = lt.reconstruct(m, W_q, grid=grid, symmetry="axisymmetric", regularization=1e-9, bounds=(500.0, 2500.0))
+    rec = lt.reconstruct(m, W_q, grid=grid, symmetry="axisymmetric", rule=lt.Fixed(1e-9), bounds=(500.0, 2500.0))
     assert rec.symmetry is not None and rec.symmetry.n_voxels < grid.n_voxels
     assert rec.errors(flame.T, hot=800.0)["max_rel"] <= 1e-3
 
@@ -122,9 +122,9 @@ def test_subvoxel_jacobian_matches_finite_differences(subvoxel_blob):
 def test_subvoxel_bad_input(subvoxel_blob, gray_blob):
     cam, grid, quad, flame, m, W_q = subvoxel_blob
     with pytest.raises(ValueError, match="at least as fine"):
-        lt.reconstruct(m, W_q, grid=quad.refined(2), regularization=1.0)
+        lt.reconstruct(m, W_q, grid=quad.refined(2), rule=lt.Fixed(1.0))
     with pytest.raises(ValueError, match="grid must be an lftomo Grid"):
-        lt.reconstruct(m, W_q, grid=(5, 5, 5), regularization=1.0)
+        lt.reconstruct(m, W_q, grid=(5, 5, 5), rule=lt.Fixed(1.0))
     problem, _ = problem_on_grid(m, W_q, grid)
     with pytest.raises(ValueError, match="sub-voxel"):
         lt.inverse.posterior.sufficient_statistics(problem)
@@ -179,8 +179,9 @@ def test_joint_subvoxel_noise_free_recovers_T_and_sigma_a(symmetry, method):
     sigma = 1e-3 * lf.raw + 1e-6 * lf.raw.max()
     clean = dataclasses.replace(lf, noise_std=sigma, signal=lf.raw)
     ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
-    kw = dict(unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0), symmetry=symmetry,
-              T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200, method=method)
+    solver = {"levenberg-marquardt": lt.LevenbergMarquardt, "dense-lm": lt.DenseLM}[method](max_steps=200)
+    kw = dict(unknowns="T+sigma_a", rule=lt.Fixed(1e-10), bounds=(1000.0, 2500.0), symmetry=symmetry,
+              start=(np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)), solver=solver)
     seg_q = lt.ray_segments(cam, quad, rays_per_pixel=8, seed=2, progress=False)
     rec = lt.reconstruct(ms, seg_q, grid=grid, **kw)
     assert rec.T.shape == grid.shape and rec.grid == grid

@@ -135,7 +135,7 @@ def test_reconstruct_axisymmetric_recovers_a_symmetric_blob(blob_setup):
     sigma = 1e-3 * lf.raw + 1e-6 * lf.raw.max()
     clean = dataclasses.replace(lf, noise_std=sigma, signal=lf.raw)
     m = lt.Measurement.from_lightfield(clean, data="subaperture")
-    rec = lt.reconstruct(m, W, regularization=1e-9, bounds=(500.0, 2500.0), symmetry="axisymmetric")
+    rec = lt.reconstruct(m, W, rule=lt.Fixed(1e-9), bounds=(500.0, 2500.0), symmetry="axisymmetric")
     assert rec.T.shape == grid.shape
     assert isinstance(rec.symmetry, lt.RingGrid) and rec.symmetry.shape == (6, 5)
     assert rec.details.T.shape == (6, 5)
@@ -143,8 +143,8 @@ def test_reconstruct_axisymmetric_recovers_a_symmetric_blob(blob_setup):
     assert err["max_rel"] <= 1e-3, err
     assert rec.summary()["symmetry"]["n_rings"] == 6
     # a voxel-grid starting field is accepted (projected on the rings)
-    rec2 = lt.reconstruct(m, W, regularization=1e-9, bounds=(500.0, 2500.0), symmetry=rec.symmetry,
-                          T0=np.full(grid.shape, 1200.0), max_steps=3)
+    rec2 = lt.reconstruct(m, W, rule=lt.Fixed(1e-9), bounds=(500.0, 2500.0), symmetry=rec.symmetry,
+                          start=np.full(grid.shape, 1200.0), solver=lt.LevenbergMarquardt(max_steps=3))
     assert rec2.T.shape == grid.shape
 
 
@@ -156,7 +156,7 @@ def test_axisymmetric_laplace_posterior_equals_the_gauss_newton_inverse_on_rings
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=3), data="subaperture")
     lam, bounds = 5.0, (500.0, 2500.0)
     post = lt.laplace_posterior(m, W, regularization=lam, bounds=bounds, symmetry="axisymmetric")
-    rec = lt.reconstruct(m, W, regularization=lam, bounds=bounds, symmetry="axisymmetric", prior="gradient")
+    rec = lt.reconstruct(m, W, rule=lt.Fixed(lam), bounds=bounds, symmetry="axisymmetric", prior="gradient")
     assert post.T_mean.shape == grid.shape and post.method == "dense"
     np.testing.assert_allclose(post.T_mean, rec.T, rtol=1e-6)
     rg = post.symmetry
@@ -186,9 +186,10 @@ def test_joint_axisymmetric_temperature_and_absorption():
     clean = dataclasses.replace(lf, noise_std=sigma, signal=lf.raw)
     ms = [lt.Measurement.from_lightfield(clean, data="subaperture", channel=c) for c in range(2)]
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2)
-    rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", regularization=1e-10, bounds=(1000.0, 2500.0),
-                         T0=np.full(grid.shape, 1600.0), sigma_a0=np.full(grid.shape, 15.0), max_steps=200,
-                         symmetry="axisymmetric")
+    # the dense LM: the joint fit's own pick for these few ring cells
+    rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", rule=lt.Fixed(1e-10), bounds=(1000.0, 2500.0),
+                         start=(np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)),
+                         solver=lt.DenseLM(max_steps=200), symmetry="axisymmetric")
     assert rec.symmetry is not None and rec.T.shape == grid.shape
     assert rec.errors(T, hot=1000.0)["max_rel"] < 1e-3
     np.testing.assert_allclose(rec.sigma_a, sa, rtol=5e-3)
