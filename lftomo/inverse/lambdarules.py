@@ -349,30 +349,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                 return found[0], target, scale_note + note
             note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
             return hi, target, scale_note + note
-    glo, ghi = g(lo), g(hi)
-    xlo, xhi = math.log(lo.lam), math.log(hi.lam)
-    best = lo if abs(glo) < abs(ghi) else hi
-    side = 0
-    for _ in range(20):
-        if abs(math.exp(g(best)) - 1.0) <= tol or xhi - xlo < math.log(1.1):
-            break
-        x = xhi - ghi * (xhi - xlo) / (ghi - glo) if ghi != glo else 0.5 * (xlo + xhi)
-        x = min(max(x, xlo + 0.05 * (xhi - xlo)), xhi - 0.05 * (xhi - xlo))
-        lam = math.exp(x)
-        e = solve(lam, run.nearest(lam, theta0))
-        ge = g(e)
-        if abs(ge) < abs(g(best)):
-            best = e
-        if ge < 0:
-            xlo, glo = x, ge
-            if side == -1:
-                ghi *= 0.5
-            side = -1
-        else:
-            xhi, ghi = x, ge
-            if side == 1:
-                glo *= 0.5
-            side = 1
+    best, xlo, xhi = _illinois(lambda lam: solve(lam, run.nearest(lam, theta0)), g, lo, hi, tol)
     miss = abs(math.exp(g(best)) - 1.0)
     if miss > DISCREPANCY_JUMP:
         # The bracket closed on a jump of χ² across the target: two branches of
@@ -390,6 +367,39 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             return found[0], target, scale_note + f"{jump}: {found[1]}"
     note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
     return best, target, scale_note + note
+
+
+def _illinois(solve: Any, g: Any, lo: Eval, hi: Eval, tol: float) -> tuple[Eval, float, float]:
+    """Illinois regula falsi for ``g(e) = 0`` in ``x = log λ`` between ``lo`` (g < 0) and ``hi`` (g ≥ 0).
+
+    Stops when ``|exp(g) − 1| ≤ tol`` or the bracket is narrower than a factor 1.1 (at most 20
+    solves).  Returns ``(best, x_lo, x_hi)``: the evaluation with the smallest ``|g|`` and the
+    final bracket.
+    """
+    glo, ghi = g(lo), g(hi)
+    xlo, xhi = math.log(lo.lam), math.log(hi.lam)
+    best = lo if abs(glo) < abs(ghi) else hi
+    side = 0
+    for _ in range(20):
+        if abs(math.exp(g(best)) - 1.0) <= tol or xhi - xlo < math.log(1.1):
+            break
+        x = xhi - ghi * (xhi - xlo) / (ghi - glo) if ghi != glo else 0.5 * (xlo + xhi)
+        x = min(max(x, xlo + 0.05 * (xhi - xlo)), xhi - 0.05 * (xhi - xlo))
+        e = solve(math.exp(x))
+        ge = g(e)
+        if abs(ge) < abs(g(best)):
+            best = e
+        if ge < 0:
+            xlo, glo = x, ge
+            if side == -1:
+                ghi *= 0.5
+            side = -1
+        else:
+            xhi, ghi = x, ge
+            if side == 1:
+                glo *= 0.5
+            side = 1
+    return best, xlo, xhi
 
 
 def objective(run: Any, x: Eval) -> float:
