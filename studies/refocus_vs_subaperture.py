@@ -17,7 +17,7 @@ kind and of their paired difference (focal stack − views).
 Usage::
 
     python studies/refocus_vs_subaperture.py [--flame axisymmetric|two_lobed|crossflow] [--n 8] [--mla 30]
-        [--rays 64] [--noise 0.005,0.01,0.02] [--draws 8] [--max-steps 30]
+        [--rays 64] [--noise 0.005,0.01,0.02] [--draws 8] [--max-steps 0]
         [--json results.json] [--workers N | --scheduler tcp://host:8786]
 
 With ``--workers``/``--scheduler`` the draws run as Dask tasks (light field and weights sent once
@@ -62,7 +62,8 @@ def draw_row(noise, d, scene, cam, grid, lf, W, a):
     depths = list(np.round(np.linspace(1.0 - 0.8 * HALF, 1.0 + 0.8 * HALF, 5), 5))
     cmp = lt.compare_refocus_subaperture(scene, cam, grid, noise=noise, depths=depths, seed=a.seed + 3 * d,
                                          rays_per_pixel=a.rays, wavelength=WL, regularization="auto", bounds=BOUNDS,
-                                         hot=HOT, solver=lt.LevenbergMarquardt(max_steps=a.max_steps), lightfield=lf,
+                                         hot=HOT, solver=lt.LevenbergMarquardt(max_steps=a.max_steps or None),
+                                         lightfield=lf,
                                          weights=W)
     s = cmp.summary()
     row = {"noise": noise, "draw": d, "seconds": s["seconds"]}
@@ -86,7 +87,9 @@ def main():
     ap.add_argument("--noise", default="0.01", help="relative noise levels, a comma list")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--draws", type=int, default=8)
-    ap.add_argument("--max-steps", type=int, default=30)
+    ap.add_argument("--max-steps", type=int, default=0,
+                    help="nonlinear steps per solve (0: the library's default; a cap that stops the λ search's "
+                         "solves unconverged makes its χ² path non-monotone and λ erratic)")
     ap.add_argument("--json", default="", help="results file; finished draws are also kept in JSON.rows.jsonl, "
                                                "from which a rerun with the same arguments resumes")
     sweep.add_arguments(ap)
