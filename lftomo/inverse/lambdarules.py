@@ -690,9 +690,9 @@ class Discrepancy(LambdaRule):
         return {"rule": self.name, "noise_scale": self.noise_scale, "discrepancy_safety": self.safety,
                 "search_steps": self.search_steps, "search_rtol": self.search_rtol, **_subvoxel_kw(self)}
 
-    def choose(self, path: Any, theta0: Any, lam_ref: float) -> tuple[Eval, float, str]:
+    def choose(self, path: Any, theta0: Any, lam_ref: float, first: Eval | None = None) -> tuple[Eval, float, str]:
         return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
-                                  estimate_scale=self.noise_scale == "estimated")
+                                  estimate_scale=self.noise_scale == "estimated", first=first)
 
 
 class DiscrepancyBracket(LambdaRule):
