@@ -104,7 +104,7 @@ def main():
     W = lt.weights(cam, grid, sigma_a=sa_c, wavelength=WL, rays_per_pixel=a.rays, seed=a.seed + 2, progress=False)
     rows_file = ResumableRows(a.json + ".rows.jsonl", sweep.settings(a)) if a.json else None
     done = {}
-    keys = [(s, d) for s in noises for d in range(a.draws)]
+    keys = [(s, d) for d in range(a.draws) for s in noises]  # draw-major: a partial run covers every level
     for s, d in keys:
         if rows_file is not None and rows_file.get(f"{s:g}/{d}") is not None:
             done[(s, d)] = rows_file.get(f"{s:g}/{d}")
@@ -115,7 +115,7 @@ def main():
         done[(s, d)] = row
         if rows_file is not None:
             rows_file.add(f"{s:g}/{d}", row)
-    rows = [done[k] for k in keys]
+    rows = [done[(s, d)] for s in noises for d in range(a.draws)]
     summary = {f"{s:g}": summarize([done[(s, d)] for d in range(a.draws)], s) for s in noises}
     if a.json:
         atomic_write_text(a.json, json.dumps({"args": vars(a), "draws": rows, "summary": summary}, indent=1))
