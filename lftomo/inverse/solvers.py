@@ -614,21 +614,6 @@ class _Runner:
 
 
 # --------------------------------------------------------------------------- λ helpers
-def _first_solve(run: _Runner, theta0: np.ndarray, lam: float, search_steps: int | None, search_rtol: float) -> Eval:
-    """The discrepancy search's first, least-regularized solve (at ``λ_ref · 1e-2``), from the
-    initial guess and from the middle of the bounds (``θ = 0``); the other start is kept only when
-    its objective is lower by more than ``search_rtol``.
-
-    A start colder than the flame can trap the fit: at short wavelengths ``∂I_b/∂T`` nearly
-    vanishes in a cold voxel, so the data cannot pull it up, and the linear baseline's Planck
-    inversion of a smoothed ``I_b`` is cold in the core (docs/accuracy.md, *The cold start*).
-    Every later solve of the search is warm-started from this one.
-    """
-    e0 = run.solve(lam, theta0, search_steps, objective_rtol=search_rtol)
-    e1 = run.solve(lam, np.zeros_like(theta0), search_steps, objective_rtol=search_rtol)
-    return e1 if objective(run, e1) < (1.0 - search_rtol) * objective(run, e0) else e0
-
-
 def _theta_of_T(T: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
     frac = np.clip((np.asarray(T, dtype=np.float64) - tmin) / (tmax - tmin), 1e-2, 1.0 - 1e-2)
     return np.log(frac) - np.log1p(-frac)
@@ -989,10 +974,9 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
             reference=lam_ref, note="λ given by the caller",
         )
     elif rule == "discrepancy":
-        first = _first_solve(run, theta0, lam_ref * 1e-2, search_steps, float(search_rtol))
         e, target, note = Discrepancy(noise_scale="estimated" if estimate_scale else "given", safety=safety,
                                       search_steps=search_steps, search_rtol=float(search_rtol)).choose(
-            run, theta0, lam_ref, first=first)
+            run, theta0, lam_ref)
         choice = discrepancy_choice(run, e, target, lam_ref, note)
     elif rule == "gcv":
         e, c, ch, rg, cr, note = GCV(lr, n_lambda, gcv_probes, seed).choose(run, theta0, lam_ref)
