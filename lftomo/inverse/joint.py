@@ -997,9 +997,7 @@ def solve_temperature_absorption(
     path = _solver_path(model, method, max_steps, progress, rtol=rtol, atol=atol, linear_rtol=linear_rtol,
                         linear_max_steps=linear_max_steps)
     if noise_scale == "estimated" and start is not None:
-        # s² is estimated from this fit's own least-regularized solves, two decades below the start's λ (the
-        # T-only rule's λ_ref · 1e-2), not taken from the coarse fit: its misfit includes the coarse grid's
-        # (measured, 650 + 900 nm: χ²/m 0.957 on 12³ at λ 10, 0.913 on 24³ after 40 steps at the same λ)
+        # s² from this fit's own solves two decades below the start's λ, not the coarse fit's (docs/accuracy.md)
         lam_start = max(lam_start * 1e-2, _LAMBDA_MIN)
     t_lambda = time.perf_counter()
     try:

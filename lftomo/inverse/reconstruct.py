@@ -180,6 +180,55 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
                       "coarser grid", UserWarning, stacklevel=3)
 
 
+def _reconstruct_temperature(measurement, weights, *, regularization, prior, bounds, method, rule, symmetry, grid,
+                             options) -> Reconstruction:
+    """The ``unknowns="T"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
+    from .solvers import solve_temperature
+
+    if method not in ("levenberg-marquardt", "gauss-newton"):
+        raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', got {method!r}"
+                         + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
+    t0 = time.perf_counter()
+    problem, grid = _temperature_problem(measurement, weights, grid)
+    T0 = _temperature_start(options.pop("T0", None), grid)
+    ring = resolve_symmetry(symmetry, grid)
+    if ring is not None:
+        problem = ring_problem(problem, ring)
+        T0 = ring_start(T0, ring)
+    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
+    t_setup = time.perf_counter() - t0
+    with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+        if rule in (None, "discrepancy") and regularization == "auto":
+            options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
+        sol = solve_temperature(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
+                                bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
+                                **options)
+    timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
+              "total": time.perf_counter() - t0}
+    choice = sol.lambda_choice
+    return Reconstruction(
+        T=sol.T if ring is None else ring.expand(sol.T),
+        sigma_a=None,
+        grid=grid,
+        regularization=sol.regularization,
+        lambda_rule=sol.lambda_choice.rule if regularization == "auto" else "fixed",
+        chi2=sol.chi2,
+        residual_norm=sol.residual_norm,
+        regularization_norm=sol.regularization_norm,
+        iterations=sol.iterations,
+        converged=sol.converged,
+        timing=timing,
+        unknowns="T",
+        data_kind=_data_kind(measurement),
+        details=sol,
+        symmetry=ring,
+        metadata={"quadrature_grid": problem.metadata["quadrature_grid"]} if problem.interpolation is not None else {},
+        lambda_note=choice.note,
+        lambda_path=tuple((float(lam), float(c), float(r)) for lam, c, r in
+                          zip(choice.candidates, choice.chi2, choice.regularization_norms)),
+    )
+
+
 def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, method, rule, symmetry, grid, options):
     """The ``unknowns="T+sigma_a"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
     from .joint import solve_temperature_absorption
@@ -445,47 +494,5 @@ def reconstruct(
     if fit == "T+sigma_a":
         return _reconstruct_joint(measurement, weights, regularization=regularization, prior=prior, bounds=bounds,
                                   method=method, rule=rule, symmetry=symmetry, grid=grid, options=options)
-    from .solvers import solve_temperature
-
-    if method not in ("levenberg-marquardt", "gauss-newton"):
-        raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', got {method!r}"
-                         + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
-    t0 = time.perf_counter()
-    problem, grid = _temperature_problem(measurement, weights, grid)
-    T0 = _temperature_start(options.pop("T0", None), grid)
-    ring = resolve_symmetry(symmetry, grid)
-    if ring is not None:
-        problem = ring_problem(problem, ring)
-        T0 = ring_start(T0, ring)
-    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
-    t_setup = time.perf_counter() - t0
-    with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-        if rule in (None, "discrepancy") and regularization == "auto":
-            options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
-        sol = solve_temperature(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
-                                bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
-                                **options)
-    timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
-              "total": time.perf_counter() - t0}
-    choice = sol.lambda_choice
-    return Reconstruction(
-        T=sol.T if ring is None else ring.expand(sol.T),
-        sigma_a=None,
-        grid=grid,
-        regularization=sol.regularization,
-        lambda_rule=sol.lambda_choice.rule if regularization == "auto" else "fixed",
-        chi2=sol.chi2,
-        residual_norm=sol.residual_norm,
-        regularization_norm=sol.regularization_norm,
-        iterations=sol.iterations,
-        converged=sol.converged,
-        timing=timing,
-        unknowns="T",
-        data_kind=_data_kind(measurement),
-        details=sol,
-        symmetry=ring,
-        metadata={"quadrature_grid": problem.metadata["quadrature_grid"]} if problem.interpolation is not None else {},
-        lambda_note=choice.note,
-        lambda_path=tuple((float(lam), float(c), float(r)) for lam, c, r in
-                          zip(choice.candidates, choice.chi2, choice.regularization_norms)),
-    )
+    return _reconstruct_temperature(measurement, weights, regularization=regularization, prior=prior, bounds=bounds,
+                                    method=method, rule=rule, symmetry=symmetry, grid=grid, options=options)
