@@ -16,7 +16,7 @@ keyed by the sampler.
 Usage::
 
     python studies/demo_setting.py --sampler stratified --mc-floor bound \
-        --config subaperture:gradient:given,subaperture:curvature:estimated --lambdas 1000,3000
+        --config subaperture:gradient:given,subaperture:curvature:estimated --lambdas 1000,3000 [--search root]
 """
 from __future__ import annotations
 
@@ -70,6 +70,8 @@ def main():
     ap.add_argument("--lambdas", default="", help="comma-separated fixed λ (gradient prior, sub-aperture data)")
     ap.add_argument("--cache", default="demo_setting_cache")
     ap.add_argument("--noise-seeds", default="1", help="comma-separated seeds of the 1 %% noise draws (one row each)")
+    ap.add_argument("--search", default="projected", choices=["projected", "root"],
+                    help="the discrepancy rule's λ search (lt.Discrepancy(search=...))")
     a = ap.parse_args()
     lf, W, coarse, T_eff = inputs(a.sampler, Path(a.cache), a.rays)
     for noise_seed in (int(s) for s in a.noise_seeds.split(",")):
@@ -87,8 +89,10 @@ def run_draw(a, lf, W, T_eff, noise_seed: int) -> None:
         m = lt.Measurement.from_lightfield(noisy, data=kind,
                                            depths=list(demo.COMPARE_DEPTHS) if kind == "refocus" else None)
         t = time.perf_counter()
-        rec = lt.reconstruct(m, W, prior=prior, rule=lt.Discrepancy(noise_scale=scale), bounds=demo.BOUNDS)
-        report(f"{head} {cfg}", rec, T_eff, time.perf_counter() - t)
+        rec = lt.reconstruct(m, W, prior=prior, rule=lt.Discrepancy(noise_scale=scale, search=a.search),
+                             bounds=demo.BOUNDS)
+        report(f"{head} {cfg} search={a.search}", rec, T_eff, time.perf_counter() - t)
+        print(f"    {rec.lambda_note}", flush=True)
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")
     for lam in (float(x) for x in filter(None, a.lambdas.split(","))):
         t = time.perf_counter()

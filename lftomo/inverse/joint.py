@@ -186,7 +186,7 @@ from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
 from .rigsegments import SegmentStack, rows_of_pixels
 from .solvers import baseline_start
-from .subvoxel import format_vector, interpolate_field, resolve_quadrature
+from .subvoxel import interpolate_field, require_same_box, resolve_quadrature
 from .symmetry import resolve_symmetry
 from .unknowns import SIGMA_A_SPACES
 
@@ -772,11 +772,7 @@ def _initial_fields(model: JointModel, *, T0, sigma_a0, start, lam_max, prior, s
         if getattr(start, "unknowns", None) != "T+sigma_a" or getattr(start, "sigma_a", None) is None:
             raise ValueError(f"start must be a Reconstruction with unknowns='T+sigma_a', got "
                              f"{type(start).__name__} with unknowns={getattr(start, 'unknowns', None)!r}")
-        if not (np.allclose(start.grid.lower, grid.lower, rtol=0, atol=1e-9 * min(grid.spacing))
-                and np.allclose(start.grid.upper, grid.upper, rtol=0, atol=1e-9 * min(grid.spacing))):
-            raise ValueError(f"start's grid box {format_vector(start.grid.lower)}..{format_vector(start.grid.upper)} "
-                             f"m must be the reconstruction grid's {format_vector(grid.lower)}.."
-                             f"{format_vector(grid.upper)} m")
+        require_same_box(start.grid, grid)
         T0 = interpolate_field(start.T, start.grid, grid)  # raises if start's grid is finer than grid
         sigma_a0 = interpolate_field(start.sigma_a, start.grid, grid)
         if start.regularization > 0:

@@ -55,6 +55,7 @@ __all__ = [
     "LCurveDecades",
     "RULE_CLASSES",
     "NOISE_SCALES",
+    "DISCREPANCY_SEARCHES",
     "resolve_rule",
     "DISCREPANCY_JUMP",
     "structured_branch",
@@ -63,6 +64,7 @@ __all__ = [
     "lcurve_curvature",
     "objective",
     "discrepancy_search",
+    "projected_discrepancy_search",
     "discrepancy_choice",
     "discrepancy_local_minimum",
     "gcv_search",
@@ -73,6 +75,9 @@ __all__ = [
 
 #: How the noise σ is trusted by the discrepancy rules: as given, or up to a common factor.
 NOISE_SCALES = ("given", "estimated")
+
+#: How :class:`Discrepancy` searches λ: on projected linearisations, or by a root search over converged solves.
+DISCREPANCY_SEARCHES = ("projected", "root")
 
 
 # --------------------------------------------------------------------------- results
@@ -153,6 +158,13 @@ class SolvePath(Protocol):
     def nearest(self, lam: float, default: Any) -> Any:
         """The unknowns of the solve nearest to ``lam`` in log λ (``default`` if none)."""
 
+    def terms(self, theta: Any, lam: float) -> tuple[float, float]:
+        """``(χ²/m, ‖R‖)`` at the unknowns ``theta`` (no solve)."""
+
+    def linearization(self, theta: Any, lam: float) -> Any:
+        """The fit linearised at ``theta`` (:class:`~lftomo.inverse.projected.Linearization`, unknowns scaled for
+        ``lam``), or None where not offered.  Optional: :class:`Discrepancy`'s projected search needs it."""
+
     def fit_dof(self, e: Eval) -> tuple[float, float]:
         """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their standard error."""
 
@@ -161,6 +173,13 @@ class SolvePath(Protocol):
 #: A discrepancy search whose bracket closes with χ²/m further than this
 #: fraction from the target has met a jump (two branches of solutions).
 DISCREPANCY_JUMP = 0.02
+
+#: The projected discrepancy search treats λ as settled when it changes by less than this fraction.
+LAMBDA_SETTLED = 0.02
+
+#: The message of the Gauss–Newton iterates the projected search records on the solve path (no solves:
+#: the L-curve fallbacks leave them out).
+PROJECTED_STEP = "Gauss–Newton step of the projected discrepancy search"
 
 
 def structured_branch(path: list) -> list:
@@ -203,7 +222,8 @@ def branch_corner(evals: list, lam_max: float, target: float):
     computed at λ ≤ ``lam_max`` that lie on the L-curve, :func:`on_lcurve`):
     the L-curve corner of that branch, or with too few points for a curvature
     Morozov's largest λ with χ²/m ≤ target.  Returns ``(eval, how)`` or None."""
-    path = structured_branch(sorted(on_lcurve([x for x in evals if x.lam <= lam_max * (1 + 1e-12)]),
+    path = structured_branch(sorted(on_lcurve([x for x in evals if x.lam <= lam_max * (1 + 1e-12)
+                                               and x.message != PROJECTED_STEP]),
                                      key=lambda x: x.lam))
     kappa = lcurve_curvature(path) if len(path) >= 4 else np.array([np.nan])
     if np.any(np.isfinite(kappa)):
@@ -367,6 +387,100 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             return found[0], target, scale_note + f"{jump}: {found[1]}"
     note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
     return best, target, scale_note + note
+
+
+def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float, tol: float, search_rtol: float,
+                                 *, max_gauss_newton: int = 10, max_solves: int = 2) -> tuple[Eval, str] | None:
+    """Morozov's discrepancy principle without a converged solve per candidate λ.
+
+    1. Gauss–Newton steps from ``theta0``, each with its own λ: the fit is
+       linearised at the iterate (``run.linearization``), λ chosen on that
+       linearisation projected on a generalized Krylov subspace
+       (:meth:`~lftomo.inverse.projected.ProjectedTikhonov.discrepancy_lambda`:
+       the projected Tikhonov step's ``χ²/m`` equals ``target``) and the
+       projected step taken (halved until the objective at that λ decreases);
+       until λ changes by less than :data:`LAMBDA_SETTLED` between steps and
+       the objective by less than ``search_rtol`` (at most ``max_gauss_newton`` steps).
+    2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
+       when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
+       linearisation at its solution moves by less than
+       :data:`LAMBDA_SETTLED`; otherwise another solve at that λ (at most
+       ``max_solves``).
+
+    λ is searched in ``λ_ref · [1e-10, 1e4]``.  Returns ``(eval, note)``, or
+    None when the fit offers no linearisation, the projected misfit cannot
+    attain the target in that range, or the solves end more than
+    :data:`DISCREPANCY_JUMP` from it (the caller then runs the root search of
+    :func:`discrepancy_search`, which starts from the solves made here).
+    """
+    from .projected import ProjectedTikhonov
+
+    lam_lo, lam_hi = lam_ref * 1e-10, lam_ref * 1e4
+    dims: list[int] = []
+
+    def choose(theta, lam):
+        lin = run.linearization(theta, lam)
+        if lin is None:
+            return None
+        proj = ProjectedTikhonov(lin)
+        lam_new, side = proj.discrepancy_lambda(target, lam_lo, lam_hi, lam)
+        dims.append(proj.k)
+        return None if side != 0 else (lam_new, lin, proj)
+
+    def settled(lam_a, lam_b):
+        return abs(math.log(lam_a / lam_b)) <= math.log1p(LAMBDA_SETTLED)
+
+    theta, lam = np.asarray(theta0, dtype=np.float64), lam_ref
+    for k in range(max_gauss_newton):
+        found = choose(theta, lam)
+        if found is None:
+            return None
+        lam_new, lin, proj = found
+        theta, decrease = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
+        chi2, reg = run.terms(theta, lam_new)
+        run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP))
+        done = k > 0 and settled(lam_new, lam) and decrease <= search_rtol
+        lam = lam_new
+        if done:
+            break
+    n_gn, solves = len(dims), 0
+    while True:
+        e = run.solve(lam, theta, objective_rtol=search_rtol)
+        solves += 1
+        miss = abs(e.chi2 / target - 1.0)
+        if (e.converged and miss <= tol) or solves >= max_solves:
+            break
+        found = choose(e.theta, lam)
+        if found is None:
+            return None
+        if settled(found[0], lam) and e.converged:
+            break
+        lam, theta = found[0], e.theta
+    if not e.converged or miss > DISCREPANCY_JUMP:
+        return None
+    note = (f"projected discrepancy search: {n_gn} Gauss–Newton steps with λ on each projected linearisation, "
+            f"{solves} solve(s) (subspace dimensions {', '.join(map(str, dims))}), "
+            f"|chi²/m/target − 1| = {miss:.2e}")
+    return e, note
+
+
+def _descent(run: Any, theta: np.ndarray, step: np.ndarray, lam: float,
+             halvings: int = 6) -> tuple[np.ndarray, float]:
+    """``theta + α step`` with the largest α in 1, ½, ¼, … whose objective at ``lam`` is below that at ``theta``
+    (``theta`` itself if none is), and the relative decrease of the objective."""
+    def phi(t):
+        chi2, reg = run.terms(t, lam)
+        return chi2 * run.m_total + lam * reg * reg
+
+    phi0 = phi(theta)
+    alpha = 1.0
+    for _ in range(halvings):
+        trial = np.clip(theta + alpha * step, -30.0, 30.0)
+        phi1 = phi(trial)
+        if phi1 < phi0:
+            return trial, (phi0 - phi1) / max(phi0, 1e-300)
+        alpha *= 0.5
+    return theta, 0.0
 
 
 def _illinois(solve: Any, g: Any, lo: Eval, hi: Eval, tol: float) -> tuple[Eval, float, float]:
@@ -675,24 +789,49 @@ class Discrepancy(LambdaRule):
         With sub-voxel emission: run the rule on the linearly interpolated
         surrogate model, then solve the sub-voxel model once at its λ
         (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+    search : {"projected", "root"}
+        ``"projected"``: λ chosen on the linearised fit projected on a small
+        subspace, refined as the iterate converges
+        (:func:`projected_discrepancy_search`; where it does not apply — noise
+        scale estimated, TV prior, sub-voxel emission — or does not reach the
+        target, the root search follows).  ``"root"``: the root search over
+        converged solves only (:func:`discrepancy_search`).
     """
 
     name = "discrepancy"
     fits = ("T",)
 
     def __init__(self, noise_scale: str = "given", safety: float = 0.0, search_steps: int | None = None,
-                 search_rtol: float = 1e-3, subvoxel_search: str | None = None) -> None:
+                 search_rtol: float = 1e-3, subvoxel_search: str | None = None, search: str = "projected") -> None:
         self.noise_scale = _noise_scale(noise_scale)
         self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
+        if search not in DISCREPANCY_SEARCHES:
+            raise ValueError(f"search must be one of {DISCREPANCY_SEARCHES}, got {search!r}")
+        self.search = search
 
     def keywords(self) -> dict[str, Any]:
         return {"rule": self.name, "noise_scale": self.noise_scale, "discrepancy_safety": self.safety,
-                "search_steps": self.search_steps, "search_rtol": self.search_rtol, **_subvoxel_kw(self)}
+                "search_steps": self.search_steps, "search_rtol": self.search_rtol,
+                "discrepancy_search": self.search, **_subvoxel_kw(self)}
 
-    def choose(self, path: Any, theta0: Any, lam_ref: float, first: Eval | None = None) -> tuple[Eval, float, str]:
-        return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
-                                  estimate_scale=self.noise_scale == "estimated", first=first)
+    def choose(self, path: Any, theta0: Any, lam_ref: float,
+               first: Eval | None = None) -> tuple[Eval, float, str, str]:
+        """``(eval, target, note, search)``: the solve chosen, the target ``χ²/m``, what the search did and
+        which search chose it (``"projected"`` or ``"root"``)."""
+        estimate = self.noise_scale == "estimated"
+        if self.search == "projected" and not estimate and first is None and hasattr(path, "linearization"):
+            target = 1.0 + self.safety
+            tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+            n_before = len(path.evals)
+            found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol)
+            if found is not None:
+                return found[0], target, found[1], "projected"
+            # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only
+            del path.evals[n_before:]
+        e, target, note = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,
+                                             self.search_rtol, estimate_scale=estimate, first=first)
+        return e, target, note, "root"
 
 
 class DiscrepancyBracket(LambdaRule):

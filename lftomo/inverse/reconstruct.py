@@ -361,14 +361,10 @@ def _temperature_start(T0: Any, grid: Grid) -> Any:
     temperature is interpolated to ``grid`` (same box, same or coarser grid)."""
     if not isinstance(T0, Reconstruction):
         return T0
-    from .subvoxel import format_vector, interpolate_field
+    from .subvoxel import interpolate_field, require_same_box
 
     src = T0.grid
-    tol = 1e-9 * min(grid.spacing)
-    if not (np.allclose(src.lower, grid.lower, rtol=0, atol=tol) and np.allclose(src.upper, grid.upper, rtol=0,
-                                                                                  atol=tol)):
-        raise ValueError(f"start's grid box {format_vector(src.lower)}..{format_vector(src.upper)} is not the "
-                         f"reconstruction grid's {format_vector(grid.lower)}..{format_vector(grid.upper)}")
+    require_same_box(src, grid)
     return np.asarray(T0.T, dtype=float) if src == grid else interpolate_field(T0.T, src, grid)
 
 

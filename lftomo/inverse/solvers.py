@@ -63,7 +63,19 @@ solve path of this module (``_Runner``); the optimistix chunks they run are in
 data term over trace of ``RᵀR`` of the prior (equal average curvature).
 Candidate λ are multiples of it.
 
-* ``"discrepancy"`` (Morozov): λ such that ``χ²/m = 1 + safety`` (default
+* ``"discrepancy"`` with ``discrepancy_search="projected"`` (the default):
+  λ such that ``χ²/m = 1 + safety`` without a converged solve per candidate
+  (:func:`~lftomo.inverse.lambdarules.projected_discrepancy_search`).  From
+  the initial guess, Gauss–Newton steps whose λ is chosen on the problem
+  linearised at the iterate (``_Runner.linearization``: the Jacobi-scaled
+  Jacobian in θ, as numpy/scipy products) and projected on a generalized
+  Krylov subspace (:class:`~lftomo.inverse.projected.ProjectedTikhonov`),
+  until λ settles; then one solve at that λ, λ re-chosen on the linearisation
+  at its solution if χ²/m misses the target.  No check solve from the initial
+  guess follows (the iterates run from it).  It needs a quadratic prior and
+  no sub-voxel emission, and σ as given; elsewhere, or when the projected
+  problem cannot attain the target, the root search below runs.
+* ``"discrepancy"`` with ``discrepancy_search="root"`` (Morozov): λ such that ``χ²/m = 1 + safety`` (default
   ``discrepancy_safety=0``; a positive safety factor over-smooths
   deliberately), found by factor-10 bracketing then Illinois regula falsi on
   ``log(χ²/m)`` against ``log λ`` (χ² increases with λ), each nonlinear solve
@@ -167,10 +179,11 @@ from .._validate import (  # noqa: E402
 )
 from ..progress import NoBar, progress_bar  # noqa: E402
 from ..interrupt import stop_between_steps  # noqa: E402
-from .hostsparse import host_csr  # noqa: E402
+from .hostsparse import csr_product, host_csr  # noqa: E402
 from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks  # noqa: E402
 from .lambdarules import (  # noqa: E402
     DISCREPANCY_JUMP,
+    DISCREPANCY_SEARCHES,
     GCV,
     NOISE_SCALES,
     Discrepancy,
@@ -183,6 +196,7 @@ from .lambdarules import (  # noqa: E402
     resolve_rule,
 )
 from .problem import LinearProblem  # noqa: E402
+from .projected import Linearization  # noqa: E402
 from .regularizers import Prior, resolve_prior  # noqa: E402
 from .unknowns import PENALIZED as PENALIZE  # noqa: E402  (what the prior acts on)
 
@@ -498,6 +512,7 @@ class _Runner:
         self.evals: list[Eval] = []
         self.total_steps = 0
         self.bar = NoBar()  # progress: one tick per nonlinear step, λ and χ²/m in the postfix
+        self._A_t = self._L_t = None  # transposes for linearization(), made once
 
     def args(self, lam: float) -> dict:
         a = dict(self._args)
@@ -525,6 +540,35 @@ class _Runner:
         dI = dblackbody_dT(T, s.wavelength) / s.I_scale
         reg_f = dT / s.T_scale if s.penalize == "temperature" else dI * dT * s.I_scale / s.I_reg
         return jacobi_scale(self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * reg_f**2)
+
+    def linearization(self, theta: np.ndarray, lam: float) -> Linearization | None:
+        """The fit linearised at ``theta`` in the Jacobi-scaled unknowns (:meth:`column_scale` at ``lam``), as
+        numpy/scipy products; None where it is not offered (non-quadratic prior, sub-voxel emission)."""
+        s = self.s
+        if s.E is not None or not s.prior_model.quadratic:
+            return None
+        theta = np.asarray(theta, dtype=np.float64)
+        sig = 1.0 / (1.0 + np.exp(-theta))
+        T = s.tmin + (s.tmax - s.tmin) * sig
+        dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
+        b = blackbody(T, s.wavelength) / s.I_scale
+        dI = dblackbody_dT(T, s.wavelength) / s.I_scale
+        if s.penalize == "temperature":
+            u, du = T / s.T_scale, dT / s.T_scale
+        else:
+            u, du = b * s.I_scale / s.I_reg, dI * dT * s.I_scale / s.I_reg
+        D = self.column_scale(theta, lam)
+        cd, cr = dI * dT * D, du * D
+        if self._A_t is None:
+            self._A_t, self._L_t = s.A_s.T.tocsr(), s.L.T.tocsr()
+        A, L, A_t, L_t = s.A_s, s.L, self._A_t, self._L_t
+        # the products by the row-parallel CSR kernel of the solver's host callbacks (scipy's is serial)
+        return Linearization(
+            rd=csr_product(A, b) - s.d, rr=csr_product(L, u),
+            jd=lambda v: csr_product(A, cd * v), jd_t=lambda r: cd * csr_product(A_t, r),
+            jr=lambda v: csr_product(L, cr * v), jr_t=lambda w: cr * csr_product(L_t, w),
+            chi2_offset=s.chi2_empty, m_total=s.m_total, scale=D,
+        )
 
     def solve(self, lam: float, theta0, max_steps: int | None = None, objective_rtol: float | None = None) -> Eval:
         """Nonlinear solve at ``lam`` from ``theta0``.
@@ -730,6 +774,7 @@ def solve_temperature(
     search_rtol: float = 1e-3,
     subvoxel_search: str = "surrogate",
     noise_scale: str = "given",
+    discrepancy_search: str = "projected",
     progress: bool | None = None,
 ) -> TemperatureSolution:
     """Reconstruct the temperature field by regularized nonlinear least squares.
@@ -799,6 +844,10 @@ def solve_temperature(
         changes by less than this fraction over a chunk of steps (0 < · < 1):
         the search needs χ²/m to about this precision, not the final
         tolerances.
+    discrepancy_search : {"projected", "root"}, keyword-only
+        How ``rule="discrepancy"`` searches λ (:class:`~lftomo.inverse.lambdarules.Discrepancy`'s
+        ``search``): on projected linearisations as the iterate converges, or by a root search
+        over converged solves.
     subvoxel_search : {"surrogate", "full"}, keyword-only
         With sub-voxel emission (``problem.interpolation``) and
         ``regularization="auto"``: ``"surrogate"`` runs the λ rule on the
@@ -846,7 +895,8 @@ def solve_temperature(
                    atol=atol, penalize=penalize, T_ref=T_ref, tv_eps=tv_eps, discrepancy_safety=discrepancy_safety,
                    lambda_range=lambda_range, n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed,
                    linear_rtol=linear_rtol, linear_max_steps=linear_max_steps, search_steps=search_steps,
-                   search_rtol=search_rtol, noise_scale=noise_scale, progress=progress)
+                   search_rtol=search_rtol, noise_scale=noise_scale,
+                   discrepancy_search=discrepancy_search, progress=progress)
     subvoxel_search = require_choice("subvoxel_search", subvoxel_search, ("surrogate", "full"))
     if problem.interpolation is not None and regularization == "auto" and subvoxel_search == "surrogate":
         return _solve_subvoxel_by_surrogate(problem, **options)
@@ -855,7 +905,8 @@ def solve_temperature(
 
 def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0, method, rule, max_steps, rtol, atol,
                    penalize, T_ref, tv_eps, discrepancy_safety, lambda_range, n_lambda, gcv_probes, seed, linear_rtol,
-                   linear_max_steps, search_steps, search_rtol, noise_scale, progress, t_start) -> TemperatureSolution:
+                   linear_max_steps, search_steps, search_rtol, noise_scale, progress, t_start,
+                   discrepancy_search="projected") -> TemperatureSolution:
     """:func:`solve_temperature` on the voxel model of ``problem``: checks the options, builds the setup and runs
     :func:`_solve_with` (the surrogate's λ search, if any, is decided before)."""
     bounds = require_bounds(bounds)
@@ -867,6 +918,7 @@ def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0,
     penalize = require_choice("penalize", penalize, PENALIZE)
     lam_fixed = _check_regularization(regularization, allow_auto=True)
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
+    discrepancy_search = require_choice("discrepancy_search", discrepancy_search, DISCREPANCY_SEARCHES)
     if noise_scale == "estimated" and rule != "discrepancy":
         raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
     (max_steps, rtol, atol, safety, lr, n_lambda, gcv_probes, seed, linear_rtol, linear_max_steps, search_steps,
@@ -886,7 +938,7 @@ def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0,
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
             return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,
                                safety=safety, search_steps=search_steps, search_rtol=search_rtol, lr=lr,
-                               estimate_scale=noise_scale == "estimated",
+                               estimate_scale=noise_scale == "estimated", discrepancy_search=discrepancy_search,
                                n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed, method=method, prior=prior,
                                penalize=penalize, t_start=t_start)
     finally:
@@ -952,7 +1004,7 @@ def _check_T0(T0: Any, grid, bounds: tuple[float, float]) -> tuple[np.ndarray | 
 
 def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule, *, T0_arr, T0_mode, bounds,
                 safety, search_steps, search_rtol, lr, n_lambda, gcv_probes, seed, method, prior, penalize,
-                t_start, estimate_scale=False) -> TemperatureSolution:
+                t_start, estimate_scale=False, discrepancy_search="projected") -> TemperatureSolution:
     """The initial guess, the λ choice and the final solve of :func:`solve_temperature` (arguments checked)."""
     grid = problem.grid
     t_setup = time.perf_counter()
@@ -966,6 +1018,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
     t_init = time.perf_counter()
 
     # ---- λ and the solve
+    searched = None
     if lam_fixed is not None:
         e = run.solve(lam_fixed, theta0)
         choice = LambdaChoice(
@@ -974,9 +1027,9 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
             reference=lam_ref, note="λ given by the caller",
         )
     elif rule == "discrepancy":
-        e, target, note = Discrepancy(noise_scale="estimated" if estimate_scale else "given", safety=safety,
-                                      search_steps=search_steps, search_rtol=float(search_rtol)).choose(
-            run, theta0, lam_ref)
+        e, target, note, searched = Discrepancy(
+            noise_scale="estimated" if estimate_scale else "given", safety=safety, search_steps=search_steps,
+            search_rtol=float(search_rtol), search=discrepancy_search).choose(run, theta0, lam_ref)
         choice = discrepancy_choice(run, e, target, lam_ref, note)
     elif rule == "gcv":
         e, c, ch, rg, cr, note = GCV(lr, n_lambda, gcv_probes, seed).choose(run, theta0, lam_ref)
@@ -986,7 +1039,9 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
         e, c, ch, rg, cr = LCurve(lr, n_lambda).choose(run, theta0, lam_ref)
         choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
                               target=None, reference=lam_ref, note="maximum curvature of (log‖r‖, log‖R‖)")
-    if lam_fixed is None:
+    if lam_fixed is None and searched != "projected":
+        # (The projected search needs no such check: its solves run from the initial guess,
+        # each warm-started from the last, with λ chosen at each iterate.)
         # The λ search warm-starts each solve from the nearest λ solved; the
         # problem is non-convex in θ (sigmoid bounds, Planck), and a warm start
         # from a much smoother solution can stop in a worse minimum (measured:
@@ -1014,7 +1069,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
         regularization_norm=e.reg,
         iterations=e.steps,
         total_iterations=run.total_steps,
-        n_solves=len(run.evals),
+        n_solves=sum(1 for x in run.evals if x.steps > 0),  # the projected search's Gauss–Newton iterates are none
         converged=e.converged,
         message=e.message,
         timing={

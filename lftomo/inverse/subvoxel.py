@@ -115,6 +115,18 @@ def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
     return E
 
 
+def require_same_box(source: Grid, grid: Grid, what: str = "start") -> None:
+    """Raise ValueError unless ``source`` spans the box of ``grid`` (to 1e-9 of its smallest spacing).
+
+    ``what`` names the argument whose grid ``source`` is, for the message.
+    """
+    tol = 1e-9 * min(grid.spacing)
+    if not (np.allclose(source.lower, grid.lower, rtol=0, atol=tol)
+            and np.allclose(source.upper, grid.upper, rtol=0, atol=tol)):
+        raise ValueError(f"{what}'s grid box {format_vector(source.lower)}..{format_vector(source.upper)} m is not "
+                         f"the reconstruction grid's {format_vector(grid.lower)}..{format_vector(grid.upper)} m")
+
+
 def interpolate_field(field: Any, grid: Grid, quadrature: Grid) -> np.ndarray:
     """``field`` (shape ``grid.shape``) interpolated to ``quadrature``'s voxel centres (shape ``quadrature.shape``).
 

@@ -21,6 +21,7 @@ from lftomo.inverse.lambdarules import (
     LCurveDecades,
     resolve_rule,
 )
+from lftomo.inverse.projected import Linearization
 
 
 class LinearPath:
@@ -80,8 +81,8 @@ def test_discrepancy_given_noise_finds_chi2_equal_to_one():
     """‖r‖² = m σ² (σ = 1): the returned λ's χ²/m is 1 to the rule's tolerance √(2/m) (clipped to
     [1e-3, 1e-2]), and λ is the root of χ²(λ)/m = 1 found by brentq to that precision."""
     path = LinearPath()
-    e, target, note = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
-    assert target == 1.0 and "regula falsi" in note, note
+    e, target, note, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert target == 1.0 and "regula falsi" in note and search == "root", note
     tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
     assert abs(e.chi2 - 1.0) <= tol
     lam_star = _root(path, 1.0)
@@ -95,7 +96,7 @@ def test_discrepancy_estimated_noise_scale_targets_s2_of_the_least_regularized_f
     λ_s = λ_ref·1e-2, and the λ found meets it; the given-σ target would be unreachable below 4."""
     path = LinearPath(noise=2.0)
     lam_ref = 1.0
-    e, target, note = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), lam_ref)
+    e, target, note, _ = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), lam_ref)
     H = path.H(lam_ref * 1e-2)
     nu = np.trace(2 * H - H @ H)
     s2 = path.chi2(lam_ref * 1e-2) * path.m_total / (path.m_total - nu)
@@ -104,18 +105,56 @@ def test_discrepancy_estimated_noise_scale_targets_s2_of_the_least_regularized_f
     assert e.chi2 == pytest.approx(target, rel=0.011)
 
 
+class LinearizedPath(LinearPath):
+    """A :class:`LinearPath` that also offers its (exact) linearisation: the projected search runs on it."""
+
+    def terms(self, theta, lam):
+        r = self.A @ theta - self.y
+        return float(r @ r) / self.m_total, float(np.linalg.norm(self.L @ theta))
+
+    def linearization(self, theta, lam):
+        A, L = self.A, self.L
+        return Linearization(rd=A @ theta - self.y, rr=L @ theta, jd=lambda v: A @ v, jd_t=lambda u: A.T @ u,
+                             jr=lambda v: L @ v, jr_t=lambda w: L.T @ w, chi2_offset=0.0, m_total=self.m_total,
+                             scale=np.ones(self.n_unknowns))
+
+
+def test_projected_discrepancy_search_finds_the_root_of_a_linear_problem():
+    """On a linear problem the linearisation is the problem: the projected search's Gauss–Newton steps
+    reach the Tikhonov solution and its λ is the brentq root of χ²/m = 1 to the rule's tolerance, with
+    one converged solve."""
+    path = LinearizedPath()
+    e, target, note, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert search == "projected" and note.startswith("projected discrepancy search"), note
+    tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+    assert abs(e.chi2 - 1.0) <= tol
+    lam_star = _root(path, 1.0)
+    slope = (path.chi2(lam_star * 1.01) - path.chi2(lam_star / 1.01)) / (2 * math.log(1.01))
+    assert abs(math.log(e.lam / lam_star)) <= 1.2 * tol / slope
+    assert sum(1 for x in path.evals if x.steps > 0) == 1
+
+
+def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
+    """σ overestimated (data ×0.1): no λ attains χ²/m = 1 on the projected problem either; the root
+    search takes over (and with it the estimated noise scale)."""
+    path = _scaled(LinearizedPath(), 0.1)
+    e, target, note, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert search == "root" and "noise scale estimated" in note, note
+
+
 def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_scale_root():
     """Data scaled by 0.1 (noise 0.1 against σ = 1 given): χ²/m < 1 at every λ, so the search is redone
     with the noise scale estimated.  The retry climbs the same factor-10 ladder from the same starts: it
     must take those solves from the first pass (no λ solved twice) and find the same λ as the
     estimated-scale rule run on its own."""
     path = _scaled(LinearPath(), 0.1)
-    e, target, note = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    e, target, note, _ = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
     lams = [ev.lam for ev in path.evals]
     assert "stays below the target" in note and "noise scale estimated" in note, note
     assert len(lams) == len(set(lams)), lams
     alone = _scaled(LinearPath(), 0.1)
-    e_alone, target_alone, _ = Discrepancy(noise_scale="estimated").choose(alone, np.zeros(alone.n_unknowns), 1.0)
+    e_alone, target_alone, _, _ = Discrepancy(noise_scale="estimated").choose(alone, np.zeros(alone.n_unknowns),
+                                                                             1.0)
     assert target == pytest.approx(target_alone, rel=1e-12)
     assert e.lam == pytest.approx(e_alone.lam, rel=1e-12)
     ladder = [1e-2 * 10.0**k for k in range(1, 7)]  # λ_ref·1e-1 … λ_ref·1e4: climbed once

@@ -237,9 +237,10 @@ def test_discrepancy_candidates_report_converged_chi2(gray_noisy):
     solution at its λ (to the search tolerance), not of a solve stopped early:
     an early stop overstates χ² and sends the search to too small a λ.
     Reference: a solve from the initial guess with tight tolerances and 4× the
-    step budget."""
+    step budget.  (The root search: the projected search's Gauss–Newton iterates are
+    no solves, and its own solve is checked in test_projected.py.)"""
     problem, _ = gray_noisy
-    auto = solve_temperature(problem, rule="discrepancy", search_rtol=1e-3)
+    auto = solve_temperature(problem, rule="discrepancy", search_rtol=1e-3, discrepancy_search="root")
     ch = auto.lambda_choice
     for lam, chi2 in zip(ch.candidates, ch.chi2):
         ref = solve_temperature(problem, regularization=float(lam), max_steps=800, rtol=1e-9, atol=1e-9)
