@@ -85,13 +85,18 @@ NB07 = [
     Each configuration chooses its own λ (the default rule on its own data), so the posterior standard
     deviations of two designs are not comparable voxel by voxel (at one λ a second camera can only lower
     them).  What is compared is the predicted error against the error of the design's reconstruction.
-    On the standard flame the second camera is predicted to cut the error by more than half, and the
-    reconstruction confirms it.  On the two-lobed flame at 8³ the lobes are 1–2 voxels wide.  The single
-    camera's predicted error and posterior std are of order 100 %: the curvature prior leaves linear
-    trends free, and one camera does not fix them along its line of sight (its Cramér–Rao bound is of
-    the same order).  The reconstructions of both configurations are limited by the coarse grid's model
-    error, which the prediction does not include (16.4 % and 16.3 % in one run).  The ranking still
-    agrees; the 16³ numbers on the full seed camera are in `docs/experiment_design.md`.
+    On the standard flame the second camera is predicted to cut the error to about half.  The
+    reconstructions do not show it at this size: on an 8³ grid from a 16³ truth their error is dominated
+    by the coarse grid's model error, which the prediction (linearised at the true field on the
+    reconstruction grid) does not include.  Over five simulated experiments (design seeds 0–4, the
+    table in `docs/experiment_design.md`) one camera reconstructed with 7.6–14.2 % and two cameras with
+    8.6–18.7 % mean error above 800 K, while the predictions were 7.8–13.2 % and 4.9–6.8 %.  (An earlier
+    version of this notebook saw the second camera halve the error on seed 0: the single camera's
+    reconstruction had stopped in a poor local minimum, 33.5 %; the λ search that runs along the
+    iterate now avoids it there.)  On the two-lobed flame at 8³ the lobes are 1–2 voxels wide; the
+    single camera's predicted error and posterior std are of order 100 %: the curvature prior leaves
+    linear trends free, and one camera does not fix them along its line of sight (its Cramér–Rao bound
+    is of the same order).  The 16³ numbers on the full seed camera are in `docs/experiment_design.md`.
     """),
     code("""
     rows = []
@@ -101,12 +106,12 @@ NB07 = [
         print(f"{name:10s} predicted {100 * s1['predicted_mean_rel']:.1f} % -> {100 * s2['predicted_mean_rel']:.1f} %, "
               f"posterior std {100 * s1['posterior_std_mean_rel']:.1f} % -> {100 * s2['posterior_std_mean_rel']:.1f} %, "
               f"one draw {100 * s1['reconstruction_mean_rel']:.1f} % -> {100 * s2['reconstruction_mean_rel']:.1f} %")
-    for name, s1, s2 in rows:  # the prediction ranks the rigs as the reconstructions do
-        assert (s2["predicted_mean_rel"] < s1["predicted_mean_rel"]) == \
-            (s2["reconstruction_mean_rel"] < s1["reconstruction_mean_rel"]), name
-    s1, s2 = rows[0][1], rows[0][2]  # standard flame: the second camera more than halves the error
-    assert s2["predicted_mean_rel"] < 0.5 * s1["predicted_mean_rel"]
-    assert s2["reconstruction_mean_rel"] < 0.5 * s1["reconstruction_mean_rel"]
+    s1, s2 = rows[0][1], rows[0][2]  # standard flame: the second camera is predicted to about halve the error
+    assert s2["predicted_mean_rel"] < 0.6 * s1["predicted_mean_rel"]  # 0.37-0.65x over the five seeds
+    assert s2["posterior_std_mean_rel"] < s1["posterior_std_mean_rel"]
+    # the reconstructions of the standard flame: within the range the five design seeds gave (7.6-18.7 %),
+    # i.e. no reconstruction stopped in a poor local minimum
+    assert max(s1["reconstruction_mean_rel"], s2["reconstruction_mean_rel"]) < 0.2
     print(f"notebook ran in {time.perf_counter() - T_START:.0f} s")
     """),
 ]
