@@ -42,6 +42,8 @@ from typing import Any, Protocol
 import jax.numpy as jnp
 import numpy as np
 
+from .._validate import require_choice
+
 __all__ = [
     "Eval",
     "SolvePath",
@@ -806,9 +808,7 @@ class Discrepancy(LambdaRule):
         self.noise_scale = _noise_scale(noise_scale)
         self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
-        if search not in DISCREPANCY_SEARCHES:
-            raise ValueError(f"search must be one of {DISCREPANCY_SEARCHES}, got {search!r}")
-        self.search = search
+        self.search = require_choice("search", search, DISCREPANCY_SEARCHES)
 
     def keywords(self) -> dict[str, Any]:
         return {"rule": self.name, "noise_scale": self.noise_scale, "discrepancy_safety": self.safety,
