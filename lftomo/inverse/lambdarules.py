@@ -440,6 +440,9 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         lam_new, lin, proj = found
         theta, decrease = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
         chi2, reg = run.terms(theta, lam_new)
+        bar = getattr(run, "bar", None)
+        if bar is not None:
+            bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
         run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP))
         done = k > 0 and settled(lam_new, lam) and decrease <= search_rtol
         lam = lam_new
