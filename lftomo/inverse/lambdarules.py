@@ -66,6 +66,7 @@ __all__ = [
     "lcurve_curvature",
     "objective",
     "discrepancy_search",
+    "estimated_target",
     "projected_discrepancy_search",
     "discrepancy_choice",
     "discrepancy_local_minimum",
@@ -308,13 +309,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
         if m - n_unknowns < 1:
             raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
                              f"{n_unknowns} unknowns")
-        dof, dof_se = run.fit_dof(e)
-        s2 = e.chi2 * m / (m - dof)
-        target = (1.0 + safety) * s2
-        tol = min(tol, max(math.sqrt(2.0 * max(dof, 1.0)) / (m - dof), 1e-6))
-        scale_note = (f"noise scale estimated at λ = {lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
-                      f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
-                      f"target chi²/m = {target:.5g}; ")
+        target, tol, scale_note = estimated_target(run, e, safety, tol)
     ladder: dict[float, Eval] = {}
     if g(e) < 0:  # too little misfit: increase λ
         lo = e
@@ -389,6 +384,25 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             return found[0], target, scale_note + f"{jump}: {found[1]}"
     note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
     return best, target, scale_note + note
+
+
+def estimated_target(run: Any, e: Eval, safety: float, tol: float) -> tuple[float, float, str]:
+    """The discrepancy target with the noise scale estimated from the least-regularized fit ``e``.
+
+    ``s² = χ²/(m − ν)``, ``ν = tr(2H − H²)`` its residual degrees of freedom
+    (``run.fit_dof``); target ``(1 + safety) s²``; the tolerance ``tol``
+    tightened to ``√(2ν)/(m − ν)``, the spread of the rise of χ² above that fit.
+    Returns ``(target, tol, note)``.
+    """
+    m, n_unknowns = run.m_total, run.n_unknowns
+    dof, dof_se = run.fit_dof(e)
+    s2 = e.chi2 * m / (m - dof)
+    target = (1.0 + safety) * s2
+    tol = min(tol, max(math.sqrt(2.0 * max(dof, 1.0)) / (m - dof), 1e-6))
+    note = (f"noise scale estimated at λ = {e.lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
+            f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
+            f"target chi²/m = {target:.5g}; ")
+    return target, tol, note
 
 
 def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float, tol: float, search_rtol: float,
@@ -797,10 +811,12 @@ class Discrepancy(LambdaRule):
     search : {"projected", "root"}
         ``"projected"``: λ chosen on the linearised fit projected on a small
         subspace, refined as the iterate converges
-        (:func:`projected_discrepancy_search`; where it does not apply — noise
-        scale estimated, TV prior, sub-voxel emission — or does not reach the
-        target, the root search follows).  ``"root"``: the root search over
-        converged solves only (:func:`discrepancy_search`).
+        (:func:`projected_discrepancy_search`; with the noise scale estimated,
+        after the least-regularized solve that estimates it,
+        :func:`estimated_target`).  Where it does not apply (TV prior, sub-voxel
+        emission, a fit without a linearisation) or does not reach the target,
+        the root search follows.  ``"root"``: the root search over converged
+        solves only (:func:`discrepancy_search`).
     """
 
     name = "discrepancy"
@@ -823,13 +839,22 @@ class Discrepancy(LambdaRule):
         """``(eval, target, note, search)``: the solve chosen, the target ``χ²/m``, what the search did and
         which search chose it (``"projected"`` or ``"root"``)."""
         estimate = self.noise_scale == "estimated"
-        if self.search == "projected" and not estimate and first is None and hasattr(path, "linearization"):
-            target = 1.0 + self.safety
-            tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+        projected = (self.search == "projected" and first is None and hasattr(path, "linearization")
+                     and path.linearization(theta0, lam_ref) is not None
+                     and (not estimate or path.m_total > path.n_unknowns))
+        if projected:
             n_before = len(path.evals)
+            target, scale_note = 1.0 + self.safety, ""
+            tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+            if estimate:
+                # the least-regularized fit of the root search, which estimates the scale (and which
+                # that search reuses if this one gives way)
+                first = path.solve(lam_ref * 1e-2, theta0, self.search_steps, objective_rtol=self.search_rtol)
+                n_before += 1
+                target, tol, scale_note = estimated_target(path, first, self.safety, tol)
             found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol)
             if found is not None:
-                return found[0], target, found[1], "projected"
+                return found[0], target, scale_note + found[1], "projected"
             # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only
             del path.evals[n_before:]
         e, target, note = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,

@@ -72,9 +72,11 @@ Candidate λ are multiples of it.
   Krylov subspace (:class:`~lftomo.inverse.projected.ProjectedTikhonov`),
   until λ settles; then one solve at that λ, λ re-chosen on the linearisation
   at its solution if χ²/m misses the target.  No check solve from the initial
-  guess follows (the iterates run from it).  It needs a quadratic prior and
-  no sub-voxel emission, and σ as given; elsewhere, or when the projected
-  problem cannot attain the target, the root search below runs.
+  guess follows (the iterates run from it).  With ``noise_scale="estimated"``
+  the target comes first from the least-regularized solve, as in the root
+  search.  It needs a quadratic prior and no sub-voxel emission; elsewhere, or
+  when the projected problem cannot attain the target, the root search below
+  runs.
 * ``"discrepancy"`` with ``discrepancy_search="root"`` (Morozov): λ such that ``χ²/m = 1 + safety`` (default
   ``discrepancy_safety=0``; a positive safety factor over-smooths
   deliberately), found by factor-10 bracketing then Illinois regula falsi on

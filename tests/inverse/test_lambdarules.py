@@ -134,6 +134,21 @@ def test_projected_discrepancy_search_finds_the_root_of_a_linear_problem():
     assert sum(1 for x in path.evals if x.steps > 0) == 1
 
 
+def test_projected_search_with_the_noise_scale_estimated_meets_s2():
+    """σ given 2× too small, noise scale estimated: the projected search takes the root search's target
+    s² = χ²(λ_s)/(1 − ν/m) (ν = tr(2H − H²) at λ_s = λ_ref·1e-2) and meets it at brentq's root."""
+    path = LinearizedPath(noise=2.0)
+    e, target, note, search = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), 1.0)
+    H = path.H(1e-2)
+    s2 = path.chi2(1e-2) * path.m_total / (path.m_total - np.trace(2 * H - H @ H))
+    assert search == "projected" and "noise scale estimated" in note, note
+    assert target == pytest.approx(s2, rel=1e-12)
+    assert e.chi2 == pytest.approx(target, rel=0.011)
+    lam_star = _root(path, target)
+    slope = (path.chi2(lam_star * 1.01) - path.chi2(lam_star / 1.01)) / (2 * math.log(1.01)) / target
+    assert abs(math.log(e.lam / lam_star)) <= 1.2 * 0.011 / slope
+
+
 def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
     """σ overestimated (data ×0.1): no λ attains χ²/m = 1 on the projected problem either; the root
     search takes over (and with it the estimated noise scale)."""
