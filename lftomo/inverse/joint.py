@@ -976,8 +976,7 @@ def solve_temperature_absorption(
     t_start = time.perf_counter()
     if method not in JOINT_METHODS:
         raise ValueError(f"method must be one of {', '.join(map(repr, JOINT_METHODS))} for the joint fit, got {method!r}")
-    # R = L x is what the σ terms, the Jacobi scaling and the dense normal equations are built on:
-    # a non-quadratic prior (TV) is refused, never replaced by another one
+    # the σ terms, the Jacobi scaling and the normal equations need R = L x: TV is refused, never replaced
     prior = resolve_prior(prior, quadratic_only=True, where="the joint T + sigma_a fit (unknowns='T+sigma_a')")
     ms, wls, segments, rows = _check_channels(measurements, segments)
     rule_obj, noise_scale_checked, bounds, lam_max = _check_options(

@@ -452,8 +452,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         if found is None:
             return None
         lam_new, lin, proj = found
-        theta, decrease = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
-        chi2, reg = run.terms(theta, lam_new)
+        theta, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
         bar = getattr(run, "bar", None)
         if bar is not None:
             bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
@@ -484,22 +483,21 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
 
 
 def _descent(run: Any, theta: np.ndarray, step: np.ndarray, lam: float,
-             halvings: int = 6) -> tuple[np.ndarray, float]:
+             halvings: int = 6) -> tuple[np.ndarray, float, tuple[float, float]]:
     """``theta + α step`` with the largest α in 1, ½, ¼, … whose objective at ``lam`` is below that at ``theta``
-    (``theta`` itself if none is), and the relative decrease of the objective."""
-    def phi(t):
-        chi2, reg = run.terms(t, lam)
-        return chi2 * run.m_total + lam * reg * reg
+    (``theta`` itself if none is), the relative decrease of the objective, and ``run.terms`` there."""
+    def phi(terms):
+        return terms[0] * run.m_total + lam * terms[1] ** 2
 
-    phi0 = phi(theta)
+    at0 = run.terms(theta, lam)
     alpha = 1.0
     for _ in range(halvings):
         trial = np.clip(theta + alpha * step, -30.0, 30.0)
-        phi1 = phi(trial)
-        if phi1 < phi0:
-            return trial, (phi0 - phi1) / max(phi0, 1e-300)
+        at = run.terms(trial, lam)
+        if phi(at) < phi(at0):
+            return trial, (phi(at0) - phi(at)) / max(phi(at0), 1e-300), at
         alpha *= 0.5
-    return theta, 0.0
+    return theta, 0.0, at0
 
 
 def _illinois(solve: Any, g: Any, lo: Eval, hi: Eval, tol: float) -> tuple[Eval, float, float]:
@@ -839,8 +837,8 @@ class Discrepancy(LambdaRule):
         """``(eval, target, note, search)``: the solve chosen, the target ``χ²/m``, what the search did and
         which search chose it (``"projected"`` or ``"root"``)."""
         estimate = self.noise_scale == "estimated"
+        # (a fit whose linearization() is None makes the projected search give way at once)
         projected = (self.search == "projected" and first is None and hasattr(path, "linearization")
-                     and path.linearization(theta0, lam_ref) is not None
                      and (not estimate or path.m_total > path.n_unknowns))
         if projected:
             n_before = len(path.evals)

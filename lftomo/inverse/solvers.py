@@ -817,8 +817,7 @@ def solve_temperature(
     penalize : {"temperature", "intensity"}, keyword-only
         Whether the prior acts on ``T / T_s`` or on ``I_b(T) / I_s``.
     T_ref : float, optional, keyword-only
-        Reference temperature (K) for the radiance scale ``I_s``; default the
-        middle of the bounds.
+        Reference temperature (K) for the radiance scale ``I_s``; default the middle of the bounds.
     tv_eps : float, keyword-only
         TV smoothing ε (> 0), dimensionless (differences of ``T/T_s``).
     discrepancy_safety : float, keyword-only
@@ -847,9 +846,7 @@ def solve_temperature(
         the search needs χ²/m to about this precision, not the final
         tolerances.
     discrepancy_search : {"projected", "root"}, keyword-only
-        How ``rule="discrepancy"`` searches λ (:class:`~lftomo.inverse.lambdarules.Discrepancy`'s
-        ``search``): on projected linearisations as the iterate converges, or by a root search
-        over converged solves.
+        How ``rule="discrepancy"`` searches λ (:class:`~lftomo.inverse.lambdarules.Discrepancy`'s ``search``).
     subvoxel_search : {"surrogate", "full"}, keyword-only
         With sub-voxel emission (``problem.interpolation``) and
         ``regularization="auto"``: ``"surrogate"`` runs the λ rule on the
