@@ -443,7 +443,9 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
     mode 1: W (``out_val``) and its directional derivative along ``direction``
     (``out_val2``) on the pattern of crossed voxels, ``out_sig`` = background;
     mode 2: ``out_val`` = Jacobian ``∂signal/∂σ_a`` for ``I_b = direction``,
-    ``out_sig`` = signal (pattern: crossed voxels).
+    ``out_sig`` = signal (pattern: crossed voxels);
+    mode 3: mode 2 and W (``out_val2``, same pattern) from the same walk;
+    mode 4: ``out_sig`` = signal for ``I_b = direction`` only (nothing stored).
     """
     n = out_cnt.shape[0]
     for k in prange(n):
@@ -456,7 +458,16 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
             wn = ray_w[ray] * inv_n
             a = ray_ptr[ray]
             b = ray_ptr[ray + 1]
-            if mode == 2:
+            if mode == 4:
+                T = 1.0
+                for s in range(a, b):
+                    j = seg_vox[s]
+                    em = -math.expm1(-sigma_a[j] * seg_len[s])
+                    sig += wn * T * em * direction[j]
+                    T -= T * em
+                sig += wn * T * ray_L[ray]
+                continue
+            if mode >= 2:
                 # forward: total optical depth; backward: radiance behind each voxel
                 tau_tot = 0.0
                 for s in range(a, b):
@@ -470,7 +481,8 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
                     tj = sigma_a[j] * ell
                     em = -math.expm1(-tj)
                     T_le = math.exp(-(tau_tot - tau_after))  # transmittance to the back face of j
-                    sig += wn * math.exp(-(tau_tot - tau_after - tj)) * em * direction[j]
+                    w_j = wn * math.exp(-(tau_tot - tau_after - tj)) * em  # W entry: in front of j × emissivity
+                    sig += w_j * direction[j]
                     val = wn * ell * T_le * (direction[j] - Lb)
                     Lb = Lb + em * (direction[j] - Lb)  # radiance at the front face of j
                     tau_after += tj
@@ -479,9 +491,13 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
                         p[j] = cnt
                         out_idx[o + cnt] = j
                         out_val[o + cnt] = val
+                        if mode == 3:
+                            out_val2[o + cnt] = w_j
                         cnt += 1
                     else:
                         out_val[o + q] += val
+                        if mode == 3:
+                            out_val2[o + q] += w_j
                 continue
             T = 1.0
             D = 0.0  # Σ_{k<j} direction_k ℓ_k
@@ -510,7 +526,7 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
                     if mode == 1:
                         out_val2[o + q] += val2
             sig += wn * T * ray_L[ray]
-        if cnt > 1 and mode == 1:
+        if cnt > 1 and (mode == 1 or mode == 3):
             order = np.argsort(out_idx[o:o + cnt])
             si = out_idx[o:o + cnt][order]
             sv = out_val[o:o + cnt][order]
@@ -1689,7 +1705,10 @@ class RaySegments:
         seg_per_row = self.ray_ptr[self.row_ray_ptr[1:]] - self.ray_ptr[self.row_ray_ptr[:-1]]
         bound = int(seg_per_row.sum())
         limit = _memory_limit(memory_limit)
-        est = bound * (8 + 4 + (8 if mode == 1 else 0)) + n_rows * 32
+        two = mode in (1, 3)  # a second value array
+        if mode == 4:
+            bound = 0  # the signal only: nothing stored
+        est = bound * (8 + 4 + (8 if two else 0)) + n_rows * 32
         if est > limit:
             raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
                              f"memory_limit = {limit / 1e9:.3g} GB")
@@ -1697,7 +1716,7 @@ class RaySegments:
         inv_n = 1.0 / self.rays_per_pixel
         idx_all = np.empty(max(bound, 1), np.int32)
         val_all = np.empty(max(bound, 1))
-        val2_all = np.empty(max(bound, 1)) if mode == 1 else np.empty(1)
+        val2_all = np.empty(max(bound, 1)) if two else np.empty(1)
         indptr = np.zeros(n_rows + 1, np.int64)
         sig = np.zeros(n_rows)
         # rows in chunks with a bounded scratch buffer
@@ -1711,7 +1730,7 @@ class RaySegments:
         size = max(int(max((cum[b] - cum[a] for a, b in zip(bounds[:-1], bounds[1:])), default=1)), 1)
         oi = np.empty(size, np.int32)  # scratch reused by every chunk
         ov = np.empty(size)
-        ov2 = np.empty(size) if mode == 1 else np.empty(1)
+        ov2 = np.empty(size) if two else np.empty(1)
         nnz = 0
         for r0, r1 in zip(bounds[:-1], bounds[1:]):
             buf_off = (cum[r0:r1 + 1] - cum[r0]).astype(np.int64)
@@ -1721,14 +1740,14 @@ class RaySegments:
                            self.length, inv_n, sa, dvec, mode, buf_off, oi, ov, ov2, oc, os_, pos)
             dest = nnz + np.concatenate([[0], np.cumsum(oc)[:-1]]).astype(np.int64)
             _compact(buf_off, oc, dest, oi, ov, idx_all, val_all)
-            if mode == 1:
+            if two:
                 _compact_values(buf_off, oc, dest, ov2, val2_all)
             indptr[r0 + 1:r1 + 1] = nnz + np.cumsum(oc)
             nnz += int(oc.sum())
             sig[r0:r1] = os_
-        for a in (idx_all, val_all) + ((val2_all,) if mode == 1 else ()):
+        for a in (idx_all, val_all) + ((val2_all,) if two else ()):
             a.resize(max(nnz, 0), refcheck=False)  # shrink in place
-        return idx_all, val_all, (val2_all if mode == 1 else None), indptr, sig, sa
+        return idx_all, val_all, (val2_all if two else None), indptr, sig, sa
 
     def row_std_error(self, sigma_a) -> np.ndarray | None:
         """``row_std_error`` (n_rows,) m² sr of ``W(sigma_a)`` (see :class:`WeightMatrix`), or None
@@ -1830,9 +1849,27 @@ class RaySegments:
         idx, val, _, indptr, sig, _ = self._run(sigma_a, ib, 2, memory_limit)
         return sig, sp.csr_matrix((val, idx, indptr), shape=(self.n_rows, self.n_voxels))
 
+    def linearized(self, Ib, sigma_a, *, memory_limit: float | None = None):
+        """Signal, its Jacobian with respect to ``sigma_a`` (:meth:`jacobian`) and ``W(sigma_a)`` from one walk.
+
+        Returns
+        -------
+        signal : ndarray, shape (n_rows,)
+        J : scipy.sparse.csr_matrix, shape (n_rows, n_vox)
+            Signal per m⁻¹.
+        W : scipy.sparse.csr_matrix, shape (n_rows, n_vox)
+            m² sr: the weight matrix's entries (on the pattern of crossed
+            voxels; the same values as :meth:`weights`' to rounding).
+        """
+        ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
+        idx, val, val2, indptr, sig, _ = self._run(sigma_a, ib, 3, memory_limit)
+        shape = (self.n_rows, self.n_voxels)
+        return sig, sp.csr_matrix((val, idx, indptr), shape=shape), sp.csr_matrix((val2, idx, indptr), shape=shape)
+
     def forward(self, Ib, sigma_a) -> np.ndarray:
         """Signal (n_rows,) for ``Ib`` and ``sigma_a`` (numpy, exact): ``W(σ) @ Ib + background(σ)``."""
-        return self.jacobian(Ib, sigma_a)[0]
+        ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
+        return self._run(sigma_a, ib, 4)[4]
 
     @cached_property
     def _jax(self):

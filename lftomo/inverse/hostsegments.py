@@ -60,10 +60,9 @@ class _Point:
     __slots__ = ("J", "JT", "W", "WT", "signal")
 
     def __init__(self, segments, Ib: np.ndarray, sa: np.ndarray):
-        W = segments.weights(sa)
-        signal, J = segments.jacobian(Ib, sa)
+        signal, J, W = segments.linearized(Ib, sa)
         self.signal = np.asarray(signal, dtype=np.float64)
-        self.W = sp.csr_matrix(W.matrix, dtype=np.float64)
+        self.W = sp.csr_matrix(W, dtype=np.float64)
         self.J = sp.csr_matrix(J, dtype=np.float64)
         self.WT = self.W.T.tocsr()
         self.JT = self.J.T.tocsr()

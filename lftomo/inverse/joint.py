@@ -35,7 +35,12 @@ before Planck's law and the transmittance, ``T_q = E T``, ``σ_q = E σ_ref``
 λ rule (``regularization="auto"``; the searches live in
 :mod:`lftomo.inverse.lambdarules`): ``rule="discrepancy-bracket"`` (default;
 ``"discrepancy"`` is its deprecated name), the discrepancy principle (Morozov),
-the largest λ with ``χ²/m ≤ 1``: bracketed by
+the largest λ with ``χ²/m ≤ 1``.  With ``discrepancy_search="projected"``
+(default) and the dense solver, λ is chosen on the exact dense linearisation
+at each Gauss–Newton iterate, then one solve at that λ
+(:func:`~lftomo.inverse.lambdarules.projected_bracket_search`, the T-only
+fit's projected search); with ``"bracket"``, the matrix-free solvers, or where
+the projected search does not meet the target: bracketed by
 factors of 10 from λ = 10⁻² up to 10⁴ (each solve warm-started from the
 nearest λ solved), refined by two bisections in log λ.  ``rule="lcurve"``:
 the corner (largest curvature) of the L-curve of the solves at λ = 10⁻² … 10⁴.
@@ -180,8 +185,10 @@ from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
 from .hostsparse import projected_normal_equations
 from .problem import LinearProblem, taken_by_camera_of
+from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
-from .lambdarules import NOISE_SCALES, DiscrepancyBracket, Eval, LCurveDecades, resolve_rule
+from .lambdarules import (BRACKET_SEARCHES, NOISE_SCALES, PROJECTED_STEP, DiscrepancyBracket, Eval, LCurveDecades,
+                          resolve_rule)
 from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
 from .rigsegments import SegmentStack, rows_of_pixels
@@ -315,7 +322,7 @@ def _sized_defaults(model, method: str, noise_scale_arg, noise_scale: str, rule_
         if noise_scale_arg is not None:
             raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data "
                              f"for {n_unknowns} unknowns")
-        noise_scale, rule_obj = "given", DiscrepancyBracket("given")
+        noise_scale, rule_obj = "given", DiscrepancyBracket("given", search=rule_obj.search)
     return method, noise_scale, rule_obj
 
 
@@ -471,7 +478,6 @@ class JointModel:
         self.prior = prior
         self.L_sp = prior.operator(self.grid if ring is None else ring)
         self.L = to_bcoo(self.L_sp)
-        self.colsq_L = np.asarray(self.L_sp.multiply(self.L_sp).sum(axis=0)).ravel()
         self.whiten = [sp.diags((r >= 0) / np.asarray(m.sigma, float)) for m, r in zip(ms, self.rows)]
         if engine == "host":
             from .hostsegments import host_forward
@@ -528,27 +534,47 @@ class JointModel:
         r = self.fns["residual_jit"](jnp.asarray(pv), self.jax_args(lam))
         return float(jnp.sum(r * r)), float(jnp.sum(r[: self.m_total] ** 2))
 
-    def column_scale(self, pv, lam) -> np.ndarray:
-        """Jacobi scaling, as in the T-only solver: ``D = 1/‖column of the whitened Jacobian and prior‖`` at
-        ``pv`` (exact sparse Jacobians of the segment table).  Without it the Levenberg–Marquardt damping
-        treats log-odds of T and of σ_a alike while their columns differ by orders of magnitude."""
+    def data_jacobian(self, pv) -> tuple[np.ndarray, sp.csr_matrix]:
+        """The whitened data residual of every channel (m,) and its exact sparse Jacobian in the log-odds
+        ``pv`` (m × 2 n_u): ``∂F/∂T = W(σ) diag(I_b'(T))`` and ``∂F/∂σ`` of the segment table, through ``E P``
+        and the sigmoids."""
         n_u, lo, hi, space = self.n_u, self.lo, self.hi, self.space
         sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
         T, sref = lo + (hi - lo) * sg, space.sigma_of_unit(sr)
         dT, ds = (hi - lo) * sg * (1.0 - sg), space.dsigma_du(sref) * sr * (1.0 - sr)
         Tv, sv = (T, sref) if self.to_seg is None else (self.to_seg @ T, self.to_seg @ sref)
-        c2 = np.zeros(2 * n_u)
+        res, blocks = [], []
         for c in range(len(self.ms)):
             sa_c = sv * self.factors[c]
-            # ∂F/∂T_unknown = W(σ) diag(I_b'(T_seg)) (E) P: exact, also through the interpolation
-            Wc = self.per_unknown(self.whiten[c] @ sp.csr_matrix(self.segments.weights(sa_c).matrix)[self.rows_np[c]]
-                                  @ sp.diags(dblackbody_dT(Tv, self.wls[c])))
-            dF_ds = sp.csr_matrix(self.segments.jacobian(blackbody(Tv, self.wls[c]), sa_c)[1])
-            Jc = self.per_unknown(self.whiten[c] @ dF_ds[self.rows_np[c]])
-            c2[:n_u] += np.asarray(Wc.multiply(Wc).sum(axis=0)).ravel() * dT ** 2
-            c2[n_u:] += np.asarray(Jc.multiply(Jc).sum(axis=0)).ravel() * (self.factors[c] * ds) ** 2
-        c2[:n_u] += lam * self.colsq_L * (dT / (hi - lo)) ** 2
-        c2[n_u:] += lam * (self.colsq_L + self.ridge) * (space.b_prior * sr * (1.0 - sr)) ** 2
+            rows, w = self.rows_np[c], self.whiten[c]
+            signal, dF_ds, W = self.segments.linearized(blackbody(Tv, self.wls[c]), sa_c)
+            W = W[rows]
+            model = np.where(self.rows[c] >= 0, signal[rows], 0.0)
+            res.append((model - np.asarray(self.ms[c].y, float)) / np.asarray(self.ms[c].sigma, float))
+            Wc = self.per_unknown(w @ W @ sp.diags(dblackbody_dT(Tv, self.wls[c])))
+            Jc = self.per_unknown(w @ sp.csr_matrix(dF_ds)[rows])
+            blocks.append(sp.hstack([Wc @ sp.diags(dT), Jc @ sp.diags(self.factors[c] * ds)]))
+        return np.concatenate(res), sp.vstack(blocks).tocsr()
+
+    def prior_jacobian(self, pv) -> tuple[np.ndarray, sp.csr_matrix]:
+        """The prior residual (without √λ: T smoothness, σ smoothness, σ ridge) and its Jacobian in ``pv``."""
+        n_u, L = self.n_u, self.L_sp
+        sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
+        b = self.space.b_prior
+        q = b * sr  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
+        r = np.concatenate([L @ sg, L @ q, math.sqrt(self.ridge) * q])
+        dq = sp.diags(b * sr * (1.0 - sr))
+        zero = sp.csr_matrix((L.shape[0], n_u))
+        J = sp.bmat([[L @ sp.diags(sg * (1.0 - sg)), zero], [zero, L @ dq],
+                     [sp.csr_matrix((n_u, n_u)), math.sqrt(self.ridge) * dq]]).tocsr()
+        return r, J
+
+    def column_scale(self, pv, lam) -> np.ndarray:
+        """Jacobi scaling, as in the T-only solver: ``D = 1/‖column of the whitened Jacobian and prior‖`` at
+        ``pv`` (exact sparse Jacobians of the segment table).  Without it the Levenberg–Marquardt damping
+        treats log-odds of T and of σ_a alike while their columns differ by orders of magnitude."""
+        Jd, Jr = self.data_jacobian(pv)[1], self.prior_jacobian(pv)[1]
+        c2 = np.asarray(Jd.multiply(Jd).sum(axis=0)).ravel() + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel()
         return jacobi_scale(c2)
 
     def fields(self, theta):
@@ -566,10 +592,16 @@ class _JointPath:
         self.bar = NoBar()
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None) -> Eval:
-        """Solve at ``lam`` from ``start`` and record it on the λ path."""
-        e = self.run(start, lam)
+        """Solve at ``lam`` from ``start`` and record it on the λ path (``objective_rtol``: also stop, converged,
+        when the objective changes by less than that fraction over 10 steps)."""
+        e = self.run(start, lam, max_steps, objective_rtol=objective_rtol)
         self.evals.append(e)
         return e
+
+    def terms(self, theta, lam) -> tuple[float, float]:
+        """``(χ²/m, ‖R‖)`` at the log-odds ``theta`` (no solve)."""
+        pv = np.asarray(theta, np.float64)
+        return self.model.objective(pv, lam)[1] / self.m_total, self.model.penalty_norm(pv)
 
 
 class MatrixFreePath(_JointPath):
@@ -581,10 +613,11 @@ class MatrixFreePath(_JointPath):
         self.solver = nonlinear_solver(method, rtol, atol, linear_rtol, linear_max_steps)
         self.rtol = rtol
 
-    def run(self, p0, lam, steps_max=None) -> Eval:
+    def run(self, p0, lam, steps_max=None, objective_rtol=None) -> Eval:
         """One solve at ``λ`` from ``p0``: up to ``steps_max`` Jacobi-scaled optimistix steps in chunks
         (:func:`~lftomo.inverse.lsq.scaled_chunks`), stopped when the objective changes by less than
-        ``max(rtol, _OBJECTIVE_RTOL)`` over a chunk."""
+        ``max(rtol, _OBJECTIVE_RTOL)`` (or ``objective_rtol``) over a chunk."""
+        stop_rtol = max(self.rtol, _OBJECTIVE_RTOL) if objective_rtol is None else objective_rtol
         model, bar = self.model, self.bar
         steps_max = self.max_steps if steps_max is None else steps_max
         pv = np.asarray(p0, dtype=np.float64)
@@ -599,7 +632,7 @@ class MatrixFreePath(_JointPath):
             pv = new
             obj, data_sq = model.objective(pv, lam)
             bar.set_postfix_str(f"λ={lam:.3g} χ²/m={data_sq / model.m_total:.4g}")
-            if res == optx.RESULTS.successful or abs(obj_prev - obj) <= max(self.rtol, _OBJECTIVE_RTOL) * obj:
+            if res == optx.RESULTS.successful or abs(obj_prev - obj) <= stop_rtol * obj:
                 result = optx.RESULTS.successful
                 break
             if res != optx.RESULTS.nonlinear_max_steps_reached:
@@ -608,6 +641,19 @@ class MatrixFreePath(_JointPath):
             obj_prev = obj
         return Eval(lam, pv, data_sq / model.m_total, model.penalty_norm(pv), steps,
                     bool(result == optx.RESULTS.successful), "")
+
+    def linearization(self, theta, lam) -> Linearization:
+        """The fit linearised at the log-odds ``theta``: the exact sparse Jacobians of data and prior
+        (:meth:`JointModel.data_jacobian`, :meth:`JointModel.prior_jacobian`), Jacobi-scaled at ``lam``."""
+        pv = np.asarray(theta, np.float64)
+        rd, Jd = self.model.data_jacobian(pv)
+        rr, Jr = self.model.prior_jacobian(pv)
+        D = jacobi_scale(np.asarray(Jd.multiply(Jd).sum(axis=0)).ravel()
+                         + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel())
+        Jd, Jr = (Jd @ sp.diags(D)).tocsr(), (Jr @ sp.diags(D)).tocsr()
+        Jd_t, Jr_t = Jd.T.tocsr(), Jr.T.tocsr()
+        return Linearization.from_jacobians(rd=rd, rr=rr, jd=Jd.dot, jd_t=Jd_t.dot, jr=Jr.dot, jr_t=Jr_t.dot,
+                                            chi2_offset=0.0, m_total=self.m_total, scale=D)
 
     def fit_dof(self, e: Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
         """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their standard error:
@@ -651,7 +697,7 @@ class DenseLMPath(_JointPath):
         self.data_inv_s = [1.0 / np.asarray(m.sigma, float) for m in model.ms]
         self.valid_np = [r >= 0 for r in model.rows]
         self.row_weight = [w.diagonal() for w in model.whiten]  # valid/σ per datum
-        self.sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ): the last trial point's pass
+        self.sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ or None, W or None): the last point
         self.to_seg_csr = None if model.to_seg is None else sp.csr_matrix(model.to_seg)
         self._prior_gram = None
 
@@ -663,22 +709,26 @@ class DenseLMPath(_JointPath):
         M.data *= column_scale[M.indices] if np.ndim(column_scale) else column_scale
         return M
 
-    def _signal(self, c, Ib, sa_c):
-        """The channel's signal and ``∂F/∂σ`` at ``(I_b, σ)``, cached for the last point evaluated."""
+    def _signal(self, c, Ib, sa_c, with_jacobian):
+        """The channel's signal at ``(I_b, σ)`` and, with ``with_jacobian``, ``∂F/∂σ`` and ``W(σ)`` (one walk
+        of the segment table: :meth:`~lftomo.RaySegments.linearized`); cached for the last point evaluated."""
         key = hashlib.blake2b(Ib.tobytes() + sa_c.tobytes(), digest_size=16).digest()
         hit = self.sig_cache.get(c)
-        if hit is not None and hit[0] == key:
-            return hit[1], hit[2]
-        signal, dF_ds = self.model.segments.jacobian(Ib, sa_c)
-        self.sig_cache[c] = (key, signal, dF_ds)
-        return signal, dF_ds
+        if hit is not None and hit[0] == key and (hit[2] is not None or not with_jacobian):
+            return hit[1:]
+        if with_jacobian:
+            entry = (key, *self.model.segments.linearized(Ib, sa_c))
+        else:
+            entry = (key, self.model.segments.forward(Ib, sa_c), None, None)
+        self.sig_cache[c] = entry
+        return entry[1:]
 
     def evaluate(self, x, lam, with_jacobian):
         """``F``, its data part and, on request, ``G = JᵀJ``, ``g = Jᵀr`` at ``x = [(T − T_min)/(T_max − T_min),
         u]`` (the unit box, ``σ_ref = sigma_of_unit(u)``; exact sparse Jacobians of the segment table, projected
         on the unknowns)."""
         md = self.model
-        n_u, lo, hi, L_sp, ridge, b_prior = md.n_u, md.lo, md.hi, md.L_sp, md.ridge, md.space.b_prior
+        n_u, lo, hi = md.n_u, md.lo, md.hi
         T, sref = lo + (hi - lo) * x[:n_u], md.space.sigma_of_unit(x[n_u:])  # ∂T/∂x = T_max − T_min
         Tv, sv = (T, sref) if md.to_seg is None else (md.to_seg @ T, md.to_seg @ sref)
         data_sq = 0.0
@@ -687,20 +737,18 @@ class DenseLMPath(_JointPath):
             g = np.zeros(2 * n_u)
         for c in range(len(md.ms)):
             sa_c = sv * md.factors[c]
-            signal, dF_ds = self._signal(c, blackbody(Tv, md.wls[c]), sa_c)
+            signal, dF_ds, W = self._signal(c, blackbody(Tv, md.wls[c]), sa_c, with_jacobian)
             res = (np.where(self.valid_np[c], signal[md.rows_np[c]], 0.0) - self.data_y[c]) * self.data_inv_s[c]
             data_sq += float(res @ res)
             if with_jacobian:
                 # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ_ref, summed per
                 # unknown (E P) inside the normal-equations kernel; ∂σ_ref/∂u is applied below
-                Wc = self.data_rows(md.segments.weights(sa_c).matrix, c, dblackbody_dT(Tv, md.wls[c]) * (hi - lo))
+                Wc = self.data_rows(W, c, dblackbody_dT(Tv, md.wls[c]) * (hi - lo))
                 Jc = self.data_rows(dF_ds, c, md.factors[c])
                 Gc, gc = projected_normal_equations(Wc, Jc, self.to_seg_csr, res)
                 G += Gc
                 g += gc
-        q = b_prior * x[n_u:]  # σ_ref / scale, or ln(σ_ref / σ_min) / scale; T's prior term is x itself
-        rT, rs = L_sp @ ((T - lo) / (hi - lo)), L_sp @ q
-        prior_sq = float(rT @ rT + rs @ rs + ridge * np.sum(q * q))
+        prior_sq, g_prior = self.prior_terms(x)
         F = data_sq + lam * prior_sq
         if not with_jacobian:
             return F, data_sq
@@ -709,9 +757,36 @@ class DenseLMPath(_JointPath):
         G[n_u:, :] *= d[:, None]
         g[n_u:] *= d
         G += lam * self.prior_gram()
-        g[:n_u] += lam * (L_sp.T @ rT)
-        g[n_u:] += lam * b_prior * (L_sp.T @ rs + ridge * q)
+        g += lam * g_prior
         return F, data_sq, G, g
+
+    def prior_terms(self, x) -> tuple[float, np.ndarray]:
+        """``‖R‖²`` of the prior at the unit-box point ``x`` and its gradient half ``J_Rᵀ R`` (per unit λ)."""
+        md = self.model
+        n_u, L_sp, ridge, b_prior = md.n_u, md.L_sp, md.ridge, md.space.b_prior
+        q = b_prior * x[n_u:]  # σ_ref / scale, or ln(σ_ref / σ_min) / scale; T's prior term is x itself
+        rT, rs = L_sp @ x[:n_u], L_sp @ q
+        prior_sq = float(rT @ rT + rs @ rs + ridge * np.sum(q * q))
+        return prior_sq, np.concatenate([L_sp.T @ rT, b_prior * (L_sp.T @ rs + ridge * q)])
+
+    def terms(self, theta, lam) -> tuple[float, float]:
+        """``(χ²/m, ‖R‖)`` at the log-odds ``theta`` (no solve)."""
+        x = 1.0 / (1.0 + np.exp(-np.asarray(theta, np.float64)))
+        _, data_sq = self.evaluate(x, lam, False)
+        return data_sq / self.m_total, math.sqrt(self.prior_terms(x)[0])
+
+    def linearization(self, theta, lam) -> Linearization:
+        """The fit linearised at the log-odds ``theta``: its exact dense Gauss–Newton matrices in ``θ``
+        (``∂x/∂θ = x(1 − x)``), Jacobi-scaled at ``lam``."""
+        x = 1.0 / (1.0 + np.exp(-np.asarray(theta, np.float64)))
+        _, data_sq, Gd, gd = self.evaluate(x, 0.0, True)  # λ = 0: the data part alone
+        prior_sq, gr = self.prior_terms(x)
+        Gr = self.prior_gram()
+        dx = x * (1.0 - x)
+        D = jacobi_scale(dx * dx * (np.diag(Gd) + lam * np.diag(Gr)))
+        w = dx * D
+        return Linearization.from_gram(Gd=w[:, None] * Gd * w, gd=w * gd, data_sq=data_sq, Gr=w[:, None] * Gr * w,
+                                       gr=w * gr, prior_sq=prior_sq, m_total=self.m_total, scale=D)
 
     def prior_gram(self):
         """The prior's Gauss–Newton matrix per unit λ in the unit-box unknowns (constant: the prior is
@@ -736,9 +811,10 @@ class DenseLMPath(_JointPath):
         M = sla.cho_solve(sla.cho_factor(C, check_finite=False), G_d[np.ix_(free, free)], check_finite=False)
         return float(2.0 * np.trace(M) - np.sum(M * M.T)), 0.0
 
-    def run(self, p0, lam, steps_max=None) -> Eval:
+    def run(self, p0, lam, steps_max=None, objective_rtol=None) -> Eval:
         """One solve at ``λ`` from ``p0`` in the unit box of ``(T, σ_ref)``; the result is returned in the
-        log-odds of the other methods."""
+        log-odds of the other methods.  ``objective_rtol``: also converged when 10 accepted steps together
+        reduce the objective by less than that fraction (default 1e-6)."""
         bar, m_total = self.bar, self.m_total
         steps_max = self.max_steps if steps_max is None else steps_max
 
@@ -749,6 +825,7 @@ class DenseLMPath(_JointPath):
         x0 = 1.0 / (1.0 + np.exp(-np.asarray(p0, np.float64)))
         res = levenberg_marquardt_dense(lambda x, jac: self.evaluate(x, lam, jac), x0, lower=np.zeros(x0.size),
                                         upper=np.ones(x0.size), max_steps=steps_max, ftol=self.FTOL,
+                                        slow_rtol=1e-6 if objective_rtol is None else objective_rtol,
                                         on_step=on_step)
         xc = np.clip(res.p, 1e-15, 1.0 - 1e-15)
         pv = np.log(xc) - np.log1p(-xc)
@@ -831,7 +908,7 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
 
 
 def _check_options(*, method, engine, rule, noise_scale, regularization, bounds, lambda_max, polish_steps,
-                   max_steps, linear_max_steps):
+                   max_steps, linear_max_steps, search):
     """Checked ``(rule object, noise_scale, (T_min, T_max), λ_max)`` of the joint fit's options."""
     if engine not in ("host", "jax"):
         raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
@@ -843,7 +920,8 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
         raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only "
                          f"(the joint fit's 'discrepancy-bracket'), got regularization={regularization!r}, "
                          f"rule={rule!r}")
-    rule_obj = DiscrepancyBracket(noise_scale) if rule_cls is DiscrepancyBracket else rule_cls()
+    search = require_choice("discrepancy_search", search, BRACKET_SEARCHES)
+    rule_obj = DiscrepancyBracket(noise_scale, search=search) if rule_cls is DiscrepancyBracket else rule_cls()
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
@@ -882,6 +960,7 @@ def solve_temperature_absorption(
     engine: str = "host",
     rule: str = "discrepancy-bracket",
     noise_scale: str | None = None,
+    discrepancy_search: str = "projected",
     symmetry: Any = None,
     grid: Grid | None = None,
     start: Reconstruction | None = None,
@@ -942,6 +1021,9 @@ def solve_temperature_absorption(
         Discrepancy target χ²/m = 1 (σ calibrated) or the estimated ``s²`` (σ
         known up to a common factor; the default where the discrepancy search
         runs; module docstring, *Options*).
+    discrepancy_search : {"projected", "bracket"}
+        How the discrepancy rule searches λ
+        (:class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`).
     engine : {"host", "jax"}
         Forward model and exact derivatives from host sparse Jacobians
         (default) or JAX autodiff of :meth:`lftomo.RaySegments.forward_jax`
@@ -969,7 +1051,9 @@ def solve_temperature_absorption(
         ``sigma_a`` is the field at the first wavelength.  With
         ``regularization="auto"``, ``details["lambda_path"]`` lists
         ``(λ, χ²/m, ‖R‖)`` of every solve of the search (in the order solved),
-        ``details["method"]`` the solver used,
+        ``details["lambda_path_steps"]`` their steps, ``["lambda_path_search"]``
+        which of them are the projected search's inexact solves (not
+        converged at their λ), ``details["method"]`` the solver used,
         and ``details["lambda_path_T"]`` / ``["lambda_path_sigma_a"]`` their
         fields on ``grid`` (for an L-curve, or to pick another λ).
     """
@@ -982,7 +1066,7 @@ def solve_temperature_absorption(
     rule_obj, noise_scale_checked, bounds, lam_max = _check_options(
         method=method, engine=engine, rule=rule, noise_scale=noise_scale, regularization=regularization,
         bounds=bounds, lambda_max=lambda_max, polish_steps=polish_steps, max_steps=max_steps,
-        linear_max_steps=linear_max_steps)
+        linear_max_steps=linear_max_steps, search=discrepancy_search)
     space, ridge = _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge)
     model = JointModel(ms, wls, segments, rows, grid=grid, symmetry=symmetry, prior=prior, bounds=bounds, alpha=alpha,
                        space=space, ridge=ridge, engine=engine)
@@ -1044,6 +1128,8 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
         unknowns="T+sigma_a",
         data_kind="subaperture",
         details={"lambda_path": [(e.lam, e.chi2, e.reg) for e in path.evals],
+                 "lambda_path_steps": [e.steps for e in path.evals],
+                 "lambda_path_search": [e.message == PROJECTED_STEP for e in path.evals],
                  "lambda_path_T": [f[0] for f in path_fields], "lambda_path_sigma_a": [f[1] for f in path_fields],
                  "wavelengths": model.wls, "alpha": alpha, "start": start_label,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape),

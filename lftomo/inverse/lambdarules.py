@@ -9,17 +9,21 @@ which rules their paths support.
 
 Rules (:data:`RULE_CLASSES`; the string names select them):
 
-* :class:`Discrepancy` (``"discrepancy"``): Morozov's principle as a root
-  search, the λ with ``χ²/m = target`` (factor-10 bracket, Illinois regula
-  falsi), target 1 + safety with the noise scale given, or ``(1 + safety) s²``
-  with it estimated (``s² = χ²/(m − ν)`` of the least-regularized fit).  With
-  the noise scale given and χ²/m below the target at every λ (σ overestimated),
-  the search is redone with the scale estimated.  The T-only fit's rule.
+* :class:`Discrepancy` (``"discrepancy"``): Morozov's principle, the λ with
+  ``χ²/m = target``, target 1 + safety with the noise scale given, or
+  ``(1 + safety) s²`` with it estimated (``s² = χ²/(m − ν)`` of the
+  least-regularized fit).  By default λ is chosen on the fit linearised at
+  each Gauss–Newton iterate (:func:`projected_discrepancy_search`), then one
+  solve; else (or where that does not apply) a root search over converged
+  solves (factor-10 bracket, Illinois regula falsi).  With the noise scale
+  given and χ²/m below the target at every λ (σ overestimated), the root
+  search is redone with the scale estimated.  The T-only fit's rule.
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
-  as "the largest λ with ``χ²/m ≤ target``" on a factor-10 ladder, refined by
-  two bisections in log λ, given or estimated noise scale.  The joint fit's
-  rule, which used to be called ``"discrepancy"`` too (that name still selects
-  it there, with a DeprecationWarning).
+  as "the largest λ with ``χ²/m ≤ target``", given or estimated noise scale:
+  by default the same projected search (:func:`projected_bracket_search`),
+  else a factor-10 ladder of solves refined by two bisections in log λ.  The
+  joint fit's rule, which used to be called ``"discrepancy"`` too (that name
+  still selects it there, with a DeprecationWarning).
 * :class:`GCV` (``"gcv"``): generalised cross-validation of the linearised problem.
 * :class:`LCurve` (``"lcurve"``): the corner of the L-curve of log-spaced solves.
 * :class:`LCurveDecades` (``"lcurve"`` in the joint fit): the corner of the
@@ -57,9 +61,11 @@ __all__ = [
     "LCurveDecades",
     "RULE_CLASSES",
     "NOISE_SCALES",
+    "BRACKET_SEARCHES",
     "DISCREPANCY_SEARCHES",
     "resolve_rule",
     "DISCREPANCY_JUMP",
+    "PROJECTED_STEP",
     "structured_branch",
     "on_lcurve",
     "branch_corner",
@@ -67,6 +73,7 @@ __all__ = [
     "objective",
     "discrepancy_search",
     "estimated_target",
+    "projected_bracket_search",
     "projected_discrepancy_search",
     "discrepancy_choice",
     "discrepancy_local_minimum",
@@ -81,6 +88,9 @@ NOISE_SCALES = ("given", "estimated")
 
 #: How :class:`Discrepancy` searches λ: on projected linearisations, or by a root search over converged solves.
 DISCREPANCY_SEARCHES = ("projected", "root")
+
+#: How :class:`DiscrepancyBracket` searches λ: on projected linearisations, or on a ladder of converged solves.
+BRACKET_SEARCHES = ("projected", "bracket")
 
 
 # --------------------------------------------------------------------------- results
@@ -180,9 +190,24 @@ DISCREPANCY_JUMP = 0.02
 #: The projected discrepancy search treats λ as settled when it changes by less than this fraction.
 LAMBDA_SETTLED = 0.02
 
-#: The message of the Gauss–Newton iterates the projected search records on the solve path (no solves:
-#: the L-curve fallbacks leave them out).
-PROJECTED_STEP = "Gauss–Newton step of the projected discrepancy search"
+#: The joint fit's projected search: its solves stop when 10 steps together change the objective by less than
+#: this fraction (the estimated target's own tolerance, √(2ν)/(m − ν), is 1e-4 to 1e-3 for 10⁴–10⁵ data).
+JOINT_SEARCH_RTOL = 1e-4
+
+#: The joint fit's projected search treats λ as settled within this fraction: 10^(1/8) − 1, half the last
+#: bisection step (a factor 10^(1/4)) of its ladder search, whose resolution it thus matches or betters.
+#: (χ²/m is nearly flat in λ there: 0.2 % over a factor 4 at 12³; a target within the rule's √(2/m) then
+#: asks more of the linearisation's prediction than the nonlinear fit gives.)
+JOINT_LAMBDA_SETTLED = 10.0 ** 0.125 - 1.0
+
+#: The joint fit's projected search takes inexact solves of at most this many steps where the T-only search
+#: takes projected Gauss–Newton steps: in the log-odds of T and σₐ those steps stall (12³ axisymmetric, 650 +
+#: 900 nm: nine steps left ‖R‖ at 2.5 where the solve at the same λ reached 1.2; docs/accuracy.md).
+JOINT_INNER_STEPS = 10
+
+#: The message of the iterates the projected search records on the solve path (Gauss–Newton steps, or
+#: inexact solves: the L-curve fallbacks leave them out).
+PROJECTED_STEP = "iterate of the projected discrepancy search"
 
 
 def structured_branch(path: list) -> list:
@@ -309,7 +334,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
         if m - n_unknowns < 1:
             raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
                              f"{n_unknowns} unknowns")
-        target, tol, scale_note = estimated_target(run, e, safety, tol)
+        target, tol, scale_note, _ = estimated_target(run, e, safety, tol)
     ladder: dict[float, Eval] = {}
     if g(e) < 0:  # too little misfit: increase λ
         lo = e
@@ -386,13 +411,14 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     return best, target, scale_note + note
 
 
-def estimated_target(run: Any, e: Eval, safety: float, tol: float) -> tuple[float, float, str]:
+def estimated_target(run: Any, e: Eval, safety: float, tol: float) -> tuple[float, float, str, dict]:
     """The discrepancy target with the noise scale estimated from the least-regularized fit ``e``.
 
     ``s² = χ²/(m − ν)``, ``ν = tr(2H − H²)`` its residual degrees of freedom
     (``run.fit_dof``); target ``(1 + safety) s²``; the tolerance ``tol``
     tightened to ``√(2ν)/(m − ν)``, the spread of the rise of χ² above that fit.
-    Returns ``(target, tol, note)``.
+    Returns ``(target, tol, note, info)``, ``info`` the estimate's record
+    (``dof``, ``dof_se``, ``dof_lambda``, ``s2``, ``chi2_ref``, ``lambda_ref``).
     """
     m, n_unknowns = run.m_total, run.n_unknowns
     dof, dof_se = run.fit_dof(e)
@@ -402,11 +428,15 @@ def estimated_target(run: Any, e: Eval, safety: float, tol: float) -> tuple[floa
     note = (f"noise scale estimated at λ = {e.lam:.3g}: s² = chi²/(m − ν) = {s2:.4g} (m = {m}, residual "
             f"degrees of freedom used ν = tr(2H − H²) = {dof:.4g} ± {dof_se:.2g} of {n_unknowns} unknowns), "
             f"target chi²/m = {target:.5g}; ")
-    return target, tol, note
+    info = {"dof": dof, "dof_se": dof_se, "dof_lambda": e.lam, "s2": s2, "chi2_ref": e.chi2, "lambda_ref": e.lam}
+    return target, tol, note, info
 
 
 def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float, tol: float, search_rtol: float,
-                                 *, max_gauss_newton: int = 10, max_solves: int = 2) -> tuple[Eval, str] | None:
+                                 *, max_gauss_newton: int = 10, max_solves: int = 2,
+                                 lam_range: tuple[float, float] | None = None,
+                                 require_converged: bool = True, lam_settled: float = LAMBDA_SETTLED,
+                                 inner_steps: int = 0) -> tuple[Eval, str] | None:
     """Morozov's discrepancy principle without a converged solve per candidate λ.
 
     1. Gauss–Newton steps from ``theta0``, each with its own λ: the fit is
@@ -415,23 +445,29 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
        (:meth:`~lftomo.inverse.projected.ProjectedTikhonov.discrepancy_lambda`:
        the projected Tikhonov step's ``χ²/m`` equals ``target``) and the
        projected step taken (halved until the objective at that λ decreases);
-       until λ changes by less than :data:`LAMBDA_SETTLED` between steps and
-       the objective by less than ``search_rtol`` (at most ``max_gauss_newton`` steps).
+       until λ changes by less than ``lam_settled`` (a fraction, default
+       :data:`LAMBDA_SETTLED`) between steps and the objective by less than
+       ``search_rtol`` (at most ``max_gauss_newton`` steps).  With
+       ``inner_steps``, each step is instead an inexact solve at its λ: at
+       most that many of the fit's own steps (``run.solve``), until λ settles
+       and one of them converges (a warm-started λ continuation); where the
+       linearisation cannot reach the target at any λ (far from the fit)
+       the next one keeps its λ.
     2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
        when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
-       linearisation at its solution moves by less than
-       :data:`LAMBDA_SETTLED`; otherwise another solve at that λ (at most
-       ``max_solves``).
+       linearisation at its solution moves by less than ``lam_settled``;
+       otherwise another solve at that λ (at most ``max_solves``).
 
-    λ is searched in ``λ_ref · [1e-10, 1e4]``.  Returns ``(eval, note)``, or
-    None when the fit offers no linearisation, the projected misfit cannot
-    attain the target in that range, or the solves end more than
-    :data:`DISCREPANCY_JUMP` from it (the caller then runs the root search of
-    :func:`discrepancy_search`, which starts from the solves made here).
+    λ is searched in ``lam_range`` (default ``λ_ref · [1e-10, 1e4]``).
+    Returns ``(eval, note)``, or None when the fit offers no linearisation,
+    the projected misfit cannot attain the target in that range, or the
+    solves end more than :data:`DISCREPANCY_JUMP` from it or (with
+    ``require_converged``) unconverged; the caller then runs its search over
+    converged solves (:func:`discrepancy_search`, :func:`bracket_search`).
     """
     from .projected import ProjectedTikhonov
 
-    lam_lo, lam_hi = lam_ref * 1e-10, lam_ref * 1e4
+    lam_lo, lam_hi = (lam_ref * 1e-10, lam_ref * 1e4) if lam_range is None else lam_range
     dims: list[int] = []
 
     def choose(theta, lam):
@@ -441,23 +477,34 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         proj = ProjectedTikhonov(lin)
         lam_new, side = proj.discrepancy_lambda(target, lam_lo, lam_hi, lam)
         dims.append(proj.k)
-        return None if side != 0 else (lam_new, lin, proj)
+        return lam_new, lin, proj, side
 
     def settled(lam_a, lam_b):
-        return abs(math.log(lam_a / lam_b)) <= math.log1p(LAMBDA_SETTLED)
+        return abs(math.log(lam_a / lam_b)) <= math.log1p(lam_settled)
 
     theta, lam = np.asarray(theta0, dtype=np.float64), lam_ref
     for k in range(max_gauss_newton):
         found = choose(theta, lam)
         if found is None:
             return None
-        lam_new, lin, proj = found
-        theta, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
-        bar = getattr(run, "bar", None)
-        if bar is not None:
-            bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
-        run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP))
-        done = k > 0 and settled(lam_new, lam) and decrease <= search_rtol
+        lam_new, lin, proj, side = found
+        if side != 0:
+            if not (inner_steps and side < 0):
+                return None
+            lam_new = lam  # χ²/m above the target at every λ: far from the fit yet, solve on at this λ
+        if inner_steps:
+            # an inexact solve instead of the projected step: a few of the fit's own steps at λ
+            e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
+            e.message = PROJECTED_STEP
+            theta, moved = e.theta, not e.converged
+        else:
+            theta, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
+            bar = getattr(run, "bar", None)
+            if bar is not None:
+                bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
+            run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP))
+            moved = decrease > search_rtol
+        done = k > 0 and settled(lam_new, lam) and not moved
         lam = lam_new
         if done:
             break
@@ -466,17 +513,19 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         e = run.solve(lam, theta, objective_rtol=search_rtol)
         solves += 1
         miss = abs(e.chi2 / target - 1.0)
-        if (e.converged and miss <= tol) or solves >= max_solves:
+        done = e.converged or not require_converged
+        if (done and miss <= tol) or solves >= max_solves:
             break
         found = choose(e.theta, lam)
-        if found is None:
+        if found is None or found[3] != 0:
             return None
-        if settled(found[0], lam) and e.converged:
+        if settled(found[0], lam) and done:
             break
         lam, theta = found[0], e.theta
-    if not e.converged or miss > DISCREPANCY_JUMP:
+    if not (e.converged or not require_converged) or miss > DISCREPANCY_JUMP:
         return None
-    note = (f"projected discrepancy search: {n_gn} Gauss–Newton steps with λ on each projected linearisation, "
+    steps = f"inexact solves (≤ {inner_steps} steps)" if inner_steps else "Gauss–Newton steps"
+    note = (f"projected discrepancy search: {n_gn} {steps} with λ on each projected linearisation, "
             f"{solves} solve(s) (subspace dimensions {', '.join(map(str, dims))}), "
             f"|chi²/m/target − 1| = {miss:.2e}")
     return e, note
@@ -715,6 +764,50 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     return best, note, state["target"], state["scale_info"]
 
 
+def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float,
+                             estimate_scale: bool = False, search_rtol: float = JOINT_SEARCH_RTOL,
+                             max_rounds: int = 2) -> tuple[Eval, str, float, dict | None] | None:
+    """The joint fit's discrepancy target met by :func:`projected_discrepancy_search`, λ in ``[lam_min, lam_max]``.
+
+    Target 1, or (``estimate_scale``) the ``s²`` of a first solve at ``lam_start``
+    (:func:`estimated_target`), from which the search then starts.  As in
+    :func:`bracket_search`, ``s²`` rests on the least ``χ²`` of the solves so
+    far: when a later solve fits better (the first one stopped at its step
+    budget), ``s²`` is estimated again from it and the search resumes from
+    its own result (at most ``max_rounds`` searches).  The final solve need
+    not have converged (the joint solvers stop at their step budget; the
+    fit's polish continues it).  Returns what :func:`bracket_search` returns,
+    or None where the projected search gives way (the solves made here are
+    then dropped from ``path.evals``).
+    """
+    n_before, m = len(path.evals), path.m_total
+    target, scale_info, note = 1.0, None, ""
+    tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
+    start, lam_ref = theta0, lam_start
+    if estimate_scale:
+        first = path.solve(lam_start, theta0, objective_rtol=search_rtol)
+        target, tol, _, scale_info = estimated_target(path, first, 0.0, tol)
+        start = first.theta
+    for _ in range(max_rounds):
+        found = projected_discrepancy_search(path, start, lam_ref, target, tol, search_rtol,
+                                             lam_range=(lam_min, lam_max), require_converged=False,
+                                             lam_settled=JOINT_LAMBDA_SETTLED, inner_steps=JOINT_INNER_STEPS)
+        if found is None:
+            del path.evals[n_before:]
+            return None
+        if scale_info is None:
+            break
+        ref = min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
+        if ref.chi2 >= scale_info["chi2_ref"] * (1.0 - 0.1 * tol):
+            break
+        target = ref.chi2 * m / (m - scale_info["dof"])
+        scale_info.update(s2=target, chi2_ref=ref.chi2, lambda_ref=ref.lam)
+        start, lam_ref = found[0].theta, found[0].lam
+    if scale_info is not None:
+        note = _scale_note(scale_info, m, path.n_unknowns)
+    return found[0], note + found[1], target, scale_info
+
+
 def decade_lcurve_search(path: Any, theta0: Any, *, lam_first: float, lam_max: float) -> tuple[Eval, str]:
     """The L-curve corner of solves at λ = ``lam_first``, 10 ``lam_first``, … below ``lam_max``, then
     ``lam_max`` (warm-started from the nearest λ solved): the corner of the structured branch of the
@@ -849,7 +942,7 @@ class Discrepancy(LambdaRule):
                 # that search reuses if this one gives way)
                 first = path.solve(lam_ref * 1e-2, theta0, self.search_steps, objective_rtol=self.search_rtol)
                 n_before += 1
-                target, tol, scale_note = estimated_target(path, first, self.safety, tol)
+                target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
             found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol)
             if found is not None:
                 return found[0], target, scale_note + found[1], "projected"
@@ -861,7 +954,7 @@ class Discrepancy(LambdaRule):
 
 
 class DiscrepancyBracket(LambdaRule):
-    """Largest λ with ``χ²/m ≤ target`` on a factor-10 ladder and two bisections: :func:`bracket_search`.
+    """The joint fit's discrepancy rule: the largest λ with ``χ²/m ≤ target``.
 
     Parameters
     ----------
@@ -870,22 +963,37 @@ class DiscrepancyBracket(LambdaRule):
         there are more data than unknowns).
     lambda_max : float, optional
         Largest λ the search tries (default the joint fit's, 1e6).
+    search : {"projected", "bracket"}
+        ``"projected"``: λ chosen on the fit's linearisation at each
+        Gauss–Newton iterate, then one solve at that λ
+        (:func:`projected_bracket_search`); where the fit offers no
+        linearisation (the matrix-free solvers) or the search does not meet
+        the target, the bracket search follows.  ``"bracket"``: a factor-10
+        ladder of solves and two bisections (:func:`bracket_search`).
     """
 
     name = "discrepancy-bracket"
     fits = ("T+sigma_a",)
 
-    def __init__(self, noise_scale: str | None = None, lambda_max: float | None = None) -> None:
+    def __init__(self, noise_scale: str | None = None, lambda_max: float | None = None,
+                 search: str = "projected") -> None:
         self.noise_scale = None if noise_scale is None else _noise_scale(noise_scale)
         self.lambda_max = _lambda_max(lambda_max)
+        self.search = require_choice("search", search, BRACKET_SEARCHES)
 
     def keywords(self) -> dict[str, Any]:
         scale = {} if self.noise_scale is None else {"noise_scale": self.noise_scale}
-        return {"rule": self.name, **scale, **_lambda_max_kw(self)}
+        return {"rule": self.name, **scale, **_lambda_max_kw(self), "discrepancy_search": self.search}
 
     def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
+        estimate = self.noise_scale == "estimated"
+        if self.search == "projected" and hasattr(path, "linearization"):
+            found = projected_bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
+                                             estimate_scale=estimate)
+            if found is not None:
+                return found
         return bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
-                              estimate_scale=self.noise_scale == "estimated")
+                              estimate_scale=estimate)
 
 
 class GCV(LambdaRule):

@@ -40,35 +40,72 @@ __all__ = ["Linearization", "ProjectedTikhonov"]
 
 @dataclass(frozen=True, eq=False)
 class Linearization:
-    """A fit linearised at its iterate, as products (matrix-free).
+    """A fit linearised at its iterate, in the form of its normal equations (matrix-free).
+
+    Only ``J_dᵀ r_d``, ``J_rᵀ r_r``, the two squared norms and products with
+    ``J_dᵀJ_d`` and ``J_rᵀJ_r`` enter the Tikhonov step and its misfit, so a fit
+    may give its Jacobians as products (:meth:`from_jacobians`) or its
+    Gauss–Newton matrices (:meth:`from_gram`).
 
     Attributes
     ----------
-    rd : ndarray, shape (m,)
-        Whitened data residual ``r_d`` of the rows the fit holds.
-    rr : ndarray, shape (p,)
-        Prior residual ``r_r`` (dimensionless, without √λ).
-    jd, jd_t : callable
-        ``v ↦ J_d v`` (n → m) and ``u ↦ J_dᵀ u`` (m → n), in the fit's (scaled) unknowns.
-    jr, jr_t : callable
-        ``v ↦ J_r v`` (n → p) and ``w ↦ J_rᵀ w`` (p → n).
-    chi2_offset : float
-        Constant part of ``χ²`` not in ``rd`` (rows no unknown reaches).
+    gd, gr : ndarray, shape (n,)
+        ``J_dᵀ r_d`` and ``J_rᵀ r_r``, in the fit's (scaled) unknowns.
+    data_sq : float
+        ``χ²`` at the iterate (``‖r_d‖²`` plus the rows no unknown reaches), dimensionless.
+    prior_sq : float
+        ``‖r_r‖²`` at the iterate (without λ).
+    normal_d, normal_r : callable
+        ``v ↦ J_dᵀJ_d v`` and ``v ↦ J_rᵀJ_r v`` (n → n).
     m_total : int
         Number of data m (``χ²/m`` is over all of them).
     scale : ndarray, shape (n,)
         Column scale: a step ``z`` in the scaled unknowns changes the fit's unknowns by ``scale · z``.
     """
 
-    rd: np.ndarray
-    rr: np.ndarray
-    jd: Callable[[np.ndarray], np.ndarray]
-    jd_t: Callable[[np.ndarray], np.ndarray]
-    jr: Callable[[np.ndarray], np.ndarray]
-    jr_t: Callable[[np.ndarray], np.ndarray]
-    chi2_offset: float
+    gd: np.ndarray
+    gr: np.ndarray
+    data_sq: float
+    prior_sq: float
+    normal_d: Callable[[np.ndarray], np.ndarray]
+    normal_r: Callable[[np.ndarray], np.ndarray]
     m_total: int
     scale: np.ndarray
+
+    @classmethod
+    def from_jacobians(cls, *, rd, rr, jd, jd_t, jr, jr_t, chi2_offset: float, m_total: int,
+                       scale) -> "Linearization":
+        """From the residuals and Jacobian products.
+
+        Parameters
+        ----------
+        rd : ndarray, shape (m_rows,)
+            Whitened data residual ``r_d`` of the rows the fit holds.
+        rr : ndarray, shape (p,)
+            Prior residual ``r_r`` (dimensionless, without √λ).
+        jd, jd_t : callable
+            ``v ↦ J_d v`` (n → m_rows) and ``u ↦ J_dᵀ u`` (m_rows → n), in the scaled unknowns.
+        jr, jr_t : callable
+            ``v ↦ J_r v`` (n → p) and ``w ↦ J_rᵀ w`` (p → n).
+        chi2_offset : float
+            Constant part of ``χ²`` not in ``rd`` (rows no unknown reaches).
+        m_total : int
+        scale : ndarray, shape (n,)
+        """
+        rd, rr = np.asarray(rd, dtype=np.float64), np.asarray(rr, dtype=np.float64)
+        return cls(gd=np.asarray(jd_t(rd), dtype=np.float64), gr=np.asarray(jr_t(rr), dtype=np.float64),
+                   data_sq=float(rd @ rd) + float(chi2_offset), prior_sq=float(rr @ rr),
+                   normal_d=lambda v: jd_t(jd(v)), normal_r=lambda v: jr_t(jr(v)), m_total=int(m_total),
+                   scale=np.asarray(scale, dtype=np.float64))
+
+    @classmethod
+    def from_gram(cls, *, Gd, gd, data_sq: float, Gr, gr, prior_sq: float, m_total: int,
+                  scale) -> "Linearization":
+        """From dense Gauss–Newton matrices ``G_d = J_dᵀJ_d``, ``G_r = J_rᵀJ_r`` (n × n, scaled unknowns)."""
+        Gd, Gr = np.asarray(Gd, dtype=np.float64), np.asarray(Gr, dtype=np.float64)
+        return cls(gd=np.asarray(gd, dtype=np.float64), gr=np.asarray(gr, dtype=np.float64),
+                   data_sq=float(data_sq), prior_sq=float(prior_sq), normal_d=lambda v: Gd @ v,
+                   normal_r=lambda v: Gr @ v, m_total=int(m_total), scale=np.asarray(scale, dtype=np.float64))
 
 
 class ProjectedTikhonov:
@@ -90,8 +127,7 @@ class ProjectedTikhonov:
 
     def __init__(self, lin: Linearization, max_dim: int = 80) -> None:
         self.lin = lin
-        self.gd = np.asarray(lin.jd_t(lin.rd), dtype=np.float64)
-        self.gr = np.asarray(lin.jr_t(lin.rr), dtype=np.float64)
+        self.gd, self.gr = lin.gd, lin.gr
         n = self.gd.size
         self.max_dim = int(max_dim)
         # basis vectors as rows (contiguous products with the first k of them)
@@ -103,8 +139,7 @@ class ProjectedTikhonov:
         self.cd = np.zeros(self.max_dim)  # Vᵀ J_dᵀ r_d
         self.cr = np.zeros(self.max_dim)  # Vᵀ J_rᵀ r_r
         self.k = 0
-        self.rd2 = float(lin.rd @ lin.rd)
-        self.rr2 = float(lin.rr @ lin.rr)
+        self.data_sq, self.prior_sq = lin.data_sq, lin.prior_sq
 
     # ------------------------------------------------------------------ the subspace
     def gradient(self, lam: float) -> np.ndarray:
@@ -137,8 +172,8 @@ class ProjectedTikhonov:
         if norm_v <= 1e-10:
             return False
         v = v / norm_v
-        wd = np.asarray(self.lin.jd_t(self.lin.jd(v)), dtype=np.float64)
-        wr = np.asarray(self.lin.jr_t(self.lin.jr(v)), dtype=np.float64)
+        wd = np.asarray(self.lin.normal_d(v), dtype=np.float64)
+        wr = np.asarray(self.lin.normal_r(v), dtype=np.float64)
         self.V[k], self.WD[k], self.WR[k] = v, wd, wr
         colD = self.V[: k + 1] @ wd
         colR = self.V[: k + 1] @ wr
@@ -165,12 +200,12 @@ class ProjectedTikhonov:
     def misfit(self, lam: float) -> tuple[float, float]:
         """``(χ²/m, ‖R‖)`` of the projected Tikhonov step at ``lam`` (predicted by the linearisation)."""
         if self.k == 0:
-            return (self.rd2 + self.lin.chi2_offset) / self.lin.m_total, math.sqrt(self.rr2)
+            return self.data_sq / self.lin.m_total, math.sqrt(self.prior_sq)
         y = self.coefficients(lam)
         k = self.k
-        data = self.rd2 + 2.0 * float(self.cd[:k] @ y) + float(y @ self.Gd[:k, :k] @ y)
-        reg = self.rr2 + 2.0 * float(self.cr[:k] @ y) + float(y @ self.Gr[:k, :k] @ y)
-        return (max(data, 0.0) + self.lin.chi2_offset) / self.lin.m_total, math.sqrt(max(reg, 0.0))
+        data = self.data_sq + 2.0 * float(self.cd[:k] @ y) + float(y @ self.Gd[:k, :k] @ y)
+        reg = self.prior_sq + 2.0 * float(self.cr[:k] @ y) + float(y @ self.Gr[:k, :k] @ y)
+        return max(data, 0.0) / self.lin.m_total, math.sqrt(max(reg, 0.0))
 
     def step(self, lam: float) -> np.ndarray:
         """The projected Tikhonov step ``δ = V y(λ)``, shape (n,)."""

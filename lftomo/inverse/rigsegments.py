@@ -107,6 +107,16 @@ class SegmentStack:
         parts = [t.jacobian(Ib, sigma_a) for t in self.tables]
         return np.concatenate([p[0] for p in parts]), sp.vstack([p[1] for p in parts], format="csr")
 
+    def linearized(self, Ib, sigma_a):
+        """Stacked signal, its Jacobian with respect to ``σ_a`` and ``W(σ_a)`` (as :meth:`RaySegments.linearized`)."""
+        parts = [t.linearized(Ib, sigma_a) for t in self.tables]
+        return (np.concatenate([p[0] for p in parts]), sp.vstack([p[1] for p in parts], format="csr"),
+                sp.vstack([p[2] for p in parts], format="csr"))
+
+    def forward(self, Ib, sigma_a) -> np.ndarray:
+        """Stacked signal (as :meth:`RaySegments.forward`)."""
+        return np.concatenate([t.forward(Ib, sigma_a) for t in self.tables])
+
     def to_jax(self) -> StackedForward:
         """The tables' JAX forwards, stacked."""
         return StackedForward(tuple(t.to_jax() for t in self.tables))

@@ -565,7 +565,7 @@ class _Runner:
             self._A_t, self._L_t = s.A_s.T.tocsr(), s.L.T.tocsr()
         A, L, A_t, L_t = s.A_s, s.L, self._A_t, self._L_t
         # the products by the row-parallel CSR kernel of the solver's host callbacks (scipy's is serial)
-        return Linearization(
+        return Linearization.from_jacobians(
             rd=csr_product(A, b) - s.d, rr=csr_product(L, u),
             jd=lambda v: csr_product(A, cd * v), jd_t=lambda r: cd * csr_product(A_t, r),
             jr=lambda v: csr_product(L, cr * v), jr_t=lambda w: cr * csr_product(L_t, w),

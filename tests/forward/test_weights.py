@@ -447,6 +447,14 @@ def test_segments_derivative_matches_finite_differences(grid, blob, segments):
     # the background depends on sigma_a too: J of Ib = 0 is -l T L_s, not zero
     _, J0 = S.jacobian(np.zeros_like(Ib), sa)
     assert J0.min() < 0
+    # one walk for all three (the joint fit's step): the same signal, J and W to rounding (W's entries are
+    # computed from the optical depth in front of each voxel instead of a running transmittance)
+    sig3, J3, W3 = S.linearized(Ib, sa)
+    W0 = S.weights(sa).matrix
+    np.testing.assert_allclose(sig3, sig, rtol=1e-12, atol=1e-14 * sig.max())
+    assert (J3 != J).nnz == 0
+    assert abs(W3 - W0).max() <= 1e-12 * abs(W0).max() and W3.nnz >= W0.nnz
+    np.testing.assert_allclose(S.forward(Ib, sa), sig, rtol=1e-12, atol=1e-14 * sig.max())
 
 
 def test_segments_forward_jax_is_differentiable(grid, blob, segments):

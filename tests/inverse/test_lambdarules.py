@@ -114,7 +114,7 @@ class LinearizedPath(LinearPath):
 
     def linearization(self, theta, lam):
         A, L = self.A, self.L
-        return Linearization(rd=A @ theta - self.y, rr=L @ theta, jd=lambda v: A @ v, jd_t=lambda u: A.T @ u,
+        return Linearization.from_jacobians(rd=A @ theta - self.y, rr=L @ theta, jd=lambda v: A @ v, jd_t=lambda u: A.T @ u,
                              jr=lambda v: L @ v, jr_t=lambda w: L.T @ w, chi2_offset=0.0, m_total=self.m_total,
                              scale=np.ones(self.n_unknowns))
 

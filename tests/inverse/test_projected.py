@@ -19,7 +19,7 @@ def dense_case(m=40, n=12, p=11, seed=0):
     Jr = np.diff(np.eye(n), axis=0)[:p]
     rd, rr = rng.normal(size=m), rng.normal(size=p)
     scale = np.ones(n)
-    lin = Linearization(rd=rd, rr=rr, jd=lambda v: Jd @ v, jd_t=lambda u: Jd.T @ u, jr=lambda v: Jr @ v,
+    lin = Linearization.from_jacobians(rd=rd, rr=rr, jd=lambda v: Jd @ v, jd_t=lambda u: Jd.T @ u, jr=lambda v: Jr @ v,
                         jr_t=lambda w: Jr.T @ w, chi2_offset=3.0, m_total=m + 5, scale=scale)
     return lin, Jd, Jr, rd, rr
 

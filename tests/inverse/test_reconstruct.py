@@ -148,6 +148,8 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method, s
 #: σ as given and λ up to 1e4 (with ``kw`` of :func:`_blob_two_colour`: the discrepancy search the
 #: paths below were worked out for).
 GIVEN = {"rule": lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e4)}
+#: The same rule with the ladder of converged solves (the subject of the tests that name it).
+GIVEN_BRACKET = {"rule": lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e4, search="bracket")}
 
 
 def _blob_two_colour(claimed_std_factor):
@@ -189,7 +191,7 @@ def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
     the second midpoint follows from the first one's χ²/m) and returns the largest λ solved with
     χ²/m ≤ 1."""
     flame, ms, seg, kw = _blob_two_colour_dense(1.15)
-    rec = reconstruct(ms, seg, **kw, **GIVEN)
+    rec = reconstruct(ms, seg, **kw, **GIVEN_BRACKET)
     path = rec.details["lambda_path"]
     second = 10.0 ** 3.75 if path[7][1] <= 1.0 else 10.0 ** 3.25
     np.testing.assert_allclose([p[0] for p in path], [1e-2, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4, 10.0 ** 3.5,
@@ -256,7 +258,7 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     out = {}
     for f in (3.0, 1.15):
         flame, ms, seg, kw = _blob_two_colour_dense(f)
-        rec = reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated"), **kw)
+        rec = reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated", search="bracket"), **kw)
         scale = rec.details["noise_scale"]
         assert rec.lambda_note.startswith("noise scale estimated: s²") and "largest λ with chi²/m ≤ s²" in \
             rec.lambda_note, rec.lambda_note
@@ -291,6 +293,86 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
             reconstruct(ms, seg, **{"noise_scale": "estimated", **kw, **bad})
     with pytest.raises(ValueError, match="noise_scale must be one of"):
         reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="guess"), **kw)
+
+
+def test_joint_projected_discrepancy_search_meets_the_target_inside_the_ladder_bracket():
+    """The default joint search (``search="projected"``: λ chosen on the exact dense linearisation at
+    each Gauss–Newton iterate, then one solve) on the blob of the bracket tests.  Its solve meets the
+    target χ²/m to the rule's tolerance ``√(2/m)`` (clipped to [1e-3, 1e-2]); its λ lies in the bracket
+    of the ladder search, ``[λ_b, λ_b · 10^0.25]`` (the ladder's λ_b is the largest solved λ meeting the
+    target, and the root lies within one bisection step above it), with σ as given (f = 1.15) and
+    with the noise scale estimated (f = 1.15 and 3, the same s² from the same first solve); with one
+    converged solve after the first, where the ladder needs seven or more."""
+    for f, scale in ((1.15, "given"), (1.15, "estimated"), (3.0, "estimated")):
+        flame, ms, seg, kw = _blob_two_colour_dense(f)
+        rule = {s: lt.DiscrepancyBracket(noise_scale=scale, lambda_max=1e4, search=s) for s in ("projected", "bracket")}
+        rec = reconstruct(ms, seg, rule=rule["projected"], **kw)
+        ref = reconstruct(ms, seg, rule=rule["bracket"], **kw)
+        m = sum(mm.size for mm in ms)
+        tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
+        target = rec.details["chi2_target"]
+        assert target == ref.details["chi2_target"] and rec.converged, (target, ref.details["chi2_target"])
+        assert abs(rec.chi2 / target - 1.0) <= tol, (rec.chi2, target)
+        assert ref.regularization <= rec.regularization <= ref.regularization * 10 ** 0.25, (
+            rec.regularization, ref.regularization)
+        assert "projected discrepancy search" in rec.lambda_note and rec.lambda_rule == "discrepancy-bracket"
+        # the search's inexact solves are marked on the path; one full solve, at most two (the search's
+        # max_solves), after the first one that estimates the scale
+        d = rec.details
+        n_solves = sum(1 for k, srch in zip(d["lambda_path_steps"], d["lambda_path_search"]) if k and not srch)
+        assert n_solves <= (2 if scale == "estimated" else 1) + 1 and len(ref.details["lambda_path"]) >= 7
+        assert any(d["lambda_path_search"]) and not any(ref.details["lambda_path_search"])
+        np.testing.assert_allclose(rec.details["lambda_path"][-1][:2], (rec.regularization, rec.chi2), rtol=1e-12)
+        if scale == "estimated":
+            assert rec.lambda_note.startswith("noise scale estimated: s²"), rec.lambda_note
+        else:
+            # the matrix-free path offers the same linearisation (sparse Jacobians, not their normal
+            # matrices); its inexact solves are its own steps, so it reaches its own λ in the same bracket
+            mf = reconstruct(ms, seg, rule=rule["projected"], **{**kw, "solver": lt.LevenbergMarquardt()})
+            assert ref.regularization <= mf.regularization <= ref.regularization * 10 ** 0.25, mf.regularization
+            assert abs(mf.chi2 / target - 1.0) <= tol and "projected discrepancy search" in mf.lambda_note
+
+
+@pytest.mark.parametrize("solver", ["dense-lm", "levenberg-marquardt"])
+def test_joint_linearization_is_the_derivative_of_the_objective(solver):
+    """Each joint path's linearisation in the log-odds θ (the dense path's Gauss–Newton matrices, the
+    matrix-free path's sparse Jacobians): ``J_dᵀ r_d`` and ``J_rᵀ r_r`` (scaled by D) are half the
+    central differences of χ² and ‖R‖² (step 1e-5; the differences' own error is O(h²) relative), and
+    its Gauss–Newton matrices are symmetric positive semi-definite."""
+    from lftomo.inverse.joint import DenseLMPath, JointModel, MatrixFreePath, SigmaSpace, _check_channels
+
+    flame, ms, seg, kw = _blob_two_colour(1.15)
+    ms, wls, seg, rows = _check_channels(ms, seg)
+    grid = lt.Grid.from_dict(seg.metadata["grid"])
+    space = SigmaSpace("log", 200.0, 1e-4, None)
+    model = JointModel(ms, wls, seg, rows, grid=grid, symmetry="axisymmetric",
+                       prior=lt.inverse.regularizers.resolve_prior("curvature"), bounds=(500.0, 2500.0), alpha=1.38,
+                       space=space, ridge=0.0, engine="host")
+    if solver == "dense-lm":
+        path = DenseLMPath(model, 50)
+    else:
+        path = MatrixFreePath(model, 50, method=solver, rtol=1e-6, atol=1e-6, linear_rtol=1e-6, linear_max_steps=50)
+    theta = np.random.default_rng(1).normal(0.0, 0.5, 2 * model.n_u)
+    lam = 30.0
+    lin = path.linearization(theta, lam)
+    chi2, reg = path.terms(theta, lam)
+    assert lin.data_sq == pytest.approx(chi2 * path.m_total, rel=1e-12)
+    assert lin.prior_sq == pytest.approx(reg**2, rel=1e-12)
+    h = 1e-5
+    for k in range(theta.size):
+        e = np.zeros(theta.size)
+        e[k] = h
+        (cp, rp), (cm, rm) = path.terms(theta + e, lam), path.terms(theta - e, lam)
+        d_data = (cp - cm) * path.m_total / (2 * h)
+        d_prior = (rp**2 - rm**2) / (2 * h)
+        assert 2 * lin.gd[k] / lin.scale[k] == pytest.approx(d_data, rel=1e-5, abs=1e-6 * abs(lin.data_sq)), k
+        assert 2 * lin.gr[k] / lin.scale[k] == pytest.approx(d_prior, rel=1e-5, abs=1e-9), k
+    n = theta.size
+    Gd = np.column_stack([lin.normal_d(v) for v in np.eye(n)])
+    Gr = np.column_stack([lin.normal_r(v) for v in np.eye(n)])
+    for G in (Gd, Gr):
+        np.testing.assert_allclose(G, G.T, rtol=1e-12, atol=1e-12 * np.abs(G).max())
+        assert np.linalg.eigvalsh(G).min() >= -1e-10 * np.abs(G).max()
 
 
 def test_joint_lambda_rules_when_sigma_is_overestimated():

@@ -122,8 +122,12 @@ def test_temperature_unknowns_and_solver_and_rule_parameters_are_checked():
     assert lt.TemperatureAbsorption() == lt.TemperatureAbsorption(alpha=1.38)
     assert lt.LevenbergMarquardt(polish_steps=2, engine="jax").keywords() == {
         "method": "levenberg-marquardt", "polish_steps": 2, "engine": "jax"}
-    assert lt.DiscrepancyBracket(lambda_max=1e4).keywords() == {"rule": "discrepancy-bracket", "lambda_max": 1e4}
-    assert lt.DiscrepancyBracket("given").keywords() == {"rule": "discrepancy-bracket", "noise_scale": "given"}
+    assert lt.DiscrepancyBracket(lambda_max=1e4).keywords() == {"rule": "discrepancy-bracket", "lambda_max": 1e4,
+                                                                "discrepancy_search": "projected"}
+    with pytest.raises(ValueError, match="search must be one of"):
+        lt.DiscrepancyBracket(search="root")
+    assert lt.DiscrepancyBracket("given", search="bracket").keywords() == {
+        "rule": "discrepancy-bracket", "noise_scale": "given", "discrepancy_search": "bracket"}
     assert lt.AutoSolver(max_steps=7).keywords() == {"method": "auto", "max_steps": 7}
 
 

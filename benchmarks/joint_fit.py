@@ -1,0 +1,130 @@
+"""Time of the joint T + σₐ fit (650 + 900 nm, axisymmetric) against the linear baseline in the same run.
+
+Problem (issue 33, *Speed*): the standard axisymmetric flame (12 mm base
+width) rendered by the backward Monte Carlo renderer on a grid ``--refine``
+times finer than the ``--n``³ reconstruction grid at 650 and 900 nm (32
+rays/pixel, seed camera, the views whose median étendue is at least 0.7 of
+the peak), 1 % noise plus the render's and the segment table's Monte Carlo
+error (:func:`lftomo.inverse.compare.with_monte_carlo_noise`, the accurate
+floor); ray-segment table with sub-voxel emission (quadrature 2, 16
+rays/pixel).
+
+Timed, in one run:
+
+* the joint fit as a user runs it: ``lt.reconstruct(ms, segments,
+  unknowns="T+sigma_a", symmetry="axisymmetric", grid=grid)`` with the
+  library's defaults, started from the same fit on a ``--coarse``³ grid
+  (``start=``; its own segment table, also timed; ``--coarse 0``: the
+  two-colour start), λ by the discrepancy rule with the search of
+  ``--search`` (``lt.DiscrepancyBracket(search=...)``);
+* the linear baseline: :func:`lftomo.inverse.solvers.solve_linear_baseline`
+  on the 650 nm channel alone with σₐ known (the effective truth's), at the
+  joint fit's λ.
+
+It prints each stage's time, the total against the aim (≤ 5 min at 24³ on 2
+cores), its ratio to the linear baseline, and the errors |ΔT|/T above 800 K
+(effective truth; one noise draw: a timing benchmark, the accuracy studies
+are in ``studies/accuracy_joint.py``).
+
+Usage::
+
+    python benchmarks/joint_fit.py [--n 24] [--coarse 12] [--refine 2] [--search projected|bracket] [--seed 100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import numpy as np
+
+import lftomo as lt
+from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
+from lftomo.inverse.lambdarules import BRACKET_SEARCHES
+from lftomo.inverse.solvers import solve_linear_baseline
+
+WAVELENGTHS = (650e-9, 900e-9)
+
+
+def setup(n, refine, seed):
+    """The data (two channels), the segment table's camera and views, the effective truth on ``n``³."""
+    cam = lt.Camera.seed(1.0)
+    fine = lt.phantoms.default_flame_grid((n * refine,) * 3)
+    grid = lt.phantoms.default_flame_grid((n,) * 3)
+    flame = lt.phantoms.axisymmetric_flame(fine, width_base=0.012)
+    sa_true, T_true = effective_truth(flame, grid, WAVELENGTHS[0])
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=32, seed=11, wavelengths=WAVELENGTHS, progress=False)
+    et = lf.etendue / lf.etendue.max()
+    views = [vu for vu in lf.lit_views if np.median(et.ravel()[lf.view_index[vu][lf.view_mask[vu]]]) >= 0.7]
+    noisy = lt.add_noise(lf, relative_std=0.01, seed=seed)
+    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=32, weights_rays_per_pixel=16,
+                                   min_etendue_fraction=0.2, floor="prior")
+    ms = [lt.Measurement.from_lightfield(noisy, data="subaperture", channel=c, views=views) for c in range(2)]
+    return cam, views, grid, ms, sa_true, T_true
+
+
+def joint_fit(ms, cam, views, grid, search, start=None):
+    """The joint fit on ``grid`` with the library's defaults (sub-voxel quadrature 2); ``(fit, seconds)``
+    including its segment table's time."""
+    t = time.perf_counter()
+    seg = lt.ray_segments(cam, grid.refined(2), rays_per_pixel=16, seed=12, views=views, progress=False)
+    t_seg = time.perf_counter() - t
+    rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", symmetry="axisymmetric", grid=grid,
+                         rule=lt.DiscrepancyBracket(search=search), start=start)
+    return rec, seg, t_seg, time.perf_counter() - t
+
+
+def solves(rec) -> str:
+    """How many solves and steps the fit's λ search took, and its path (``*``: an inexact solve)."""
+    d = rec.details
+    inner = sum(1 for k, srch in zip(d["lambda_path_steps"], d["lambda_path_search"]) if k and srch)
+    full = sum(1 for k, srch in zip(d["lambda_path_steps"], d["lambda_path_search"]) if k and not srch)
+    path = ", ".join(f"{lam:.3g}{'*' if srch else ''} ({k})" for (lam, _, _), k, srch in
+                     zip(d["lambda_path"], d["lambda_path_steps"], d["lambda_path_search"]))
+    return f"{full} solves + {inner} inexact ones, {sum(d['lambda_path_steps'])} steps: λ (steps) {path}"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=24, help="reconstruction voxels per axis")
+    ap.add_argument("--coarse", type=int, default=12, help="voxels per axis of the coarse start (0: none)")
+    ap.add_argument("--refine", type=int, default=2, help="truth grid refinement factor")
+    ap.add_argument("--search", default="projected", choices=BRACKET_SEARCHES,
+                    help="the discrepancy rule's search (lt.DiscrepancyBracket(search=...))")
+    ap.add_argument("--seed", type=int, default=100, help="noise seed")
+    a = ap.parse_args()
+    if a.coarse and a.coarse >= a.n:
+        ap.error(f"--coarse must be smaller than --n, got {a.coarse}")
+    t = time.perf_counter()
+    cam, views, grid, ms, sa_true, T_true = setup(a.n, a.refine, a.seed)
+    print(f"setup (render, noise): {time.perf_counter() - t:.1f} s; {len(views)} views, {ms[0].size} data per channel",
+          flush=True)
+    hot = T_true > 800.0
+    start, t_coarse = None, 0.0
+    if a.coarse:
+        grid_c = lt.phantoms.default_flame_grid((a.coarse,) * 3)
+        start, _, seg_c_time, t_coarse = joint_fit(ms, cam, views, grid_c, a.search)
+        print(f"coarse fit {grid_c.shape}: {t_coarse:7.1f} s (segment table {seg_c_time:.1f} s), λ "
+              f"{start.regularization:.3g}, {solves(start)}", flush=True)
+    rec, seg, seg_time, t_fine = joint_fit(ms, cam, views, grid, a.search, start)
+    e = np.abs(rec.T / T_true - 1.0)[hot]
+    print(f"joint fit {grid.shape}:  {t_fine:7.1f} s (segment table {seg_time:.1f} s), λ {rec.regularization:.3g}, "
+          f"chi2/m {rec.chi2:.4f} (target {rec.details['chi2_target']:.4f}), {solves(rec)}, converged "
+          f"{rec.converged}; |ΔT|/T above 800 K: mean {e.mean():.2%}, max {e.max():.1%}")
+    print(f"  λ rule: {rec.lambda_note}")
+    total = t_coarse + t_fine
+    # the linear baseline: channel 1 with σₐ known, the same segment table and sub-voxel model, same λ
+    quad = grid.refined(2)
+    p = ms[0].problem(seg.weights(lt.interpolate_field(sa_true, grid, quad)), quad)
+    problem = dataclasses.replace(p, A=(p.A @ lt.interpolation_matrix(grid, quad)).tocsr(), grid=grid)
+    t = time.perf_counter()
+    base = solve_linear_baseline(problem, regularization=rec.regularization)
+    t_lin = time.perf_counter() - t
+    print(f"linear baseline (650 nm, σₐ known, same λ): {t_lin:.2f} s, {base.iterations} LSQR iterations")
+    print(f"joint total {total:.1f} s = {total / 60:.2f} min (aim: <= 5 min at 24³ on 2 cores); "
+          f"ratio to the linear baseline {total / t_lin:.0f}")
+
+
+if __name__ == "__main__":
+    main()
