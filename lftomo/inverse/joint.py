@@ -697,7 +697,7 @@ class DenseLMPath(_JointPath):
         self.data_inv_s = [1.0 / np.asarray(m.sigma, float) for m in model.ms]
         self.valid_np = [r >= 0 for r in model.rows]
         self.row_weight = [w.diagonal() for w in model.whiten]  # valid/σ per datum
-        self.sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ or None, W or None): the last point
+        self.sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ, W): the last point evaluated
         self.to_seg_csr = None if model.to_seg is None else sp.csr_matrix(model.to_seg)
         self._prior_gram = None
 
@@ -709,19 +709,15 @@ class DenseLMPath(_JointPath):
         M.data *= column_scale[M.indices] if np.ndim(column_scale) else column_scale
         return M
 
-    def _signal(self, c, Ib, sa_c, with_jacobian):
-        """The channel's signal at ``(I_b, σ)`` and, with ``with_jacobian``, ``∂F/∂σ`` and ``W(σ)`` (one walk
-        of the segment table: :meth:`~lftomo.RaySegments.linearized`); cached for the last point evaluated."""
+    def _signal(self, c, Ib, sa_c):
+        """The channel's signal, ``∂F/∂σ`` and ``W(σ)`` at ``(I_b, σ)`` from one walk of the segment table
+        (:meth:`~lftomo.RaySegments.linearized`), cached for the last point evaluated: at every trial point,
+        so that an accepted trial (most are) needs no second walk for its Jacobian."""
         key = hashlib.blake2b(Ib.tobytes() + sa_c.tobytes(), digest_size=16).digest()
         hit = self.sig_cache.get(c)
-        if hit is not None and hit[0] == key and (hit[2] is not None or not with_jacobian):
-            return hit[1:]
-        if with_jacobian:
-            entry = (key, *self.model.segments.linearized(Ib, sa_c))
-        else:
-            entry = (key, self.model.segments.forward(Ib, sa_c), None, None)
-        self.sig_cache[c] = entry
-        return entry[1:]
+        if hit is None or hit[0] != key:
+            hit = self.sig_cache[c] = (key, *self.model.segments.linearized(Ib, sa_c))
+        return hit[1:]
 
     def evaluate(self, x, lam, with_jacobian):
         """``F``, its data part and, on request, ``G = JᵀJ``, ``g = Jᵀr`` at ``x = [(T − T_min)/(T_max − T_min),
@@ -737,7 +733,7 @@ class DenseLMPath(_JointPath):
             g = np.zeros(2 * n_u)
         for c in range(len(md.ms)):
             sa_c = sv * md.factors[c]
-            signal, dF_ds, W = self._signal(c, blackbody(Tv, md.wls[c]), sa_c, with_jacobian)
+            signal, dF_ds, W = self._signal(c, blackbody(Tv, md.wls[c]), sa_c)
             res = (np.where(self.valid_np[c], signal[md.rows_np[c]], 0.0) - self.data_y[c]) * self.data_inv_s[c]
             data_sq += float(res @ res)
             if with_jacobian:

@@ -482,7 +482,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     def settled(lam_a, lam_b):
         return abs(math.log(lam_a / lam_b)) <= math.log1p(lam_settled)
 
-    theta, lam = np.asarray(theta0, dtype=np.float64), lam_ref
+    theta, lam, done = np.asarray(theta0, dtype=np.float64), lam_ref, False
     for k in range(max_gauss_newton):
         found = choose(theta, lam)
         if found is None:
@@ -509,8 +509,14 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         if done:
             break
     n_gn, solves = len(dims), 0
+    # an inexact solve that converged at the settled λ is that λ's solve (to the same search_rtol)
+    reuse = run.evals[-1] if inner_steps and done else None
     while True:
-        e = run.solve(lam, theta, objective_rtol=search_rtol)
+        if reuse is not None:
+            e, reuse = reuse, None
+            e.message = ""
+        else:
+            e = run.solve(lam, theta, objective_rtol=search_rtol)
         solves += 1
         miss = abs(e.chi2 / target - 1.0)
         done = e.converged or not require_converged
