@@ -984,20 +984,17 @@ def solve_temperature_absorption(
     sigma_a_max : float
         Upper bound of ``σ_a`` at the first wavelength (m⁻¹).
     sigma_a_space : {"linear", "log"}
-        What the ``σ_a`` unknowns and their prior are linear in: ``σ_ref`` in
-        ``[0, sigma_a_max]`` or ``ln σ_ref`` in ``[ln sigma_a_min,
-        ln sigma_a_max]`` (default; module docstring, *Options*).
+        What the ``σ_a`` unknowns and their prior are linear in: ``σ_ref`` in ``[0, sigma_a_max]``
+        or ``ln σ_ref`` in ``[ln sigma_a_min, ln sigma_a_max]`` (default; module docstring, *Options*).
     sigma_a_min : float
         Lower bound of ``σ_a`` at the first wavelength for ``sigma_a_space="log"``
         (m⁻¹, > 0; default 1e-4: optical depth 5e-6 over 5 cm).
     sigma_a_scale : float, optional
-        Scale that ``σ_a`` (m⁻¹; nepers for ``ln σ_ref`` in log space) is
-        divided by in the prior; default :data:`SIGMA_A_SCALE_FACTOR` × σₐ's
-        span (``sigma_a_max``, or ``ln(sigma_a_max / sigma_a_min)`` in log
-        space).  Module docstring, *Options*.
+        Scale that ``σ_a`` (m⁻¹; nepers for ``ln σ_ref`` in log space) is divided by in the prior;
+        default :data:`SIGMA_A_SCALE_FACTOR` × σₐ's span (``sigma_a_max``, or
+        ``ln(sigma_a_max / sigma_a_min)`` in log space).  Module docstring, *Options*.
     sigma_a_ridge : float
-        Weight (≥ 0, relative to the smoothness term) of the ridge on ``σ_a/scale``
-        (default 0).
+        Weight (≥ 0, relative to the smoothness term) of the ridge on ``σ_a/scale`` (default 0).
     sigma_a0 : ndarray of shape grid.shape, optional
         Initial ``σ_a`` at the first wavelength (m⁻¹); default from the same
         two-colour start.
@@ -1018,8 +1015,7 @@ def solve_temperature_absorption(
         known up to a common factor; the default where the discrepancy search
         runs; module docstring, *Options*).
     discrepancy_search : {"projected", "bracket"}
-        How the discrepancy rule searches λ
-        (:class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`).
+        How the discrepancy rule searches λ (:class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`).
     engine : {"host", "jax"}
         Forward model and exact derivatives from host sparse Jacobians
         (default) or JAX autodiff of :meth:`lftomo.RaySegments.forward_jax`
@@ -1044,14 +1040,11 @@ def solve_temperature_absorption(
     Returns
     -------
     Reconstruction
-        ``sigma_a`` is the field at the first wavelength.  With
-        ``regularization="auto"``, ``details["lambda_path"]`` lists
-        ``(λ, χ²/m, ‖R‖)`` of every solve of the search (in the order solved),
-        ``details["lambda_path_steps"]`` their steps, ``["lambda_path_search"]``
-        which of them are the projected search's inexact solves (not
-        converged at their λ), ``details["method"]`` the solver used,
-        and ``details["lambda_path_T"]`` / ``["lambda_path_sigma_a"]`` their
-        fields on ``grid`` (for an L-curve, or to pick another λ).
+        ``sigma_a`` is the field at the first wavelength.  With ``regularization="auto"``,
+        ``details["lambda_path"]`` lists ``(λ, χ²/m, ‖R‖)`` of every solve of the search (in the
+        order solved), ``["lambda_path_steps"]`` their steps, ``["lambda_path_search"]`` which are
+        the projected search's inexact solves, ``["lambda_path_T"]`` / ``["lambda_path_sigma_a"]``
+        their fields on ``grid`` (for an L-curve, or another λ), ``["method"]`` the solver used.
     """
     t_start = time.perf_counter()
     if method not in JOINT_METHODS:
