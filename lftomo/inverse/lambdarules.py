@@ -794,14 +794,14 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
         first = path.solve(lam_start, theta0, objective_rtol=search_rtol)
         target, tol, _, scale_info = estimated_target(path, first, 0.0, tol)
         start = first.theta
-    for _ in range(max_rounds):
+    for k in range(max_rounds):
         found = projected_discrepancy_search(path, start, lam_ref, target, tol, search_rtol,
                                              lam_range=(lam_min, lam_max), require_converged=False,
                                              lam_settled=JOINT_LAMBDA_SETTLED, inner_steps=JOINT_INNER_STEPS)
         if found is None:
             del path.evals[n_before:]
             return None
-        if scale_info is None:
+        if scale_info is None or k == max_rounds - 1:  # (the target reported is the one the search met)
             break
         ref = min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
         if ref.chi2 >= scale_info["chi2_ref"] * (1.0 - 0.1 * tol):
