@@ -36,11 +36,11 @@ before Planck's law and the transmittance, ``T_q = E T``, ``σ_q = E σ_ref``
 :mod:`lftomo.inverse.lambdarules`): ``rule="discrepancy-bracket"`` (default;
 ``"discrepancy"`` is its deprecated name), the discrepancy principle (Morozov),
 the largest λ with ``χ²/m ≤ 1``.  With ``discrepancy_search="projected"``
-(default) and the dense solver, λ is chosen on the exact dense linearisation
-at each Gauss–Newton iterate, then one solve at that λ
-(:func:`~lftomo.inverse.lambdarules.projected_bracket_search`, the T-only
-fit's projected search); with ``"bracket"``, the matrix-free solvers, or where
-the projected search does not meet the target: bracketed by
+(default), λ is chosen on the fit's linearisation at each iterate (exact dense
+Gauss–Newton matrices, or the sparse Jacobians of the matrix-free path),
+followed by a short inexact solve at that λ, until λ settles
+(:func:`~lftomo.inverse.lambdarules.projected_bracket_search`); with
+``"bracket"``, or where the projected search does not meet the target: bracketed by
 factors of 10 from λ = 10⁻² up to 10⁴ (each solve warm-started from the
 nearest λ solved), refined by two bisections in log λ.  ``rule="lcurve"``:
 the corner (largest curvature) of the L-curve of the solves at λ = 10⁻² … 10⁴.
@@ -443,6 +443,12 @@ def _residual_functions(log_space: bool) -> dict:
     return {"residual": residual, "scaled_residual": scaled_residual, "residual_jit": jax.jit(residual)}
 
 
+def _jacobi_of(Jd, Jr, lam) -> np.ndarray:
+    """Jacobi scale ``1/‖column‖`` of the stacked sparse Jacobian ``[J_d; √λ J_r]``."""
+    return jacobi_scale(np.asarray(Jd.multiply(Jd).sum(axis=0)).ravel()
+                        + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel())
+
+
 class JointModel:
     """The joint problem's fixed pieces: channels, unknowns, maps to the segment table, prior, residual.
 
@@ -573,9 +579,7 @@ class JointModel:
         """Jacobi scaling, as in the T-only solver: ``D = 1/‖column of the whitened Jacobian and prior‖`` at
         ``pv`` (exact sparse Jacobians of the segment table).  Without it the Levenberg–Marquardt damping
         treats log-odds of T and of σ_a alike while their columns differ by orders of magnitude."""
-        Jd, Jr = self.data_jacobian(pv)[1], self.prior_jacobian(pv)[1]
-        c2 = np.asarray(Jd.multiply(Jd).sum(axis=0)).ravel() + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel()
-        return jacobi_scale(c2)
+        return _jacobi_of(self.data_jacobian(pv)[1], self.prior_jacobian(pv)[1], lam)
 
     def fields(self, theta):
         """``T`` and ``σ_ref`` on ``grid`` from the unknowns ``theta``."""
@@ -648,8 +652,7 @@ class MatrixFreePath(_JointPath):
         pv = np.asarray(theta, np.float64)
         rd, Jd = self.model.data_jacobian(pv)
         rr, Jr = self.model.prior_jacobian(pv)
-        D = jacobi_scale(np.asarray(Jd.multiply(Jd).sum(axis=0)).ravel()
-                         + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel())
+        D = _jacobi_of(Jd, Jr, lam)
         Jd, Jr = (Jd @ sp.diags(D)).tocsr(), (Jr @ sp.diags(D)).tocsr()
         Jd_t, Jr_t = Jd.T.tocsr(), Jr.T.tocsr()
         return Linearization.from_jacobians(rd=rd, rr=rr, jd=Jd.dot, jd_t=Jd_t.dot, jr=Jr.dot, jr_t=Jr_t.dot,
