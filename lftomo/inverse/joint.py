@@ -187,7 +187,7 @@ from .hostsparse import projected_normal_equations
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
-from .lambdarules import (BRACKET_SEARCHES, NOISE_SCALES, PROJECTED_STEP, DiscrepancyBracket, Eval, LCurveDecades,
+from .lambdarules import (BRACKET_SEARCHES, NOISE_SCALES, DiscrepancyBracket, Eval, LCurveDecades,
                           resolve_rule)
 from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
@@ -1121,7 +1121,7 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
         data_kind="subaperture",
         details={"lambda_path": [(e.lam, e.chi2, e.reg) for e in path.evals],
                  "lambda_path_steps": [e.steps for e in path.evals],
-                 "lambda_path_search": [e.message == PROJECTED_STEP for e in path.evals],
+                 "lambda_path_search": [e.search_iterate for e in path.evals],
                  "lambda_path_T": [f[0] for f in path_fields], "lambda_path_sigma_a": [f[1] for f in path_fields],
                  "wavelengths": model.wls, "alpha": alpha, "start": start_label,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape),

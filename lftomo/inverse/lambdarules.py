@@ -135,7 +135,8 @@ class LambdaChoice:
 @dataclass
 class Eval:
     """One solve at a fixed λ: λ, the unknowns ``theta`` at its end, ``χ²/m``, ``‖R‖``, steps taken,
-    whether it converged, and how it ended."""
+    whether it converged, how it ended, and whether it is an iterate of the projected discrepancy
+    search (a Gauss–Newton step or an inexact solve, which the L-curve fallbacks leave out)."""
 
     lam: float
     theta: np.ndarray
@@ -144,7 +145,7 @@ class Eval:
     steps: int
     converged: bool
     message: str
-
+    search_iterate: bool = False
 
 
 class SolvePath(Protocol):
@@ -205,9 +206,8 @@ JOINT_LAMBDA_SETTLED = 10.0 ** 0.125 - 1.0
 #: 900 nm: nine steps left ‖R‖ at 2.5 where the solve at the same λ reached 1.2; docs/accuracy.md).
 JOINT_INNER_STEPS = 10
 
-#: The message of the iterates the projected search records on the solve path (Gauss–Newton steps, or
-#: inexact solves: the L-curve fallbacks leave them out).
-PROJECTED_STEP = "iterate of the projected discrepancy search"
+#: The message of the projected Gauss–Newton steps the projected search records on the solve path.
+PROJECTED_STEP = "projected Gauss–Newton step of the discrepancy search"
 
 
 def structured_branch(path: list) -> list:
@@ -251,7 +251,7 @@ def branch_corner(evals: list, lam_max: float, target: float):
     the L-curve corner of that branch, or with too few points for a curvature
     Morozov's largest λ with χ²/m ≤ target.  Returns ``(eval, how)`` or None."""
     path = structured_branch(sorted(on_lcurve([x for x in evals if x.lam <= lam_max * (1 + 1e-12)
-                                               and x.message != PROJECTED_STEP]),
+                                               and not x.search_iterate]),
                                      key=lambda x: x.lam))
     kappa = lcurve_curvature(path) if len(path) >= 4 else np.array([np.nan])
     if np.any(np.isfinite(kappa)):
@@ -450,9 +450,11 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
        ``search_rtol`` (at most ``max_gauss_newton`` steps).  With
        ``inner_steps``, each step is instead an inexact solve at its λ: at
        most that many of the fit's own steps (``run.solve``), until λ settles
-       and one of them converges (a warm-started λ continuation); where the
-       linearisation cannot reach the target at any λ (far from the fit)
-       the next one keeps its λ.
+       and one of them converges (a warm-started λ continuation); a step
+       that reverses the previous one's direction is halved in log λ (an
+       inexact solve lags its λ, so successive linearisations overshoot
+       alternately); where the linearisation cannot reach the target at any
+       λ (far from the fit) the next one keeps its λ.
     2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
        when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
        linearisation at its solution moves by less than ``lam_settled``;
@@ -482,7 +484,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     def settled(lam_a, lam_b):
         return abs(math.log(lam_a / lam_b)) <= math.log1p(lam_settled)
 
-    theta, lam, done = np.asarray(theta0, dtype=np.float64), lam_ref, False
+    theta, lam, done, last_move = np.asarray(theta0, dtype=np.float64), lam_ref, False, 0.0
     for k in range(max_gauss_newton):
         found = choose(theta, lam)
         if found is None:
@@ -493,16 +495,23 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
                 return None
             lam_new = lam  # χ²/m above the target at every λ: far from the fit yet, solve on at this λ
         if inner_steps:
+            move = math.log(lam_new / lam)
+            if move * last_move < 0.0:
+                # a reversal: the inexact solves lag their λ, so each linearisation overshoots the other
+                # way; half the step in log λ (the geometric mean) ends the two-cycle
+                move *= 0.5
+                lam_new = lam * math.exp(move)
+            last_move = move
             # an inexact solve instead of the projected step: a few of the fit's own steps at λ
             e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
-            e.message = PROJECTED_STEP
+            e.search_iterate = True
             theta, moved = e.theta, not e.converged
         else:
             theta, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
             bar = getattr(run, "bar", None)
             if bar is not None:
                 bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
-            run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP))
+            run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP, search_iterate=True))
             moved = decrease > search_rtol
         done = k > 0 and settled(lam_new, lam) and not moved
         lam = lam_new
@@ -514,7 +523,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     while True:
         if reuse is not None:
             e, reuse = reuse, None
-            e.message = ""
+            e.search_iterate = False
         else:
             e = run.solve(lam, theta, objective_rtol=search_rtol)
         solves += 1

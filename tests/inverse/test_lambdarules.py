@@ -18,7 +18,9 @@ from lftomo.inverse.lambdarules import (
     DiscrepancyBracket,
     Eval,
     LCurve,
+    JOINT_LAMBDA_SETTLED,
     LCurveDecades,
+    projected_discrepancy_search,
     resolve_rule,
 )
 from lftomo.inverse.projected import Linearization
@@ -147,6 +149,53 @@ def test_projected_search_with_the_noise_scale_estimated_meets_s2():
     lam_star = _root(path, target)
     slope = (path.chi2(lam_star * 1.01) - path.chi2(lam_star / 1.01)) / (2 * math.log(1.01)) / target
     assert abs(math.log(e.lam / lam_star)) <= 1.2 * 0.011 / slope
+
+
+class OvershootingPath:
+    """A solve path whose every linearisation overshoots the other way: at an iterate solved at λ the
+    projected problem asks for ``λ*²/λ`` (a two-cycle between ``λ_ref`` and ``λ*²/λ_ref``, the
+    behaviour of the joint fit's inexact solves on one noise draw).  ``theta`` is the iterate's log λ;
+    ``χ²/m`` rises with λ through the target 1 at ``λ*``."""
+
+    lam_star = 1000.0
+
+    def __init__(self):
+        self.m_total, self.n_unknowns, self.evals = 10**5, 10, []
+
+    def linearization(self, theta, lam):
+        return float(np.exp(theta[0]))
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        e = Eval(float(lam), np.array([math.log(lam)]), 1.0 + 1e-3 * math.log(lam / self.lam_star), 1.0,
+                 int(max_steps or 10), True, "")
+        self.evals.append(e)
+        return e
+
+
+class OvershootingProjection:
+    def __init__(self, lam_of_iterate):
+        self.lam_of_iterate, self.k = lam_of_iterate, 1
+
+    def discrepancy_lambda(self, target, lam_lo, lam_hi, lam_start):
+        return OvershootingPath.lam_star**2 / self.lam_of_iterate, 0
+
+
+def test_inexact_projected_search_halves_a_reversing_lambda_step(monkeypatch):
+    """With inexact solves, a λ step that reverses the previous one is halved in log λ: from λ_ref =
+    250 the two-cycle 250 ↔ 4000 is broken at the geometric mean, λ* = 1000, which then holds (a
+    settled λ and a converged solve end the search there, the search's own solve reused).  Without
+    the halving λ would still alternate between 250 and 4000 after the ten iterates."""
+    import lftomo.inverse.projected as projected
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", OvershootingProjection)
+    path = OvershootingPath()
+    found = projected_discrepancy_search(path, np.array([math.log(250.0)]), 250.0, 1.0, 1e-3, 1e-4,
+                                         lam_range=(1e-3, 1e6), require_converged=False,
+                                         lam_settled=JOINT_LAMBDA_SETTLED, inner_steps=10)
+    assert found is not None
+    e, note = found
+    assert e.lam == pytest.approx(path.lam_star, rel=1e-12), note
+    assert [x.lam for x in path.evals] == pytest.approx([4000.0, 1000.0, 1000.0], rel=1e-12)
 
 
 def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
