@@ -535,13 +535,19 @@ class _Runner:
         the data barely see (cold at a short wavelength) does not get an
         enormous step per unit of the scaled variable.
         """
+        _, dT, dI, du = self._chain(theta)
+        return jacobi_scale(self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * du**2)
+
+    def _chain(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """At the log-odds ``theta``: ``T``, ``dT/dθ``, ``dI/dT`` (scaled radiance) and ``du/dθ`` of the
+        penalised quantity ``u`` (T or radiance, scaled)."""
         s = self.s
         sig = 1.0 / (1.0 + np.exp(-theta))
         T = s.tmin + (s.tmax - s.tmin) * sig
         dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
         dI = dblackbody_dT(T, s.wavelength) / s.I_scale
-        reg_f = dT / s.T_scale if s.penalize == "temperature" else dI * dT * s.I_scale / s.I_reg
-        return jacobi_scale(self.colsq_A * (dI * dT) ** 2 + lam * self.colsq_L * reg_f**2)
+        du = dT / s.T_scale if s.penalize == "temperature" else dI * dT * s.I_scale / s.I_reg
+        return T, dT, dI, du
 
     def linearization(self, theta: np.ndarray, lam: float) -> Linearization | None:
         """The fit linearised at ``theta`` in the Jacobi-scaled unknowns (:meth:`column_scale` at ``lam``), as
@@ -550,15 +556,9 @@ class _Runner:
         if s.E is not None or not s.prior_model.quadratic:
             return None
         theta = np.asarray(theta, dtype=np.float64)
-        sig = 1.0 / (1.0 + np.exp(-theta))
-        T = s.tmin + (s.tmax - s.tmin) * sig
-        dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
+        T, dT, dI, du = self._chain(theta)
         b = blackbody(T, s.wavelength) / s.I_scale
-        dI = dblackbody_dT(T, s.wavelength) / s.I_scale
-        if s.penalize == "temperature":
-            u, du = T / s.T_scale, dT / s.T_scale
-        else:
-            u, du = b * s.I_scale / s.I_reg, dI * dT * s.I_scale / s.I_reg
+        u = T / s.T_scale if s.penalize == "temperature" else b * s.I_scale / s.I_reg
         D = self.column_scale(theta, lam)
         cd, cr = dI * dT * D, du * D
         if self._A_t is None:

@@ -46,11 +46,16 @@ def test_bad_input(mat):
 
 def test_projected_normal_equations_equal_the_explicit_products():
     """G = JᵀJ and g = Jᵀr of J = [A M, B M] without forming J, against scipy's explicit products
-    (random sparse blocks; M with empty rows and columns, A and B with different patterns)."""
+    (random sparse blocks; M with empty rows and columns, A and B with different patterns, some rows
+    empty)."""
     rng = np.random.default_rng(0)
     A = sp.random(700, 90, density=0.05, random_state=1, format="csr")
     B = sp.random(700, 90, density=0.08, random_state=2, format="csr")
     M = sp.random(90, 17, density=0.15, random_state=3, format="csr")
+    keep = sp.diags((np.arange(700) // 40 != 3).astype(float))  # rows 120–159 empty
+    A, B = (keep @ A).tocsr(), (keep @ B).tocsr()
+    A.eliminate_zeros()
+    B.eliminate_zeros()
     res = rng.standard_normal(700)
     for MM in (M, None):
         G, g = projected_normal_equations(A, B, MM, res)

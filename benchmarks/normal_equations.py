@@ -1,0 +1,80 @@
+"""Time of the joint fit's dense normal equations against scipy's explicit sparse products, in one run.
+
+A step of the joint T + σₐ fit on the dense path forms ``G = JᵀJ`` and
+``g = Jᵀr`` of ``J = [A M, B M]`` per channel
+(:func:`lftomo.inverse.hostsparse.projected_normal_equations`): ``A``, ``B``
+the segment table's sparse Jacobian blocks on the quadrature voxels, ``M``
+the interpolation and ring expansion onto the unknowns.  Problem: the
+``benchmarks/joint_fit.py`` case at 24³ (axisymmetric, sub-voxel quadrature 2,
+16 views of the seed camera, 16 rays/pixel).  Reference, in the same run: the
+same ``G`` and ``g`` by scipy (``A @ M``, ``B @ M``, ``hstack``, ``JᵀJ`` sparse,
+then dense).  Prints the best of ``--repeat`` times of each, their ratio and
+the largest relative difference of ``G`` and ``g``.
+
+Usage::
+
+    python benchmarks/normal_equations.py [--n 24] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+import lftomo as lt
+from lftomo.inverse.hostsparse import projected_normal_equations
+from lftomo.inverse.subvoxel import interpolation_matrix
+
+from joint_fit import setup  # (benchmarks/ is the script's folder, first on sys.path)
+
+
+def matrices(n):
+    """``A``, ``B``, ``M`` and a residual of the joint-fit case (B = 0.3 A: the pattern is the same)."""
+    cam, views, grid, _, _, _ = setup(n, 2, 100)  # the views of benchmarks/joint_fit.py
+    quad = grid.refined(2)
+    M = (interpolation_matrix(grid, quad) @ lt.ring_grid(grid).expansion).tocsr()
+    seg = lt.ray_segments(cam, quad, rays_per_pixel=16, seed=12, views=views, progress=False)
+    A = sp.csr_matrix(seg.weights(5.0).matrix)
+    B = A.copy()
+    B.data = B.data * 0.3
+    res = np.random.default_rng(0).normal(size=A.shape[0])
+    return A, B, M, res
+
+
+def scipy_normal_equations(A, B, M, res):
+    """The reference: ``J`` formed by scipy's sparse products, ``JᵀJ`` sparse, then dense."""
+    J = sp.hstack([A @ M, B @ M]).tocsr()
+    return (J.T @ J).toarray(), J.T @ res
+
+
+def best_time(fn, repeat):
+    """The least wall time of ``repeat`` calls, and the last result."""
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=24, help="reconstruction voxels per axis")
+    ap.add_argument("--repeat", type=int, default=3, help="calls timed of each (best taken)")
+    a = ap.parse_args()
+    A, B, M, res = matrices(a.n)
+    print(f"A, B: {A.shape}, {A.nnz / A.shape[0]:.1f} non-zeros per row; M: {M.shape}; "
+          f"J = [A M, B M]: {2 * (A @ M).nnz / A.shape[0]:.1f} non-zeros per row", flush=True)
+    projected_normal_equations(A[:64], B[:64], M, res[:64])  # compile
+    t_kernel, (G, g) = best_time(lambda: projected_normal_equations(A, B, M, res), a.repeat)
+    t_scipy, (G0, g0) = best_time(lambda: scipy_normal_equations(A, B, M, res), a.repeat)
+    diff = max(np.abs(G - G0).max() / np.abs(G0).max(), np.abs(g - g0).max() / np.abs(g0).max())
+    print(f"projected_normal_equations: {t_kernel:.3f} s; scipy: {t_scipy:.3f} s; "
+          f"ratio {t_scipy / t_kernel:.1f}x faster; largest relative difference {diff:.1e}")
+
+
+if __name__ == "__main__":
+    main()
