@@ -10,13 +10,16 @@ voxels.  For each ``--config`` (``kind:prior:noise_scale``, λ by the
 discrepancy rule) and each fixed ``--lambdas`` value it prints λ, χ²/m and the
 mean / max |ΔT|/T where the effective true T exceeds 800 K and 1400 K.
 
+With ``--subvoxel`` the weights are built on the 32³ truth grid for the truth's σₐ
+and the 16³ fit uses sub-voxel emission (``lt.reconstruct(..., grid=...)``).
 The render and the weights are kept in ``--cache`` (npz, loaded without pickle),
-keyed by the sampler.
+keyed by the sampler (and the weights' grid).
 
 Usage::
 
     python studies/demo_setting.py --sampler stratified --mc-floor bound \
-        --config subaperture:gradient:given,subaperture:curvature:estimated --lambdas 1000,3000 [--search root]
+        --config subaperture:gradient:given,subaperture:curvature:estimated --lambdas 1000,3000 [--search root] \
+        [--subvoxel]
 """
 from __future__ import annotations
 
@@ -31,24 +34,29 @@ from lftomo import demo
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 
 
-def inputs(sampler: str, cache: Path, rays: int):
+def inputs(sampler: str, cache: Path, rays: int, subvoxel: bool = False):
+    """The render, the weights (on the 16³ grid for its block-mean σₐ, or with ``subvoxel`` on the 32³
+    truth grid for the truth's σₐ: sub-voxel emission), the 16³ grid and its effective truth."""
     cam = lt.Camera.seed(1.0)
     fine = lt.phantoms.default_flame_grid((32, 32, 32), 1.0)
     coarse = lt.phantoms.default_flame_grid((16, 16, 16), 1.0)
     flame = lt.phantoms.axisymmetric_flame(fine, width_base=demo.FLAME_WIDTH_BASE)
     wl = demo.WAVELENGTH
     sa_c, T_eff = effective_truth(flame, coarse, wl)
+    w_grid, w_sa, tag = (fine, flame.sigma_a_at(wl), "32_") if subvoxel else (coarse, sa_c, "")
     cache.mkdir(parents=True, exist_ok=True)
-    lfp, wp = cache / f"lf_{sampler}_{rays}.npz", cache / f"W_{sampler}_{rays}.npz"
-    if lfp.exists() and wp.exists():
+    lfp, wp = cache / f"lf_{sampler}_{rays}.npz", cache / f"W_{tag}{sampler}_{rays}.npz"
+    if lfp.exists():
         lf = lt.LightField.load(lfp)
-        W = lt.WeightMatrix.load(wp, cam, coarse, wavelength=wl)
     else:
         lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=rays, seed=0, wavelengths=(wl,), progress=False,
                        sampler=sampler)
-        W = lt.weights(cam, coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=rays, seed=2, progress=False,
-                       sampler=sampler)
         lf.save(lfp)
+    if wp.exists():
+        W = lt.WeightMatrix.load(wp, cam, w_grid, wavelength=wl)
+    else:
+        W = lt.weights(cam, w_grid, sigma_a=w_sa, wavelength=wl, rays_per_pixel=rays, seed=2, progress=False,
+                       sampler=sampler)
         W.save(wp)
     return lf, W, coarse, T_eff
 
@@ -72,31 +80,33 @@ def main():
     ap.add_argument("--noise-seeds", default="1", help="comma-separated seeds of the 1 %% noise draws (one row each)")
     ap.add_argument("--search", default="projected", choices=["projected", "root"],
                     help="the discrepancy rule's λ search (lt.Discrepancy(search=...))")
+    ap.add_argument("--subvoxel", action="store_true",
+                    help="weights on the 32³ truth grid (its σₐ): the 16³ fit with sub-voxel emission")
     a = ap.parse_args()
-    lf, W, coarse, T_eff = inputs(a.sampler, Path(a.cache), a.rays)
+    lf, W, coarse, T_eff = inputs(a.sampler, Path(a.cache), a.rays, a.subvoxel)
     for noise_seed in (int(s) for s in a.noise_seeds.split(",")):
-        run_draw(a, lf, W, T_eff, noise_seed)
+        run_draw(a, lf, W, coarse, T_eff, noise_seed)
 
 
-def run_draw(a, lf, W, T_eff, noise_seed: int) -> None:
+def run_draw(a, lf, W, coarse, T_eff, noise_seed: int) -> None:
     """Every ``--config`` and ``--lambdas`` row on one noise draw."""
     noisy = lt.add_noise(lf, relative_std=demo.NOISE, seed=noise_seed)
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.rays,
                                    min_etendue_fraction=demo.MIN_ETENDUE_FRACTION, floor=a.mc_floor)
-    head = f"{a.sampler} floor={a.mc_floor} noise_seed={noise_seed}"
+    head = f"{a.sampler} floor={a.mc_floor} noise_seed={noise_seed}{' subvoxel' if a.subvoxel else ''}"
     for cfg in filter(None, a.config.split(",")):
         kind, prior, scale = cfg.split(":")
         m = lt.Measurement.from_lightfield(noisy, data=kind,
                                            depths=list(demo.COMPARE_DEPTHS) if kind == "refocus" else None)
         t = time.perf_counter()
         rec = lt.reconstruct(m, W, prior=prior, rule=lt.Discrepancy(noise_scale=scale, search=a.search),
-                             bounds=demo.BOUNDS)
+                             bounds=demo.BOUNDS, grid=coarse)
         report(f"{head} {cfg} search={a.search}", rec, T_eff, time.perf_counter() - t)
         print(f"    {rec.lambda_note}", flush=True)
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")
     for lam in (float(x) for x in filter(None, a.lambdas.split(","))):
         t = time.perf_counter()
-        rec = lt.reconstruct(m, W, rule=lt.Fixed(lam), bounds=demo.BOUNDS,
+        rec = lt.reconstruct(m, W, rule=lt.Fixed(lam), bounds=demo.BOUNDS, grid=coarse,
                              solver=lt.LevenbergMarquardt(linear_max_steps=20))
         report(f"{head} subaperture:gradient:fixed {lam:g}", rec, T_eff, time.perf_counter() - t)
 
