@@ -10,8 +10,9 @@ voxels.  For each ``--config`` (``kind:prior:noise_scale``, λ by the
 discrepancy rule) and each fixed ``--lambdas`` value it prints λ, χ²/m and the
 mean / max |ΔT|/T where the effective true T exceeds 800 K and 1400 K.
 
-With ``--subvoxel`` the weights are built on the 32³ truth grid for the truth's σₐ
-and the 16³ fit uses sub-voxel emission (``lt.reconstruct(..., grid=...)``).
+With ``--subvoxel`` the weights are built on a 32³ grid for the 16³ block-mean σₐ
+interpolated to it (no more knowledge of σₐ than the 16³ weights have) and the 16³
+fit uses sub-voxel emission (``lt.reconstruct(..., grid=...)``).
 The render and the weights are kept in ``--cache`` (npz, loaded without pickle),
 keyed by the sampler (and the weights' grid).
 
@@ -36,14 +37,15 @@ from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_
 
 def inputs(sampler: str, cache: Path, rays: int, subvoxel: bool = False):
     """The render, the weights (on the 16³ grid for its block-mean σₐ, or with ``subvoxel`` on the 32³
-    truth grid for the truth's σₐ: sub-voxel emission), the 16³ grid and its effective truth."""
+    grid for that block mean interpolated to it: sub-voxel emission, the same knowledge of σₐ), the
+    16³ grid and its effective truth."""
     cam = lt.Camera.seed(1.0)
     fine = lt.phantoms.default_flame_grid((32, 32, 32), 1.0)
     coarse = lt.phantoms.default_flame_grid((16, 16, 16), 1.0)
     flame = lt.phantoms.axisymmetric_flame(fine, width_base=demo.FLAME_WIDTH_BASE)
     wl = demo.WAVELENGTH
     sa_c, T_eff = effective_truth(flame, coarse, wl)
-    w_grid, w_sa, tag = (fine, flame.sigma_a_at(wl), "32_") if subvoxel else (coarse, sa_c, "")
+    w_grid, w_sa, tag = (fine, lt.interpolate_field(sa_c, coarse, fine), "32i_") if subvoxel else (coarse, sa_c, "")
     cache.mkdir(parents=True, exist_ok=True)
     lfp, wp = cache / f"lf_{sampler}_{rays}.npz", cache / f"W_{tag}{sampler}_{rays}.npz"
     if lfp.exists():
@@ -81,7 +83,7 @@ def main():
     ap.add_argument("--search", default="projected", choices=["projected", "root"],
                     help="the discrepancy rule's λ search (lt.Discrepancy(search=...))")
     ap.add_argument("--subvoxel", action="store_true",
-                    help="weights on the 32³ truth grid (its σₐ): the 16³ fit with sub-voxel emission")
+                    help="weights on a 32³ grid (the 16³ σₐ interpolated): the 16³ fit with sub-voxel emission")
     a = ap.parse_args()
     lf, W, coarse, T_eff = inputs(a.sampler, Path(a.cache), a.rays, a.subvoxel)
     for noise_seed in (int(s) for s in a.noise_seeds.split(",")):
