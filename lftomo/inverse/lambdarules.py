@@ -537,7 +537,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         if settled(found[0], lam) and done:
             break
         lam, theta = found[0], e.theta
-    if not (e.converged or not require_converged) or miss > DISCREPANCY_JUMP:
+    if not done or miss > DISCREPANCY_JUMP:  # (done: the last solve converged, or need not have)
         return None
     steps = f"inexact solves (≤ {inner_steps} steps)" if inner_steps else "Gauss–Newton steps"
     note = (f"projected discrepancy search: {n_gn} {steps} with λ on each projected linearisation, "
@@ -979,12 +979,12 @@ class DiscrepancyBracket(LambdaRule):
     lambda_max : float, optional
         Largest λ the search tries (default the joint fit's, 1e6).
     search : {"projected", "bracket"}
-        ``"projected"``: λ chosen on the fit's linearisation at each
-        Gauss–Newton iterate, then one solve at that λ
+        ``"projected"``: λ chosen on the fit's linearisation at each iterate,
+        each followed by a short inexact solve at that λ, until λ settles
         (:func:`projected_bracket_search`); where the fit offers no
-        linearisation (the matrix-free solvers) or the search does not meet
-        the target, the bracket search follows.  ``"bracket"``: a factor-10
-        ladder of solves and two bisections (:func:`bracket_search`).
+        linearisation or the search does not meet the target, the bracket
+        search follows.  ``"bracket"``: a factor-10 ladder of solves and two
+        bisections (:func:`bracket_search`).
     """
 
     name = "discrepancy-bracket"
