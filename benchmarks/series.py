@@ -4,9 +4,10 @@ Frames: :func:`lftomo.phantoms.precessing_flame` at ``--frames`` instants (1000 
 precession) on an ``--n``³ grid in the default flame box, rendered at 650 nm by the seed camera with
 ``--mla`` lenslets per side (``--rays`` rays/pixel, seed 1); the weight matrix on the same grid for
 the phantom's fixed absorption (seed 2, another set of rays); 1 % noise (seed 100 + frame).  Every
-frame is reconstructed with a fixed λ (``--lam``) and ``--max-steps`` steps, once serially in this
-process (``lt.reconstruct``), once by :func:`lftomo.reconstruct_series` on a LocalCluster of
-``--workers`` single-threaded processes.
+frame is reconstructed with the library's defaults (λ by its discrepancy rule; bounds 300–2500 K) or,
+with ``--lam``, with that fixed λ and ``--max-steps`` steps (a short frame, where the solver's one
+compilation per process weighs most), once serially in this process (``lt.reconstruct``), once by
+:func:`lftomo.reconstruct_series` on a LocalCluster of ``--workers`` single-threaded processes.
 
 The fields are bit-identical when this process runs with the workers' thread settings
 (``lftomo.series.WORKER_ENV``: ``OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1
@@ -25,7 +26,8 @@ of each worker process, and how many copies of the forward model the tasks used 
 
 Usage::
 
-    python benchmarks/series.py [--frames 16] [--n 16] [--mla 16] [--workers 2] [--max-steps 10]
+    OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \\
+        python benchmarks/series.py [--frames 16] [--n 16] [--mla 16] [--workers 2] [--lam 0.01 --max-steps 10]
 """
 
 from __future__ import annotations
@@ -49,6 +51,13 @@ def _peak_rss_mb() -> float:
 
 def _import_solvers() -> None:
     import lftomo.inverse.solvers  # noqa: F401 - JAX imported, as in the serial process and the workers
+
+
+def _cpu_seconds(pids: dict) -> dict:
+    """CPU seconds (user + system) used so far by each process of ``{role: [pid, ...]}``, summed per role."""
+    import psutil  # a dependency of distributed
+
+    return {role: sum(sum(psutil.Process(p).cpu_times()[:2]) for p in ps) for role, ps in pids.items()}
 
 
 def _plain_share(frames, W, opts, first: int, step: int) -> list:
@@ -91,7 +100,8 @@ def main() -> None:
     ap.add_argument("--mla", type=int, default=16)
     ap.add_argument("--rays", type=int, default=4)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--lam", type=float, default=1e-2)
+    ap.add_argument("--lam", type=float, default=None,
+                    help="a fixed λ with --max-steps LM steps per frame (default: the library's defaults, λ by its rule)")
     ap.add_argument("--max-steps", type=int, default=10)
     a = ap.parse_args()
     wl = 650e-9
@@ -107,8 +117,9 @@ def main() -> None:
           f"nnz {W.nnz} ({W.nbytes / 1e6:.1f} MB) in {time.perf_counter() - t0:.1f} s; load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     # lt.reconstruct's settings; reconstruct_series takes the same (recorded in its manifest by their repr)
-    opts = series_opts = {"rule": lt.Fixed(a.lam), "solver": lt.LevenbergMarquardt(max_steps=a.max_steps),
-                          "bounds": (300.0, 2500.0)}
+    opts = series_opts = {"bounds": (300.0, 2500.0)}
+    if a.lam is not None:
+        opts.update(rule=lt.Fixed(a.lam), solver=lt.LevenbergMarquardt(max_steps=a.max_steps))
 
     t0 = time.perf_counter()
     serial, t_frames = [], []
@@ -131,10 +142,14 @@ def main() -> None:
     client = Client(cluster)
     client.run(lambda: __import__("lftomo.inverse.solvers"))  # imports (JAX) in every worker, as serial had
     t_start = time.perf_counter() - t0
+    # a LocalCluster's scheduler and nannies run in this process, beside the client
+    pids = {"workers": list(client.run(os.getpid).values()), "this process (client, scheduler, nannies)": [os.getpid()]}
+    cpu0 = _cpu_seconds(pids)
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
         res = lt.reconstruct_series(frames, W, out=out, client=client, noise=0.01, seed=100, **series_opts)
         t_series = time.perf_counter() - t0
+        cpu = {k: v - cpu0[k] for k, v in _cpu_seconds(pids).items()}
         man = json.load(open(os.path.join(out, "manifest.json")))
         stack = res.stack()
     rss = client.run(_peak_rss_mb)
@@ -150,6 +165,8 @@ def main() -> None:
           f"bit-identical to serial: {same} (max |dT| {dT:.3g} K)")
     print("peak memory per worker (MB): " + ", ".join(f"{v:.0f}" for v in rss.values())
           + f"; this process {_peak_rss_mb():.0f} MB")
+    print("CPU seconds during the series: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items())
+          + f" (of {a.workers} x {t_series:.1f} s of wall time on the workers' cores)")
     print(f"forward-model copies used by the tasks: {len(copies)} on {len(workers)} worker process(es)")
     for w in sorted(workers):  # per worker: its first frame compiles the solver, the later ones reuse it
         secs = [f["seconds"] for f in sorted(man["frames"], key=lambda f: f["completed"]) if f["worker"] == w]

@@ -55,11 +55,18 @@ __all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "W
 #: Environment of the default LocalCluster's worker processes: one thread per library.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
               "MKL_NUM_THREADS": "1"}
-#: Dask settings of the default LocalCluster: glibc's malloc left at its defaults.  Dask's nanny
+#: Dask settings of the default LocalCluster.  glibc's malloc is left at its defaults: Dask's nanny
 #: sets ``MALLOC_TRIM_THRESHOLD_=65536`` in its workers, which also turns off glibc's adaptive
-#: mmap threshold, so every array above 128 KiB is a fresh mmap with its pages faulted in anew:
-#: a frame's solve then takes 1.5-1.8x as long (docs/series.md).  ``None`` unsets it.
-WORKER_DASK_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+#: mmap threshold, so every array above 128 KiB is a fresh mmap with its pages faulted in anew
+#: (``None`` unsets it).  Dask's own monitoring runs less often: the event-loop tick (20 ms), the
+#: workers' statistical profiler (a stack sample every 10 ms), the nannies' memory check (100 ms)
+#: and the system monitor (500 ms) are for its dashboard and diagnostics, and on a machine whose
+#: every core runs a worker they take CPU from the frames (docs/series.md).
+WORKER_DASK_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                      "distributed.admin.tick.interval": "1s",
+                      "distributed.worker.profile.enabled": False,
+                      "distributed.worker.memory.monitor-interval": "1s",
+                      "distributed.admin.system-monitor.interval": "2s"}
 #: Name of the manifest in the output folder.
 MANIFEST = "manifest.json"
 FORMAT = "lftomo-series-1"

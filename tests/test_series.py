@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import lftomo as lt
-from lftomo.series import local_cluster, reconstruct_series
+from lftomo.series import WORKER_DASK_CONFIG, local_cluster, reconstruct_series
 
 distributed = pytest.importorskip("distributed")
 
@@ -49,6 +49,20 @@ def test_workers_run_single_threaded_with_glibc_malloc_defaults(client):
     assert len(env) == 2
     for e in env.values():
         assert e == {"MALLOC_TRIM_THRESHOLD_": None, "NUMBA_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
+def test_workers_run_without_dasks_profiler(client):
+    """Dask's monitoring (a stack sample of a busy worker every 10 ms, a 20 ms event-loop tick, ...) took
+    CPU from the frames on 2 cores: the workers of our cluster run with the profiler off and the slower
+    intervals of WORKER_DASK_CONFIG."""
+    import dask
+
+    keys = ("distributed.worker.profile.enabled", "distributed.admin.tick.interval",
+            "distributed.worker.memory.monitor-interval")
+    seen = client.run(lambda: {k: dask.config.get(k) for k in keys})
+    assert len(seen) == 2
+    for cfg in seen.values():
+        assert cfg == {k: WORKER_DASK_CONFIG[k] for k in keys}, cfg
 
 
 def _manifest(out):
