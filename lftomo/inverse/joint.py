@@ -175,6 +175,7 @@ import numpy as np
 import optimistix as optx
 import scipy.linalg as sla
 import scipy.sparse as sp
+from scipy.special import expit
 
 from .._validate import require_choice, require_steps
 from ..forward.grid import Grid
@@ -545,7 +546,7 @@ class JointModel:
         ``pv`` (m × 2 n_u): ``∂F/∂T = W(σ) diag(I_b'(T))`` and ``∂F/∂σ`` of the segment table, through ``E P``
         and the sigmoids."""
         n_u, lo, hi, space = self.n_u, self.lo, self.hi, self.space
-        sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
+        sg, sr = expit(pv[:n_u]), expit(pv[n_u:])
         T, sref = lo + (hi - lo) * sg, space.sigma_of_unit(sr)
         dT, ds = (hi - lo) * sg * (1.0 - sg), space.dsigma_du(sref) * sr * (1.0 - sr)
         Tv, sv = (T, sref) if self.to_seg is None else (self.to_seg @ T, self.to_seg @ sref)
@@ -565,7 +566,7 @@ class JointModel:
     def prior_jacobian(self, pv) -> tuple[np.ndarray, sp.csr_matrix]:
         """The prior residual (without √λ: T smoothness, σ smoothness, σ ridge) and its Jacobian in ``pv``."""
         n_u, L = self.n_u, self.L_sp
-        sg, sr = 1.0 / (1.0 + np.exp(-pv[:n_u])), 1.0 / (1.0 + np.exp(-pv[n_u:]))
+        sg, sr = expit(pv[:n_u]), expit(pv[n_u:])
         b = self.space.b_prior
         q = b * sr  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
         r = np.concatenate([L @ sg, L @ q, math.sqrt(self.ridge) * q])
@@ -770,14 +771,14 @@ class DenseLMPath(_JointPath):
 
     def terms(self, theta, lam) -> tuple[float, float]:
         """``(χ²/m, ‖R‖)`` at the log-odds ``theta`` (no solve)."""
-        x = 1.0 / (1.0 + np.exp(-np.asarray(theta, np.float64)))
+        x = expit(np.asarray(theta, np.float64))
         _, data_sq = self.evaluate(x, lam, False)
         return data_sq / self.m_total, math.sqrt(self.prior_terms(x)[0])
 
     def linearization(self, theta, lam) -> Linearization:
         """The fit linearised at the log-odds ``theta``: its exact dense Gauss–Newton matrices in ``θ``
         (``∂x/∂θ = x(1 − x)``), Jacobi-scaled at ``lam``."""
-        x = 1.0 / (1.0 + np.exp(-np.asarray(theta, np.float64)))
+        x = expit(np.asarray(theta, np.float64))
         _, data_sq, Gd, gd = self.evaluate(x, 0.0, True)  # λ = 0: the data part alone
         prior_sq, gr = self.prior_terms(x)
         Gr = self.prior_gram()
@@ -802,7 +803,7 @@ class DenseLMPath(_JointPath):
     def fit_dof(self, e: Eval) -> tuple[float, float]:
         """``tr(2H − H²)`` of the fit ``e`` exactly, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` from the dense normal
         matrices (unknowns held at a bound excluded, as the log-odds of the other methods exclude them)."""
-        x = 1.0 / (1.0 + np.exp(-np.asarray(e.theta, np.float64)))
+        x = expit(np.asarray(e.theta, np.float64))
         G_d = self.evaluate(x, 0.0, True)[2]
         free = (x > 1e-9) & (x < 1.0 - 1e-9)
         C = (G_d + e.lam * self.prior_gram())[np.ix_(free, free)]
@@ -821,7 +822,7 @@ class DenseLMPath(_JointPath):
             bar.update(1)
             bar.set_postfix_str(f"λ={lam:.3g} χ²/m={data_sq / m_total:.4g}")
 
-        x0 = 1.0 / (1.0 + np.exp(-np.asarray(p0, np.float64)))
+        x0 = expit(np.asarray(p0, np.float64))
         res = levenberg_marquardt_dense(lambda x, jac: self.evaluate(x, lam, jac), x0, lower=np.zeros(x0.size),
                                         upper=np.ones(x0.size), max_steps=steps_max, ftol=self.FTOL,
                                         slow_rtol=1e-6 if objective_rtol is None else objective_rtol,

@@ -161,6 +161,7 @@ import optimistix as optx  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
 from scipy.optimize import lsq_linear  # noqa: E402
+from scipy.special import expit  # noqa: E402
 
 from ..radiation import (  # noqa: E402  (re-exported: the JAX laws used to live here)
     blackbody,
@@ -514,7 +515,7 @@ class _Runner:
         self.evals: list[Eval] = []
         self.total_steps = 0
         self.bar = NoBar()  # progress: one tick per nonlinear step, λ and χ²/m in the postfix
-        self._A_t = self._L_t = None  # transposes for linearization(), made once
+        self._A_t = self._L_t = self._E_t = None  # transposes for linearization(), made once
 
     def args(self, lam: float) -> dict:
         a = dict(self._args)
@@ -542,7 +543,7 @@ class _Runner:
         """At the log-odds ``theta``: ``T``, ``dT/dθ``, ``dI/dT`` (scaled radiance) and ``du/dθ`` of the
         penalised quantity ``u`` (T or radiance, scaled)."""
         s = self.s
-        sig = 1.0 / (1.0 + np.exp(-theta))
+        sig = expit(theta)
         T = s.tmin + (s.tmax - s.tmin) * sig
         dT = (s.tmax - s.tmin) * sig * (1.0 - sig)
         dI = dblackbody_dT(T, s.wavelength) / s.I_scale
@@ -551,26 +552,49 @@ class _Runner:
 
     def linearization(self, theta: np.ndarray, lam: float) -> Linearization | None:
         """The fit linearised at ``theta`` in the Jacobi-scaled unknowns (:meth:`column_scale` at ``lam``), as
-        numpy/scipy products; None where it is not offered (non-quadratic prior, sub-voxel emission)."""
+        numpy/scipy products; None where it is not offered (non-quadratic prior).
+
+        With sub-voxel emission the data Jacobian is ``A_q diag(I_b'(E T)) E diag(dT/dθ)``: Planck's law
+        of the interpolated temperature, as in the solver's residual.
+        """
         s = self.s
-        if s.E is not None or not s.prior_model.quadratic:
+        if not s.prior_model.quadratic:
             return None
         theta = np.asarray(theta, dtype=np.float64)
         T, dT, dI, du = self._chain(theta)
         b = blackbody(T, s.wavelength) / s.I_scale
         u = T / s.T_scale if s.penalize == "temperature" else b * s.I_scale / s.I_reg
         D = self.column_scale(theta, lam)
-        cd, cr = dI * dT * D, du * D
+        cr = du * D
         if self._A_t is None:
-            self._A_t, self._L_t = s.A_s.T.tocsr(), s.L.T.tocsr()
-        A, L, A_t, L_t = s.A_s, s.L, self._A_t, self._L_t
+            self._A_t, self._L_t = self._A_data.T.tocsr(), s.L.T.tocsr()
+            self._E_t = None if s.E is None else s.E.T.tocsr()
+        A, L, A_t, L_t = self._A_data, s.L, self._A_t, self._L_t
         # the products by the row-parallel CSR kernel of the solver's host callbacks (scipy's is serial)
+        if s.E is None:
+            cd = dI * dT * D
+            jd, jd_t = (lambda v: csr_product(A, cd * v)), (lambda r: cd * csr_product(A_t, r))
+        else:
+            E, E_t, cT = s.E, self._E_t, dT * D
+            T_q = csr_product(E, T)
+            b, dI_q = blackbody(T_q, s.wavelength) / s.I_scale, dblackbody_dT(T_q, s.wavelength) / s.I_scale
+
+            def jd(v):
+                return csr_product(A, dI_q * csr_product(E, cT * v))
+
+            def jd_t(r):
+                return cT * csr_product(E_t, dI_q * csr_product(A_t, r))
+
         return Linearization.from_jacobians(
             rd=csr_product(A, b) - s.d, rr=csr_product(L, u),
-            jd=lambda v: csr_product(A, cd * v), jd_t=lambda r: cd * csr_product(A_t, r),
-            jr=lambda v: csr_product(L, cr * v), jr_t=lambda w: cr * csr_product(L_t, w),
+            jd=jd, jd_t=jd_t, jr=lambda v: csr_product(L, cr * v), jr_t=lambda w: cr * csr_product(L_t, w),
             chi2_offset=s.chi2_empty, m_total=s.m_total, scale=D,
         )
+
+    @property
+    def _A_data(self) -> sp.csr_matrix:
+        """The whitened, scaled data matrix of the residual: on the quadrature grid with sub-voxel emission."""
+        return self.s.A_s if self.s.E is None else self.s.A_q
 
     def solve(self, lam: float, theta0, max_steps: int | None = None, objective_rtol: float | None = None) -> Eval:
         """Nonlinear solve at ``lam`` from ``theta0``.

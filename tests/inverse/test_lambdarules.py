@@ -198,6 +198,23 @@ def test_inexact_projected_search_halves_a_reversing_lambda_step(monkeypatch):
     assert [x.lam for x in path.evals] == pytest.approx([4000.0, 1000.0, 1000.0], rel=1e-12)
 
 
+def test_projected_search_takes_the_secant_between_solves_that_bracket_the_target(monkeypatch):
+    """The search's final solves: from λ_ref = 250 (χ²/m below the target) every linearisation asks
+    for λ*²/λ, here 4000 (above it).  Two converged solves then bracket the target, and the next λ is
+    the secant of χ²/m in log λ between them: λ* = 1000 exactly (χ²/m is linear in log λ here), which
+    meets the target.  Taking the linearisation's λ again would go back to 250."""
+    import lftomo.inverse.projected as projected
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", OvershootingProjection)
+    path = OvershootingPath()
+    found = projected_discrepancy_search(path, np.array([math.log(250.0)]), 250.0, 1.0, 1e-4, 1e-4,
+                                         lam_range=(1e-3, 1e6), max_gauss_newton=0, max_solves=3)
+    assert found is not None
+    e, note = found
+    assert [x.lam for x in path.evals] == pytest.approx([250.0, 4000.0, 1000.0], rel=1e-12), note
+    assert e.lam == pytest.approx(path.lam_star, rel=1e-12) and abs(e.chi2 - 1.0) < 1e-12
+
+
 def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
     """σ overestimated (data ×0.1): no λ attains χ²/m = 1 on the projected problem either; the root
     search takes over (and with it the estimated noise scale)."""

@@ -217,3 +217,40 @@ def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_mi
                                                                                  sur.regularization)
     hot = flame.T > 800.0
     assert np.max(np.abs(sol.T[hot] / flame.T[hot] - 1.0)) < 0.01
+
+
+@pytest.mark.parametrize("subvoxel, penalize", [(False, "temperature"), (True, "temperature"), (True, "intensity")])
+def test_linearization_is_the_derivative_of_the_objective(subvoxel_blob, subvoxel, penalize):
+    """The T-only fit's linearisation (the projected λ search's input), with and without sub-voxel
+    emission: ``J_dᵀ r_d`` and ``J_rᵀ r_r`` (per unit of the scaled unknowns) are half the central
+    differences of χ² and ‖R‖² of the solver's own JAX objective (step 1e-5), and ``J_dᵀJ_d`` is the
+    Gram matrix of the Jacobian products (symmetric, positive semi-definite)."""
+    from lftomo.inverse import solvers as S
+
+    cam, grid, quad, flame, m, W_q = subvoxel_blob
+    problem, _ = problem_on_grid(m, W_q, grid if subvoxel else quad)
+    assert (problem.interpolation is not None) == subvoxel
+    s = S._make_setup(problem, bounds=(500.0, 2500.0), prior="curvature", penalize=penalize, tv_eps=1e-3,
+                      T_ref=None)
+    run = S._Runner(s, method="levenberg-marquardt", rtol=1e-6, atol=1e-6, max_steps=10, linear_rtol=1e-6,
+                    linear_max_steps=10)
+    n = problem.grid.n_voxels
+    theta = np.random.default_rng(2).normal(0.3, 0.7, n)
+    lam = 3.0
+    lin = run.linearization(theta, lam)
+    chi2, reg = run.terms(theta, lam)
+    assert lin.data_sq == pytest.approx(chi2 * run.m_total, rel=1e-10)
+    assert lin.prior_sq == pytest.approx(reg**2, rel=1e-10)
+    h = 1e-5
+    for k in np.random.default_rng(3).choice(n, 12, replace=False):
+        e = np.zeros(n)
+        e[k] = h
+        (cp, rp), (cm, rm) = run.terms(theta + e, lam), run.terms(theta - e, lam)
+        d_data = (cp - cm) * run.m_total / (2 * h)
+        d_prior = (rp**2 - rm**2) / (2 * h)
+        assert 2 * lin.gd[k] / lin.scale[k] == pytest.approx(d_data, rel=1e-5, abs=1e-7 * lin.data_sq), k
+        assert 2 * lin.gr[k] / lin.scale[k] == pytest.approx(d_prior, rel=1e-5, abs=1e-7 * lin.prior_sq), k
+    V = np.random.default_rng(4).standard_normal((n, 6))
+    G = np.column_stack([lin.normal_d(v) for v in V.T])
+    np.testing.assert_allclose(V.T @ G, (V.T @ G).T, rtol=1e-10, atol=1e-12 * np.abs(V.T @ G).max())
+    assert np.linalg.eigvalsh(0.5 * (V.T @ G + G.T @ V)).min() >= -1e-10 * np.abs(V.T @ G).max()
