@@ -31,6 +31,8 @@ def add_design_parser(sub: Any, *, positive_int, positive_float, add_allow_outsi
     d.add_argument("--compare", action="store_true",
                    help="also design the standard configurations (1, 2 at 90°, 3 at 60° cameras; stop; focus; "
                         "900 nm; pixels per microlens) around the first camera and write a comparison table")
+    d.add_argument("--quadrature", type=positive_int, default=1,
+                   help="sub-voxel emission: weights on the grid refined by this factor per axis (default 1)")
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     add_allow_outside(d)
     d.set_defaults(func=run_design)
@@ -54,7 +56,7 @@ def run_design(args: Any) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     show = not args.quiet
-    kw = dict(noise=args.noise, seed=args.seed)
+    kw = dict(noise=args.noise, seed=args.seed, quadrature=args.quadrature)
     d = design(cams, grid, flame, wavelength=args.wavelength, rays_per_pixel=args.rays, progress=show, **kw)
     s = d.summary()
     atomic_write_text(out / "design.json", json.dumps({"scene": str(args.scene), "grid_shape": list(grid.shape),

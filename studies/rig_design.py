@@ -17,6 +17,7 @@ same total rays per pixel (a rig of k cameras traces ``--rays / k`` per camera):
 Usage::
 
     python studies/rig_design.py [--n 16] [--rays 64] [--configs "one camera,two cameras at 90°"] [--json out.json]
+        [--sampler stratified] [--noise-scale given|estimated] [--quadrature 2]
 
 Prints one Markdown table (ranked by predicted error) and the ratio of the
 two-camera to the one-camera achieved error.
@@ -49,6 +50,8 @@ def main() -> None:
                     choices=["stratified", "independent"], help="pixel sampler of the renders and the weights")
     ap.add_argument("--noise-scale", default="default", choices=["default", "given", "estimated"],
                     help="the discrepancy rule's noise scale (lt.Discrepancy); default: the library's rule")
+    ap.add_argument("--quadrature", type=int, default=1,
+                    help="sub-voxel emission: the weights on the grid refined by this factor (lt.design(quadrature=))")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     t0 = time.perf_counter()
@@ -65,7 +68,7 @@ def main() -> None:
     rows_by_draw = []
     for draw in range(a.draws):
         designs = design_configurations(configs, grid, flame, rays_per_pixel=a.rays, noise=a.noise, hot=a.hot,
-                                        seed=1000 * draw, sampler=a.sampler,
+                                        seed=1000 * draw, sampler=a.sampler, quadrature=a.quadrature,
                                         rule=None if a.noise_scale == "default" else lt.Discrepancy(noise_scale=a.noise_scale),
                                         progress=True)
         rows_by_draw.append(compare_designs(designs))

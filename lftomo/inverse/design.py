@@ -113,9 +113,14 @@ class Design:
         (``regularization="auto"``).
     measurements, weights : tuple
         Per camera, the simulated :class:`~lftomo.Measurement` and its
-        :class:`~lftomo.WeightMatrix` (to reconstruct more draws).
+        :class:`~lftomo.WeightMatrix` (to reconstruct more draws; on the
+        quadrature grid with ``quadrature`` > 1, reconstructed with
+        ``grid=grid``).
     timing : dict
         Seconds per stage.
+    quadrature : int
+        Sub-voxel emission: the weights' grid refines ``grid`` by this factor
+        per axis (1: uniform emission per voxel).
     """
 
     grid: Grid
@@ -140,6 +145,7 @@ class Design:
     measurements: tuple = ()
     weights: tuple = ()
     timing: dict = field(default_factory=dict)
+    quadrature: int = 1
 
     @property
     def predicted_error(self) -> np.ndarray:
@@ -156,7 +162,7 @@ class Design:
             error), ``posterior_std_mean_rel``, ``spread_mean_rel``,
             ``bias_mean_rel``, ``crb_median_rel``, ``crb_below_1pct``
             (fraction of hot voxels), ``psf_width_mean_m`` (x, y, z),
-            ``regularization``, ``n_data``, ``n_cameras``, and, when a
+            ``regularization``, ``n_data``, ``n_cameras``, ``quadrature``, and, when a
             reconstruction chose λ, ``reconstruction_mean_rel`` (its achieved
             mean |ΔT|/T over the same voxels: one noise draw).
         """
@@ -165,6 +171,7 @@ class Design:
         crb = self.crb[hot] / T
         out = {
             "n_cameras": len(self.cameras), "n_data": int(self.n_data), "hot_voxels": int(hot.sum()),
+            "quadrature": int(self.quadrature),
             "regularization": float(self.regularization),
             "predicted_mean_rel": float(np.mean(self.predicted_error[hot] / T)),
             "posterior_std_mean_rel": float(np.mean(self.T_std[hot] / T)),
@@ -378,6 +385,7 @@ def design(
     sampler: str = DEFAULT_SAMPLER,
     progress: bool | None = None,
     dense_max: int = DESIGN_DENSE_MAX,
+    quadrature: int = 1,
 ) -> Design:
     """Predict what a rig of plenoptic cameras resolves in a flame (module docstring).
 
@@ -424,6 +432,12 @@ def design(
         A progress bar over the stages (default: when stderr is a terminal).
     dense_max : int
         Largest voxel count.
+    quadrature : int
+        Sub-voxel emission (as ``lftomo.reconstruct(..., grid=grid)``): the
+        weights are built on ``grid`` refined by this factor per axis, for
+        ``sigma_a`` interpolated to it, and the temperature of ``grid`` is
+        interpolated there before Planck's law, in the reconstruction and in
+        the linearised predictions.  Default 1: uniform emission per voxel.
 
     Returns
     -------
@@ -438,24 +452,28 @@ def design(
     from .problem import stack_problems
     from .reconstruct import DEFAULT_PRIOR, problem_on_grid, reconstruct
     from .regularizers import resolve_prior
+    from .subvoxel import interpolate_field
 
     cams = _cameras(rig)
     rays_per_pixel = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
     data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
     _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max)
+    quadrature = require_int("quadrature", quadrature, minimum=1)
     if sampler not in SAMPLERS:
         raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
     prior_name = resolve_prior(DEFAULT_PRIOR if prior is None else prior, quadratic_only=True,
                                where="design (a Gaussian prior)").name
     sa, T = effective_truth(flame, grid, float(wavelength))
+    wgrid = grid if quadrature == 1 else grid.refined(quadrature)
+    sa_w = sa if quadrature == 1 else interpolate_field(sa, grid, wgrid)
     probes = _default_probes(T, hot) if probes is None else _check_probes(probes, grid.shape)
     show = sys.stderr.isatty() if progress is None else bool(progress)
     bar = progress_bar(2 * len(cams) + 2, show, "design", unit="step")
     clock: dict[str, float] = {}
     try:
         t0 = time.perf_counter()
-        ms, Ws = _measurements(cams, grid, flame, noise=noise, wavelength=float(wavelength),
-                               rays_per_pixel=rays_per_pixel, data_rays_per_pixel=data_rays, seed=seed, sa=sa,
+        ms, Ws = _measurements(cams, wgrid, flame, noise=noise, wavelength=float(wavelength),
+                               rays_per_pixel=rays_per_pixel, data_rays_per_pixel=data_rays, seed=seed, sa=sa_w,
                                bar=bar, sampler=sampler)
         clock["render_and_weights"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -463,7 +481,7 @@ def design(
         if regularization == "auto":
             bar.set_postfix_str("reconstruct one draw (λ)")
             rec = reconstruct(ms if len(ms) > 1 else ms[0], Ws if len(Ws) > 1 else Ws[0], prior=prior_name,
-                              bounds=bounds, rule=rule)
+                              bounds=bounds, rule=rule, grid=grid)
             lam = float(rec.regularization)
         else:
             lam = float(regularization)
@@ -489,7 +507,7 @@ def design(
                   lambda_rule="fixed" if rec is None else rec.lambda_rule, prior=prior_name, hot=float(hot),
                   n_data=int(problem.y.size), cameras=cams, wavelength=float(wavelength), noise=float(noise),
                   rays_per_pixel=int(rays_per_pixel), reconstruction=rec, measurements=tuple(ms), weights=tuple(Ws),
-                  timing=clock)
+                  timing=clock, quadrature=quadrature)
 
 
 def _cos_sin_degrees(a: float) -> tuple[float, float]:

@@ -150,3 +150,30 @@ def test_design_uses_the_sampler_it_is_given_for_images_and_weights(blob_design)
                 progress=False)
     assert ds.weights[0].metadata["sampler"] == "stratified"
     assert ds.weights[0].row_std_error is not None
+
+
+def test_design_with_sub_voxel_emission_linearises_the_sub_voxel_model(blob_design):
+    """``quadrature=2``: the weights on the 10³ quadrature grid (σₐ interpolated), and the predicted posterior
+    std is sqrt(diag((JᵀJ + λ LsᵀLs)⁻¹)) with J the central differences (±1 K) of the whitened sub-voxel model
+    Σ^{-1/2} A I_b(E T) (Planck's law of the interpolated T, not I_b interpolated linearly)."""
+    from lftomo.inverse.reconstruct import DEFAULT_PRIOR, problem_on_grid
+    from lftomo.inverse.regularizers import prior_operator
+
+    cam, grid, flame, d = blob_design
+    lam = d.regularization
+    dq = design(cam, grid, flame, noise=0.01, rays_per_pixel=16, regularization=lam, quadrature=2, progress=False)
+    assert dq.quadrature == 2 and dq.summary()["quadrature"] == 2 and dq.weights[0].shape[1] == 10**3
+    p, _ = problem_on_grid(dq.measurements[0], dq.weights[0], grid)
+    assert p.interpolation is not None
+    Aw, _ = p.whitened()
+    T = dq.T_true.ravel()
+
+    def model(Tv):
+        return Aw @ rad.planck(p.model_temperature(Tv), WL)
+
+    J = np.column_stack([(model(T + e) - model(T - e)) / 2.0 for e in np.eye(T.size)])
+    Ls = prior_operator(grid, DEFAULT_PRIOR, dimensionless=True).toarray() / (3000.0 - 300.0)
+    std = np.sqrt(np.diag(np.linalg.inv(J.T @ J + lam * Ls.T @ Ls))).reshape(grid.shape)
+    np.testing.assert_allclose(dq.T_std, std, rtol=1e-4)
+    with pytest.raises(lt.LftomoError, match="quadrature"):
+        design(cam, grid, flame, quadrature=0)
