@@ -458,9 +458,11 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
        when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
        linearisation at its solution moves by less than ``lam_settled``;
-       otherwise another solve at that λ (at most ``max_solves``), or, once two
-       converged solves lie on either side of the target, at the secant of
-       ``χ²/m`` in ``log λ`` between them.
+       otherwise another solve at that λ (at most ``max_solves``).  Once two
+       converged solves lie on either side of the target, Brent's method on
+       ``χ²/m`` in ``log λ`` between the nearest two, each solve started from
+       the one below the target, until the bracket is within ``lam_settled``
+       (χ²/m jumps across the target there).
 
     λ is searched in ``lam_range`` (default ``λ_ref · [1e-10, 1e4]``).
     Returns ``(eval, note)``, or None when the fit offers no linearisation,
@@ -519,7 +521,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         lam = lam_new
         if done:
             break
-    n_gn, solves, below, above = len(dims), 0, None, None
+    n_gn, solves, sides = len(dims), 0, {}
     # an inexact solve that converged at the settled λ is that λ's solve (to the same search_rtol)
     reuse = run.evals[-1] if inner_steps and done else None
     while True:
@@ -533,18 +535,15 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         done = e.converged or not require_converged
         if (done and miss <= tol) or solves >= max_solves:
             break
-        if done:  # the converged solves on either side of the target, nearest first
-            if e.chi2 < target:
-                below = e if below is None or e.lam > below.lam else below
-            else:
-                above = e if above is None or e.lam < above.lam else above
-        if below is not None and above is not None and below.lam < above.lam:
-            # bracketed by two solves: the secant of χ²/m in log λ between them (the linearisation
-            # at one of them has overshot the other: measured on the demo setting's views with
-            # sub-voxel emission, 2.03e5 → 0.971, linearisation's 2.46e5 → 1.040)
-            f = (target - below.chi2) / (above.chi2 - below.chi2)
-            lam, theta = below.lam * (above.lam / below.lam) ** f, e.theta
-            continue
+        if done:
+            _nearest_sides(sides, e, target)
+        if len(sides) == 2 and sides[-1].lam < sides[1].lam:
+            # bracketed by two converged solves: the linearisations' λ has overshot (χ²/m is far from
+            # linear in λ there); Brent's method in log λ instead
+            e, n = _bracketed_root(run, sides, target, tol, search_rtol, lam_settled, max_solves - solves)
+            solves += n
+            miss, done = abs(e.chi2 / target - 1.0), e.converged or not require_converged
+            break
         found = choose(e.theta, lam)
         if found is None or found[3] != 0:
             return None
@@ -558,6 +557,58 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
             f"{solves} solve(s) (subspace dimensions {', '.join(map(str, dims))}), "
             f"|chi²/m/target − 1| = {miss:.2e}")
     return e, note
+
+
+def _nearest_sides(sides: dict, e: Eval, target: float) -> None:
+    """Keep in ``sides`` the solve nearest in λ below the target (key -1, from below) and above it (key 1)."""
+    if e.chi2 < target:
+        if -1 not in sides or e.lam > sides[-1].lam:
+            sides[-1] = e
+    elif 1 not in sides or e.lam < sides[1].lam:
+        sides[1] = e
+
+
+class _StopSearch(Exception):
+    """Ends :func:`_bracketed_root`'s Brent iteration with a solve (the target met, or the solves used up)."""
+
+    def __init__(self, e: Eval) -> None:
+        self.e = e
+
+
+def _bracketed_root(run: Any, sides: dict, target: float, tol: float, search_rtol: float, lam_settled: float,
+                    max_solves: int) -> tuple[Eval, int]:
+    """``χ²/m = target`` between two converged solves that bracket it (``sides``: -1 below, 1 above), by
+    Brent's method in log λ (:func:`scipy.optimize.brentq`); each solve starts from the nearest one below the
+    target (a solve started from the over-smoothed side can stop in a poor local minimum that also meets
+    the target).  Ends when a solve is within ``tol``, when the bracket is within ``lam_settled`` (where
+    χ²/m jumps across the target) or after ``max_solves``.  Returns the solve that met the target (else the
+    converged one nearest it) and the number of solves made."""
+    from scipy.optimize import brentq
+
+    known = {math.log(x.lam): x for x in sides.values()}
+    made: list[Eval] = []
+
+    def g(x: float) -> float:
+        e = known.get(x)
+        if e is None:
+            if len(made) >= max_solves:
+                raise _StopSearch(made[-1])
+            e = run.solve(math.exp(x), sides[-1].theta, objective_rtol=search_rtol)
+            made.append(e)
+            if e.converged:
+                _nearest_sides(sides, e, target)
+            if e.converged and abs(e.chi2 / target - 1.0) <= tol:
+                raise _StopSearch(e)
+        return e.chi2 / target - 1.0
+
+    try:
+        brentq(g, math.log(sides[-1].lam), math.log(sides[1].lam), xtol=math.log1p(lam_settled), maxiter=max_solves + 2,
+               full_output=True, disp=False)
+    except _StopSearch as stop:
+        return stop.e, len(made)
+    # the bracket closed (a jump of χ²/m across the target): the converged solve nearest the target
+    tried = [x for x in made if x.converged] + list(sides.values())
+    return min(tried, key=lambda x: abs(x.chi2 / target - 1.0)), len(made)
 
 
 def _descent(run: Any, theta: np.ndarray, step: np.ndarray, lam: float,
@@ -972,7 +1023,7 @@ class Discrepancy(LambdaRule):
                 first = path.solve(lam_ref * 1e-2, theta0, self.search_steps, objective_rtol=self.search_rtol)
                 n_before += 1
                 target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
-            found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=3)
+            found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8)
             if found is not None:
                 return found[0], target, scale_note + found[1], "projected"
             # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only

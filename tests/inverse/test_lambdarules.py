@@ -19,6 +19,7 @@ from lftomo.inverse.lambdarules import (
     Eval,
     LCurve,
     JOINT_LAMBDA_SETTLED,
+    LAMBDA_SETTLED,
     LCurveDecades,
     projected_discrepancy_search,
     resolve_rule,
@@ -160,12 +161,13 @@ class OvershootingPath:
     lam_star = 1000.0
 
     def __init__(self):
-        self.m_total, self.n_unknowns, self.evals = 10**5, 10, []
+        self.m_total, self.n_unknowns, self.evals, self.starts = 10**5, 10, [], []
 
     def linearization(self, theta, lam):
         return float(np.exp(theta[0]))
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        self.starts.append(float(np.exp(start[0])))  # the λ of the solve it starts from
         e = Eval(float(lam), np.array([math.log(lam)]), 1.0 + 1e-3 * math.log(lam / self.lam_star), 1.0,
                  int(max_steps or 10), True, "")
         self.evals.append(e)
@@ -198,21 +200,62 @@ def test_inexact_projected_search_halves_a_reversing_lambda_step(monkeypatch):
     assert [x.lam for x in path.evals] == pytest.approx([4000.0, 1000.0, 1000.0], rel=1e-12)
 
 
-def test_projected_search_takes_the_secant_between_solves_that_bracket_the_target(monkeypatch):
-    """The search's final solves: from λ_ref = 250 (χ²/m below the target) every linearisation asks
-    for λ*²/λ, here 4000 (above it).  Two converged solves then bracket the target, and the next λ is
-    the secant of χ²/m in log λ between them: λ* = 1000 exactly (χ²/m is linear in log λ here), which
-    meets the target.  Taking the linearisation's λ again would go back to 250."""
+class BracketingProjection:
+    """From an iterate below λ* the projected problem asks for λ*²/λ (250 → 4000, across the target); from
+    one above λ* for ``ask_above`` (a fixed λ)."""
+
+    ask_above = 200.0
+
+    def __init__(self, lam_of_iterate):
+        self.lam_of_iterate, self.k = lam_of_iterate, 1
+
+    def discrepancy_lambda(self, target, lam_lo, lam_hi, lam_start):
+        lam = self.lam_of_iterate
+        return (OvershootingPath.lam_star**2 / lam if lam < OvershootingPath.lam_star else self.ask_above), 0
+
+
+def test_projected_search_brackets_the_target_by_regula_falsi_from_the_side_below(monkeypatch):
+    """The search's final solves: from λ_ref = 250 (χ²/m below the target) the linearisation asks for 4000
+    (above it), and from there for 200.  The two converged solves bracket the target, so the next λ is
+    the secant of χ²/m in log λ between them, λ* = 1000 exactly (χ²/m is linear in log λ here), solved
+    from the solution below the target (250), not from the over-smoothed one (4000)."""
     import lftomo.inverse.projected as projected
 
-    monkeypatch.setattr(projected, "ProjectedTikhonov", OvershootingProjection)
+    monkeypatch.setattr(projected, "ProjectedTikhonov", BracketingProjection)
     path = OvershootingPath()
     found = projected_discrepancy_search(path, np.array([math.log(250.0)]), 250.0, 1.0, 1e-4, 1e-4,
-                                         lam_range=(1e-3, 1e6), max_gauss_newton=0, max_solves=3)
+                                         lam_range=(1e-3, 1e6), max_gauss_newton=0, max_solves=5)
     assert found is not None
     e, note = found
     assert [x.lam for x in path.evals] == pytest.approx([250.0, 4000.0, 1000.0], rel=1e-12), note
+    assert path.starts == pytest.approx([250.0, 250.0, 250.0], rel=1e-12)
     assert e.lam == pytest.approx(path.lam_star, rel=1e-12) and abs(e.chi2 - 1.0) < 1e-12
+
+
+class JumpingPath(OvershootingPath):
+    """χ²/m jumps across the target at λ*: 0.8 below, 1.2 from λ* on (two branches of solutions)."""
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        e = Eval(float(lam), np.array([math.log(lam)]), 0.8 if lam < self.lam_star else 1.2, 1.0, 10, True, "")
+        self.evals.append(e)
+        return e
+
+
+def test_projected_search_gives_way_where_chi2_jumps_across_the_target(monkeypatch):
+    """A jump of χ²/m across the target: regula falsi (Illinois) closes the bracket onto it until the two
+    sides are within the settled fraction of λ, or the solves run out; the search then gives way (None)
+    to the root search, which handles jumps."""
+    import lftomo.inverse.projected as projected
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", BracketingProjection)
+    path = JumpingPath()
+    found = projected_discrepancy_search(path, np.array([math.log(990.0)]), 990.0, 1.0, 1e-4, 1e-4,
+                                         lam_range=(1e-3, 1e6), max_gauss_newton=0, max_solves=8)
+    lams = [x.lam for x in path.evals]
+    assert found is None, lams
+    below = max(x for x in lams if x < path.lam_star)
+    above = min(x for x in lams if x >= path.lam_star)
+    assert len(lams) < 8 and above / below <= 1.0 + LAMBDA_SETTLED, lams
 
 
 def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
