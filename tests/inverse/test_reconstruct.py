@@ -10,6 +10,7 @@ import lftomo as lt
 from lftomo.inverse.problem import stack_problems
 from lftomo.inverse.reconstruct import reconstruct
 from lftomo.inverse.regularizers import prior_operator
+from linearization_helpers import assert_gradients_are_half_the_differences
 
 
 @pytest.fixture(scope="module")
@@ -358,15 +359,8 @@ def test_joint_linearization_is_the_derivative_of_the_objective(solver):
     chi2, reg = path.terms(theta, lam)
     assert lin.data_sq == pytest.approx(chi2 * path.m_total, rel=1e-12)
     assert lin.prior_sq == pytest.approx(reg**2, rel=1e-12)
-    h = 1e-5
-    for k in range(theta.size):
-        e = np.zeros(theta.size)
-        e[k] = h
-        (cp, rp), (cm, rm) = path.terms(theta + e, lam), path.terms(theta - e, lam)
-        d_data = (cp - cm) * path.m_total / (2 * h)
-        d_prior = (rp**2 - rm**2) / (2 * h)
-        assert 2 * lin.gd[k] / lin.scale[k] == pytest.approx(d_data, rel=1e-5, abs=1e-6 * abs(lin.data_sq)), k
-        assert 2 * lin.gr[k] / lin.scale[k] == pytest.approx(d_prior, rel=1e-5, abs=1e-9), k
+    assert_gradients_are_half_the_differences(path, lin, theta, lam, range(theta.size),
+                                              abs_data=1e-6 * abs(lin.data_sq), abs_prior=1e-9)
     n = theta.size
     Gd = np.column_stack([lin.normal_d(v) for v in np.eye(n)])
     Gr = np.column_stack([lin.normal_r(v) for v in np.eye(n)])

@@ -11,6 +11,7 @@ import lftomo as lt
 from lftomo.inverse.fieldposterior import _whitened_jacobian
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.subvoxel import interpolation_matrix
+from linearization_helpers import assert_gradients_are_half_the_differences
 
 
 def _linear_field(g, c=(2.0, -3.0, 1.5)):
@@ -241,15 +242,8 @@ def test_linearization_is_the_derivative_of_the_objective(subvoxel_blob, subvoxe
     chi2, reg = run.terms(theta, lam)
     assert lin.data_sq == pytest.approx(chi2 * run.m_total, rel=1e-10)
     assert lin.prior_sq == pytest.approx(reg**2, rel=1e-10)
-    h = 1e-5
-    for k in np.random.default_rng(3).choice(n, 12, replace=False):
-        e = np.zeros(n)
-        e[k] = h
-        (cp, rp), (cm, rm) = run.terms(theta + e, lam), run.terms(theta - e, lam)
-        d_data = (cp - cm) * run.m_total / (2 * h)
-        d_prior = (rp**2 - rm**2) / (2 * h)
-        assert 2 * lin.gd[k] / lin.scale[k] == pytest.approx(d_data, rel=1e-5, abs=1e-7 * lin.data_sq), k
-        assert 2 * lin.gr[k] / lin.scale[k] == pytest.approx(d_prior, rel=1e-5, abs=1e-7 * lin.prior_sq), k
+    assert_gradients_are_half_the_differences(run, lin, theta, lam, np.random.default_rng(3).choice(n, 12, replace=False),
+                                              abs_data=1e-7 * lin.data_sq, abs_prior=1e-7 * lin.prior_sq)
     V = np.random.default_rng(4).standard_normal((n, 6))
     G = np.column_stack([lin.normal_d(v) for v in V.T])
     np.testing.assert_allclose(V.T @ G, (V.T @ G).T, rtol=1e-10, atol=1e-12 * np.abs(V.T @ G).max())
