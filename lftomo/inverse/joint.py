@@ -727,6 +727,17 @@ class DenseLMPath(_JointPath):
         """``F``, its data part and, on request, ``G = JᵀJ``, ``g = Jᵀr`` at ``x = [(T − T_min)/(T_max − T_min),
         u]`` (the unit box, ``σ_ref = sigma_of_unit(u)``; exact sparse Jacobians of the segment table, projected
         on the unknowns)."""
+        data = self.data_terms(x, with_jacobian)
+        prior_sq, g_prior = self.prior_terms(x)
+        F = data[0] + lam * prior_sq
+        if not with_jacobian:
+            return F, data[0]
+        data_sq, G, g = data
+        return F, data_sq, G + lam * self.prior_gram(), g + lam * g_prior
+
+    def data_terms(self, x, with_jacobian):
+        """``(χ²,)`` of the data at the unit-box point ``x``, or ``(χ², G_d, g_d)`` with the data's
+        Gauss–Newton matrix and gradient half in the unit-box unknowns (:meth:`evaluate` without the prior)."""
         md = self.model
         n_u, lo, hi = md.n_u, md.lo, md.hi
         T, sref = lo + (hi - lo) * x[:n_u], md.space.sigma_of_unit(x[n_u:])  # ∂T/∂x = T_max − T_min
@@ -748,17 +759,13 @@ class DenseLMPath(_JointPath):
                 Gc, gc = projected_normal_equations(Wc, Jc, self.to_seg_csr, res)
                 G += Gc
                 g += gc
-        prior_sq, g_prior = self.prior_terms(x)
-        F = data_sq + lam * prior_sq
         if not with_jacobian:
-            return F, data_sq
+            return (data_sq,)
         d = md.space.dsigma_du(sref)  # the σ_ref columns: ∂/∂u = ∂σ_ref/∂u · ∂/∂σ_ref
         G[:, n_u:] *= d
         G[n_u:, :] *= d[:, None]
         g[n_u:] *= d
-        G += lam * self.prior_gram()
-        g += lam * g_prior
-        return F, data_sq, G, g
+        return data_sq, G, g
 
     def prior_terms(self, x) -> tuple[float, np.ndarray]:
         """``‖R‖²`` of the prior at the unit-box point ``x`` and its gradient half ``J_Rᵀ R`` (per unit λ)."""
@@ -772,14 +779,14 @@ class DenseLMPath(_JointPath):
     def terms(self, theta, lam) -> tuple[float, float]:
         """``(χ²/m, ‖R‖)`` at the log-odds ``theta`` (no solve)."""
         x = expit(np.asarray(theta, np.float64))
-        _, data_sq = self.evaluate(x, lam, False)
+        (data_sq,) = self.data_terms(x, False)
         return data_sq / self.m_total, math.sqrt(self.prior_terms(x)[0])
 
     def linearization(self, theta, lam) -> Linearization:
         """The fit linearised at the log-odds ``theta``: its exact dense Gauss–Newton matrices in ``θ``
         (``∂x/∂θ = x(1 − x)``), Jacobi-scaled at ``lam``."""
         x = expit(np.asarray(theta, np.float64))
-        _, data_sq, Gd, gd = self.evaluate(x, 0.0, True)  # λ = 0: the data part alone
+        data_sq, Gd, gd = self.data_terms(x, True)
         prior_sq, gr = self.prior_terms(x)
         Gr = self.prior_gram()
         dx = x * (1.0 - x)
@@ -804,7 +811,7 @@ class DenseLMPath(_JointPath):
         """``tr(2H − H²)`` of the fit ``e`` exactly, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` from the dense normal
         matrices (unknowns held at a bound excluded, as the log-odds of the other methods exclude them)."""
         x = expit(np.asarray(e.theta, np.float64))
-        G_d = self.evaluate(x, 0.0, True)[2]
+        G_d = self.data_terms(x, True)[1]
         free = (x > 1e-9) & (x < 1.0 - 1e-9)
         C = (G_d + e.lam * self.prior_gram())[np.ix_(free, free)]
         C[np.diag_indices_from(C)] += 1e-12 * max(float(np.diag(C).max()), 1e-300)
