@@ -214,10 +214,10 @@ class BracketingProjection:
         return (OvershootingPath.lam_star**2 / lam if lam < OvershootingPath.lam_star else self.ask_above), 0
 
 
-def test_projected_search_brackets_the_target_by_regula_falsi_from_the_side_below(monkeypatch):
+def test_projected_search_solves_between_bracketing_solves_from_the_side_below(monkeypatch):
     """The search's final solves: from λ_ref = 250 (χ²/m below the target) the linearisation asks for 4000
-    (above it), and from there for 200.  The two converged solves bracket the target, so the next λ is
-    the secant of χ²/m in log λ between them, λ* = 1000 exactly (χ²/m is linear in log λ here), solved
+    (above it), and from there for 200.  The two converged solves bracket the target, so Brent's method
+    takes over; its first step is the secant of χ²/m in log λ between them, λ* = 1000 exactly (χ²/m is linear in log λ here), solved
     from the solution below the target (250), not from the over-smoothed one (4000)."""
     import lftomo.inverse.projected as projected
 
@@ -242,7 +242,7 @@ class JumpingPath(OvershootingPath):
 
 
 def test_projected_search_gives_way_where_chi2_jumps_across_the_target(monkeypatch):
-    """A jump of χ²/m across the target: regula falsi (Illinois) closes the bracket onto it until the two
+    """A jump of χ²/m across the target: Brent's method closes the bracket onto it until the two
     sides are within the settled fraction of λ, or the solves run out; the search then gives way (None)
     to the root search, which handles jumps."""
     import lftomo.inverse.projected as projected
