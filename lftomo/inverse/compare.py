@@ -22,7 +22,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .._validate import require_int
 from ..forward.grid import Grid
+
+#: Sub-voxel quadrature of the weights :func:`compare_refocus_subaperture` builds (refinement per axis).
+DEFAULT_QUADRATURE = 2
 
 
 def resample_mean(field: np.ndarray, src: Grid, dst: Grid) -> np.ndarray:
@@ -228,10 +232,6 @@ class Comparison:
         }
 
 
-def _whitened(problem) -> sp.csr_matrix:
-    return (sp.diags(1.0 / problem.sigma) @ problem.A).tocsr()
-
-
 def _top_singular(A: sp.csr_matrix, k: int) -> np.ndarray:
     k = max(1, min(k, min(A.shape) - 2))
     if min(A.shape) <= 600:
@@ -241,17 +241,16 @@ def _top_singular(A: sp.csr_matrix, k: int) -> np.ndarray:
     return np.sort(s)[::-1]
 
 
-def _resolution_z_width(Aw: sp.csr_matrix, L: sp.csr_matrix, lam: float, grid: Grid, voxel: int,
-                        weights: np.ndarray) -> float:
+def _resolution_z_width(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, grid: Grid, voxel: int) -> float:
     """RMS z-width (voxels) of the resolution kernel of ``voxel`` for the
-    linearised problem: x = (AᵀA + λ LᵀL)⁻¹ AᵀA e_j, with A whitened and its
-    columns scaled by ``weights`` (dI_b/dT, so that the kernel is in T)."""
-    A = Aw @ sp.diags(weights)
+    linearised problem: x = (JᵀJ + λ LsᵀLs)⁻¹ JᵀJ e_j, with J the whitened
+    Jacobian in T (1/K) and Ls the prior operator over T_s (1/K), so that the
+    kernel is in T."""
     e = np.zeros(grid.n_voxels)
     e[voxel] = 1.0
-    b = A @ e
-    M = sp.vstack([A, np.sqrt(lam) * L]).tocsr()
-    rhs = np.concatenate([b, np.zeros(L.shape[0])])
+    b = J @ e
+    M = sp.vstack([J, np.sqrt(lam) * Ls]).tocsr()
+    rhs = np.concatenate([b, np.zeros(Ls.shape[0])])
     x = spla.lsqr(M, rhs, atol=1e-10, btol=1e-10, iter_lim=2000)[0].reshape(grid.shape)
     ix, iy, iz = np.unravel_index(voxel, grid.shape)
     prof = np.abs(x[ix, iy, :])
@@ -260,6 +259,21 @@ def _resolution_z_width(Aw: sp.csr_matrix, L: sp.csr_matrix, lam: float, grid: G
     z = np.arange(grid.shape[2])
     mu = (prof * z).sum() / prof.sum()
     return float(np.sqrt((prof * (z - mu) ** 2).sum() / prof.sum()))
+
+
+def _weights_grid(weights: Any, recon_grid: Grid, quadrature: int | None) -> Grid:
+    """The grid of given weights: ``recon_grid`` or a quadrature grid inside it (checked before any work)."""
+    from .reconstruct import weights_grid
+    from .subvoxel import resolve_quadrature
+
+    wgrid = weights_grid(weights)
+    if weights.shape[1] != wgrid.n_voxels:
+        raise ValueError(f"weights has {weights.shape[1]} columns, its grid {wgrid.n_voxels} voxels")
+    resolve_quadrature(recon_grid, wgrid, "weights'")
+    if quadrature is not None and wgrid != recon_grid.refined(quadrature):
+        raise ValueError(f"quadrature={quadrature!r} asks for weights on {recon_grid.refined(quadrature).shape}, "
+                         f"the weights given are on {wgrid.shape}: give one or the other")
+    return wgrid
 
 
 def compare_refocus_subaperture(
@@ -280,6 +294,7 @@ def compare_refocus_subaperture(
     min_etendue_fraction: float = 0.2,
     lightfield: Any = None,
     weights: Any = None,
+    quadrature: int | None = None,
     progress: bool = False,
     **reconstruct_options: Any,
 ) -> Comparison:
@@ -320,10 +335,19 @@ def compare_refocus_subaperture(
         The noise-free render of ``scene`` by ``camera`` with ``seed`` and
         ``rays_per_pixel`` if the caller already has it (not rendered again).
     weights : WeightMatrix, optional
-        The weight matrix on ``recon_grid`` for the effective σₐ, built with
-        seed ``seed + 2`` and ``weights_rays_per_pixel``, if the caller already
-        has it (not built again).  The caller vouches for both; shapes are
-        checked.
+        The weight matrix for the effective σₐ, built with seed ``seed + 2``
+        and ``weights_rays_per_pixel``, if the caller already has it (not
+        built again): on ``recon_grid``, or on a quadrature grid inside it
+        (sub-voxel emission, see ``quadrature``).  The caller vouches for
+        both; shapes and grids are checked.
+    quadrature : int, optional
+        Sub-voxel emission: the weights are built on ``recon_grid`` refined
+        ``quadrature`` times per axis (σₐ interpolated to it) and both fits
+        interpolate T to that grid before Planck's law (``lt.reconstruct(...,
+        grid=recon_grid)``); singular spectra and resolution kernels are those
+        of the same model (Jacobian ``Σ^{-1/2} A diag(∂I_b/∂T(E T)) E``).
+        Default :data:`DEFAULT_QUADRATURE` when the weights are built here;
+        with ``weights`` given, their grid decides.
 
     Returns
     -------
@@ -331,11 +355,11 @@ def compare_refocus_subaperture(
     """
     from ..forward.render import render
     from ..forward.weights import weights as build_weights
-    from .measurement import Measurement, add_noise
+    from .fieldposterior import precision_factors
     from .lambdarules import Fixed
-    from .reconstruct import reconstruct
-    from .. import radiation as rad
-    from .regularizers import prior_operator
+    from .measurement import Measurement, add_noise
+    from .reconstruct import DEFAULT_PRIOR, problem_on_grid, reconstruct
+    from .subvoxel import interpolate_field
 
     if scene.medium is None:
         raise ValueError("scene must contain a medium (the flame to reconstruct)")
@@ -343,16 +367,27 @@ def compare_refocus_subaperture(
         raise ValueError("depths must list at least one refocus depth (m)")
     if not 0.0 <= min_etendue_fraction < 1.0:
         raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    if quadrature is not None:
+        quadrature = require_int("quadrature", quadrature, minimum=1)
+    if "grid" in reconstruct_options:
+        raise ValueError("grid is recon_grid here; give the quadrature (or weights on a finer grid) for sub-voxel "
+                         "emission")
+    if weights is not None:
+        wgrid = _weights_grid(weights, recon_grid, quadrature)
+    else:
+        wgrid = recon_grid.refined(DEFAULT_QUADRATURE if quadrature is None else quadrature)
+    if lightfield is not None and (lightfield.camera.sensor_shape != camera.sensor_shape
+                                   or lightfield.n_channels != 1):
+        raise ValueError("lightfield must be a one-channel render by the given camera")
+    if regularization != "auto" and "rule" in reconstruct_options:
+        raise ValueError(f"give regularization ({regularization!r}) or rule "
+                         f"({reconstruct_options['rule']!r}), not both")
     t0 = time.perf_counter()
     wl = None if wavelength is None else float(wavelength)
     wls = "gray" if wl is None else (wl,)
     sa_c, T_true = effective_truth(scene.medium, recon_grid, wl)
-    if lightfield is None:
-        lf = render(scene, camera, rays_per_pixel=rays_per_pixel, seed=seed, wavelengths=wls, progress=progress)
-    else:
-        lf = lightfield
-        if lf.camera.sensor_shape != camera.sensor_shape or lf.n_channels != 1:
-            raise ValueError("lightfield must be a one-channel render by the given camera")
+    lf = lightfield if lightfield is not None else render(scene, camera, rays_per_pixel=rays_per_pixel, seed=seed,
+                                                            wavelengths=wls, progress=progress)
     noisy = add_noise(lf, relative_std=noise, seed=seed + 1)
     # The data and the weight matrix are both Monte Carlo estimates: their
     # per-pixel MC variance joins the measurement noise (monte_carlo_std).
@@ -360,43 +395,33 @@ def compare_refocus_subaperture(
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=rays_per_pixel, weights_rays_per_pixel=n_w,
                                    min_etendue_fraction=min_etendue_fraction)
     if weights is None:
-        W = build_weights(camera, recon_grid, sigma_a=sa_c, wavelength="gray" if wl is None else wl,
-                          rays_per_pixel=weights_rays_per_pixel or rays_per_pixel, seed=seed + 2,
-                          surfaces=scene.surfaces or None, progress=progress)
+        sa_w = sa_c if wgrid == recon_grid else interpolate_field(sa_c, recon_grid, wgrid)
+        W = build_weights(camera, wgrid, sigma_a=sa_w, wavelength="gray" if wl is None else wl,
+                          rays_per_pixel=n_w, seed=seed + 2, surfaces=scene.surfaces or None, progress=progress)
     else:
         W = weights
-        if W.shape[1] != recon_grid.n_voxels:
-            raise ValueError(f"weights has {W.shape[1]} columns, recon_grid {recon_grid.n_voxels} voxels")
-    results, errors, profile, spectra, resolution = {}, {}, {}, {}, {}
-    from .reconstruct import DEFAULT_PRIOR
-
-    # the resolution kernels use the reconstruction's own prior (the solver's is the dimensionless operator)
-    L = prior_operator(recon_grid, reconstruct_options.get("prior") or DEFAULT_PRIOR)
     if regularization != "auto":
-        if "rule" in reconstruct_options:
-            raise ValueError(f"give regularization ({regularization!r}) or rule "
-                             f"({reconstruct_options['rule']!r}), not both")
         reconstruct_options = {**reconstruct_options, "rule": Fixed(regularization)}
+    # the resolution kernels use the reconstruction's own prior, over T_s = T_max - T_min as the solver's
+    prior = reconstruct_options.get("prior") or DEFAULT_PRIOR
+    results, errors, profile, spectra, resolution = {}, {}, {}, {}, {}
     hot_mask = T_true > hot
     j0 = int(np.argmax(np.where(hot_mask, T_true, -np.inf)))
     for kind in ("subaperture", "refocus"):
         m = Measurement.from_lightfield(noisy, data=kind, depths=list(depths) if kind == "refocus" else None)
-        rec = reconstruct(m, W, bounds=bounds, **reconstruct_options)
+        rec = reconstruct(m, W, bounds=bounds, grid=recon_grid, **reconstruct_options)
         results[kind] = rec
         errors[kind] = rec.errors(T_true, hot=hot)
         rel = np.where(hot_mask, np.abs(rec.T - T_true) / T_true, np.nan)
         with np.errstate(invalid="ignore"):
             profile[kind] = [float(np.nanmean(rel[:, :, k])) if np.any(hot_mask[:, :, k]) else float("nan")
                              for k in range(recon_grid.shape[2])]
-        problem = m.problem(W, recon_grid)
-        Aw = _whitened(problem)
-        dIb = rad.dplanck_dT(rec.T, wl) if wl is not None else 4 * 5.670374419e-8 * rec.T**3 / np.pi
-        # the solver's prior is lambda ||L T / (T_max - T_min)||^2 with the dimensionless L
-        # spectrum of the whitened operator acting on temperature (per K, at the truth)
-        dIb_true = rad.dplanck_dT(T_true, wl) if wl is not None else 4 * 5.670374419e-8 * T_true**3 / np.pi
-        spectra[kind] = _top_singular((Aw @ sp.diags(np.asarray(dIb_true).ravel())).tocsr(), n_singular)
-        resolution[kind] = _resolution_z_width(Aw, L / (bounds[1] - bounds[0]), rec.regularization, recon_grid, j0,
-                                               np.asarray(dIb).ravel())
+        problem = problem_on_grid(m, W, recon_grid)[0]
+        # spectrum of the whitened Jacobian in T at the truth; resolution kernel at the reconstruction
+        J_true, Ls = precision_factors(problem, T_true, prior=prior, bounds=bounds)
+        spectra[kind] = _top_singular(J_true, n_singular)
+        J_rec = precision_factors(problem, rec.T, prior=prior, bounds=bounds)[0]
+        resolution[kind] = _resolution_z_width(J_rec, Ls, rec.regularization, recon_grid, j0)
     return Comparison(
         subaperture=results["subaperture"],
         refocus=results["refocus"],
@@ -407,5 +432,5 @@ def compare_refocus_subaperture(
         depth_resolution=resolution,
         depths=tuple(float(d) for d in depths),
         metadata={"noise": noise, "rays_per_pixel": rays_per_pixel, "seconds": time.perf_counter() - t0,
-                  "grid_shape": list(recon_grid.shape)},
+                  "grid_shape": list(recon_grid.shape), "weights_grid_shape": list(wgrid.shape)},
     )

@@ -266,18 +266,14 @@ def gaussian_sufficient_statistics(
     )
 
 
-def _require_voxel_emission(problem: Any, name: str) -> None:
-    """The Gaussian statistics are linear in I_b per voxel: no sub-voxel interpolation."""
-    if getattr(problem, "interpolation", None) is not None:
-        raise ValueError(
-            f"{name} uses sub-voxel emission (an interpolation to a quadrature grid); the basis posterior "
-            "needs a model linear in the voxels' I_b: build the weight matrix on the reconstruction grid"
-        )
-
-
 def sufficient_statistics(problem: Any, *, x_ref: Any = None, dense_max: int = 8000) -> SufficientStatistics:
-    """:func:`gaussian_sufficient_statistics` of a :class:`~lftomo.inverse.problem.LinearProblem`."""
-    _require_voxel_emission(problem, "problem")
+    """:func:`gaussian_sufficient_statistics` of a :class:`~lftomo.inverse.problem.LinearProblem`.
+
+    The statistics are linear in I_b per voxel: with sub-voxel emission they
+    are those of uniform emission per voxel (the quadrature weights summed
+    over each voxel, :meth:`~lftomo.inverse.problem.LinearProblem.uniform_emission`).
+    """
+    problem = problem.uniform_emission()
     return gaussian_sufficient_statistics(
         problem.A, problem.y, problem.sigma, problem.background, x_ref=x_ref, dense_max=dense_max
     )
@@ -548,7 +544,8 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
         for attr in ("A", "y", "sigma", "grid"):
             if not hasattr(p, attr):
                 raise ValueError(f"problem[{i}] must be a LinearProblem, got {type(p).__name__}")
-        _require_voxel_emission(p, f"problem[{i}]")
+        if getattr(p, "interpolation", None) is not None:
+            probs[i] = p = p.uniform_emission()   # the statistics are linear in the voxels' I_b
         if tuple(p.grid.shape) != tuple(basis.grid.shape) or p.A.shape[1] != basis.n_voxels:
             raise ValueError(
                 f"problem[{i}] grid shape {tuple(p.grid.shape)} (A with {p.A.shape[1]} columns) does not match "

@@ -113,6 +113,40 @@ class LinearProblem:
         """
         return self._linear_operator
 
+    def surrogate(self) -> "LinearProblem":
+        """The same data with ``A @ E`` (I_b interpolated linearly); ``self`` without an interpolation.
+
+        Linear in the voxels' I_b; the sub-voxel fits' λ search runs on it.
+        """
+        return self._with_operator(self.linear_operator())
+
+    def uniform_emission(self) -> "LinearProblem":
+        """The same data with each grid voxel emitting uniformly: ``A @ P``; ``self`` without an interpolation.
+
+        ``P`` (n_q, n) assigns each quadrature voxel to the grid voxel of its
+        largest interpolation weight (for trilinear interpolation, the voxel
+        that holds its centre), so ``A @ P`` is the grid's own weight matrix
+        summed from the quadrature grid's, linear in the voxels' I_b.  I_b
+        interpolated linearly (:meth:`surrogate`) is not a substitute where
+        Planck's law is convex: at 650 nm it brightens every voxel's rim.
+        """
+        if self.interpolation is None:
+            return self
+        E = self.interpolation.tocsr()
+        counts = np.diff(E.indptr)
+        rows = np.repeat(np.arange(E.shape[0]), counts)
+        order = np.lexsort((-E.data, rows))        # by row, largest weight first
+        has = counts > 0
+        P = sp.csr_matrix((np.ones(int(has.sum())), (np.flatnonzero(has), E.indices[order[E.indptr[:-1][has]]])),
+                          shape=E.shape)
+        return self._with_operator((self.A @ P).tocsr())
+
+    def _with_operator(self, A: Any) -> "LinearProblem":
+        if self.interpolation is None:
+            return self
+        return LinearProblem(A=A, y=self.y, sigma=self.sigma, grid=self.grid, wavelength=self.wavelength,
+                             background=self.background, metadata=self.metadata)
+
     @functools.cached_property
     def _linear_operator(self) -> sp.csr_matrix:
         return self.A if self.interpolation is None else (self.A @ self.interpolation).tocsr()

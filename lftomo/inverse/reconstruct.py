@@ -36,7 +36,8 @@ DEFAULT_PRIOR = "curvature"
 DEFAULT_NOISE_SCALE = "given"
 
 
-def _grid_of(W) -> Grid:
+def weights_grid(W) -> Grid:
+    """The grid a weight matrix was built on (from its metadata)."""
     g = W.metadata.get("grid")
     if g is None:
         raise ValueError("the weight matrix carries no grid metadata")
@@ -61,7 +62,7 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
         The problem (with ``interpolation`` when ``grid`` is not the weights'
         grid) and the reconstruction grid.
     """
-    wgrid = _grid_of(weights)
+    wgrid = weights_grid(weights)
     problem = measurement.problem(weights, wgrid)
     from .problem import LinearProblem
     from .subvoxel import resolve_quadrature
@@ -238,7 +239,7 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
         raise ValueError(f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}")
     first = weights[0] if isinstance(weights, (list, tuple)) and weights else weights  # a rig: one table per channel
     if isinstance(getattr(first, "metadata", None), dict) and first.metadata.get("grid") is not None:
-        g = grid if grid is not None else _grid_of(first)
+        g = grid if grid is not None else weights_grid(first)
         ring = resolve_symmetry(symmetry, g)
         # unknowns: T and σ_ref per voxel (or ring cell)
         warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))

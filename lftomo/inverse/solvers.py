@@ -1112,9 +1112,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
 def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: Any) -> TemperatureSolution:
     """λ by the rule on the surrogate ``A E`` (I_b interpolated linearly), then one sub-voxel solve at that λ."""
     t0 = time.perf_counter()
-    surrogate = LinearProblem(A=problem.linear_operator(), y=problem.y, sigma=problem.sigma, grid=problem.grid,
-                              wavelength=problem.wavelength, background=problem.background,
-                              metadata=problem.metadata)
+    surrogate = problem.surrogate()
     sur = solve_temperature(surrogate, regularization="auto", T0=T0, **options)
     ch = sur.lambda_choice
     if ch.rule == "discrepancy" and sur.chi2 > ch.target * (1.0 + DISCREPANCY_JUMP):

@@ -127,8 +127,6 @@ def test_subvoxel_bad_input(subvoxel_blob, gray_blob):
     with pytest.raises(ValueError, match="grid must be an lftomo Grid"):
         lt.reconstruct(m, W_q, grid=(5, 5, 5), rule=lt.Fixed(1.0))
     problem, _ = problem_on_grid(m, W_q, grid)
-    with pytest.raises(ValueError, match="sub-voxel"):
-        lt.inverse.posterior.sufficient_statistics(problem)
     with pytest.raises(ValueError, match="interpolation has shape"):
         lt.LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=grid, wavelength=None,
                          interpolation=sp.identity(grid.n_voxels, format="csr"))
@@ -248,3 +246,24 @@ def test_linearization_is_the_derivative_of_the_objective(subvoxel_blob, subvoxe
     G = np.column_stack([lin.normal_d(v) for v in V.T])
     np.testing.assert_allclose(V.T @ G, (V.T @ G).T, rtol=1e-10, atol=1e-12 * np.abs(V.T @ G).max())
     assert np.linalg.eigvalsh(0.5 * (V.T @ G + G.T @ V)).min() >= -1e-10 * np.abs(V.T @ G).max()
+
+
+def test_basis_posterior_statistics_are_those_of_uniform_emission_per_voxel(subvoxel_blob, gray_blob):
+    """The Gaussian statistics are linear in the voxels' I_b: with sub-voxel emission they are those of the
+    quadrature weights summed over each reconstruction voxel (checked against χ² computed here from the
+    quadrature grid's A with each fine voxel given its coarse voxel's I_b)."""
+    from lftomo.inverse.posterior import sufficient_statistics
+
+    cam, grid, quad, flame, m, W_q = subvoxel_blob
+    problem, _ = problem_on_grid(m, W_q, grid)
+    uni = problem.uniform_emission()
+    assert uni.interpolation is None and uni.A.shape == (problem.y.size, grid.n_voxels)
+    assert uni.uniform_emission() is uni
+    stats = sufficient_statistics(problem)
+    # each 10³ voxel lies in the 5³ voxel of index // 2
+    parent = np.ravel_multi_index(tuple(np.indices(quad.shape).reshape(3, -1) // 2), grid.shape)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        Ib = lt.gray_intensity(flame.T.ravel() * rng.uniform(0.9, 1.1, grid.n_voxels))
+        chi2 = np.sum(((problem.A @ Ib[parent] - problem.y) / problem.sigma) ** 2)
+        assert stats.chi2(Ib) == pytest.approx(chi2, rel=1e-9)
