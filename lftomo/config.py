@@ -31,7 +31,7 @@ optional ``name`` (letters, digits, ``_``, ``-``; default ``camera1``,
     rays_per_pixel = 16
     seed = 0
     wavelength_nm = 650        # a number, a list, or "gray"
-    sampler = "independent"    # pixel sampler: "independent" (default) or "stratified"
+    sampler = "stratified"     # pixel sampler: "stratified" (default) or "independent"
 
     [output]
     focal_stack_depths = [0.95, 1.0, 1.05]

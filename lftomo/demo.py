@@ -41,7 +41,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import LftomoError
-from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, rule_from_names
+from .forward.sampler import DEFAULT_SAMPLER
+from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, problem_on_grid, rule_from_names
 
 #: Folder inside the report folder that keeps the long stages of an unfinished run.
 RESUME_DIR = ".lftomo-resume"
@@ -69,6 +70,7 @@ DEMO_SETTINGS = {
         "linear_max_steps": 20,
         "posterior_steps": 400,
         "n_singular": 20,
+        "quadrature": 2,
     },
     "default": {
         "camera_overrides": {},
@@ -80,6 +82,7 @@ DEMO_SETTINGS = {
         "linear_max_steps": 20,  # truncated Newton steps: same λ and error as 100 at 16³, 23 % faster
         "posterior_steps": 2000,
         "n_singular": 40,
+        "quadrature": 2,  # sub-voxel emission: weights on the 2x finer grid, T interpolated (docs/accuracy.md)
     },
 }
 
@@ -370,6 +373,7 @@ def demo_settings(quick: bool = False, seed: int = 0) -> dict[str, Any]:
                            "options": "the library's defaults"},
         "posterior": {"basis": "ParametricFlame (6 parameters)", "grid": "reconstruction grid",
                       "n_walkers": 16, "burn": "n_steps // 4"},
+        "sampler": DEFAULT_SAMPLER,
     })
     return s
 
@@ -571,24 +575,28 @@ def _demo_render(d: _DemoRun) -> None:
 
 
 def _demo_weights(d: _DemoRun) -> None:
-    """Stage 3: the weight matrix on the reconstruction grid, for the known ``sigma_a``."""
+    """Stage 3: the weight matrix on the quadrature grid (sub-voxel emission), for the known ``sigma_a``."""
     import lftomo as lt
     from .inverse.compare import effective_truth
 
     cfg, n_w, coarse, wl = d.cfg, d.n_w, d.r["coarse"], WAVELENGTH
-    with d.st("weights", f"weight matrix on the {cfg['recon_shape']} reconstruction grid ({n_w} rays/pixel)"):
+    quad = coarse.refined(cfg["quadrature"])
+    with d.st("weights", f"weight matrix on the {quad.shape} quadrature grid ({n_w} rays/pixel)"):
         sa_c, T_eff = effective_truth(d.r["flame"], coarse, wl)
+        sa_q = lt.interpolate_field(sa_c, coarse, quad)
         W = _resumable(
             d.resume / f"weights-{d.key}.npz",
-            lambda p: lt.WeightMatrix.load(p, d.r["camera"], coarse, wavelength=wl),
-            lambda: lt.weights(d.r["camera"], coarse, sigma_a=sa_c, wavelength=wl, rays_per_pixel=n_w,
+            lambda p: lt.WeightMatrix.load(p, d.r["camera"], quad, wavelength=wl),
+            lambda: lt.weights(d.r["camera"], quad, sigma_a=sa_q, wavelength=wl, rays_per_pixel=n_w,
                                seed=cfg["seeds"]["weights"], progress=d.progress),
             lambda obj, p: obj.save(p), d.resumed, "weights")
-    d.r.update(sa_c=sa_c, T_eff=T_eff, W=W)
-    d.metrics["weights"] = {"recon_grid": coarse.to_dict(), "shape": list(W.shape), "nnz": W.nnz,
+    d.r.update(sa_c=sa_c, T_eff=T_eff, W=W, quad=quad)
+    d.metrics["weights"] = {"recon_grid": coarse.to_dict(), "quadrature_grid": quad.to_dict(),
+                            "shape": list(W.shape), "nnz": W.nnz,
                             "megabytes": W.nbytes / 1e6, "rays_per_pixel": n_w, "seed": cfg["seeds"]["weights"],
                             "build_seconds": W.metadata.get("build_seconds"),
-                            "sigma_a": "known: block mean of the truth's sigma_a (effective_truth)"}
+                            "sigma_a": "known: block mean of the truth's sigma_a (effective_truth), interpolated "
+                                       "to the quadrature grid"}
 
 
 def _demo_measurement(d: _DemoRun) -> None:
@@ -599,7 +607,7 @@ def _demo_measurement(d: _DemoRun) -> None:
         noisy = lt.add_noise(d.r["lf"], relative_std=NOISE, seed=d.cfg["seeds"]["noise"])
         noisy, noise_rule = _noise_with_mc_error(noisy, d.r["lf"], d.n_d, d.n_w, MIN_ETENDUE_FRACTION)
         m = lt.Measurement.from_lightfield(noisy, data="subaperture")
-        problem = m.problem(d.r["W"], d.r["coarse"])
+        problem = problem_on_grid(m, d.r["W"], d.r["coarse"])[0]
         chi2_truth = problem.chi2(d.r["T_eff"])
     d.r.update(m=m, problem=problem, chi2_truth=chi2_truth)
     W, coarse, n_w = d.r["W"], d.r["coarse"], d.n_w
@@ -611,9 +619,11 @@ def _demo_measurement(d: _DemoRun) -> None:
     }
     d.sections.append({
         "title": "3–4. Forward model and measurement",
-        "text": (f"Weight matrix W (m² sr) on the {'×'.join(map(str, coarse.shape))} reconstruction grid for "
-                 f"the known absorption (block mean of the truth's σₐ), built with {n_w} independent rays per "
-                 f"pixel (seed {d.cfg['seeds']['weights']}; the data used seed {d.cfg['seeds']['render']}). "
+        "text": (f"Weight matrix W (m² sr) on the {'×'.join(map(str, d.r['quad'].shape))} quadrature grid "
+                 f"(sub-voxel emission: the {'×'.join(map(str, coarse.shape))} reconstruction grid's temperature "
+                 "is interpolated to it before Planck's law) for the known absorption (block mean of the truth's "
+                 f"σₐ, interpolated), built with {n_w} rays per pixel by the {d.cfg['sampler']} sampler (seed "
+                 f"{d.cfg['seeds']['weights']}; the data used seed {d.cfg['seeds']['render']}). "
                  f"Data: the lit sub-aperture pixels (étendue ≥ {100 * MIN_ETENDUE_FRACTION:.0f} % of the peak: "
                  f"the rims of the microlens images are left out) with {100 * NOISE:.0f} % Gaussian noise; their "
                  "σ also carries the Monte Carlo error of data and model. "
@@ -621,7 +631,8 @@ def _demo_measurement(d: _DemoRun) -> None:
                  "with the right answer explains the data. Far above 1 means that discretisation error (the "
                  "flame core is narrower than a reconstruction voxel, while a view pixel sees finer detail) and "
                  "Monte Carlo model error exceed the stated noise: a λ rule that trusts σ (discrepancy) and the "
-                 "posterior widths are then not what they claim to be."),
+                 "posterior widths are then not what they claim to be. The quadrature grid keeps the first "
+                 "small."),
         "table": {"weight matrix rows × voxels": f"{W.shape[0]} × {W.shape[1]}", "nnz": W.nnz,
                   "MB": W.nbytes / 1e6, "data": m.size, "noise model": noise_rule,
                   "χ²/m at effective truth": chi2_truth},
@@ -639,7 +650,7 @@ def _demo_reconstruct(d: _DemoRun) -> None:
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct", "reconstruction (optimistix LM, λ by the discrepancy rule)"):
-        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, solver=d.solver)   # the library's defaults
+        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, solver=d.solver, grid=coarse)   # the defaults
     d.r["rec"] = rec
     err = temperature_errors(rec.T, T_eff, HOT)
     err_core = temperature_errors(rec.T, T_eff, HOT_CORE)
@@ -672,7 +683,8 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, the defaults)"):
-        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, symmetry="axisymmetric", solver=d.solver)
+        rec_ax = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, symmetry="axisymmetric", solver=d.solver,
+                                grid=coarse)
     d.r["rec_ax"] = rec_ax
     err_ax = temperature_errors(rec_ax.T, T_eff, HOT)
     err_ax_core = temperature_errors(rec_ax.T, T_eff, HOT_CORE)
@@ -740,7 +752,8 @@ def _demo_posterior(d: _DemoRun) -> None:
     d.sections.append({
         "title": "6. Posterior (emcee)",
         "text": ("emcee's ensemble sampler on the six parameters of an axisymmetric Gaussian-plume flame "
-                 "(ParametricFlame), likelihood from the same data and W (exact Gaussian sufficient statistics). "
+                 "(ParametricFlame), likelihood from the same data and W with uniform emission per reconstruction "
+                 "voxel (W summed over each voxel's quadrature cells; exact Gaussian sufficient statistics). "
                  f"{post.summary()}. "
                  + ("<b>The chain is short</b> (fewer than 50 τ after burn-in): means and widths are indicative. "
                     if not post.converged else "")
@@ -834,7 +847,8 @@ def _demo_compare(d: _DemoRun) -> None:
         "text": ("The reference text asks whether a focal stack serves tomography as well as the views. Same "
                  "rendered light field and noise draw (same seeds as above), same W; only the data differ: all lit "
                  f"view pixels, or refocused images at {', '.join(f'{x:.3f}' for x in COMPARE_DEPTHS)} m "
-                 "(operator R·W). Left: singular values of the whitened operators (per K at the truth) — "
+                 "(operator R·W), both fitted with sub-voxel emission. Left: singular values of the whitened Jacobians "
+                 "(per K at the truth) — "
                  "how many temperature patterns each data kind resolves; right: error per depth layer."),
         "figures": [(fig_cmp, "singular spectra and per-depth errors")],
         "table": table,
@@ -1049,9 +1063,6 @@ def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds,
         raise LftomoError(f"--symmetry must be 'none' or 'axisymmetric', got {symmetry!r}")
     if not (isinstance(quadrature, int) and quadrature >= 1):
         raise LftomoError(f"--quadrature must be an integer >= 1, got {quadrature!r}")
-    if quadrature > 1 and posterior and posterior_basis != "field":
-        raise LftomoError(f"--quadrature {quadrature} (sub-voxel emission) works with --posterior-basis field only; "
-                         f"the {posterior_basis!r} basis posterior needs weights on the reconstruction grid")
 
 
 def _scene_medium(cfg, scene):
@@ -1291,7 +1302,6 @@ def _inputs_from_files(lightfield, weights, *, quadrature, channel, seed, depths
 def _reconstruct_measurement(inp: _ReconstructInputs, *, noise, data, min_etendue_fraction):
     """The measurement (noise added to a noise-free light field) and its problem on the grid."""
     import lftomo as lt
-    from .inverse.reconstruct import problem_on_grid
 
     lf, depths = inp.lf, inp.depths
     if lf.noise_std is not None:

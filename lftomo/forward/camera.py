@@ -843,7 +843,7 @@ class Camera:
         seed : int
             Seed of the per-pixel random keys.
         sampler : {"stratified", "independent"}
-            Pixel sampler (:mod:`lftomo.forward.sampler`; default independent).
+            Pixel sampler (:mod:`lftomo.forward.sampler`; default stratified).
 
         Returns
         -------

@@ -55,8 +55,8 @@ def render(
         (σT⁴/π) band.  One raw channel per wavelength.
     sampler : {"stratified", "independent"}
         Where each pixel's rays start (:mod:`lftomo.forward.sampler`):
-        randomized quasi-Monte Carlo restricted to where light can pass,
-        or independent uniform samples (the default).
+        randomized quasi-Monte Carlo restricted to where light can pass (the
+        default), or independent uniform samples.
     progress : bool, optional
         Show a progress bar (default: when the render is large).
     max_seconds : float, optional

@@ -9,7 +9,7 @@ trace).  A sampler chooses the ``N`` points ``(s, q)`` of a pixel and their
 weights ``w = cos θ_s cos θ_q / (r² p(s, q))`` so that ``mean(w L)`` is
 unbiased for ``Φ``.  Two samplers:
 
-``"stratified"``
+``"stratified"`` (the default, :data:`DEFAULT_SAMPLER`)
     Randomized quasi-Monte Carlo over the pixel's 4-D domain, restricted to
     where light can pass.  The ``N`` samples form ``K = min(8, N)``
     independent randomizations of ``N/K`` points each (sample ``m`` belongs to
@@ -30,7 +30,7 @@ unbiased for ``Φ``.  Two samplers:
     unbiased even where the lenslet disc or the box would miss light.  Groups are
     independent unbiased estimates: their spread gives an honest standard
     error (:func:`group_variance`).
-``"independent"`` (the default, :data:`DEFAULT_SAMPLER`)
+``"independent"``
     Uniform points on the pixel and on a disc over the lenslet's back-vertex
     plane, drawn from a per-pixel stream.
 
@@ -60,12 +60,9 @@ from . import optics as _o
 from .rng import rng_init, rng_uniform
 
 SAMPLERS = ("stratified", "independent")
-#: The sampler used when none is named.  The stratified sampler has 2.3x lower
-#: per-pixel error at the same rays, but lftomo's Monte Carlo noise model was
-#: tuned on the independent one, and with it the demo's refocus reconstruction
-#: got worse (docs/performance.md, *Pixel sampling*): the independent sampler
-#: stays the default until that model is re-baselined.
-DEFAULT_SAMPLER = "independent"
+#: The sampler used when none is named (the lower per-pixel error at the same
+#: rays; its measurements are in docs/performance.md and docs/accuracy.md).
+DEFAULT_SAMPLER = "stratified"
 #: Randomizations (groups) of the stratified sampler; fewer when N < 8.
 N_GROUPS = 8
 #: Probability of the defensive (whole pixel, whole disc) component.
