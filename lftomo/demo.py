@@ -650,7 +650,8 @@ def _demo_reconstruct(d: _DemoRun) -> None:
 
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct", "reconstruction (optimistix LM, λ by the discrepancy rule)"):
-        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, solver=d.solver, grid=coarse)   # the defaults
+        rec = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, solver=d.solver, grid=coarse,   # the defaults
+                             progress=d.progress)
     d.r["rec"] = rec
     err = temperature_errors(rec.T, T_eff, HOT)
     err_core = temperature_errors(rec.T, T_eff, HOT_CORE)
@@ -684,7 +685,7 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
     coarse, T_eff = d.r["coarse"], d.r["T_eff"]
     with d.st("reconstruct_axisymmetric", "axisymmetric reconstruction (ring cells, the defaults)"):
         rec_ax = lt.reconstruct(d.r["m"], d.r["W"], bounds=BOUNDS, symmetry="axisymmetric", solver=d.solver,
-                                grid=coarse)
+                                grid=coarse, progress=d.progress)
     d.r["rec_ax"] = rec_ax
     err_ax = temperature_errors(rec_ax.T, T_eff, HOT)
     err_ax_core = temperature_errors(rec_ax.T, T_eff, HOT_CORE)
@@ -1515,7 +1516,7 @@ def run_reconstruct(
         try:
             rec = lt.reconstruct(m, inp.W, rule=rule_from_names(rule, regularization, noise_scale), prior=prior,
                                  bounds=tuple(bounds), solver=lt.LevenbergMarquardt(max_steps=max_steps),
-                                 symmetry=symmetry, grid=inp.grid)
+                                 symmetry=symmetry, grid=inp.grid, progress=progress)
         except ValueError as exc:
             raise LftomoError(f"--regularization/--rule/--noise-scale/--prior/--bounds: {exc}") from None
     note = getattr(getattr(rec.details, "lambda_choice", None), "note", "")

@@ -409,7 +409,7 @@ def compare_refocus_subaperture(
     j0 = int(np.argmax(np.where(hot_mask, T_true, -np.inf)))
     for kind in ("subaperture", "refocus"):
         m = Measurement.from_lightfield(noisy, data=kind, depths=list(depths) if kind == "refocus" else None)
-        rec = reconstruct(m, W, bounds=bounds, grid=recon_grid, **reconstruct_options)
+        rec = reconstruct(m, W, bounds=bounds, grid=recon_grid, **{"progress": progress, **reconstruct_options})
         results[kind] = rec
         errors[kind] = rec.errors(T_true, hot=hot)
         rel = np.where(hot_mask, np.abs(rec.T - T_true) / T_true, np.nan)
