@@ -5,7 +5,7 @@ grid, rendered at 650 nm with 64 rays/pixel (seed 0) by the seed camera at
 1 m; the weight matrix on the 16³ reconstruction grid for the known
 (block-mean) σₐ with 64 rays/pixel (seed 2); 1 % Gaussian noise (``--noise-seeds``,
 default 1: one row per draw) plus the Monte Carlo error of data and model
-(``lt.with_monte_carlo_noise`` with ``--mc-floor``), rim pixels below 20 % of the peak étendue left out.  Free
+(``lt.with_monte_carlo_noise`` with ``--mc-floor``), rim pixels below 20 % of the peak étendue left out (``--min-etendue``).  Free
 voxels.  For each ``--config`` (``kind:prior:noise_scale``, λ by the
 discrepancy rule) and each fixed ``--lambdas`` value it prints λ, χ²/m and the
 mean / max |ΔT|/T where the effective true T exceeds 800 K and 1400 K.
@@ -29,9 +29,9 @@ import json
 import time
 from pathlib import Path
 
-
 import lftomo as lt
 from lftomo import demo
+from lftomo.forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 
 
@@ -73,7 +73,7 @@ def report(label: str, rec, T_eff, seconds: float) -> dict:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sampler", default="independent", choices=["independent", "stratified"])
+    ap.add_argument("--sampler", default=DEFAULT_SAMPLER, choices=list(SAMPLERS))
     ap.add_argument("--mc-floor", default="bound", choices=MC_FLOORS)
     ap.add_argument("--rays", type=int, default=64)
     ap.add_argument("--config", default="", help="comma-separated kind:prior:noise_scale (λ by the discrepancy rule)")
@@ -82,6 +82,8 @@ def main():
     ap.add_argument("--noise-seeds", default="1", help="comma-separated seeds of the 1 %% noise draws (one row each)")
     ap.add_argument("--search", default="projected", choices=["projected", "root"],
                     help="the discrepancy rule's λ search (lt.Discrepancy(search=...))")
+    ap.add_argument("--min-etendue", type=float, default=demo.MIN_ETENDUE_FRACTION,
+                    help="leave out view pixels below this fraction of the peak étendue (the demo's 0.2; 0 keeps all)")
     ap.add_argument("--subvoxel", action="store_true",
                     help="weights on a 32³ grid (the 16³ σₐ interpolated): the 16³ fit with sub-voxel emission")
     a = ap.parse_args()
@@ -94,8 +96,9 @@ def run_draw(a, lf, W, coarse, T_eff, noise_seed: int) -> None:
     """Every ``--config`` and ``--lambdas`` row on one noise draw."""
     noisy = lt.add_noise(lf, relative_std=demo.NOISE, seed=noise_seed)
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.rays,
-                                   min_etendue_fraction=demo.MIN_ETENDUE_FRACTION, floor=a.mc_floor)
-    head = f"{a.sampler} floor={a.mc_floor} noise_seed={noise_seed}{' subvoxel' if a.subvoxel else ''}"
+                                   min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
+    head = (f"{a.sampler} floor={a.mc_floor} etendue>={a.min_etendue:g} noise_seed={noise_seed}"
+            f"{' subvoxel' if a.subvoxel else ''}")
     for cfg in filter(None, a.config.split(",")):
         kind, prior, scale = cfg.split(":")
         m = lt.Measurement.from_lightfield(noisy, data=kind,
