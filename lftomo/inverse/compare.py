@@ -261,6 +261,25 @@ def _resolution_z_width(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, grid: G
     return float(np.sqrt((prof * (z - mu) ** 2).sum() / prof.sum()))
 
 
+def _depth_profile(T: np.ndarray, T_true: np.ndarray, hot_mask: np.ndarray) -> list[float]:
+    """Mean |ΔT|/T over the hot voxels of each depth layer (NaN where a layer has none)."""
+    rel = np.where(hot_mask, np.abs(T - T_true) / T_true, np.nan)
+    with np.errstate(invalid="ignore"):
+        return [float(np.nanmean(rel[:, :, k])) if np.any(hot_mask[:, :, k]) else float("nan")
+                for k in range(T.shape[2])]
+
+
+def _spectrum_and_resolution(problem, T_true, rec, prior, bounds, n_singular: int, voxel: int):
+    """Leading singular values of the whitened Jacobian in T at the truth, and the z-width of the
+    resolution kernel of ``voxel`` at the reconstruction (the model's own Jacobian, sub-voxel or not)."""
+    from .fieldposterior import precision_factors
+
+    J_true, Ls = precision_factors(problem, T_true, prior=prior, bounds=bounds)
+    J_rec = precision_factors(problem, rec.T, prior=prior, bounds=bounds)[0]
+    return (_top_singular(J_true, n_singular),
+            _resolution_z_width(J_rec, Ls, rec.regularization, problem.grid, voxel))
+
+
 def _weights_grid(weights: Any, recon_grid: Grid, quadrature: int | None) -> Grid:
     """The grid of given weights: ``recon_grid`` or a quadrature grid inside it (checked before any work)."""
     from .reconstruct import weights_grid
@@ -355,7 +374,6 @@ def compare_refocus_subaperture(
     """
     from ..forward.render import render
     from ..forward.weights import weights as build_weights
-    from .fieldposterior import precision_factors
     from .lambdarules import Fixed
     from .measurement import Measurement, add_noise
     from .reconstruct import DEFAULT_PRIOR, problem_on_grid, reconstruct
@@ -412,16 +430,9 @@ def compare_refocus_subaperture(
         rec = reconstruct(m, W, bounds=bounds, grid=recon_grid, **{"progress": progress, **reconstruct_options})
         results[kind] = rec
         errors[kind] = rec.errors(T_true, hot=hot)
-        rel = np.where(hot_mask, np.abs(rec.T - T_true) / T_true, np.nan)
-        with np.errstate(invalid="ignore"):
-            profile[kind] = [float(np.nanmean(rel[:, :, k])) if np.any(hot_mask[:, :, k]) else float("nan")
-                             for k in range(recon_grid.shape[2])]
+        profile[kind] = _depth_profile(rec.T, T_true, hot_mask)
         problem = problem_on_grid(m, W, recon_grid)[0]
-        # spectrum of the whitened Jacobian in T at the truth; resolution kernel at the reconstruction
-        J_true, Ls = precision_factors(problem, T_true, prior=prior, bounds=bounds)
-        spectra[kind] = _top_singular(J_true, n_singular)
-        J_rec = precision_factors(problem, rec.T, prior=prior, bounds=bounds)[0]
-        resolution[kind] = _resolution_z_width(J_rec, Ls, rec.regularization, recon_grid, j0)
+        spectra[kind], resolution[kind] = _spectrum_and_resolution(problem, T_true, rec, prior, bounds, n_singular, j0)
     return Comparison(
         subaperture=results["subaperture"],
         refocus=results["refocus"],
