@@ -314,6 +314,7 @@ def compare_refocus_subaperture(
     lightfield: Any = None,
     weights: Any = None,
     quadrature: int | None = None,
+    subaperture: Any = None,
     progress: bool = False,
     **reconstruct_options: Any,
 ) -> Comparison:
@@ -367,6 +368,11 @@ def compare_refocus_subaperture(
         of the same model (Jacobian ``Σ^{-1/2} A diag(∂I_b/∂T(E T)) E``).
         Default :data:`DEFAULT_QUADRATURE` when the weights are built here;
         with ``weights`` given, their grid decides.
+    subaperture : Reconstruction, optional
+        The reconstruction of this comparison's sub-aperture views (the same
+        ``lightfield``, noise seed ``seed + 1``, ``weights`` and options) if
+        the caller already has it: used as is instead of fitting the views
+        again.  The caller vouches for it; its data kind and grid are checked.
 
     Returns
     -------
@@ -390,6 +396,11 @@ def compare_refocus_subaperture(
     if "grid" in reconstruct_options:
         raise ValueError("grid is recon_grid here; give the quadrature (or weights on a finer grid) for sub-voxel "
                          "emission")
+    if subaperture is not None and (getattr(subaperture, "data_kind", None) != "subaperture"
+                                    or getattr(subaperture, "grid", None) != recon_grid):
+        raise ValueError("subaperture must be a Reconstruction of sub-aperture views on recon_grid, got "
+                         f"{getattr(subaperture, 'data_kind', type(subaperture).__name__)!r} on "
+                         f"{getattr(getattr(subaperture, 'grid', None), 'shape', None)}")
     if weights is not None:
         wgrid = _weights_grid(weights, recon_grid, quadrature)
     else:
@@ -427,7 +438,10 @@ def compare_refocus_subaperture(
     j0 = int(np.argmax(np.where(hot_mask, T_true, -np.inf)))
     for kind in ("subaperture", "refocus"):
         m = Measurement.from_lightfield(noisy, data=kind, depths=list(depths) if kind == "refocus" else None)
-        rec = reconstruct(m, W, bounds=bounds, grid=recon_grid, **{"progress": progress, **reconstruct_options})
+        if kind == "subaperture" and subaperture is not None:
+            rec = subaperture
+        else:
+            rec = reconstruct(m, W, bounds=bounds, grid=recon_grid, **{"progress": progress, **reconstruct_options})
         results[kind] = rec
         errors[kind] = rec.errors(T_true, hot=hot)
         profile[kind] = _depth_profile(rec.T, T_true, hot_mask)

@@ -119,3 +119,12 @@ def test_comparison_with_sub_voxel_emission_uses_the_sub_voxel_model():
     J = (sp.diags(1.0 / problem.sigma) @ problem.A @ sp.diags(4 * 5.670374419e-8 * Tq**3 / np.pi) @ E).toarray()
     s = np.linalg.svd(J, compute_uv=False)[:5]
     assert np.allclose(c.singular_values["subaperture"], s, rtol=1e-8)
+    # an existing fit of the same views is used as is (the demo's stage 5), and the refocus side is unchanged
+    same = dict(noise=0.01, depths=[0.997, 1.003], rays_per_pixel=16, wavelength=None, bounds=(500.0, 2500.0),
+                weights=W, solver=lt.LevenbergMarquardt(max_steps=20), n_singular=5)
+    c2 = compare_refocus_subaperture(lt.Scene(medium=flame), cam, coarse, subaperture=c.subaperture, **same)
+    assert c2.subaperture is c.subaperture
+    assert np.array_equal(c2.refocus.T, c.refocus.T)
+    assert np.allclose(c2.singular_values["subaperture"], s, rtol=1e-8)
+    with pytest.raises(ValueError, match="subaperture must be"):
+        compare_refocus_subaperture(lt.Scene(medium=flame), cam, coarse, subaperture=c.refocus, **same)
