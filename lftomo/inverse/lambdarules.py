@@ -15,7 +15,7 @@ Rules (:data:`RULE_CLASSES`; the string names select them):
   least-regularized fit).  By default λ is chosen on the fit linearised at
   each Gauss–Newton iterate (:func:`projected_discrepancy_search`), then one
   solve; else (or where that does not apply) a root search over converged
-  solves (factor-10 bracket, Illinois regula falsi).  With the noise scale
+  solves (factor-10 bracket, then Brent's method in log λ).  With the noise scale
   given and χ²/m below the target at every λ (σ overestimated), the root
   search is redone with the scale estimated.  The T-only fit's rule.
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
@@ -38,6 +38,7 @@ fallbacks.  The algorithms are described with their measurements in
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
 from dataclasses import dataclass
@@ -119,6 +120,10 @@ class LambdaChoice:
         ``λ_ref``, the balanced weight that scales the candidates.
     note : str
         Human-readable summary (bracketing, end reached, passes...).
+    target_met : bool or None
+        Discrepancy rules: whether χ²/m meets the target at λ (False where λ is one of the rule's
+        fallbacks: no λ attains the target, e.g. a model error above the noise).  None for other
+        rules.
     """
 
     rule: str
@@ -130,6 +135,7 @@ class LambdaChoice:
     target: float | None = None
     reference: float = float("nan")
     note: str = ""
+    target_met: bool | None = None
 
 
 @dataclass
@@ -291,7 +297,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     """Morozov's discrepancy principle as a root search: the λ with ``χ²/m = target``.
 
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
-    then Illinois regula falsi on ``log(χ²/m / target)`` against ``log λ``; the
+    then Brent's method on ``log(χ²/m / target)`` against ``log λ`` (:func:`bracketed_root`); the
     L-curve corner of the structured branch (:func:`branch_corner`) when no λ
     attains the target.  When χ²/m stays below ``1 + safety`` at every λ (σ
     overestimated) and there are more data than unknowns, the search is redone
@@ -299,14 +305,15 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     ``s² = χ²/(m − ν)`` of the first, least-regularized fit (``ν =
     run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2`` from ``theta0``,
     when already done; ``climbed``: the solves of an earlier pass's factor-10
-    ladder up from it, by λ (the same solves from the same starts, reused).  ``run`` is a :class:`SolvePath`.  Returns ``(eval,
-    target, note)``.  (The algorithm is described in
-    :mod:`lftomo.inverse.solvers`.)
+    ladder up from it, by λ (the same solves from the same starts, reused).  ``run`` is a
+    :class:`SolvePath`.  Returns ``(eval, target, note, met)``, ``met`` False where the λ is one of the
+    fallbacks (a corner, the smallest or largest λ: no λ attains the target).  (The algorithm is
+    described in :mod:`lftomo.inverse.solvers`.)
     """
     target = 1.0 + safety
     lo_lim, hi_lim = lam_ref * 1e-10, lam_ref * 1e4
     m = run.m_total
-    # Illinois regula falsi in log λ on g (increasing), to the precision of the
+    # the root of g (increasing) in log λ, to the precision of the
     # target itself: χ²/m of the noise has standard deviation √(2/m).
     tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
 
@@ -358,16 +365,17 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # L-curve of the structured branch of the solutions already computed
             # (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
             if not estimate_scale and m > run.n_unknowns:
-                e, target, note = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
-                                                     estimate_scale=True, first=first, climbed=ladder)
+                e, target, note, met = discrepancy_search(run, theta0, lam_ref, safety, search_steps,
+                                                          search_rtol, estimate_scale=True, first=first,
+                                                          climbed=ladder)
                 return e, target, (f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated): "
-                                   f"{note}")
+                                   f"{note}"), met
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
-                return found[0], target, scale_note + note
+                return found[0], target, scale_note + note, False
             note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
-            return lo, target, scale_note + note
+            return lo, target, scale_note + note, False
     else:
         hi = e
         lo = None
@@ -388,10 +396,11 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             if found is not None:
                 note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
                         f"model error?): {found[1]}")
-                return found[0], target, scale_note + note
+                return found[0], target, scale_note + note, False
             note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
-            return hi, target, scale_note + note
-    best, xlo, xhi = _illinois(lambda lam: solve(lam, run.nearest(lam, theta0)), g, lo, hi, tol)
+            return hi, target, scale_note + note, False
+    best, xlo, xhi, _ = bracketed_root(lambda lam: solve(lam, run.nearest(lam, theta0)), g, lo, hi, tol=tol,
+                                      x_tol=math.log(1.1), max_solves=20)
     miss = abs(math.exp(g(best)) - 1.0)
     if miss > DISCREPANCY_JUMP:
         # The bracket closed on a jump of χ² across the target: two branches of
@@ -406,9 +415,9 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                 f"(no λ attains it within {DISCREPANCY_JUMP:.0%}; σ misestimated?)")
         found = branch_corner(run.evals, lo_lam, target)
         if found is not None:
-            return found[0], target, scale_note + f"{jump}: {found[1]}"
-    note = note or f"bracketed and refined by regula falsi to |chi²/m/target − 1| = {miss:.2e}"
-    return best, target, scale_note + note
+            return found[0], target, scale_note + f"{jump}: {found[1]}", False
+    note = note or f"bracketed and refined by Brent's method to |chi²/m/target − 1| = {miss:.2e}"
+    return best, target, scale_note + note, miss <= DISCREPANCY_JUMP
 
 
 def estimated_target(run: Any, e: Eval, safety: float, tol: float) -> tuple[float, float, str, dict]:
@@ -540,7 +549,17 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
         if len(sides) == 2 and sides[-1].lam < sides[1].lam:
             # bracketed by two converged solves: the linearisations' λ has overshot (χ²/m is far from
             # linear in λ there); Brent's method in log λ instead
-            e, n = _bracketed_root(run, sides, target, tol, search_rtol, lam_settled, max_solves - solves)
+            # a solve started from the over-smoothed side can stop in a poor local minimum that also meets
+            # the target: start each from the nearest converged one below it
+            def solve_from_below(lam_try):
+                e = run.solve(lam_try, sides[-1].theta, objective_rtol=search_rtol)
+                if e.converged:
+                    _nearest_sides(sides, e, target)
+                return e
+
+            e, _, _, n = bracketed_root(solve_from_below, lambda x: math.log(max(x.chi2, 1e-300) / target),
+                                        sides[-1], sides[1], tol=tol, x_tol=math.log1p(lam_settled),
+                                        max_solves=max_solves - solves, counts=lambda x: x.converged)
             solves += n
             miss, done = abs(e.chi2 / target - 1.0), e.converged or not require_converged
             break
@@ -569,46 +588,63 @@ def _nearest_sides(sides: dict, e: Eval, target: float) -> None:
 
 
 class _StopSearch(Exception):
-    """Ends :func:`_bracketed_root`'s Brent iteration with a solve (the target met, or the solves used up)."""
-
-    def __init__(self, e: Eval) -> None:
-        self.e = e
+    """Ends :func:`bracketed_root`'s Brent iteration (the target met, or the solves used up)."""
 
 
-def _bracketed_root(run: Any, sides: dict, target: float, tol: float, search_rtol: float, lam_settled: float,
-                    max_solves: int) -> tuple[Eval, int]:
-    """``χ²/m = target`` between two converged solves that bracket it (``sides``: -1 below, 1 above), by
-    Brent's method in log λ (:func:`scipy.optimize.brentq`); each solve starts from the nearest one below the
-    target (a solve started from the over-smoothed side can stop in a poor local minimum that also meets
-    the target).  Ends when a solve is within ``tol``, when the bracket is within ``lam_settled`` (where
-    χ²/m jumps across the target) or after ``max_solves``.  Returns the solve that met the target (else the
-    converged one nearest it) and the number of solves made."""
+def bracketed_root(solve: Any, g: Any, lo: Eval, hi: Eval, *, tol: float, x_tol: float, max_solves: int,
+                   counts: Any = None) -> tuple[Eval, float, float, int]:
+    """The λ with ``g(solve(λ)) = 0`` between ``lo`` (g < 0) and ``hi`` (g ≥ 0), by Brent's method in log λ.
+
+    The one root search of the discrepancy rules (χ²/m = target, ``g`` increasing in λ):
+    :func:`scipy.optimize.brentq` on ``x = log λ`` (Brent 1973, ch. 4), ended when a counted solve has
+    ``|exp(g) − 1| ≤ tol``, when the bracket is narrower than ``x_tol`` (where χ²/m jumps across the
+    target), or after ``max_solves`` solves.
+
+    Parameters
+    ----------
+    solve : callable
+        ``solve(λ) -> Eval``.
+    g : callable
+        ``g(Eval) -> float``, ``log(χ²/m / target)``.
+    lo, hi : Eval
+        Solves that bracket the root.
+    tol, x_tol : float
+    max_solves : int
+    counts : callable, optional
+        ``counts(Eval) -> bool``: whether a solve may end the search and move the bracket (e.g. only
+        converged ones); default all.
+
+    Returns
+    -------
+    best, x_lo, x_hi, n_solves
+        The counted solve with the smallest ``|g|`` (``lo`` and ``hi`` included), the final bracket in
+        log λ and the number of solves made.
+    """
     from scipy.optimize import brentq
 
-    known = {math.log(x.lam): x for x in sides.values()}
+    counts = counts or (lambda e: True)
+    known = {math.log(lo.lam): lo, math.log(hi.lam): hi}
+    bracket = [math.log(lo.lam), math.log(hi.lam)]
     made: list[Eval] = []
 
-    def g(x: float) -> float:
+    def f(x: float) -> float:
         e = known.get(x)
         if e is None:
             if len(made) >= max_solves:
-                raise _StopSearch(made[-1])
-            e = run.solve(math.exp(x), sides[-1].theta, objective_rtol=search_rtol)
+                raise _StopSearch
+            e = solve(math.exp(x))
             made.append(e)
-            if e.converged:
-                _nearest_sides(sides, e, target)
-            if e.converged and abs(e.chi2 / target - 1.0) <= tol:
-                raise _StopSearch(e)
-        return e.chi2 / target - 1.0
+            if counts(e):
+                side = 0 if g(e) < 0 else 1
+                bracket[side] = max(bracket[0], x) if side == 0 else min(bracket[1], x)
+                if abs(math.exp(g(e)) - 1.0) <= tol:
+                    raise _StopSearch
+        return g(e)
 
-    try:
-        brentq(g, math.log(sides[-1].lam), math.log(sides[1].lam), xtol=math.log1p(lam_settled), maxiter=max_solves + 2,
-               full_output=True, disp=False)
-    except _StopSearch as stop:
-        return stop.e, len(made)
-    # the bracket closed (a jump of χ²/m across the target): the converged solve nearest the target
-    tried = [x for x in made if x.converged] + list(sides.values())
-    return min(tried, key=lambda x: abs(x.chi2 / target - 1.0)), len(made)
+    with contextlib.suppress(_StopSearch):
+        brentq(f, bracket[0], bracket[1], xtol=x_tol, maxiter=max_solves + 2, full_output=True, disp=False)
+    tried = [e for e in made if counts(e)] + [lo, hi]
+    return min(tried, key=lambda e: abs(g(e))), bracket[0], bracket[1], len(made)
 
 
 def _descent(run: Any, theta: np.ndarray, step: np.ndarray, lam: float,
@@ -629,51 +665,20 @@ def _descent(run: Any, theta: np.ndarray, step: np.ndarray, lam: float,
     return theta, 0.0, at0
 
 
-def _illinois(solve: Any, g: Any, lo: Eval, hi: Eval, tol: float) -> tuple[Eval, float, float]:
-    """Illinois regula falsi for ``g(e) = 0`` in ``x = log λ`` between ``lo`` (g < 0) and ``hi`` (g ≥ 0).
-
-    Stops when ``|exp(g) − 1| ≤ tol`` or the bracket is narrower than a factor 1.1 (at most 20
-    solves).  Returns ``(best, x_lo, x_hi)``: the evaluation with the smallest ``|g|`` and the
-    final bracket.
-    """
-    glo, ghi = g(lo), g(hi)
-    xlo, xhi = math.log(lo.lam), math.log(hi.lam)
-    best = lo if abs(glo) < abs(ghi) else hi
-    side = 0
-    for _ in range(20):
-        if abs(math.exp(g(best)) - 1.0) <= tol or xhi - xlo < math.log(1.1):
-            break
-        x = xhi - ghi * (xhi - xlo) / (ghi - glo) if ghi != glo else 0.5 * (xlo + xhi)
-        x = min(max(x, xlo + 0.05 * (xhi - xlo)), xhi - 0.05 * (xhi - xlo))
-        e = solve(math.exp(x))
-        ge = g(e)
-        if abs(ge) < abs(g(best)):
-            best = e
-        if ge < 0:
-            xlo, glo = x, ge
-            if side == -1:
-                ghi *= 0.5
-            side = -1
-        else:
-            xhi, ghi = x, ge
-            if side == 1:
-                glo *= 0.5
-            side = 1
-    return best, xlo, xhi
-
-
 def objective(run: Any, x: Eval) -> float:
     """``χ²·m + λ‖R‖²`` of an evaluation (the minimised objective)."""
     return x.chi2 * run.m_total + x.lam * x.reg**2
 
 
-def discrepancy_choice(run: Any, e: Eval, target: float, reference: float, note: str) -> LambdaChoice:
+def discrepancy_choice(run: Any, e: Eval, target: float, reference: float, note: str,
+                       target_met: bool = True) -> LambdaChoice:
     """The :class:`LambdaChoice` of the discrepancy rule: every evaluation so far."""
     ev = run.evals
     return LambdaChoice(
         rule="discrepancy", value=e.lam, candidates=np.array([x.lam for x in ev]),
         chi2=np.array([x.chi2 for x in ev]), regularization_norms=np.array([x.reg for x in ev]),
         criterion=np.array([x.chi2 - target for x in ev]), target=target, reference=reference, note=note,
+        target_met=target_met,
     )
 
 
@@ -700,7 +705,7 @@ def discrepancy_local_minimum(run: Any, e: Eval, e2: Eval, choice: LambdaChoice,
     note = (f"the solution meeting the target at λ = {lam_local:.3g} is a local minimum only (from the "
             f"initial guess: chi²/m {e2.chi2:.3g} with a lower objective): {found[1]}")
     e2 = run.solve(e.lam, theta0, objective_rtol=search_rtol)
-    return e, e2, discrepancy_choice(run, e, t, choice.reference, note)
+    return e, e2, discrepancy_choice(run, e, t, choice.reference, note, target_met=False)
 
 
 def gcv_search(run: Any, theta0, lam_ref, lambda_range, n_lambda, probes_n, seed):
@@ -1008,7 +1013,8 @@ class Discrepancy(LambdaRule):
     def choose(self, path: Any, theta0: Any, lam_ref: float,
                first: Eval | None = None) -> tuple[Eval, float, str, str]:
         """``(eval, target, note, search)``: the solve chosen, the target ``χ²/m``, what the search did and
-        which search chose it (``"projected"`` or ``"root"``)."""
+        which search chose it (``"projected"`` or ``"root"``; ``"fallback"`` where the root search met no
+        target and took an L-curve corner or an end of its λ range)."""
         estimate = self.noise_scale == "estimated"
         # (a fit whose linearization() is None makes the projected search give way at once)
         projected = (self.search == "projected" and first is None and hasattr(path, "linearization")
@@ -1028,9 +1034,9 @@ class Discrepancy(LambdaRule):
                 return found[0], target, scale_note + found[1], "projected"
             # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only
             del path.evals[n_before:]
-        e, target, note = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,
-                                             self.search_rtol, estimate_scale=estimate, first=first)
-        return e, target, note, "root"
+        e, target, note, met = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,
+                                                  self.search_rtol, estimate_scale=estimate, first=first)
+        return e, target, note, "root" if met else "fallback"
 
 
 class DiscrepancyBracket(LambdaRule):

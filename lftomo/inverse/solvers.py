@@ -79,7 +79,7 @@ Candidate λ are multiples of it.
   runs.
 * ``"discrepancy"`` with ``discrepancy_search="root"`` (Morozov): λ such that ``χ²/m = 1 + safety`` (default
   ``discrepancy_safety=0``; a positive safety factor over-smooths
-  deliberately), found by factor-10 bracketing then Illinois regula falsi on
+  deliberately), found by factor-10 bracketing then Brent's method on
   ``log(χ²/m)`` against ``log λ`` (χ² increases with λ), each nonlinear solve
   warm-started from the solution at the nearest λ already solved and run until
   its objective changes by less than ``search_rtol`` over a chunk of steps
@@ -185,7 +185,6 @@ from ..interrupt import stop_between_steps  # noqa: E402
 from .hostsparse import csr_product, host_csr  # noqa: E402
 from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks  # noqa: E402
 from .lambdarules import (  # noqa: E402
-    DISCREPANCY_JUMP,
     DISCREPANCY_SEARCHES,
     GCV,
     NOISE_SCALES,
@@ -1053,7 +1052,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
         e, target, note, searched = Discrepancy(
             noise_scale="estimated" if estimate_scale else "given", safety=safety, search_steps=search_steps,
             search_rtol=float(search_rtol), search=discrepancy_search).choose(run, theta0, lam_ref)
-        choice = discrepancy_choice(run, e, target, lam_ref, note)
+        choice = discrepancy_choice(run, e, target, lam_ref, note, target_met=searched != "fallback")
     elif rule == "gcv":
         e, c, ch, rg, cr, note = GCV(lr, n_lambda, gcv_probes, seed).choose(run, theta0, lam_ref)
         choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
@@ -1115,8 +1114,9 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
     surrogate = problem.surrogate()
     sur = solve_temperature(surrogate, regularization="auto", T0=T0, **options)
     ch = sur.lambda_choice
-    if ch.rule == "discrepancy" and sur.chi2 > ch.target * (1.0 + DISCREPANCY_JUMP):
-        # The surrogate cannot reach the target at any λ: its own model error
+    if ch.rule == "discrepancy" and not ch.target_met:
+        # The surrogate's rule did not meet its target (χ²/m above it at every λ,
+        # or only within the jump margin at a fallback's λ): its own model error
         # (I_b interpolated linearly instead of Planck of the interpolated T)
         # exceeds the noise, so its "smallest λ" says nothing about the noise
         # (measured: standard flame 6³ / 12³, axisymmetric, curvature: the
@@ -1125,8 +1125,8 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
         # model itself, from the surrogate's solution.
         sol = solve_temperature(problem, regularization="auto", T0=sur.T, subvoxel_search="full", **options)
         note = (f"{sol.lambda_choice.note}; the rule ran on the sub-voxel model (from the surrogate's solution) "
-                f"because the surrogate A E misfits by itself (χ²/m {sur.chi2:.4g} above the target "
-                f"{ch.target:.4g} at every λ)")
+                f"because the rule did not meet its target on the surrogate A E (χ²/m {sur.chi2:.4g} at its λ, "
+                f"target {ch.target:.4g}: the surrogate misfits by itself)")
         choice = sol.lambda_choice
     else:
         fit_options = {k: v for k, v in options.items() if k != "rule"}
