@@ -399,8 +399,10 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                 return found[0], target, scale_note + note, False
             note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
             return hi, target, scale_note + note, False
+    # the bracket closes (a jump of χ²/m across the target) within LAMBDA_SETTLED, as in the projected search:
+    # a bracket of 1.1 in λ can still span χ²/m 0.98–1.01 where χ² is steep
     best, xlo, xhi, _ = bracketed_root(lambda lam: solve(lam, run.nearest(lam, theta0)), g, lo, hi, tol=tol,
-                                      x_tol=math.log(1.1), max_solves=20)
+                                      x_tol=math.log1p(LAMBDA_SETTLED), max_solves=20)
     miss = abs(math.exp(g(best)) - 1.0)
     if miss > DISCREPANCY_JUMP:
         # The bracket closed on a jump of χ² across the target: two branches of

@@ -87,7 +87,8 @@ Candidate λ are multiples of it.
   ``|χ²/m − target| ≤ tol · target`` with ``tol = √(2/m)`` (the standard
   deviation of χ²/m of the noise itself: the target is not defined more
   precisely) clipped to [1e-3, 1e-2], or when the bracket is narrower than a
-  factor 1.1.  If even the smallest λ (``λ_ref · 1e-10``) cannot reach the target
+  factor 1.02 (``LAMBDA_SETTLED``: χ²/m jumps across the target there).  If
+  even the smallest λ (``λ_ref · 1e-10``) cannot reach the target
   (σ underestimated, or a model error), or the largest (``λ_ref · 1e4``)
   stays below it (σ overestimated), the L-curve corner of the solutions
   computed on the way (factors of 10) is used instead, and the note says so;

@@ -316,8 +316,8 @@ def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
     from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _BranchRunner()
-    e, target, note = _rule_discrepancy(run, np.zeros(1), 4000.0, 0.0, None, 1e-3)
-    assert "jumps across the target" in note and "L-curve corner" in note, note
+    e, target, note, met = _rule_discrepancy(run, np.zeros(1), 4000.0, 0.0, None, 1e-3)
+    assert "jumps across the target" in note and "L-curve corner" in note and not met, note
     assert e.lam < 5e3 and e.chi2 < target  # on the structured branch
     assert 100.0 <= e.lam <= 2000.0, e.lam  # near the corner, not at the jump
 
@@ -338,8 +338,8 @@ def test_discrepancy_takes_lcurve_corner_when_chi2_stays_above_target():
     from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _AboveRunner()
-    e, target, note = _rule_discrepancy(run, np.zeros(1), 4e5, 0.0, None, 1e-3)  # path 4000, 400, 40, ...
-    assert "stays above the target" in note and "L-curve corner" in note, note
+    e, target, note, met = _rule_discrepancy(run, np.zeros(1), 4e5, 0.0, None, 1e-3)  # path 4000, 400, 40, ...
+    assert "stays above the target" in note and "L-curve corner" in note and not met, note
     assert min(x.lam for x in run.evals) < 1e-3 and max(x.lam for x in run.evals) == 4000.0  # down to its end
     assert 40.0 <= e.lam <= 2000.0, e.lam  # near the corner (≈ 400), far from the smallest λ
 
@@ -376,8 +376,8 @@ def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
 
     theta0 = np.zeros(1)
     run = _LocalMinimumRunner(theta0)
-    e, target, _ = _rule_discrepancy(run, theta0, 5000.0, 0.0, None, 1e-3)
-    assert abs(e.chi2 - 1.0) < 0.01 and e.lam > 2e4  # the search itself meets the target
+    e, target, _, met = _rule_discrepancy(run, theta0, 5000.0, 0.0, None, 1e-3)
+    assert abs(e.chi2 - 1.0) < 0.01 and e.lam > 2e4 and met  # the search itself meets the target
     choice = LambdaChoice(rule="discrepancy", value=e.lam, candidates=np.array([e.lam]), chi2=np.array([e.chi2]),
                           regularization_norms=np.array([e.reg]), criterion=np.array([0.0]), target=target)
     e2 = run.solve(e.lam, theta0)
@@ -386,7 +386,7 @@ def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
     assert 100.0 <= e_new.lam <= 5000.0 and e_new.lam == choice_new.value == e2_new.lam
     # the global minimiser meeting the target is left alone
     run2 = _BranchRunner()
-    e, target, _ = _rule_discrepancy(run2, theta0, 4000.0, 0.0, None, 1e-3)
+    e, target, _, _ = _rule_discrepancy(run2, theta0, 4000.0, 0.0, None, 1e-3)
     same = _discrepancy_local_minimum(run2, e, e, choice, theta0)
     assert same[0] is e
 
@@ -418,8 +418,8 @@ def test_discrepancy_fallback_ignores_the_flat_branch():
     from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _FlatBelowTargetRunner()
-    e, _, note = _rule_discrepancy(run, np.zeros(1), 3000.0, 0.0, None, 1e-3)
-    assert "overestimated" in note, note
+    e, _, note, met = _rule_discrepancy(run, np.zeros(1), 3000.0, 0.0, None, 1e-3)
+    assert "overestimated" in note and not met, (note, met)
     assert e.lam < 1e3, (e.lam, note)
 
 
