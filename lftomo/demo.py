@@ -778,7 +778,8 @@ def _demo_field_posterior(d: _DemoRun) -> None:
     coarse, T_eff, rec = d.r["coarse"], d.r["T_eff"], d.r["rec"]
     with d.st("field_posterior", "posterior of the whole field: Laplace, lambda by evidence"):
         fpost = lt.laplace_posterior(d.r["problem"], regularization="evidence", lambda0=rec.regularization, T0=rec.T,
-                                     prior=DEFAULT_PRIOR, bounds=BOUNDS, seed=d.cfg["seeds"]["posterior"], **d.opts)
+                                     prior=DEFAULT_PRIOR, bounds=BOUNDS, seed=d.cfg["seeds"]["posterior"],
+                                     progress=d.progress, **d.opts)
     d.r["fpost"] = fpost
     ev = fpost.evidence
     hot_eff = T_eff > HOT

@@ -409,7 +409,7 @@ def laplace_posterior(
     seed : int or None, keyword-only
         Seed of the sampled method's draws.
     progress : bool, keyword-only
-        Print one line per evidence iteration.
+        Print one line per evidence iteration, and show the reconstructions' progress bars.
     symmetry : None, "axisymmetric" or RingGrid, keyword-only
         Posterior of an axisymmetric field (as in :func:`lftomo.reconstruct`):
         the unknowns are the ring cells, the prior the voxel grid's restricted
@@ -451,10 +451,11 @@ def laplace_posterior(
     grid = problem.grid
     if method == "auto":
         method = "dense" if grid.n_voxels <= lam_opts["dense_max"] else "sampled"
-    run = _PosteriorRun(problem, prior=prior, bounds=bounds, options=options, method=method,
-                        n_samples=lam_opts["n_samples"], rng=np.random.default_rng(seed), cg_rtol=lam_opts["cg_rtol"],
-                        cg_max_iter=lam_opts["cg_max_iter"])
     T_start = options.pop("T0", None)
+    # the solves show their bars only when asked (lftomo demo --quiet printed them)
+    run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": bool(progress)},
+                        method=method, n_samples=lam_opts["n_samples"], rng=np.random.default_rng(seed),
+                        cg_rtol=lam_opts["cg_rtol"], cg_max_iter=lam_opts["cg_max_iter"])
     if ring is not None:
         T_start = ring_start(T_start, ring)
 

@@ -218,3 +218,18 @@ def test_unconstrained_voxels_raise_a_clear_error_naming_them():
     J, Ls = precision_factors(problem, T, prior="gradient")
     var = _dense_stats(J, Ls, 1e-3).var
     assert np.all(np.isfinite(var)) and np.all(var > 0)
+
+
+def test_progress_false_silences_the_reconstructions(case, monkeypatch, capsys):
+    """``progress=False`` (``lftomo demo --quiet``) prints nothing, although the solver would show its bar on a
+    problem this size by default; ``progress=True`` shows the bars and the evidence iterations."""
+    import lftomo.inverse.solvers as solvers
+
+    problem, _ = case
+    monkeypatch.setattr(solvers, "PROGRESS_MIN_NNZ", 0)  # every problem is "large": bars by default
+    laplace_posterior(problem, regularization="evidence", method="dense", lambda0=100.0, max_iter=2)
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == "", out
+    laplace_posterior(problem, regularization="evidence", method="dense", lambda0=100.0, max_iter=2, progress=True)
+    out = capsys.readouterr()
+    assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
