@@ -67,6 +67,11 @@ WORKER_DASK_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD
                       "distributed.worker.profile.enabled": False,
                       "distributed.worker.memory.monitor-interval": "1s",
                       "distributed.admin.system-monitor.interval": "2s"}
+#: Scheduler settings of :func:`local_cluster`: the active memory manager off.  Its ReduceReplicas policy
+#: drops a worker's replica of the broadcast forward model whenever no task waiting there needs it
+#: (between two windows of frames), and the next frame on that worker fetches the whole matrix again (a
+#: second copy, seen in the test of one copy per worker).
+SCHEDULER_DASK_CONFIG = {"distributed.scheduler.active-memory-manager.start": False}
 #: Name of the manifest in the output folder.
 MANIFEST = "manifest.json"
 FORMAT = "lftomo-series-1"
@@ -373,8 +378,9 @@ def local_cluster(workers: int):
     """A ``distributed.LocalCluster`` of ``workers`` single-threaded processes, set up for lftomo.
 
     Each worker runs with :data:`WORKER_ENV` (one numba, OpenMP and BLAS thread)
-    and :data:`WORKER_DASK_CONFIG` (glibc's malloc not tuned by Dask); the
-    dashboard takes a free port.  The caller closes it.
+    and :data:`WORKER_DASK_CONFIG` (glibc's malloc not tuned by Dask), the
+    scheduler with :data:`SCHEDULER_DASK_CONFIG` (each worker keeps its copy of
+    the forward model); the dashboard takes a free port.  The caller closes it.
 
     Dask's nannies also write their variables into this process's
     ``os.environ``, where every later worker would inherit them: a
@@ -389,7 +395,8 @@ def local_cluster(workers: int):
     key = "MALLOC_TRIM_THRESHOLD_"
     if os.environ.get(key) == str(dask.config.get("distributed.nanny.pre-spawn-environ", {}).get(key)):
         del os.environ[key]  # a nanny's leftover (an earlier default LocalCluster), not the user's setting
-    with dask.config.set(WORKER_DASK_CONFIG):  # read by the nannies when they start
+    # read by the nannies when they start, and by the scheduler (in this process)
+    with dask.config.set({**WORKER_DASK_CONFIG, **SCHEDULER_DASK_CONFIG}):
         return LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
                             dashboard_address=":0", silence_logs=logging.ERROR)
 
