@@ -295,6 +295,38 @@ def _weights_grid(weights: Any, recon_grid: Grid, quadrature: int | None) -> Gri
     return wgrid
 
 
+def _checked_inputs(scene, camera, recon_grid, *, depths, min_etendue_fraction, quadrature, subaperture, weights,
+                    lightfield, regularization, reconstruct_options) -> Grid:
+    """:func:`compare_refocus_subaperture`'s arguments checked before any work; returns the weights' grid."""
+    if scene.medium is None:
+        raise ValueError("scene must contain a medium (the flame to reconstruct)")
+    if not depths:
+        raise ValueError("depths must list at least one refocus depth (m)")
+    if not 0.0 <= min_etendue_fraction < 1.0:
+        raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    if quadrature is not None:
+        quadrature = require_int("quadrature", quadrature, minimum=1)
+    if "grid" in reconstruct_options:
+        raise ValueError("grid is recon_grid here; give the quadrature (or weights on a finer grid) for sub-voxel "
+                         "emission")
+    if subaperture is not None and (getattr(subaperture, "data_kind", None) != "subaperture"
+                                    or getattr(subaperture, "grid", None) != recon_grid):
+        raise ValueError("subaperture must be a Reconstruction of sub-aperture views on recon_grid, got "
+                         f"{getattr(subaperture, 'data_kind', type(subaperture).__name__)!r} on "
+                         f"{getattr(getattr(subaperture, 'grid', None), 'shape', None)}")
+    if weights is not None:
+        wgrid = _weights_grid(weights, recon_grid, quadrature)
+    else:
+        wgrid = recon_grid.refined(DEFAULT_QUADRATURE if quadrature is None else quadrature)
+    if lightfield is not None and (lightfield.camera.sensor_shape != camera.sensor_shape
+                                   or lightfield.n_channels != 1):
+        raise ValueError("lightfield must be a one-channel render by the given camera")
+    if regularization != "auto" and "rule" in reconstruct_options:
+        raise ValueError(f"give regularization ({regularization!r}) or rule "
+                         f"({reconstruct_options['rule']!r}), not both")
+    return wgrid
+
+
 def compare_refocus_subaperture(
     scene,
     camera,
@@ -385,32 +417,9 @@ def compare_refocus_subaperture(
     from .reconstruct import DEFAULT_PRIOR, problem_on_grid, reconstruct
     from .subvoxel import interpolate_field
 
-    if scene.medium is None:
-        raise ValueError("scene must contain a medium (the flame to reconstruct)")
-    if not depths:
-        raise ValueError("depths must list at least one refocus depth (m)")
-    if not 0.0 <= min_etendue_fraction < 1.0:
-        raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
-    if quadrature is not None:
-        quadrature = require_int("quadrature", quadrature, minimum=1)
-    if "grid" in reconstruct_options:
-        raise ValueError("grid is recon_grid here; give the quadrature (or weights on a finer grid) for sub-voxel "
-                         "emission")
-    if subaperture is not None and (getattr(subaperture, "data_kind", None) != "subaperture"
-                                    or getattr(subaperture, "grid", None) != recon_grid):
-        raise ValueError("subaperture must be a Reconstruction of sub-aperture views on recon_grid, got "
-                         f"{getattr(subaperture, 'data_kind', type(subaperture).__name__)!r} on "
-                         f"{getattr(getattr(subaperture, 'grid', None), 'shape', None)}")
-    if weights is not None:
-        wgrid = _weights_grid(weights, recon_grid, quadrature)
-    else:
-        wgrid = recon_grid.refined(DEFAULT_QUADRATURE if quadrature is None else quadrature)
-    if lightfield is not None and (lightfield.camera.sensor_shape != camera.sensor_shape
-                                   or lightfield.n_channels != 1):
-        raise ValueError("lightfield must be a one-channel render by the given camera")
-    if regularization != "auto" and "rule" in reconstruct_options:
-        raise ValueError(f"give regularization ({regularization!r}) or rule "
-                         f"({reconstruct_options['rule']!r}), not both")
+    wgrid = _checked_inputs(scene, camera, recon_grid, depths=depths, min_etendue_fraction=min_etendue_fraction,
+                            quadrature=quadrature, subaperture=subaperture, weights=weights, lightfield=lightfield,
+                            regularization=regularization, reconstruct_options=reconstruct_options)
     t0 = time.perf_counter()
     wl = None if wavelength is None else float(wavelength)
     wls = "gray" if wl is None else (wl,)
