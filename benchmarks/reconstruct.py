@@ -144,7 +144,7 @@ def main() -> None:
                     help="LSMR iterations per step (the demo's setting; studies/accuracy.py --linear-max-steps "
                          "20 vs 100 at 16³: same λ and error)")
     ap.add_argument("--search", default="projected", choices=("projected", "root"),
-                    help="the discrepancy rule's λ search (solve_temperature's discrepancy_search)")
+                    help="the discrepancy rule's λ search (lt.Discrepancy(search=...))")
     ap.add_argument("--posterior", action="store_true", help="also time laplace_posterior and sample_posterior")
     ap.add_argument("--samples", type=int, default=64, help="--posterior: draws of laplace_posterior")
     ap.add_argument("--emcee-steps", type=int, default=10000, help="--posterior: emcee steps (64 walkers)")
@@ -169,8 +169,10 @@ def main() -> None:
           f"cpu count {os.cpu_count()}")
 
     t = time.perf_counter()
-    sol = solve_temperature(problem, rtol=args.rtol, atol=args.rtol, max_steps=args.max_steps,
-                            linear_max_steps=args.linear_max_steps, discrepancy_search=args.search)
+    # the gradient prior: the prior the recorded numbers were measured with (docs/performance.md)
+    sol = solve_temperature(problem, prior="gradient", rule=lt.Discrepancy(search=args.search),
+                            solver=lt.LevenbergMarquardt(max_steps=args.max_steps, rtol=args.rtol, atol=args.rtol,
+                                                         linear_max_steps=args.linear_max_steps))
     t_nl = time.perf_counter() - t
     t = time.perf_counter()
     base = solve_linear_baseline(problem, regularization=sol.regularization)

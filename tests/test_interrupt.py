@@ -399,7 +399,8 @@ def test_ctrl_c_stops_a_direct_solve_temperature_call_between_steps():
     timer.start()
     try:
         with pytest.raises(Interrupted):  # never converges (tolerances 1e-300): 10^6 steps are minutes
-            solve_temperature(prob, regularization=1.0, max_steps=1_000_000, rtol=1e-300, atol=1e-300,
+            solve_temperature(prob, rule=lt.Fixed(1.0),
+                              solver=lt.LevenbergMarquardt(max_steps=1_000_000, rtol=1e-300, atol=1e-300),
                               progress=False)
     finally:
         timer.cancel()

@@ -63,7 +63,7 @@ from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
 from .regularizers import prior_operator, resolve_prior
-from .solvers import solve_temperature
+from .solvers import temperature_fit
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
 _METHODS = ("auto", "dense", "sampled")
@@ -98,7 +98,7 @@ class FieldPosterior:
         and ``"converged"``, ``"iterations"``.
     solution : TemperatureSolution
         The regularized reconstruction at ``regularization``
-        (:func:`lftomo.solve_temperature`).
+        (:func:`lftomo.inverse.solvers.temperature_fit`).
     grid : Grid
         The voxel grid (the fields above live on it).
     elapsed_s : float
@@ -419,7 +419,7 @@ def laplace_posterior(
         Reconstruction grid coarser than the weights' (sub-voxel emission, as
         in :func:`lftomo.reconstruct`); default the weights' grid.
     **options
-        Passed to :func:`lftomo.solve_temperature` (e.g. ``linear_max_steps``);
+        Passed to :func:`lftomo.inverse.solvers.temperature_fit` (e.g. ``linear_max_steps``);
         ``T0`` starts the first reconstruction (e.g. a reconstruction at
         ``lambda0`` already made).
 
@@ -521,11 +521,11 @@ class _PosteriorRun:
         self.Ls = _scaled_prior(problem.grid, prior, bounds)
 
     def solve(self, reg, T0=None):
-        """The reconstruction at ``reg`` (λ, or a rule's name) from ``T0`` (:func:`lftomo.solve_temperature`)."""
+        """The reconstruction at ``reg`` (λ, or a rule's name) from ``T0`` (:func:`lftomo.inverse.solvers.temperature_fit`)."""
         t = time.perf_counter()
         with stop_between_steps("the field posterior"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            sol = solve_temperature(self.problem, regularization=reg, prior=self.prior, bounds=self.bounds, T0=T0,
-                                    **self.options)
+            sol = temperature_fit(self.problem, regularization=reg, prior=self.prior, bounds=self.bounds, T0=T0,
+                                  **self.options)
         self.clock["solve_s"] += time.perf_counter() - t
         return sol
 

@@ -939,7 +939,7 @@ class LambdaRule:
 
     def keywords(self) -> dict[str, Any]:
         """The fit function's keyword arguments that select this rule with its parameters
-        (:func:`lftomo.inverse.solvers.solve_temperature`,
+        (:func:`lftomo.inverse.solvers.temperature_fit`,
         :func:`lftomo.inverse.joint.solve_temperature_absorption`)."""
         return {"rule": self.name}
 
@@ -1013,10 +1013,11 @@ class Discrepancy(LambdaRule):
                 "discrepancy_search": self.search, **_subvoxel_kw(self)}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float,
-               first: Eval | None = None) -> tuple[Eval, float, str, str]:
-        """``(eval, target, note, search)``: the solve chosen, the target ``χ²/m``, what the search did and
-        which search chose it (``"projected"`` or ``"root"``; ``"fallback"`` where the root search met no
-        target and took an L-curve corner or an end of its λ range)."""
+               first: Eval | None = None) -> tuple[Eval, LambdaChoice, str]:
+        """``(eval, choice, search)``: the solve chosen, its :class:`LambdaChoice` (the target ``χ²/m``,
+        what the search did, every λ solved, and ``target_met``: False where the root search met no
+        target and took an L-curve corner or an end of its λ range) and which search chose it
+        (``"projected"`` or ``"root"``)."""
         estimate = self.noise_scale == "estimated"
         # (a fit whose linearization() is None makes the projected search give way at once)
         projected = (self.search == "projected" and first is None and hasattr(path, "linearization")
@@ -1033,12 +1034,12 @@ class Discrepancy(LambdaRule):
                 target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
             found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8)
             if found is not None:
-                return found[0], target, scale_note + found[1], "projected"
+                return found[0], discrepancy_choice(path, found[0], target, lam_ref, scale_note + found[1]), "projected"
             # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only
             del path.evals[n_before:]
         e, target, note, met = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,
                                                   self.search_rtol, estimate_scale=estimate, first=first)
-        return e, target, note, "root" if met else "fallback"
+        return e, discrepancy_choice(path, e, target, lam_ref, note, target_met=met), "root"
 
 
 class DiscrepancyBracket(LambdaRule):
@@ -1191,7 +1192,7 @@ def _lambda_max_kw(rule: LambdaRule) -> dict[str, Any]:
     return {} if rule.lambda_max is None else {"lambda_max": rule.lambda_max}
 
 
-#: How a T-only λ rule treats a sub-voxel model (:func:`lftomo.inverse.solvers.solve_temperature`).
+#: How a T-only λ rule treats a sub-voxel model (:func:`lftomo.inverse.solvers.temperature_fit`).
 SUBVOXEL_SEARCHES = ("surrogate", "full")
 
 

@@ -22,18 +22,9 @@ from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
 from .symmetry import resolve_symmetry, ring_problem, ring_start
-from .unknowns import Unknowns, resolve_unknowns
-
-
-#: The T-only fit's prior when none is given: second differences per axis, no boundary
-#: condition at the box faces (docs/accuracy.md, "Defaults").
-DEFAULT_PRIOR = "curvature"
-#: The T-only discrepancy rule's noise scale when none is given: σ as given, estimated only where
-#: the given σ is too large for any λ to meet the target.  (``"estimated"`` everywhere
-#: under-regularized the focal-stack data of the standard flame into a 28 % error; where σ is
-#: overestimated it beats the L-curve corner used before on non-axisymmetric flames;
-#: docs/accuracy.md, "Defaults".)
-DEFAULT_NOISE_SCALE = "given"
+from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
+    DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns, moved_options)
+from .unknowns import resolve_unknowns
 
 
 def weights_grid(W) -> Grid:
@@ -131,47 +122,6 @@ def _check_types(measurement: Any, weights: Any) -> None:
                               f"{type(w).__name__}")
 
 
-def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solver: Any,
-                 options: dict[str, Any]) -> tuple[Any, Any, Any, dict[str, Any]]:
-    """Fold ``rule`` and ``solver`` objects into the fit function's keywords.
-
-    A :class:`~lftomo.inverse.lambdarules.LambdaRule` object sets ``rule`` and
-    its parameters (``Fixed(λ)`` sets ``regularization``); a
-    :class:`~lftomo.inverse.solverchoice.Solver` sets ``method`` and its
-    parameters.  A keyword given both ways is refused (it would be ambiguous).
-
-    Returns
-    -------
-    (regularization, method, rule, options)
-        ``rule`` as a name (or None: the fit's default), ``method`` a name.
-    """
-    from .lambdarules import LambdaRule
-    from .solverchoice import resolve_solver
-
-    opts = dict(options)
-    given = {"regularization": regularization != "auto", "method": method is not None}
-
-    def fold(obj: Any, what: str) -> None:
-        for k, v in obj.keywords().items():
-            if given.get(k) or k in options:
-                raise ValueError(f"{k} is set twice: by {what}={obj!r} and as {k}=...; give it one way")
-            opts[k] = v
-
-    if isinstance(rule, LambdaRule):
-        if fit not in rule.fits:
-            raise ValueError(f"rule={rule!r} does not run for unknowns={fit!r} (it runs for {list(rule.fits)})")
-        fold(rule, "rule")
-        rule = None
-    if solver is not None:
-        fold(resolve_solver(solver, fit=fit), "solver")
-    regularization = opts.pop("regularization", regularization)
-    method = opts.pop("method", method)
-    rule = opts.pop("rule", rule)
-    if method is None or method == "auto":  # the joint fit picks its solver by the number of unknowns
-        method = "auto" if fit == "T+sigma_a" else "levenberg-marquardt"
-    return regularization, method, rule, opts
-
-
 def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
     """Warn (UserWarning) when fewer data than unknowns are fitted: the field is
     then fixed by the prior more than by the data, whatever the solver reports."""
@@ -184,7 +134,7 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
 def _reconstruct_temperature(measurement, weights, *, regularization, prior, bounds, method, rule, symmetry, grid,
                              options) -> Reconstruction:
     """The ``unknowns="T"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
-    from .solvers import solve_temperature
+    from .solvers import temperature_fit
 
     if method not in ("levenberg-marquardt", "gauss-newton"):
         raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', got {method!r}"
@@ -201,9 +151,9 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         if rule in (None, "discrepancy") and regularization == "auto":
             options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
-        sol = solve_temperature(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
-                                bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
-                                **options)
+        sol = temperature_fit(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
+                              bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
+                              **options)
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
               "total": time.perf_counter() - t0}
     choice = sol.lambda_choice
@@ -251,33 +201,6 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
                                             **options)
 
 
-#: Keywords that :func:`reconstruct` took before its options moved onto objects, and where each lives now.
-MOVED_OPTIONS: dict[str, str] = {
-    "regularization": "rule=lt.Fixed(λ) (leave it out for the default λ rule)",
-    "method": "solver=lt.LevenbergMarquardt(), lt.GaussNewton(), lt.DenseLM() or lt.AutoSolver()",
-    "T0": "start=T0",
-    "sigma_a0": "start=(T0, sigma_a0)",
-    "noise_scale": "rule=lt.Discrepancy(noise_scale=...) (lt.DiscrepancyBracket(noise_scale=...) for "
-                   "unknowns='T+sigma_a')",
-    "discrepancy_safety": "rule=lt.Discrepancy(safety=...)",
-    "search_steps": "rule=lt.Discrepancy(search_steps=...)",
-    "search_rtol": "rule=lt.Discrepancy(search_rtol=...)",
-    "subvoxel_search": "rule=lt.Discrepancy(subvoxel_search=...) (or lt.GCV(...), lt.LCurve(...))",
-    "lambda_range": "rule=lt.GCV(lambda_range=...) or lt.LCurve(lambda_range=...)",
-    "n_lambda": "rule=lt.GCV(n_lambda=...) or lt.LCurve(n_lambda=...)",
-    "gcv_probes": "rule=lt.GCV(probes=...)",
-    "seed": "rule=lt.GCV(seed=...)",
-    "lambda_max": "rule=lt.DiscrepancyBracket(lambda_max=...) or lt.LCurveDecades(lambda_max=...)",
-    **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))"
-       for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},
-    **{k: f"solver=lt.AutoSolver({k}=...) (or lt.LevenbergMarquardt, lt.DenseLM)" for k in ("polish_steps", "engine")},
-    **{k: f"unknowns=lt.Temperature({k}=...)" for k in ("penalize", "T_ref")},
-    "tv_eps": "prior=lt.TotalVariationPrior(eps=...)",
-    **{k: f"unknowns=lt.TemperatureAbsorption({k}=...)"
-       for k in ("alpha", "sigma_a_space", "sigma_a_min", "sigma_a_max", "sigma_a_scale", "sigma_a_ridge")},
-}
-
-
 def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noise_scale: str | None = None) -> Any:
     """The T-only λ rule object named by the command line's ``--rule``, ``--regularization`` and ``--noise-scale``.
 
@@ -305,34 +228,6 @@ def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noi
     if rule not in RULE_CLASSES["T"]:
         raise ValueError(f"rule must be one of {tuple(RULE_CLASSES['T'])}, got {rule!r}")
     return RULE_CLASSES["T"][rule]()
-
-
-def moved_options(given: dict[str, Any]) -> dict[str, Any]:
-    """The fit keywords among ``given``, each with a DeprecationWarning naming where it lives now.
-
-    Raises
-    ------
-    TypeError
-        A keyword that :func:`reconstruct` never took, as Python itself would.
-    """
-    unknown = sorted(set(given) - set(MOVED_OPTIONS))
-    if unknown:
-        raise TypeError(f"reconstruct() got an unexpected keyword argument {unknown[0]!r}")
-    for name in given:
-        warnings.warn(f"reconstruct({name}=...) is deprecated: pass {MOVED_OPTIONS[name]}", DeprecationWarning,
-                      stacklevel=3)
-    return dict(given)
-
-
-def _fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tuple[Unknowns, dict[str, Any]]:
-    """Add the unknowns object's parameters to the fit keywords.  Its parameters given the old way
-    (as keywords) build the object when ``unknowns`` is a name, and are refused next to an object."""
-    moved = {k: options.pop(k) for k in what.keywords() if k in options}
-    if moved and isinstance(unknowns, Unknowns):
-        raise ValueError(f"{', '.join(moved)} set twice: by unknowns={unknowns!r} and as keywords; give it one way")
-    if moved:
-        what = type(what)(**moved)
-    return what, {**options, **what.keywords()}
 
 
 def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]:
@@ -475,7 +370,7 @@ def reconstruct(
     fit = what.name
     options = moved_options(moved)
     _check_types(measurement, weights)
-    what, options = _fold_unknowns(unknowns, what, options)
+    what, options = fold_unknowns(unknowns, what, options)
     options = _fold_start(start, options, fit)
     regularization, method, rule, options = fit_keywords(
         fit, regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,

@@ -1,9 +1,9 @@
 """Solver objects: which algorithm minimises the regularised least-squares objective, with its settings.
 
 A solver is a small immutable object (as optimistix and lineax make
-solvers objects) given as ``solver=`` to :func:`lftomo.reconstruct`; its
-parameters are its attributes, and a parameter left at ``None`` keeps the
-fit's own default (:func:`lftomo.inverse.solvers.solve_temperature` for
+solvers objects) given as ``solver=`` to :func:`lftomo.reconstruct` and
+:func:`lftomo.solve_temperature`; its parameters are its attributes, and a
+parameter left at ``None`` keeps the fit's own default (:func:`lftomo.inverse.solvers.temperature_fit` for
 ``unknowns="T"``, :func:`lftomo.inverse.joint.solve_temperature_absorption`
 for ``"T+sigma_a"``).
 

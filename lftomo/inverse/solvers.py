@@ -193,7 +193,6 @@ from .lambdarules import (  # noqa: E402
     Eval,
     LambdaChoice,
     LCurve,
-    discrepancy_choice,
     discrepancy_local_minimum,
     objective,
     resolve_rule,
@@ -202,6 +201,9 @@ from .problem import LinearProblem  # noqa: E402
 from .projected import Linearization  # noqa: E402
 from .regularizers import Prior, resolve_prior  # noqa: E402
 from .unknowns import PENALIZED as PENALIZE  # noqa: E402  (what the prior acts on)
+from .unknowns import resolve_unknowns  # noqa: E402
+from .fitoptions import (  # noqa: E402
+    DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, TEMPERATURE_MOVED, fit_keywords, fold_unknowns, moved_options)
 
 __all__ = [
     "METHODS",
@@ -215,6 +217,7 @@ __all__ = [
     "TemperatureSolution",
     "BaselineSolution",
     "solve_temperature",
+    "temperature_fit",
     "solve_linear_baseline",
     "baseline_start",
 ]
@@ -777,8 +780,96 @@ def _gcv_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = 
 def solve_temperature(
     problem: LinearProblem,
     *,
+    prior: Any = None,
+    rule: Any = None,
+    solver: Any = None,
+    unknowns: Any = None,
+    bounds: tuple[float, float] = (300.0, 3000.0),
+    T0: Any = None,
+    progress: bool | None = None,
+    **moved: Any,
+) -> TemperatureSolution:
+    """Reconstruct the temperature field of a linear problem by regularized nonlinear least squares.
+
+    Minimises ``‖(A I_b(T) + bg − y)/σ‖² + λ ‖R(T)‖²`` with ``T`` in
+    ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, using
+    optimistix (matrix-free; the module docstring gives the residual, its
+    scaling and the λ rules).  The same fit as :func:`lftomo.reconstruct`
+    with ``unknowns="T"``, on a problem assembled by the caller.
+
+    Parameters
+    ----------
+    problem : LinearProblem
+        Forward operator ``A`` (m, n) (m² sr), data ``y`` (m,), noise ``sigma``
+        (m,), grid (n voxels), wavelength (m) or None for gray, background,
+        and optionally the sub-voxel interpolation.
+    prior : str or Prior, optional, keyword-only
+        ``"gradient"``, ``"laplacian"``, ``"tv"``, ``"curvature"`` or a
+        :class:`~lftomo.inverse.regularizers.Prior` with its parameters (e.g.
+        ``TotalVariationPrior(eps=...)``).  Default
+        :data:`~lftomo.inverse.fitoptions.DEFAULT_PRIOR` (``"curvature"``), as
+        for :func:`lftomo.reconstruct`.
+    rule : str or LambdaRule, optional, keyword-only
+        How λ is chosen: ``"discrepancy"``, ``"gcv"``, ``"lcurve"`` or a rule
+        object with its parameters (``Discrepancy(noise_scale="estimated")``,
+        ``GCV(n_lambda=9)``, ``LCurve(...)``); ``Fixed(λ)`` fixes λ.  Default
+        the discrepancy rule with σ as given
+        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE`).
+    solver : Solver, optional, keyword-only
+        ``LevenbergMarquardt(...)`` (default) or ``GaussNewton(...)`` with
+        their step counts and tolerances (:mod:`lftomo.inverse.solverchoice`).
+    unknowns : Temperature, optional, keyword-only
+        What the prior acts on (:class:`~lftomo.inverse.unknowns.Temperature`:
+        ``penalize``, ``T_ref``); default ``Temperature()``.
+    bounds : (float, float), keyword-only
+        ``(T_min, T_max)`` (K), ``0 < T_min < T_max``.
+    T0 : None, float, "uniform" or array of shape grid.shape, keyword-only
+        Initial temperature (K); None: the linear baseline clipped into the
+        bounds (:func:`temperature_fit`).
+    progress : bool, optional, keyword-only
+        A progress bar on stderr over the solver's steps; default shown for
+        large problems.
+    **moved
+        The keywords this function took before they moved onto the objects
+        above (``regularization``, ``method``, ``noise_scale``, ``max_steps``,
+        ``penalize``, …) still work, each with a DeprecationWarning naming the
+        object (:data:`~lftomo.inverse.fitoptions.MOVED_OPTIONS`).
+
+    Returns
+    -------
+    TemperatureSolution
+        Fields ``T`` and ``I_b`` on ``grid.shape``, λ and how it was chosen,
+        ``χ²/m``, norms, iterations, convergence flag and timing.
+
+    Raises
+    ------
+    ValueError
+        Before any solving, for a problem that is not a LinearProblem, bad
+        bounds, an unknown prior, rule or solver (or one that does not run
+        this fit), a parameter given both on an object and as a keyword, or a
+        bad ``T0``.
+    """
+    options = moved_options(moved, "solve_temperature", TEMPERATURE_MOVED)
+    what = resolve_unknowns("T" if unknowns is None else unknowns)
+    if what.name != "T":
+        raise ValueError(f"unknowns must be lftomo.Temperature(...) for solve_temperature, got {unknowns!r} "
+                         "(the joint fit is lftomo.reconstruct(..., unknowns='T+sigma_a'))")
+    _, options = fold_unknowns(unknowns, what, options)
+    regularization, method, rule, options = fit_keywords(
+        "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
+        solver=solver, options=options)
+    if rule in (None, "discrepancy") and regularization == "auto":
+        options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
+    return temperature_fit(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
+                           bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
+                           progress=progress, **options)
+
+
+def temperature_fit(
+    problem: LinearProblem,
+    *,
     regularization: str | float = "auto",
-    prior: str = "gradient",
+    prior: Any = DEFAULT_PRIOR,
     bounds: tuple[float, float] = (300.0, 3000.0),
     T0: Any = None,
     method: str = "levenberg-marquardt",
@@ -803,9 +894,11 @@ def solve_temperature(
     discrepancy_search: str = "projected",
     progress: bool | None = None,
 ) -> TemperatureSolution:
-    """Reconstruct the temperature field by regularized nonlinear least squares.
+    """The engine of :func:`solve_temperature`, with every parameter as a keyword.
 
-    Minimises ``‖(A I_b(T) + bg − y)/σ‖² + λ ‖R(T)‖²`` with ``T`` in
+    :func:`solve_temperature` (and :func:`lftomo.reconstruct`) take the
+    parameters below on objects (rule, solver, prior, unknowns) and fold them
+    into these keywords (:mod:`lftomo.inverse.fitoptions`).  Minimises ``‖(A I_b(T) + bg − y)/σ‖² + λ ‖R(T)‖²`` with ``T`` in
     ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, using
     optimistix (matrix-free; see the module docstring for the residual, its
     scaling and the λ rules).
@@ -817,9 +910,9 @@ def solve_temperature(
         (m,), grid (n voxels), wavelength (m) or None for gray, background.
     regularization : "auto" or float, keyword-only
         λ ≥ 0 (dimensionless), or ``"auto"`` to choose it by ``rule``.
-    prior : {"gradient", "laplacian", "tv", "curvature"}, keyword-only
-        Smoothness prior (Neumann boundaries; ``"curvature"``: second
-        differences per axis, no boundary condition).
+    prior : {"gradient", "laplacian", "tv", "curvature"} or Prior, keyword-only
+        Smoothness prior (Neumann boundaries; ``"curvature"``, the default:
+        second differences per axis, no boundary condition).
     bounds : (float, float), keyword-only
         ``(T_min, T_max)`` (K), ``0 < T_min < T_max``.
     T0 : None, float, "uniform" or array of shape grid.shape, keyword-only
@@ -1050,10 +1143,9 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
             reference=lam_ref, note="λ given by the caller",
         )
     elif rule == "discrepancy":
-        e, target, note, searched = Discrepancy(
+        e, choice, searched = Discrepancy(
             noise_scale="estimated" if estimate_scale else "given", safety=safety, search_steps=search_steps,
             search_rtol=float(search_rtol), search=discrepancy_search).choose(run, theta0, lam_ref)
-        choice = discrepancy_choice(run, e, target, lam_ref, note, target_met=searched != "fallback")
     elif rule == "gcv":
         e, c, ch, rg, cr, note = GCV(lr, n_lambda, gcv_probes, seed).choose(run, theta0, lam_ref)
         choice = LambdaChoice(rule=rule, value=e.lam, candidates=c, chi2=ch, regularization_norms=rg, criterion=cr,
@@ -1113,7 +1205,7 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
     """λ by the rule on the surrogate ``A E`` (I_b interpolated linearly), then one sub-voxel solve at that λ."""
     t0 = time.perf_counter()
     surrogate = problem.surrogate()
-    sur = solve_temperature(surrogate, regularization="auto", T0=T0, **options)
+    sur = temperature_fit(surrogate, regularization="auto", T0=T0, **options)
     ch = sur.lambda_choice
     if ch.rule == "discrepancy" and not ch.target_met:
         # The surrogate's rule did not meet its target (χ²/m above it at every λ,
@@ -1124,14 +1216,14 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
         # surrogate's χ²/m floor 1.081, λ 1.3e-6 and a 26 % error; with this
         # fallback: λ 1.7e3, 8.7 %).  Run the rule on the sub-voxel
         # model itself, from the surrogate's solution.
-        sol = solve_temperature(problem, regularization="auto", T0=sur.T, subvoxel_search="full", **options)
+        sol = temperature_fit(problem, regularization="auto", T0=sur.T, subvoxel_search="full", **options)
         note = (f"{sol.lambda_choice.note}; the rule ran on the sub-voxel model (from the surrogate's solution) "
                 f"because the rule did not meet its target on the surrogate A E (χ²/m {sur.chi2:.4g} at its λ, "
                 f"target {ch.target:.4g}: the surrogate misfits by itself)")
         choice = sol.lambda_choice
     else:
         fit_options = {k: v for k, v in options.items() if k != "rule"}
-        sol = solve_temperature(problem, regularization=sur.regularization, T0=sur.T, **fit_options)
+        sol = temperature_fit(problem, regularization=sur.regularization, T0=sur.T, **fit_options)
         note = (f"{ch.note}; λ chosen on the surrogate A E (I_b interpolated linearly, χ²/m "
                 f"{sur.chi2:.4g}), then the sub-voxel model solved at that λ from its solution (χ²/m {sol.chi2:.4g})")
         choice = ch

@@ -5,7 +5,7 @@ strings ``"T"`` and ``"T+sigma_a"`` are short for :class:`Temperature` and
 :class:`TemperatureAbsorption` with their default parameters.  As with the
 solver and λ-rule objects, the parameters are the object's attributes, checked
 when it is built, and :meth:`Unknowns.keywords` turns them into the keywords of
-the fit function that runs it (:func:`lftomo.inverse.solvers.solve_temperature`,
+the fit function that runs it (:func:`lftomo.inverse.solvers.temperature_fit`,
 :func:`lftomo.inverse.joint.solve_temperature_absorption`).
 
 Which cells carry the unknowns (every voxel, ring cells of an axisymmetric

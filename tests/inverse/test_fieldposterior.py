@@ -96,7 +96,7 @@ def test_block_pcg_solves_each_column():
 
 
 def _log_evidence(problem, lam, T0):
-    sol = lt.solve_temperature(problem, regularization=lam, T0=T0)
+    sol = lt.solve_temperature(problem, rule=lt.Fixed(lam), prior="gradient", T0=T0)  # laplace_posterior's prior
     J, Ls = precision_factors(problem, sol.T)
     st = _dense_stats(J, Ls, lam)
     n = problem.grid.n_voxels

@@ -84,7 +84,8 @@ def test_discrepancy_given_noise_finds_chi2_equal_to_one():
     """‖r‖² = m σ² (σ = 1): the returned λ's χ²/m is 1 to the rule's tolerance √(2/m) (clipped to
     [1e-3, 1e-2]), and λ is the root of χ²(λ)/m = 1 found by brentq to that precision."""
     path = LinearPath()
-    e, target, note, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    target, note = ch.target, ch.note
     assert target == 1.0 and "Brent" in note and search == "root", note
     tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
     assert abs(e.chi2 - 1.0) <= tol
@@ -99,7 +100,8 @@ def test_discrepancy_estimated_noise_scale_targets_s2_of_the_least_regularized_f
     λ_s = λ_ref·1e-2, and the λ found meets it; the given-σ target would be unreachable below 4."""
     path = LinearPath(noise=2.0)
     lam_ref = 1.0
-    e, target, note, _ = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), lam_ref)
+    e, ch, _ = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), lam_ref)
+    target, note = ch.target, ch.note
     H = path.H(lam_ref * 1e-2)
     nu = np.trace(2 * H - H @ H)
     s2 = path.chi2(lam_ref * 1e-2) * path.m_total / (path.m_total - nu)
@@ -127,8 +129,10 @@ def test_projected_discrepancy_search_finds_the_root_of_a_linear_problem():
     reach the Tikhonov solution and its λ is the brentq root of χ²/m = 1 to the rule's tolerance, with
     one converged solve."""
     path = LinearizedPath()
-    e, target, note, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    e, ch, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    target, note = ch.target, ch.note
     assert search == "projected" and note.startswith("projected discrepancy search"), note
+    assert target == 1.0 and ch.target_met and ch.value == e.lam
     tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
     assert abs(e.chi2 - 1.0) <= tol
     lam_star = _root(path, 1.0)
@@ -141,7 +145,8 @@ def test_projected_search_with_the_noise_scale_estimated_meets_s2():
     """σ given 2× too small, noise scale estimated: the projected search takes the root search's target
     s² = χ²(λ_s)/(1 − ν/m) (ν = tr(2H − H²) at λ_s = λ_ref·1e-2) and meets it at brentq's root."""
     path = LinearizedPath(noise=2.0)
-    e, target, note, search = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), 1.0)
+    e, ch, search = Discrepancy(noise_scale="estimated").choose(path, np.zeros(path.n_unknowns), 1.0)
+    target, note = ch.target, ch.note
     H = path.H(1e-2)
     s2 = path.chi2(1e-2) * path.m_total / (path.m_total - np.trace(2 * H - H @ H))
     assert search == "projected" and "noise scale estimated" in note, note
@@ -263,8 +268,10 @@ def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of
     """σ overestimated (data ×0.1): no λ attains χ²/m = 1 on the projected problem either; the root
     search takes over (and with it the estimated noise scale)."""
     path = _scaled(LinearizedPath(), 0.1)
-    e, target, note, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    e, ch, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    target, note = ch.target, ch.note
     assert search == "root" and "noise scale estimated" in note, note
+    assert ch.target_met and e.chi2 == pytest.approx(target, rel=0.011)  # the estimated scale's target is met
 
 
 def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_scale_root():
@@ -273,13 +280,14 @@ def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_sca
     must take those solves from the first pass (no λ solved twice) and find the same λ as the
     estimated-scale rule run on its own."""
     path = _scaled(LinearPath(), 0.1)
-    e, target, note, _ = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    e, ch, _ = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    target, note = ch.target, ch.note
     lams = [ev.lam for ev in path.evals]
     assert "stays below the target" in note and "noise scale estimated" in note, note
     assert len(lams) == len(set(lams)), lams
     alone = _scaled(LinearPath(), 0.1)
-    e_alone, target_alone, _, _ = Discrepancy(noise_scale="estimated").choose(alone, np.zeros(alone.n_unknowns),
-                                                                             1.0)
+    e_alone, ch_alone, _ = Discrepancy(noise_scale="estimated").choose(alone, np.zeros(alone.n_unknowns), 1.0)
+    target_alone = ch_alone.target
     assert target == pytest.approx(target_alone, rel=1e-12)
     assert e.lam == pytest.approx(e_alone.lam, rel=1e-12)
     ladder = [1e-2 * 10.0**k for k in range(1, 7)]  # λ_ref·1e-1 … λ_ref·1e4: climbed once
@@ -353,17 +361,15 @@ class ModelErrorPath(LinearPath):
 
 def test_a_root_search_that_meets_no_target_says_so():
     """χ²/m above the target at every λ, the smallest 1.5 % above it: the rule's λ is a fallback (an
-    L-curve corner or its smallest λ) and it says so (search "fallback", ``target_met`` False), although
+    L-curve corner or its smallest λ) and it says so (``target_met`` False), although
     its χ²/m may lie within the jump margin; a sub-voxel fit then runs the rule on the full model (the
     three-camera rig's λ collapsed to 0.46 when this was judged by the margin alone).  The same search
     on the problem without the model error meets the target."""
-    from lftomo.inverse.lambdarules import discrepancy_choice
-
     path = ModelErrorPath()
-    e, target, note, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
-    assert search == "fallback" and "stays above the target" in note, (search, note)
+    e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    target, note = ch.target, ch.note
+    assert search == "root" and not ch.target_met and "stays above the target" in note, (search, note)
     assert min(x.chi2 for x in path.evals) > target
-    assert not discrepancy_choice(path, e, target, 1.0, note, target_met=search != "fallback").target_met
     path = LinearPath()
-    e, target, note, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
-    assert search == "root" and discrepancy_choice(path, e, target, 1.0, note).target_met
+    e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert search == "root" and ch.target_met and ch.target == 1.0

@@ -82,9 +82,10 @@ def synthetic_problem():
 
 
 def test_projected_search_meets_the_target_with_fewer_steps_than_the_root_search(synthetic_problem):
-    kw = dict(prior="curvature", rtol=1e-4, atol=1e-4, linear_max_steps=20, progress=False)
-    proj = solve_temperature(synthetic_problem, discrepancy_search="projected", **kw)
-    root = solve_temperature(synthetic_problem, discrepancy_search="root", **kw)
+    kw = dict(prior="curvature", solver=lt.LevenbergMarquardt(rtol=1e-4, atol=1e-4, linear_max_steps=20),
+              progress=False)
+    proj = solve_temperature(synthetic_problem, rule=lt.Discrepancy(search="projected"), **kw)
+    root = solve_temperature(synthetic_problem, rule=lt.Discrepancy(search="root"), **kw)
     m = synthetic_problem.y.size
     tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
     assert proj.lambda_choice.note.startswith("projected discrepancy search")
@@ -95,8 +96,8 @@ def test_projected_search_meets_the_target_with_fewer_steps_than_the_root_search
     assert np.max(np.abs(proj.T - root.T)[hot]) < 0.02 * 2000.0
     assert proj.total_iterations < root.total_iterations
     # the chosen solve is converged: χ² as a solve at its λ with tight tolerances and a large budget
-    ref = solve_temperature(synthetic_problem, regularization=proj.regularization, prior="curvature",
-                            max_steps=800, rtol=1e-9, atol=1e-9, progress=False)
+    ref = solve_temperature(synthetic_problem, rule=lt.Fixed(proj.regularization), prior="curvature",
+                            solver=lt.LevenbergMarquardt(max_steps=800, rtol=1e-9, atol=1e-9), progress=False)
     assert proj.chi2 == pytest.approx(ref.chi2, rel=tol)
 
 

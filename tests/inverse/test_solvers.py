@@ -11,6 +11,7 @@ shapes reuse the compiled JAX code.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -31,8 +32,13 @@ from lftomo.inverse.solvers import (
     planck_jax,
     solve_linear_baseline,
     solve_temperature,
+    temperature_fit,
 )
 from lftomo.inverse.synthetic import hot_spot, line_operator
+
+# The rule and solver tests below were set up with the gradient prior (their λ scans and error bounds
+# are relative to its balanced λ), so they name it; the library's default is the curvature prior
+# (test_default_prior_is_the_library_default).
 
 
 # --------------------------------------------------------------------------- helpers
@@ -144,7 +150,7 @@ def test_tv_and_jax_operator():
 # --------------------------------------------------------------------------- solver accuracy
 def test_noise_free_gray_recovers_truth(gray_clean):
     problem, T = gray_clean
-    sol = solve_temperature(problem, regularization=1e-8)
+    sol = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1e-8))
     assert sol.converged, sol.message
     assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
     assert sol.T.shape == problem.grid.shape and sol.I_b.shape == problem.grid.shape
@@ -154,14 +160,14 @@ def test_noise_free_gray_recovers_truth(gray_clean):
 
 def test_noise_free_650nm_recovers_truth():
     problem, T = make_problem(8, wavelength=650e-9)
-    sol = solve_temperature(problem, regularization=1e-10)
+    sol = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1e-10))
     assert sol.converged, sol.message
     assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
 
 
 def test_gauss_newton_noise_free(gray_clean):
     problem, T = gray_clean
-    sol = solve_temperature(problem, regularization=1e-8, method="gauss-newton")
+    sol = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1e-8), solver=lt.GaussNewton())
     assert sol.method == "gauss-newton"
     assert np.max(np.abs(sol.T / T - 1)) <= 1e-3
 
@@ -172,12 +178,12 @@ def error_optimal_lambda(gray_noisy):
     balanced λ, take the λ of minimum RMS relative temperature error, refined by a parabola
     in log λ."""
     problem, T = gray_noisy
-    lam_ref = solve_temperature(problem, regularization=1.0).lambda_choice.reference
+    lam_ref = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1.0)).lambda_choice.reference
     lams = lam_ref * 10.0 ** np.arange(-3.0, 0.01, 0.25)
     errs = []
     T0 = None
     for lam in lams[::-1]:  # warm starts from smooth to rough
-        s = solve_temperature(problem, regularization=float(lam), T0=T0)
+        s = solve_temperature(problem, prior="gradient", rule=lt.Fixed(float(lam)), T0=T0)
         T0 = s.T
         errs.append(np.sqrt(np.mean((s.T / T - 1) ** 2)))
     errs = np.log(np.array(errs[::-1]))
@@ -191,7 +197,7 @@ def error_optimal_lambda(gray_noisy):
 def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy, error_optimal_lambda):
     """Test problem: gray, 8³, 1536 rays, 2 % noise, gradient prior."""
     problem, T = gray_noisy
-    auto = solve_temperature(problem, rule="discrepancy")
+    auto = solve_temperature(problem, prior="gradient", rule="discrepancy")
     ch = auto.lambda_choice
     assert ch.rule == "discrepancy" and ch.target == 1.0
     assert auto.chi2 == pytest.approx(1.0, abs=1e-2)
@@ -203,7 +209,7 @@ def test_discrepancy_rule_within_factor_3_of_error_optimal(gray_noisy, error_opt
 
 @pytest.fixture(scope="module")
 def discrepancy_true_sigma(gray_noisy):
-    return solve_temperature(gray_noisy[0], rule="discrepancy")
+    return solve_temperature(gray_noisy[0], prior="gradient", rule="discrepancy")
 
 
 @pytest.mark.parametrize("factor", [3.0, 0.5])
@@ -217,7 +223,7 @@ def test_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale(gray
     0.53× for f = 3, 5e-4× for f = 0.5)."""
     problem, T = gray_noisy
     scaled = LinearProblem(problem.A, problem.y, problem.sigma * factor, problem.grid, problem.wavelength)
-    sol = solve_temperature(scaled, rule="discrepancy", noise_scale="estimated")
+    sol = solve_temperature(scaled, prior="gradient", rule=lt.Discrepancy(noise_scale="estimated"))
     ch = sol.lambda_choice
     assert "noise scale estimated" in ch.note
     # the target is the estimated scale: χ²/m of the noise = 1/factor², within 3 standard deviations
@@ -227,9 +233,9 @@ def test_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale(gray
     ratio = sol.regularization * factor**2 / discrepancy_true_sigma.regularization
     assert 1 / 1.5 <= ratio <= 1.5, ratio
     with pytest.raises(ValueError, match="noise_scale='estimated' applies to rule='discrepancy' only"):
-        solve_temperature(scaled, rule="lcurve", noise_scale="estimated")
+        temperature_fit(scaled, rule="lcurve", noise_scale="estimated")  # the engine's own check
     with pytest.raises(ValueError, match="noise_scale"):
-        solve_temperature(scaled, noise_scale="guess")
+        solve_temperature(scaled, prior="gradient", rule=lt.Discrepancy(noise_scale="guess"))
 
 
 def test_discrepancy_candidates_report_converged_chi2(gray_noisy):
@@ -240,10 +246,11 @@ def test_discrepancy_candidates_report_converged_chi2(gray_noisy):
     step budget.  (The root search: the projected search's Gauss–Newton iterates are
     no solves, and its own solve is checked in test_projected.py.)"""
     problem, _ = gray_noisy
-    auto = solve_temperature(problem, rule="discrepancy", search_rtol=1e-3, discrepancy_search="root")
+    auto = solve_temperature(problem, prior="gradient", rule=lt.Discrepancy(search_rtol=1e-3, search="root"))
     ch = auto.lambda_choice
     for lam, chi2 in zip(ch.candidates, ch.chi2):
-        ref = solve_temperature(problem, regularization=float(lam), max_steps=800, rtol=1e-9, atol=1e-9)
+        ref = solve_temperature(problem, prior="gradient", rule=lt.Fixed(float(lam)),
+                                solver=lt.LevenbergMarquardt(max_steps=800, rtol=1e-9, atol=1e-9))
         assert chi2 == pytest.approx(ref.chi2, rel=2e-2), (lam, chi2, ref.chi2)
 
 
@@ -430,10 +437,10 @@ def test_discrepancy_estimates_the_noise_scale_when_sigma_is_overestimated(gray_
     gives with the true σ (χ² and λ scale by 1e-6 together), and the note says so."""
     problem, T = gray_noisy
     inflated = LinearProblem(problem.A, problem.y, problem.sigma * 1000.0, problem.grid, problem.wavelength)
-    sol = solve_temperature(inflated, rule="discrepancy")
+    sol = solve_temperature(inflated, prior="gradient", rule="discrepancy")
     ch = sol.lambda_choice
     assert "stays below the target" in ch.note and "noise scale estimated" in ch.note, ch.note
-    ref = solve_temperature(problem, rule="discrepancy", noise_scale="estimated")
+    ref = solve_temperature(problem, prior="gradient", rule=lt.Discrepancy(noise_scale="estimated"))
     assert sol.regularization == pytest.approx(1e-6 * ref.regularization, rel=0.05)
     np.testing.assert_allclose(sol.T, ref.T, rtol=2e-3)
     err = np.sqrt(np.mean((sol.T / T - 1) ** 2))
@@ -443,12 +450,12 @@ def test_discrepancy_estimates_the_noise_scale_when_sigma_is_overestimated(gray_
 
 def test_lcurve_and_gcv_report_their_path():
     problem, T = make_problem(6, rel_noise=0.02)
-    lc = solve_temperature(problem, rule="lcurve", n_lambda=7, lambda_range=(1e-4, 1.0))
+    lc = solve_temperature(problem, prior="gradient", rule=lt.LCurve(lambda_range=(1e-4, 1.0), n_lambda=7))
     ch = lc.lambda_choice
     assert ch.rule == "lcurve" and len(ch.candidates) == 7
     assert np.isnan(ch.criterion[0]) and np.isnan(ch.criterion[-1])
     assert lc.regularization in ch.candidates[1:-1]
-    g = solve_temperature(problem, rule="gcv", n_lambda=5, gcv_probes=2, lambda_range=(1e-4, 1.0))
+    g = solve_temperature(problem, prior="gradient", rule=lt.GCV(lambda_range=(1e-4, 1.0), n_lambda=5, probes=2))
     assert g.lambda_choice.rule == "gcv" and np.all(np.isfinite(g.lambda_choice.criterion))
     assert np.all(g.lambda_choice.criterion > 0)
     assert np.sqrt(np.mean((g.T / T - 1) ** 2)) < 0.1
@@ -463,8 +470,8 @@ def test_optimistix_agrees_with_scipy_baseline_on_linear_case(gray_noisy):
     base = solve_linear_baseline(problem, regularization=lam, prior="gradient", atol=1e-14, btol=1e-14,
                                  iter_lim=20000)
     assert np.all(base.I_b > lt.gray_intensity(300.0)) and np.all(base.I_b < lt.gray_intensity(3000.0))
-    sol = solve_temperature(problem, regularization=lam, prior="gradient", penalize="intensity",
-                            rtol=1e-10, atol=1e-10, max_steps=400)
+    sol = solve_temperature(problem, rule=lt.Fixed(lam), prior="gradient", unknowns=lt.Temperature(penalize="intensity"),
+                            solver=lt.LevenbergMarquardt(max_steps=400, rtol=1e-10, atol=1e-10))
     np.testing.assert_allclose(sol.I_b, base.I_b, rtol=1e-5)
     np.testing.assert_allclose(sol.T, base.T, rtol=1e-6)
     assert sol.chi2 == pytest.approx(base.chi2, rel=1e-6)
@@ -472,7 +479,7 @@ def test_optimistix_agrees_with_scipy_baseline_on_linear_case(gray_noisy):
 
 def test_bounds_respected(gray_clean):
     problem, T = gray_clean
-    sol = solve_temperature(problem, regularization=1e-6, bounds=(900.0, 1600.0))
+    sol = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1e-6), bounds=(900.0, 1600.0))
     assert sol.T.min() >= 900.0 and sol.T.max() <= 1600.0
     assert sol.T.max() > 1590.0  # the hot core (2000 K) pushes against the upper bound
     b = solve_linear_baseline(problem, regularization=1.0, bounds=(900.0, 1600.0))
@@ -494,13 +501,13 @@ def test_bounded_baseline_nonnegative(gray_noisy):
         ({"bounds": (300.0, 300.0)}, "bounds"),
         ({"bounds": (-10.0, 300.0)}, "bounds"),
         ({"prior": "sobolev"}, "prior"),
-        ({"method": "newton"}, "method"),
+        ({"solver": "newton"}, "solver"),
+        ({"solver": lt.DenseLM()}, "does not run unknowns='T'"),
         ({"rule": "guess"}, "rule"),
-        ({"regularization": -1.0}, "regularization"),
-        ({"regularization": float("nan")}, "regularization"),
-        ({"regularization": "best"}, "regularization"),
-        ({"penalize": "both"}, "penalize"),
-        ({"max_steps": 0}, "max_steps"),
+        ({"rule": lt.DiscrepancyBracket()}, "does not run"),
+        ({"unknowns": "T+sigma_a"}, "unknowns"),
+        ({"unknowns": lt.Temperature(), "penalize": "intensity"}, "set twice"),
+        ({"rule": lt.Fixed(1.0), "regularization": 2.0}, "set twice"),
         ({"T0": np.full((3, 3, 3), 1000.0)}, "T0"),
         ({"T0": 5000.0}, "T0"),
     ],
@@ -513,8 +520,66 @@ def test_bad_input_raises_before_solving(gray_clean, kwargs, match, monkeypatch)
 
     monkeypatch.setattr(S, "_make_setup", boom)
     problem, _ = gray_clean
-    with pytest.raises(ValueError, match=match):
-        solve_temperature(problem, **kwargs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # (the two cases that also pass an old keyword)
+        with pytest.raises(ValueError, match=match):
+            solve_temperature(problem, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"method": "newton"}, "method"),
+        ({"regularization": -1.0}, "regularization"),
+        ({"regularization": float("nan")}, "regularization"),
+        ({"regularization": "best"}, "regularization"),
+        ({"penalize": "both"}, "penalize"),
+        ({"max_steps": 0}, "max_steps"),
+    ],
+)
+def test_old_keywords_warn_and_are_checked_before_solving(gray_clean, kwargs, match, monkeypatch):
+    """The keywords solve_temperature took before its options moved onto objects still reach the
+    engine's checks, each with a DeprecationWarning that names the object."""
+    import lftomo.inverse.solvers as S
+
+    monkeypatch.setattr(S, "_make_setup", lambda *a, **k: (_ for _ in ()).throw(AssertionError("solver reached")))
+    problem, _ = gray_clean
+    (name,) = kwargs
+    with pytest.warns(DeprecationWarning, match=rf"solve_temperature\({name}=\.\.\.\) is deprecated: pass "):
+        with pytest.raises(ValueError, match=match):
+            solve_temperature(problem, **kwargs)
+
+
+def test_old_keywords_give_the_same_fit_as_the_objects(gray_noisy):
+    """Each old keyword is folded into the same engine keyword as its object: same λ, same field."""
+    problem, _ = gray_noisy
+    new = solve_temperature(problem, rule=lt.Fixed(1e-3), solver=lt.LevenbergMarquardt(max_steps=50),
+                            unknowns=lt.Temperature(penalize="intensity"), prior="gradient")
+    with pytest.warns(DeprecationWarning) as said:
+        old = solve_temperature(problem, regularization=1e-3, max_steps=50, penalize="intensity", prior="gradient")
+    assert {str(w.message).split("(")[1].split("=")[0] for w in said} == {"regularization", "max_steps", "penalize"}
+    assert old.regularization == new.regularization == 1e-3
+    np.testing.assert_array_equal(old.T, new.T)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'polish_steps'"):
+        solve_temperature(problem, polish_steps=3)  # a joint-fit keyword was never solve_temperature's
+
+
+def test_default_prior_is_the_library_default(gray_noisy, monkeypatch):
+    """solve_temperature and lt.reconstruct share one default prior (DEFAULT_PRIOR, curvature)."""
+    import lftomo.inverse.solvers as S
+    from lftomo.inverse.fitoptions import DEFAULT_PRIOR
+
+    seen = {}
+
+    def spy(problem, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(S, "temperature_fit", spy)
+    with pytest.raises(RuntimeError, match="stop"):
+        solve_temperature(gray_noisy[0])
+    assert seen["prior"] == DEFAULT_PRIOR == "curvature"
+    assert seen["rule"] == "discrepancy" and seen["noise_scale"] == "given" and seen["regularization"] == "auto"
 
 
 def test_bad_baseline_input(gray_clean):

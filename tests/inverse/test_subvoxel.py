@@ -151,7 +151,7 @@ def test_subvoxel_auto_lambda_is_searched_on_the_surrogate(subvoxel_blob):
     assert sol.regularization == pytest.approx(sur.regularization, rel=1e-12)
     assert sol.chi2 == pytest.approx(noisy.chi2(sol.T), rel=1e-6)
     with pytest.raises(ValueError, match="subvoxel_search"):
-        lt.solve_temperature(noisy, subvoxel_search="fast")
+        lt.solve_temperature(noisy, rule=lt.Discrepancy(subvoxel_search="fast"))
 
 
 @pytest.mark.parametrize("symmetry, method", [(None, "levenberg-marquardt"), ("axisymmetric", "dense-lm")])

@@ -113,12 +113,12 @@ def test_axisymmetric_solve_recovers_noise_free_field_and_beats_the_free_fit_on_
     y = A @ lt.gray_intensity(T).ravel()
     sigma = 1e-3 * y + 1e-9 * y.max()
     ring_problem = LinearProblem(A=rg.reduce(A), y=y, sigma=sigma, grid=rg, wavelength=None)
-    sol = lt.solve_temperature(ring_problem, regularization=1e-10, bounds=(300.0, 2500.0))
+    sol = lt.solve_temperature(ring_problem, rule=lt.Fixed(1e-10), bounds=(300.0, 2500.0))
     T_ring = rg.expand(sol.T)
     err_ring = np.abs(T_ring / T - 1)
     assert err_ring.max() <= 1e-3, err_ring.max()
     free = lt.solve_temperature(LinearProblem(A=A, y=y, sigma=sigma, grid=g, wavelength=None),
-                                regularization=1e-10, bounds=(300.0, 2500.0))
+                                rule=lt.Fixed(1e-10), bounds=(300.0, 2500.0))
     assert np.abs(free.T / T - 1).max() > 10 * err_ring.max()
 
 

@@ -1,0 +1,141 @@
+"""The fits' defaults, and how their option objects become the fit engines' keywords.
+
+The public fit functions (:func:`lftomo.reconstruct`, :func:`lftomo.solve_temperature`) take
+a few objects — the unknowns (:mod:`lftomo.inverse.unknowns`), the prior
+(:mod:`lftomo.inverse.regularizers`), the λ rule (:mod:`lftomo.inverse.lambdarules`) and the
+solver (:mod:`lftomo.inverse.solverchoice`) — each carrying its own parameters.  The engines
+that run the fits (:func:`lftomo.inverse.solvers.temperature_fit`,
+:func:`lftomo.inverse.joint.solve_temperature_absorption`) take those parameters as keywords;
+this module folds the objects into them, in one place for every front end, and keeps the
+keywords the front ends took before working, each with a DeprecationWarning that names the
+object where it lives now.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+from .unknowns import Unknowns
+
+#: The T-only fit's prior when none is given: second differences per axis, no boundary
+#: condition at the box faces (docs/accuracy.md, "Defaults").
+DEFAULT_PRIOR = "curvature"
+#: The T-only discrepancy rule's noise scale when none is given: σ as given, estimated only where
+#: the given σ is too large for any λ to meet the target.  (``"estimated"`` everywhere
+#: under-regularized the focal-stack data of the standard flame into a 28 % error; where σ is
+#: overestimated it beats the L-curve corner used before on non-axisymmetric flames;
+#: docs/accuracy.md, "Defaults".)
+DEFAULT_NOISE_SCALE = "given"
+
+#: Keywords that :func:`lftomo.reconstruct` took before its options moved onto objects, and where each lives now.
+MOVED_OPTIONS: dict[str, str] = {
+    "regularization": "rule=lt.Fixed(λ) (leave it out for the default λ rule)",
+    "method": "solver=lt.LevenbergMarquardt(), lt.GaussNewton(), lt.DenseLM() or lt.AutoSolver()",
+    "T0": "start=T0",
+    "sigma_a0": "start=(T0, sigma_a0)",
+    "noise_scale": "rule=lt.Discrepancy(noise_scale=...) (lt.DiscrepancyBracket(noise_scale=...) for "
+                   "unknowns='T+sigma_a')",
+    "discrepancy_safety": "rule=lt.Discrepancy(safety=...)",
+    "search_steps": "rule=lt.Discrepancy(search_steps=...)",
+    "search_rtol": "rule=lt.Discrepancy(search_rtol=...)",
+    "subvoxel_search": "rule=lt.Discrepancy(subvoxel_search=...) (or lt.GCV(...), lt.LCurve(...))",
+    "lambda_range": "rule=lt.GCV(lambda_range=...) or lt.LCurve(lambda_range=...)",
+    "n_lambda": "rule=lt.GCV(n_lambda=...) or lt.LCurve(n_lambda=...)",
+    "gcv_probes": "rule=lt.GCV(probes=...)",
+    "seed": "rule=lt.GCV(seed=...)",
+    "lambda_max": "rule=lt.DiscrepancyBracket(lambda_max=...) or lt.LCurveDecades(lambda_max=...)",
+    **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))"
+       for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},
+    **{k: f"solver=lt.AutoSolver({k}=...) (or lt.LevenbergMarquardt, lt.DenseLM)" for k in ("polish_steps", "engine")},
+    **{k: f"unknowns=lt.Temperature({k}=...)" for k in ("penalize", "T_ref")},
+    "tv_eps": "prior=lt.TotalVariationPrior(eps=...)",
+    **{k: f"unknowns=lt.TemperatureAbsorption({k}=...)"
+       for k in ("alpha", "sigma_a_space", "sigma_a_min", "sigma_a_max", "sigma_a_scale", "sigma_a_ridge")},
+}
+
+#: The keywords :func:`lftomo.solve_temperature` took before they moved onto objects (``T0`` is still its own
+#: argument; the others of :data:`MOVED_OPTIONS` belong to the joint fit).
+TEMPERATURE_MOVED = tuple(k for k in MOVED_OPTIONS if k not in (
+    "T0", "sigma_a0", "lambda_max", "polish_steps", "engine", "alpha", "sigma_a_space", "sigma_a_min",
+    "sigma_a_max", "sigma_a_scale", "sigma_a_ridge"))
+
+
+def moved_options(given: dict[str, Any], function: str = "reconstruct",
+                  allowed: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """The fit keywords among ``given``, each with a DeprecationWarning naming where it lives now.
+
+    Parameters
+    ----------
+    given : dict
+        The keywords a front end received beyond its own arguments.
+    function : str
+        The front end's name, for the messages.
+    allowed : tuple of str, optional
+        The moved keywords that front end took (default: all of :data:`MOVED_OPTIONS`).
+
+    Raises
+    ------
+    TypeError
+        A keyword that the front end never took, as Python itself would.
+    """
+    allowed = tuple(MOVED_OPTIONS) if allowed is None else allowed
+    unknown = sorted(set(given) - set(allowed))
+    if unknown:
+        raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}")
+    for name in given:
+        warnings.warn(f"{function}({name}=...) is deprecated: pass {MOVED_OPTIONS[name]}", DeprecationWarning,
+                      stacklevel=3)
+    return dict(given)
+
+
+def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tuple[Unknowns, dict[str, Any]]:
+    """Add the unknowns object's parameters to the fit keywords.  Its parameters given the old way
+    (as keywords) build the object when ``unknowns`` is a name, and are refused next to an object."""
+    moved = {k: options.pop(k) for k in what.keywords() if k in options}
+    if moved and isinstance(unknowns, Unknowns):
+        raise ValueError(f"{', '.join(moved)} set twice: by unknowns={unknowns!r} and as keywords; give it one way")
+    if moved:
+        what = type(what)(**moved)
+    return what, {**options, **what.keywords()}
+
+
+def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solver: Any,
+                 options: dict[str, Any]) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """Fold ``rule`` and ``solver`` objects into the fit function's keywords.
+
+    A :class:`~lftomo.inverse.lambdarules.LambdaRule` object sets ``rule`` and
+    its parameters (``Fixed(λ)`` sets ``regularization``); a
+    :class:`~lftomo.inverse.solverchoice.Solver` sets ``method`` and its
+    parameters.  A keyword given both ways is refused (it would be ambiguous).
+
+    Returns
+    -------
+    (regularization, method, rule, options)
+        ``rule`` as a name (or None: the fit's default), ``method`` a name.
+    """
+    from .lambdarules import LambdaRule
+    from .solverchoice import resolve_solver
+
+    opts = dict(options)
+    given = {"regularization": regularization != "auto", "method": method is not None}
+
+    def fold(obj: Any, what: str) -> None:
+        for k, v in obj.keywords().items():
+            if given.get(k) or k in options:
+                raise ValueError(f"{k} is set twice: by {what}={obj!r} and as {k}=...; give it one way")
+            opts[k] = v
+
+    if isinstance(rule, LambdaRule):
+        if fit not in rule.fits:
+            raise ValueError(f"rule={rule!r} does not run for unknowns={fit!r} (it runs for {list(rule.fits)})")
+        fold(rule, "rule")
+        rule = None
+    if solver is not None:
+        fold(resolve_solver(solver, fit=fit), "solver")
+    regularization = opts.pop("regularization", regularization)
+    method = opts.pop("method", method)
+    rule = opts.pop("rule", rule)
+    if method is None or method == "auto":  # the joint fit picks its solver by the number of unknowns
+        method = "auto" if fit == "T+sigma_a" else "levenberg-marquardt"
+    return regularization, method, rule, opts
