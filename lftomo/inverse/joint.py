@@ -145,7 +145,9 @@ noise_scale : {"given", "estimated"}, optional
     ``"given"``): σ known up to a common factor, the target the
     estimated ``s²`` (module docstring); ``details["noise_scale"]`` holds
     ``s2``, ``dof`` (ν), ``dof_se``, ``dof_lambda``, ``chi2_ref`` and
-    ``lambda_ref``, ``details["chi2_target"]`` the target used.
+    ``lambda_ref``, ``details["chi2_target"]`` the target used and
+    ``details["target_met"]`` whether a solve met it (False where the rule
+    fell back to its largest or smallest λ; None for the L-curve and a given λ).
 grid : Grid, optional
     Reconstruction grid; default the segment table's.  A coarser grid
     (same box) turns on **sub-voxel emission**, as in :func:`lftomo.reconstruct`:
@@ -882,8 +884,8 @@ def _initial_fields(model: JointModel, *, T0, sigma_a0, start, lam_max, prior, s
 
 def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_max, polish_steps):
     """λ by ``rule`` (or the given λ), then the optional polish.  Returns ``(best, λ, note, polish,
-    scale_info, target)``."""
-    scale_info, target, polish = None, 1.0, None
+    scale_info, target, target_met)`` (``target_met`` None for the L-curve and a given λ)."""
+    scale_info, target, polish, met = None, 1.0, None, None
     if regularization == "auto":
         # The first solve is at a small λ, where the data move the fit away from the (rough) start fastest;
         # each larger λ is warm-started from the one below.  Both shortcuts measured (sub-voxel emission,
@@ -893,8 +895,8 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
         if isinstance(rule, LCurveDecades):
             best, note = rule.choose(path, p, lam_first=_LAMBDA_START, lam_max=lam_max)
         else:
-            best, note, target, scale_info = rule.choose(path, p, lam_start=lam_start, lam_min=_LAMBDA_MIN,
-                                                         lam_max=lam_max)
+            best, note, target, scale_info, met = rule.choose(path, p, lam_start=lam_start, lam_min=_LAMBDA_MIN,
+                                                              lam_max=lam_max)
         lam = best.lam
     else:
         lam = float(regularization)
@@ -911,7 +913,7 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
                   "T_before": T_before, "sigma_a_before": s_before}
         note += f"; then polished at that λ: {more.steps} more steps"
         best = Eval(lam, more.theta, more.chi2, more.reg, best.steps + more.steps, more.converged, "")
-    return best, lam, note, polish, scale_info, target
+    return best, lam, note, polish, scale_info, target, met
 
 
 def _check_options(*, method, engine, rule, noise_scale, regularization, bounds, lambda_max, polish_steps,
@@ -1081,14 +1083,14 @@ def solve_temperature_absorption(
     t_lambda = time.perf_counter()
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            best, lam, note, polish, scale_info, target = _choose_lambda(
+            best, lam, note, polish, scale_info, target, met = _choose_lambda(
                 path, p, regularization=regularization, rule=rule_obj, lam_start=lam_start, lam_max=lam_max,
                 polish_steps=polish_steps)
     finally:
         path.bar.close()
     rule_name = rule_obj.name if regularization == "auto" else "fixed"
-    return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, alpha=alpha,
-                   start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method,
+    return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, met=met,
+                   alpha=alpha, start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method,
                    rule_name=rule_name, t_lambda=t_lambda)
 
 
@@ -1104,7 +1106,7 @@ def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool 
     return path
 
 
-def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polish, scale_info, target, alpha,
+def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polish, scale_info, target, met, alpha,
             start_label, T_init, s_init, t_start, method, rule_name, t_lambda) -> Reconstruction:
     """The joint fit's :class:`Reconstruction` (fields on ``grid``, the λ path and the start in ``details``)."""
     grid, ring = model.grid, model.ring
@@ -1133,7 +1135,8 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
                  "lambda_path_T": [f[0] for f in path_fields], "lambda_path_sigma_a": [f[1] for f in path_fields],
                  "wavelengths": model.wls, "alpha": alpha, "start": start_label,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape),
-                 "noise_scale": scale_info, "chi2_target": target, "polish": polish, "method": method},
+                 "noise_scale": scale_info, "chi2_target": target, "target_met": met, "polish": polish,
+                 "method": method},
         symmetry=ring,
         metadata={} if model.E is None else {"quadrature_grid": model.seg_grid.to_dict()},
         lambda_note=note,

@@ -802,13 +802,15 @@ def _scale_note(info: dict, m_total: int, n_unknowns: int) -> str:
 
 
 def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float,
-                   estimate_scale: bool = False) -> tuple[Eval, str, float, dict | None]:
+                   estimate_scale: bool = False) -> tuple[Eval, str, float, dict | None, bool]:
     """Morozov's principle as "the largest λ with ``χ²/m ≤ target``".
 
     From ``lam_start``, factors of 10 up while the target is met (or down until it is), within
     ``[lam_min, lam_max]``, each solve warm-started from the nearest λ solved; then two bisections in
     log λ of the bracket ``[largest λ meeting the target, next λ above]``.  Target 1, or the
-    estimated ``s²`` (:func:`_ladder_solve`).  Returns ``(eval, note, target, scale_info)``.
+    estimated ``s²`` (:func:`_ladder_solve`).  Returns ``(eval, note, target, scale_info, target_met)``:
+    ``target_met`` False where no solve brackets the target (χ²/m below it up to ``lam_max``: the cap
+    is taken; or above it down to ``lam_min``: the smallest λ).
     """
     state = {"target": 1.0, "scale_info": None}
 
@@ -826,7 +828,8 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     ok = sorted(e.lam for e in evals if e.chi2 <= state["target"])
     bad = sorted(e.lam for e in evals if e.chi2 > state["target"])
     goal = "chi²/m ≤ 1" if state["scale_info"] is None else "chi²/m ≤ s²"
-    if ok and bad and bad[-1] > ok[-1]:
+    met = bool(ok and bad and bad[-1] > ok[-1])
+    if met:
         lo_l, hi_l = ok[-1], min(q for q in bad if q > ok[-1])
         for _ in range(2):
             mid = math.sqrt(lo_l * hi_l)
@@ -848,12 +851,12 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     if state["scale_info"] is not None:
         note = _scale_note(state["scale_info"], path.m_total, path.n_unknowns) + note
     best = next(e for e in evals if e.lam == lam)
-    return best, note, state["target"], state["scale_info"]
+    return best, note, state["target"], state["scale_info"], met
 
 
 def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float,
                              estimate_scale: bool = False, search_rtol: float = JOINT_SEARCH_RTOL,
-                             max_rounds: int = 2) -> tuple[Eval, str, float, dict | None] | None:
+                             max_rounds: int = 2) -> tuple[Eval, str, float, dict | None, bool] | None:
     """The joint fit's discrepancy target met by :func:`projected_discrepancy_search`, λ in ``[lam_min, lam_max]``.
 
     Target 1, or (``estimate_scale``) the ``s²`` of a first solve at ``lam_start``
@@ -892,7 +895,7 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
         start, lam_ref = found[0].theta, found[0].lam
     if scale_info is not None:
         note = _scale_note(scale_info, m, path.n_unknowns)
-    return found[0], note + found[1], target, scale_info
+    return found[0], note + found[1], target, scale_info, True  # (it gives way where it misses the target)
 
 
 def decade_lcurve_search(path: Any, theta0: Any, *, lam_first: float, lam_max: float) -> tuple[Eval, str]:

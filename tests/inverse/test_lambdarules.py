@@ -298,10 +298,10 @@ def test_discrepancy_bracket_is_the_largest_ladder_lambda_with_chi2_below_target
     """From 1e-2 by factors of 10, then two bisections in log λ: the returned λ is the largest solved
     with χ²/m ≤ 1, and the true root lies within one bisection step (10^0.25) above it."""
     path = LinearPath()
-    e, note, target, info = DiscrepancyBracket().choose(path, np.zeros(path.n_unknowns), lam_start=1e-2,
-                                                        lam_min=1e-8, lam_max=1e4)
+    e, note, target, info, met = DiscrepancyBracket().choose(path, np.zeros(path.n_unknowns), lam_start=1e-2,
+                                                             lam_min=1e-8, lam_max=1e4)
     lams = [x.lam for x in path.evals]
-    assert target == 1.0 and info is None and note.startswith("discrepancy (largest λ with chi²/m ≤ 1")
+    assert target == 1.0 and info is None and note.startswith("discrepancy (largest λ with chi²/m ≤ 1") and met
     assert e.chi2 <= 1.0 and e.lam == max(x.lam for x in path.evals if x.chi2 <= 1.0)
     assert all(x.chi2 > 1.0 for x in path.evals if x.lam > e.lam)
     lam_star = _root(path, 1.0)
@@ -373,3 +373,18 @@ def test_a_root_search_that_meets_no_target_says_so():
     path = LinearPath()
     e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
     assert search == "root" and ch.target_met and ch.target == 1.0
+
+
+@pytest.mark.parametrize("make, says", [
+    (lambda: _scaled(LinearPath(), 0.1), "up to the largest λ tried"),  # σ overestimated: the cap is taken
+    (lambda: ModelErrorPath(), "down to the smallest λ tried"),  # χ²/m above 1 at every λ: the smallest λ
+])
+def test_discrepancy_bracket_says_when_no_solve_brackets_the_target(make, says):
+    """The joint fit's bracketing rule reports ``target_met`` False where it falls back to an end of its λ
+    range (the joint Reconstruction's ``details["target_met"]``); it is True where it brackets the target
+    (the test above)."""
+    path = make()
+    e, note, target, info, met = DiscrepancyBracket("given", search="bracket").choose(
+        path, np.zeros(path.n_unknowns), lam_start=1e-2, lam_min=1e-4, lam_max=1e4)
+    assert says in note and met is False, note
+    assert all((x.chi2 <= target) == (e.chi2 <= target) for x in path.evals)  # every solve on one side

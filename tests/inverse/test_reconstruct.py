@@ -269,7 +269,7 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
         assert path[0][0] == 1e-2 and scale["chi2_ref"] == min(c for _, c, _ in path)
         m = sum(mm.size for mm in ms)
         assert scale["s2"] == pytest.approx(scale["chi2_ref"] * m / (m - scale["dof"]), rel=1e-12)
-        assert rec.details["chi2_target"] == scale["s2"]
+        assert rec.details["chi2_target"] == scale["s2"] and rec.details["target_met"] is True
         # Morozov's rule against the estimated target: the largest λ solved with χ²/m ≤ s²
         ok = [lam for lam, c, _ in path if c <= scale["s2"]]
         assert rec.regularization == max(ok) and rec.chi2 <= scale["s2"], (rec.regularization, path)
@@ -313,6 +313,7 @@ def test_joint_projected_discrepancy_search_meets_the_target_inside_the_ladder_b
         tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
         target = rec.details["chi2_target"]
         assert target == ref.details["chi2_target"] and rec.converged, (target, ref.details["chi2_target"])
+        assert rec.details["target_met"] and ref.details["target_met"]
         assert abs(rec.chi2 / target - 1.0) <= tol, (rec.chi2, target)
         assert ref.regularization <= rec.regularization <= ref.regularization * 10 ** 0.25, (
             rec.regularization, ref.regularization)
