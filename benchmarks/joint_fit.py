@@ -78,9 +78,9 @@ def solves(rec) -> str:
     d = rec.details
     inner = sum(1 for k, srch in zip(d["lambda_path_steps"], d["lambda_path_search"]) if k and srch)
     full = sum(1 for k, srch in zip(d["lambda_path_steps"], d["lambda_path_search"]) if k and not srch)
-    path = ", ".join(f"{lam:.3g}{'*' if srch else ''} ({k})" for (lam, _, _), k, srch in
+    path = ", ".join(f"{lam:.3g}{'*' if srch else ''} ({k}, {chi2:.5g})" for (lam, chi2, _), k, srch in
                      zip(d["lambda_path"], d["lambda_path_steps"], d["lambda_path_search"]))
-    return f"{full} solves + {inner} inexact ones, {sum(d['lambda_path_steps'])} steps: λ (steps) {path}"
+    return f"{full} solves + {inner} inexact ones, {sum(d['lambda_path_steps'])} steps: λ (steps, χ²/m) {path}"
 
 
 def main():

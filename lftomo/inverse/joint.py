@@ -50,8 +50,8 @@ the target is ``χ²/m = s² = χ²_ref / (m − ν)``, ``χ²_ref`` the least �
 path's solves (in practice one of its first, least-regularized ones: the
 first, at 10⁻², often has not converged within ``max_steps``), ``ν = tr(2H − H²)``
 the residual degrees of freedom of the first solve (Hutchinson, 8 probes, one
-LSMR solve each).  With a coarse-to-fine ``start`` the search then begins two
-decades below the start's λ.
+LSMR solve each).  With a coarse-to-fine ``start`` the search then begins a
+decade below the start's λ (:data:`START_LAMBDA_FACTOR`).
 
 Options
 -------
@@ -215,6 +215,9 @@ _OBJECTIVE_RTOL = 1e-4
 #: moves by factors of 10 within [``_LAMBDA_MIN``, ``_LAMBDA_MAX``] (a
 #: continuation: each solve warm-started from the nearest λ solved).
 _LAMBDA_START, _LAMBDA_MIN, _LAMBDA_MAX = 1e-2, 1e-8, 1e4
+#: With a coarse-to-fine start and the noise scale estimated, the first solve (which estimates s²) is at
+#: the start's λ times this.
+START_LAMBDA_FACTOR = 1e-1
 #: ``lambda_max``'s default: with σₐ's prior scaled 10× (the default ``sigma_a_scale``) χ²/m can stay
 #: below the target beyond 1e4 (docs/accuracy.md, *Joint fit: measurements*).
 _LAMBDA_MAX_DEFAULT = 1e6
@@ -1078,8 +1081,10 @@ def solve_temperature_absorption(
     path = _solver_path(model, method, max_steps, progress, rtol=rtol, atol=atol, linear_rtol=linear_rtol,
                         linear_max_steps=linear_max_steps)
     if noise_scale == "estimated" and start is not None:
-        # s² from this fit's own solves two decades below the start's λ, not the coarse fit's (docs/accuracy.md)
-        lam_start = max(lam_start * 1e-2, _LAMBDA_MIN)
+        # s² from this fit's own solves a decade below the start's λ, not the coarse fit's (docs/accuracy.md):
+        # there the regularization's bias in χ²/m is ~1 % of the rise the target asks for, and the solve
+        # from the start's fields is shorter than two decades below
+        lam_start = max(lam_start * START_LAMBDA_FACTOR, _LAMBDA_MIN)
     t_lambda = time.perf_counter()
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)

@@ -461,11 +461,12 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
        ``search_rtol`` (at most ``max_gauss_newton`` steps).  With
        ``inner_steps``, each step is instead an inexact solve at its λ: at
        most that many of the fit's own steps (``run.solve``), until λ settles
-       and one of them converges (a warm-started λ continuation); a step
-       that reverses the previous one's direction is halved in log λ (an
-       inexact solve lags its λ, so successive linearisations overshoot
-       alternately); where the linearisation cannot reach the target at any
-       λ (far from the fit) the next one keeps its λ.
+       and one of them converges, or until a converged one meets the target
+       to ``tol`` (a warm-started λ continuation); a step that reverses the previous
+       one's direction is halved in log λ (an inexact solve lags its λ, so
+       successive linearisations overshoot alternately); where the
+       linearisation cannot reach the target at any λ (far from the fit)
+       the next one keeps its λ.
     2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
        when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
        linearisation at its solution moves by less than ``lam_settled``;
@@ -499,7 +500,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     def settled(lam_a, lam_b):
         return abs(math.log(lam_a / lam_b)) <= math.log1p(lam_settled)
 
-    theta, lam, done, last_move = np.asarray(theta0, dtype=np.float64), lam_ref, False, 0.0
+    theta, lam, done, last_move, met = np.asarray(theta0, dtype=np.float64), lam_ref, False, 0.0, False
     for k in range(max_gauss_newton):
         found = choose(theta, lam)
         if found is None:
@@ -521,6 +522,10 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
             e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
             e.search_iterate = True
             theta, moved = e.theta, not e.converged
+            # a converged inexact solve that meets the target to the rule's tolerance ends the search at its
+            # λ (χ²/m is nearly flat in λ there: settling λ as well cost three or four more inexact solves;
+            # an unconverged one is no evidence: its χ²/m moved by more than the tolerance as it went on)
+            met = e.converged and abs(e.chi2 / target - 1.0) <= tol
         else:
             theta, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
             bar = getattr(run, "bar", None)
@@ -530,11 +535,12 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
             moved = decrease > search_rtol
         done = k > 0 and settled(lam_new, lam) and not moved
         lam = lam_new
-        if done:
+        if done or (inner_steps and met):
             break
     n_gn, solves, sides = len(dims), 0, {}
-    # an inexact solve that converged at the settled λ is that λ's solve (to the same search_rtol)
-    reuse = run.evals[-1] if inner_steps and done else None
+    # an inexact solve that converged at the settled λ (or at the target) is that λ's solve (to the same
+    # search_rtol)
+    reuse = run.evals[-1] if inner_steps and (done or met) else None
     while True:
         if reuse is not None:
             e, reuse = reuse, None

@@ -994,8 +994,7 @@ def temperature_fit(
     Returns
     -------
     TemperatureSolution
-        Fields ``T`` and ``I_b`` on ``grid.shape``, λ and how it was chosen,
-        ``χ²/m``, norms, iterations, convergence flag and timing.
+        As :func:`solve_temperature`.
 
     Raises
     ------
