@@ -100,6 +100,17 @@ def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tup
     return what, {**options, **what.keywords()}
 
 
+def temperature_defaults(*, regularization: Any, prior: Any, rule: Any, options: dict[str, Any]) -> dict[str, Any]:
+    """The T-only fit engine's keywords for ``prior``, ``rule`` and ``options`` (folded by :func:`fit_keywords`)
+    with the library's defaults where they are not given: :data:`DEFAULT_PRIOR`, the discrepancy rule and,
+    for it, :data:`DEFAULT_NOISE_SCALE`."""
+    kw = dict(options)
+    if rule in (None, "discrepancy") and regularization == "auto":
+        kw.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
+    return {**kw, "regularization": regularization, "prior": DEFAULT_PRIOR if prior is None else prior,
+            "rule": "discrepancy" if rule is None else rule}
+
+
 def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solver: Any,
                  options: dict[str, Any]) -> tuple[Any, Any, Any, dict[str, Any]]:
     """Fold ``rule`` and ``solver`` objects into the fit function's keywords.

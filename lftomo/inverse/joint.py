@@ -165,6 +165,7 @@ import hashlib
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -885,9 +886,23 @@ def _initial_fields(model: JointModel, *, T0, sigma_a0, start, lam_max, prior, s
     return p, T_init, s_init, start_label, lam_start
 
 
-def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_max, polish_steps):
-    """λ by ``rule`` (or the given λ), then the optional polish.  Returns ``(best, λ, note, polish,
-    scale_info, target, target_met)`` (``target_met`` None for the L-curve and a given λ)."""
+@dataclass(frozen=True)
+class _LambdaOutcome:
+    """What :func:`_choose_lambda` chose: the solve ``best`` at λ ``lam``, the rule's ``note``, the
+    ``polish`` record (or None), the noise-scale record ``scale_info`` (or None), the χ²/m ``target`` and
+    ``target_met`` (None for the L-curve and a given λ)."""
+
+    best: Eval
+    lam: float
+    note: str
+    polish: dict | None
+    scale_info: dict | None
+    target: float
+    target_met: bool | None
+
+
+def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_max, polish_steps) -> _LambdaOutcome:
+    """λ by ``rule`` (or the given λ), then the optional polish."""
     scale_info, target, polish, met = None, 1.0, None, None
     if regularization == "auto":
         # The first solve is at a small λ, where the data move the fit away from the (rough) start fastest;
@@ -916,7 +931,7 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
                   "T_before": T_before, "sigma_a_before": s_before}
         note += f"; then polished at that λ: {more.steps} more steps"
         best = Eval(lam, more.theta, more.chi2, more.reg, best.steps + more.steps, more.converged, "")
-    return best, lam, note, polish, scale_info, target, met
+    return _LambdaOutcome(best, lam, note, polish, scale_info, target, met)
 
 
 def _check_options(*, method, engine, rule, noise_scale, regularization, bounds, lambda_max, polish_steps,
@@ -1088,15 +1103,13 @@ def solve_temperature_absorption(
     t_lambda = time.perf_counter()
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-            best, lam, note, polish, scale_info, target, met = _choose_lambda(
-                path, p, regularization=regularization, rule=rule_obj, lam_start=lam_start, lam_max=lam_max,
-                polish_steps=polish_steps)
+            chosen = _choose_lambda(path, p, regularization=regularization, rule=rule_obj, lam_start=lam_start,
+                                    lam_max=lam_max, polish_steps=polish_steps)
     finally:
         path.bar.close()
     rule_name = rule_obj.name if regularization == "auto" else "fixed"
-    return _result(model, path, best, lam, note, polish=polish, scale_info=scale_info, target=target, met=met,
-                   alpha=alpha, start_label=start_label, T_init=T_init, s_init=s_init, t_start=t_start, method=method,
-                   rule_name=rule_name, t_lambda=t_lambda)
+    return _result(model, path, chosen, alpha=alpha, start_label=start_label, T_init=T_init, s_init=s_init,
+                   t_start=t_start, method=method, rule_name=rule_name, t_lambda=t_lambda)
 
 
 def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool | None, **linear) -> _JointPath:
@@ -1111,9 +1124,10 @@ def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool 
     return path
 
 
-def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polish, scale_info, target, met, alpha,
-            start_label, T_init, s_init, t_start, method, rule_name, t_lambda) -> Reconstruction:
+def _result(model: JointModel, path: _JointPath, chosen: _LambdaOutcome, *, alpha, start_label, T_init, s_init,
+            t_start, method, rule_name, t_lambda) -> Reconstruction:
     """The joint fit's :class:`Reconstruction` (fields on ``grid``, the λ path and the start in ``details``)."""
+    best, lam = chosen.best, chosen.lam
     grid, ring = model.grid, model.ring
     path_fields = [model.fields(e.theta) for e in path.evals]
     T, sref = model.fields(best.theta)
@@ -1140,10 +1154,10 @@ def _result(model: JointModel, path: _JointPath, best: Eval, lam, note, *, polis
                  "lambda_path_T": [f[0] for f in path_fields], "lambda_path_sigma_a": [f[1] for f in path_fields],
                  "wavelengths": model.wls, "alpha": alpha, "start": start_label,
                  "T_start": T_init.reshape(grid.shape), "sigma_a_start": s_init.reshape(grid.shape),
-                 "noise_scale": scale_info, "chi2_target": target, "target_met": met, "polish": polish,
-                 "method": method},
+                 "noise_scale": chosen.scale_info, "chi2_target": chosen.target, "target_met": chosen.target_met,
+                 "polish": chosen.polish, "method": method},
         symmetry=ring,
         metadata={} if model.E is None else {"quadrature_grid": model.seg_grid.to_dict()},
-        lambda_note=note,
+        lambda_note=chosen.note,
         lambda_path=tuple((float(e.lam), float(e.chi2), float(e.reg)) for e in (path.evals or [best])),
     )

@@ -23,7 +23,8 @@ from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
-    DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns, moved_options)
+    DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns, moved_options,
+    temperature_defaults)
 from .unknowns import resolve_unknowns
 
 
@@ -149,11 +150,9 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-        if rule in (None, "discrepancy") and regularization == "auto":
-            options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
-        sol = temperature_fit(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
-                              bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
-                              **options)
+        sol = temperature_fit(problem, bounds=bounds, T0=T0, method=method,
+                              **temperature_defaults(regularization=regularization, prior=prior, rule=rule,
+                                                     options=options))
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
               "total": time.perf_counter() - t0}
     choice = sol.lambda_choice

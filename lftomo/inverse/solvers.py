@@ -203,7 +203,7 @@ from .regularizers import Prior, resolve_prior  # noqa: E402
 from .unknowns import PENALIZED as PENALIZE  # noqa: E402  (what the prior acts on)
 from .unknowns import resolve_unknowns  # noqa: E402
 from .fitoptions import (  # noqa: E402
-    DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, TEMPERATURE_MOVED, fit_keywords, fold_unknowns, moved_options)
+    DEFAULT_PRIOR, TEMPERATURE_MOVED, fit_keywords, fold_unknowns, moved_options, temperature_defaults)
 
 __all__ = [
     "METHODS",
@@ -858,11 +858,8 @@ def solve_temperature(
     regularization, method, rule, options = fit_keywords(
         "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
-    if rule in (None, "discrepancy") and regularization == "auto":
-        options.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
-    return temperature_fit(problem, regularization=regularization, prior=DEFAULT_PRIOR if prior is None else prior,
-                           bounds=bounds, T0=T0, method=method, rule="discrepancy" if rule is None else rule,
-                           progress=progress, **options)
+    return temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
+                           **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options))
 
 
 def temperature_fit(
@@ -999,10 +996,8 @@ def temperature_fit(
     Raises
     ------
     ValueError
-        Before any solving, for: a problem that is not a LinearProblem; bounds
-        not ``0 < T_min < T_max``; unknown ``prior``, ``method``, ``rule`` or
-        ``penalize``; negative or non-finite λ; a bad ``T0`` (shape, NaN,
-        outside the bounds); bad tolerances or counts.
+        Before any solving, as :func:`solve_temperature`; also for an unknown
+        ``method`` or ``penalize``, a negative or non-finite λ, bad tolerances or counts.
     """
     t_start = time.perf_counter()
     problem = _check_problem(problem)
