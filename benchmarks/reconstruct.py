@@ -213,8 +213,8 @@ def posterior_benchmark(problem, sol, t_nl, T, args):
     print(f"  ratio to solve_temperature = {t_lp / t_nl:.2f}   (aim: <= 300 s)")
     basis = lt.DCTBasis(problem.grid, n_coeffs=(3, 3, 3))
     t = time.perf_counter()
-    ep = lt.sample_posterior(problem, basis=basis, n_walkers=64, n_steps=args.emcee_steps, seed=0, progress=False,
-                             strict=False, likelihood=args.emcee_likelihood)
+    ep = lt.sample_posterior(problem, basis=basis, chain=lt.EnsembleChain(n_walkers=64, n_steps=args.emcee_steps),
+                             seed=0, progress=False, likelihood=args.emcee_likelihood)
     t_mc = time.perf_counter() - t
     ess = "" if ep.importance_ess is None else f", importance ESS {ep.importance_ess:.0f} of {len(ep.weights)}"
     print(f"sample_posterior     : {t_mc:8.2f} s  (emcee, {basis.n_params} DCT coefficients, 64 walkers, "

@@ -27,7 +27,8 @@ from .inverse.regularizers import Prior, GradientPrior, LaplacianPrior, Curvatur
 from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, LCurveDecades, Fixed
 from .inverse.unknowns import Unknowns, Temperature, TemperatureAbsorption
 from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM, AutoSolver
-from .inverse.posterior import Posterior, sample_posterior, laplace_approximation
+from .inverse.posterior import Posterior, build_log_posterior, sample_posterior, laplace_approximation
+from .inverse.ensemble import EnsembleChain
 from .inverse.fieldposterior import FieldPosterior, laplace_posterior
 from .inverse.design import Design, design, compare_designs, design_table, rig_around, standard_configurations
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
@@ -113,6 +114,8 @@ __all__ = [
     "solve_linear_baseline",
     "Posterior",
     "sample_posterior",
+    "build_log_posterior",
+    "EnsembleChain",
     "laplace_approximation",
     "FieldPosterior",
     "laplace_posterior",

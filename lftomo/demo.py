@@ -722,9 +722,10 @@ def _demo_posterior(d: _DemoRun) -> None:
         basis = lt.ParametricFlame(coarse)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            post = lt.sample_posterior(d.r["problem"], basis=basis, n_walkers=cfg["posterior"]["n_walkers"],
-                                       n_steps=n_steps, seed=cfg["seeds"]["posterior"], bounds=BOUNDS,
-                                       progress=d.progress)
+            post = lt.sample_posterior(lt.build_log_posterior(d.r["problem"], basis=basis, bounds=BOUNDS),
+                                       chain=lt.EnsembleChain(n_walkers=cfg["posterior"]["n_walkers"],
+                                                              n_steps=n_steps),
+                                       seed=cfg["seeds"]["posterior"], progress=d.progress)
         post_warn = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
         d.warned += post_warn
     d.r["post"] = post
@@ -1356,8 +1357,9 @@ def _reconstruct_posterior(problem, rec, inp: _ReconstructInputs, *, basis_name,
         raise LftomoError(f"--posterior-basis must be 'flame' or 'dct', got {basis_name!r}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        post = lt.sample_posterior(problem, basis=basis, n_steps=n_steps, seed=inp.posterior_seed,
-                                   bounds=tuple(bounds), T_start=None, progress=progress)
+        post = lt.sample_posterior(lt.build_log_posterior(problem, basis=basis, bounds=tuple(bounds)),
+                                   chain=lt.EnsembleChain(n_steps=n_steps), seed=inp.posterior_seed,
+                                   progress=progress)
     metrics = {
         "basis": basis_name, "names": list(post.names), "mean": post.coeff_mean, "std": post.coeff_std,
         "acceptance_mean": float(np.mean(post.acceptance_fraction)), "tau": post.tau,

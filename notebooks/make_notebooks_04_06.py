@@ -1025,7 +1025,8 @@ NB06 = [
 
         prob_cal = calibration_problem()
         t0 = time.perf_counter()
-        post = lt.sample_posterior(prob_cal, basis=basis, n_walkers=16, n_steps=2500, seed=0, progress=False)
+        post = lt.sample_posterior(prob_cal, basis=basis, chain=lt.EnsembleChain(n_walkers=16, n_steps=2500),
+                                   seed=0, progress=False)
         print(f"sample_posterior: {time.perf_counter() - t0:.1f} s")
         print(post.summary())
         print(f"acceptance fraction per walker: {post.acceptance_fraction.min():.2f}..{post.acceptance_fraction.max():.2f}")

@@ -56,8 +56,8 @@ def main():
         t = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            p = lt.sample_posterior(problem, basis=basis, n_walkers=64, seed=0, progress=False, likelihood=like,
-                                    n_steps=args.steps if like == "taylor" else args.exact_steps)
+            chain = lt.EnsembleChain(n_walkers=64, n_steps=args.steps if like == "taylor" else args.exact_steps)
+            p = lt.sample_posterior(problem, basis=basis, chain=chain, seed=0, progress=False, likelihood=like)
         cover = np.mean((p.T_lower[hot] <= T_eff[hot]) & (T_eff[hot] <= p.T_upper[hot]))
         ess = "-" if p.importance_ess is None else f"{p.importance_ess:.0f} of {len(p.weights)}"
         print(f"{like}: {time.perf_counter() - t:.1f} s; sampled {p.likelihood}; importance ESS {ess}; "

@@ -69,8 +69,9 @@ def draw_row(d, lf, W, W_post, a, ctx):
         if post.evidence is not None:
             row["evidence"] = {k: post.evidence[k] for k in ("lambda", "gamma", "log_evidence", "converged")}
         return row
-    post = lt.sample_posterior(m.problem(W, coarse), basis=basis, n_walkers=a.walkers, n_steps=a.steps,
-                               seed=400 + d, progress=False)
+    post = lt.sample_posterior(m.problem(W, coarse), basis=basis,
+                               chain=lt.EnsembleChain(n_walkers=a.walkers, n_steps=a.steps), seed=400 + d,
+                               progress=False)
     inside = (post.T_lower <= T_true) & (T_true <= post.T_upper)
     return {"draw": d, "coverage_hot": float(inside[hot].mean()), "n_hot": int(hot.sum()),
             "converged": bool(post.converged), "tau_max": float(np.nanmax(post.tau)),

@@ -341,9 +341,11 @@ def test_ctrl_c_stops_posterior_sampling_between_steps():
     basis = DCTBasis(g, (2, 2, 2))
     y = A @ basis.T(np.array([1500.0, 100, -50, 30, 20, -10, 5, 40]))
     prob = LinearProblem(A, y, np.full(150, 3.0), g, wavelength=None, background=np.zeros(150))
-    kw = dict(basis=basis, emission="linear", bounds=None, prior_std=200.0, n_walkers=32, seed=0, progress=False)
-    lt.sample_posterior(prob, n_steps=20, **kw)  # compiled
-    seconds = _interrupt_after(1.0, lambda: lt.sample_posterior(prob, n_steps=50_000, **kw))  # minutes
+    model = lt.build_log_posterior(prob, basis=basis, emission="linear", bounds=None, prior_std=200.0)
+    kw = dict(seed=0, progress=False)
+    lt.sample_posterior(model, chain=lt.EnsembleChain(n_walkers=32, n_steps=20), **kw)  # compiled
+    seconds = _interrupt_after(1.0, lambda: lt.sample_posterior(model, chain=lt.EnsembleChain(n_walkers=32,
+                                                                                             n_steps=50_000), **kw))
     assert seconds < 5.0
 
 

@@ -207,8 +207,9 @@ def test_posterior_chain_refused_before_emcee_allocates_it(small_limit, monkeypa
     prob = LinearProblem(A, np.ones(150), np.ones(150), g, wavelength=None, background=np.zeros(150))
     with pytest.raises(LftomoError, match=r"a chain of n_steps = 10000000 x n_walkers = 32 x 8 coefficients needs "
                                           r"an estimated 46.1 GB"):
-        lt.sample_posterior(prob, basis=DCTBasis(g, (2, 2, 2)), emission="linear", bounds=None, prior_std=200.0,
-                            n_walkers=32, n_steps=10**7, progress=False)
+        lt.sample_posterior(lt.build_log_posterior(prob, basis=DCTBasis(g, (2, 2, 2)), emission="linear",
+                                                   bounds=None, prior_std=200.0),
+                            chain=lt.EnsembleChain(n_walkers=32, n_steps=10**7), progress=False)
 
 
 def test_image_stacks_refused_before_allocation(small_limit):

@@ -67,6 +67,7 @@ from .._validate import (
 from ..interrupt import check_interrupt, stop_between_steps
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
 from .basis import MAX_COEFFS, TemperatureBasis
+from .ensemble import EnsembleChain, moved_sampling_options
 from .hostsparse import csr_weighted_sq_norms
 
 __all__ = [
@@ -80,6 +81,7 @@ __all__ = [
     "laplace_approximation",
     "Posterior",
     "sample_posterior",
+    "EnsembleChain",
     "ConvergenceError",
 ]
 
@@ -776,7 +778,7 @@ def _laplace_at(logpost: LogPosterior, c: np.ndarray, n_iter: int, converged: bo
 def laplace_approximation(
     problem: Any,
     *,
-    basis: TemperatureBasis,
+    basis: TemperatureBasis | None = None,
     T_start: Any = None,
     c_start: Any = None,
     max_iter: int = 500,
@@ -787,10 +789,10 @@ def laplace_approximation(
 
     Parameters
     ----------
-    problem : LinearProblem or sequence of LinearProblem
-        Data channels on the basis grid.
-    basis : TemperatureBasis
-        Reduced parameterisation (K <= 40).
+    problem : LogPosterior, or LinearProblem or sequence of LinearProblem
+        The posterior (:func:`build_log_posterior`), or the data channels on the basis grid.
+    basis : TemperatureBasis, optional
+        Reduced parameterisation (K <= 40); required with problems, omitted with a LogPosterior.
     T_start : array_like (grid.shape), optional
         Field whose basis fit starts the Levenberg–Marquardt ascent.
     c_start : array_like (K,), optional
@@ -811,7 +813,15 @@ def laplace_approximation(
         Mean ``c_map``, covariance ``G⁻¹``, and the induced ``T`` mean/std fields.
         For a linear basis with ``emission="linear"`` it is the exact posterior.
     """
-    logpost = build_log_posterior(problem, basis=basis, **posterior_kwargs)
+    if isinstance(problem, LogPosterior):
+        if posterior_kwargs or (basis is not None and basis is not problem.basis):
+            raise ValueError("a LogPosterior already defines the posterior: give neither basis nor "
+                             f"{', '.join(posterior_kwargs) or 'posterior keywords'} with it")
+        logpost = problem
+    elif basis is None:
+        raise ValueError("basis is required when the posterior is given as problems")
+    else:
+        logpost = build_log_posterior(problem, basis=basis, **posterior_kwargs)
     return _laplace(logpost, T_start, c_start, max_iter, tol)
 
 
@@ -1032,91 +1042,64 @@ def _field_summaries(
 
 
 def sample_posterior(
-    problem: Any,
+    posterior: Any,
     *,
-    basis: TemperatureBasis,
-    n_walkers: int | None = None,
-    n_steps: int = 2000,
-    seed: int | None = None,
+    basis: TemperatureBasis | None = None,
+    chain: EnsembleChain | None = None,
+    likelihood: str = "auto",
     T_start: Any = None,
     optimize: bool = True,
-    prior_mean: Any = None,
-    prior_std: Any = None,
-    prior: Callable | None = None,
-    regularization: float | None = None,
-    L: Any = "gradient",
-    T_scale: float | None = None,
-    T_ref: Any = None,
-    bounds: Any = (300.0, 3000.0),
-    emission: str = "auto",
+    seed: int | None = None,
     progress: bool = True,
-    thin: int = 1,
-    burn: int | None = None,
-    init_scale: float = 0.1,
-    strict: bool = False,
     credible_level: float = 0.9,
-    max_field_elements: float = 2e7,
-    dense_max: int = 8000,
-    moves: Any = None,
-    likelihood: str = "auto",
-    n_importance: int = 2000,
+    **moved: Any,
 ) -> Posterior:
     """Sample the posterior of basis coefficients with emcee's affine-invariant ensemble.
 
     Parameters
     ----------
-    problem : LinearProblem or sequence of LinearProblem
-        One problem per wavelength channel, all on ``basis.grid``.
-    basis : TemperatureBasis
-        :class:`~lftomo.inverse.basis.DCTBasis`, :class:`~lftomo.inverse.basis.BSplineBasis`,
-        :class:`~lftomo.inverse.basis.ParametricFlame` or a :class:`~lftomo.inverse.basis.LinearBasis`; K <= 40.
-    n_walkers : int, optional
-        Number of walkers, >= 2 K; default ``2 · max(K + 1, 8)``.
-    n_steps : int
-        Steps per walker (including burn-in), >= 2.
-    seed : int, optional
-        Seed of the walker ball and of emcee's generator (reproducible runs).
+    posterior : LogPosterior, or LinearProblem or sequence of LinearProblem
+        The posterior, as :func:`build_log_posterior` defines it (priors, bounds,
+        emission); or the data channels (one problem per wavelength, all on
+        ``basis.grid``), whose posterior is then ``build_log_posterior(posterior,
+        basis=basis)``: flat coefficients within (300, 3000) K, Planck emission.
+    basis : TemperatureBasis, optional
+        With problems: :class:`~lftomo.inverse.basis.DCTBasis`,
+        :class:`~lftomo.inverse.basis.BSplineBasis`,
+        :class:`~lftomo.inverse.basis.ParametricFlame` or a
+        :class:`~lftomo.inverse.basis.LinearBasis`; K <= 40.  With a LogPosterior:
+        omitted (or its own).
+    chain : EnsembleChain, optional
+        Walkers, steps, burn-in, thinning, moves, importance samples; default
+        ``EnsembleChain()``.
+    likelihood : {"auto", "exact", "taylor"}
+        What the walkers evaluate: the log-posterior ("exact"), or its
+        second-order Taylor model about the start
+        (:class:`~lftomo.inverse.surrogate.TaylorLogPosterior`, linear bases
+        only) corrected by importance weights on ``chain.n_importance`` thinned
+        samples ("taylor").  "auto" (default): "taylor" for a linear basis on a
+        grid above the posterior's ``dense_max`` voxels if a 64-draw Laplace
+        pilot's weights have an ESS of at least half their number, else "exact"
+        (:attr:`Posterior.likelihood_note` says which and why).
     T_start : array_like (grid.shape), optional
         A reconstruction to start from: its basis fit (:meth:`fit`) is the start
         of the MAP search, or the ball centre when ``optimize=False``.
     optimize : bool
         Start at the Gauss–Newton MAP (default) and shape the ball by the Laplace
         covariance; else at the fit of ``T_start``.
-    prior_mean, prior_std, prior, regularization, L, T_scale, T_ref, bounds, emission, dense_max
-        Posterior definition: see :func:`build_log_posterior`.  ``bounds``
-        default (300, 3000) K: a truncated basis can undershoot the ambient
-        temperature next to a flame, widen ``T_min`` if the start is rejected.
+    seed : int, optional
+        Seed of the walker ball and of emcee's generator (reproducible runs).
     progress : bool
         Show emcee's progress bar.
-    thin : int
-        Keep every ``thin``-th step in :attr:`Posterior.samples`, >= 1.
-    burn : int, optional
-        Steps discarded as burn-in; default ``n_steps // 4``.
-    init_scale : float
-        Ball size relative to the Laplace covariance (>0, default 0.1); walkers
-        start at ``c_start + init_scale · chol(cov) z``.
-    strict : bool
-        Raise :class:`ConvergenceError` instead of warning when the chain after
-        burn-in is shorter than 50 τ.
     credible_level : float
         Content of the per-voxel equal-tailed interval, in (0, 1); default 0.9.
-    max_field_elements : float
-        Memory cap (number of floats) of the T samples used for the quantiles.
-    likelihood : {"auto", "exact", "taylor"}
-        What the walkers evaluate: the log-posterior above ("exact"), or its
-        second-order Taylor model about the start
-        (:class:`~lftomo.inverse.surrogate.TaylorLogPosterior`, linear bases
-        only) corrected by importance weights on ``n_importance`` thinned
-        samples ("taylor").  "auto" (default): "taylor" for a linear basis on a
-        grid above ``dense_max`` voxels if a 64-draw Laplace pilot's weights
-        have an ESS of at least half their number, else "exact"
-        (:attr:`Posterior.likelihood_note` says which and why).
-    n_importance : int
-        Samples given exact log-posteriors and weights ("taylor"), >= 10.
-    moves : emcee move(s), optional
-        Passed to :class:`emcee.EnsembleSampler`.  Default: the mixture
-        ``[(DEMove(), 0.8), (StretchMove(), 0.2)]`` (why, and a move to
-        avoid: docs/accuracy.md, *Posterior sampler moves*).
+    **moved
+        The keywords this function took before (``n_walkers``, ``n_steps``, ``burn``,
+        ``thin``, ``init_scale``, ``moves``, ``n_importance``, ``strict``,
+        ``max_field_elements`` now on :class:`EnsembleChain`; ``prior_mean``,
+        ``prior_std``, ``prior``, ``regularization``, ``L``, ``T_scale``, ``T_ref``,
+        ``bounds``, ``emission``, ``dense_max`` now of :func:`build_log_posterior`):
+        still accepted with problems, each with a DeprecationWarning.
 
     Returns
     -------
@@ -1126,9 +1109,10 @@ def sample_posterior(
     ------
     ValueError
         K > 40, ``n_walkers < 2 K``, inverted bounds, ``burn >= n_steps``, a start
-        outside the bounds, grid mismatch, bad prior arguments.
+        outside the bounds, grid mismatch, bad prior arguments, a basis other
+        than the LogPosterior's, an option given both on ``chain`` and as a keyword.
     ConvergenceError
-        With ``strict=True`` when the chain is too short, or (``"taylor"``)
+        With ``chain.strict`` when the chain is too short, or (``"taylor"``)
         when the importance ESS is below ``max(50, n_importance / 10)``.
 
     Warns
@@ -1137,15 +1121,11 @@ def sample_posterior(
         When the chain after burn-in is shorter than 50 integrated
         autocorrelation times, or the importance ESS is low (and ``strict`` is False).
     """
-    logpost = build_log_posterior(
-        problem, basis=basis, prior_mean=prior_mean, prior_std=prior_std, prior=prior,
-        regularization=regularization, L=L, T_scale=T_scale, T_ref=T_ref, bounds=bounds,
-        emission=emission, dense_max=dense_max,
-    )
+    logpost, chain = _sampling_model(posterior, basis, chain, moved)
+    basis = logpost.basis
     K = basis.n_params
-    n_walkers, n_steps, thin, burn, init_scale, level, n_importance = _check_sampling_options(
-        logpost, basis, n_walkers=n_walkers, n_steps=n_steps, thin=thin, burn=burn, init_scale=init_scale,
-        credible_level=credible_level, likelihood=likelihood, n_importance=n_importance)
+    n_walkers, level = _check_sampling_options(logpost, basis, chain=chain, credible_level=credible_level,
+                                               likelihood=likelihood)
     auto = likelihood == "auto"
     if auto:
         large = any(not ch.stats.dense for ch in logpost.channels)
@@ -1153,34 +1133,47 @@ def sample_posterior(
 
     rng = np.random.default_rng(seed)
     c_start, chol, lap = _sampler_start(logpost, basis, optimize=optimize, T_start=T_start)
-    p0 = _walker_ball(logpost, c_start, chol, n_walkers, init_scale, rng)
+    p0 = _walker_ball(logpost, c_start, chol, n_walkers, chain.init_scale, rng)
     likelihood, target, note = _sampling_target(logpost, likelihood, auto, c_start, chol, lap, rng)
     t0 = time.perf_counter()
-    sampler = _run_ensemble(target, p0, n_walkers, K, n_steps, moves=moves, rng=rng, progress=progress)
+    sampler = _run_ensemble(target, p0, n_walkers, K, chain.n_steps, moves=chain.moves, rng=rng, progress=progress)
     elapsed = time.perf_counter() - t0
 
-    chain = sampler.get_chain()
-    lp_trace = sampler.get_log_prob()
     tau, converged, samples, log_prob, n_eff, weights, ess = _chain_summary(
-        sampler, logpost, target, likelihood, n_walkers=n_walkers, n_steps=n_steps, burn=burn, thin=thin,
-        n_importance=n_importance, strict=strict)
+        sampler, logpost, target, likelihood, n_walkers=n_walkers, chain=chain)
     if likelihood == "taylor":
         elapsed = time.perf_counter() - t0
     w = np.full(len(samples), 1.0 / len(samples)) if weights is None else weights
     mean_c = w @ samples
     Dc = samples - mean_c
     cov_c = (Dc.T * w) @ Dc / max(1.0 - float(w @ w), 1e-12)
-    T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, max_field_elements, weights)
+    T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, chain.max_field_elements, weights)
     return Posterior(
-        basis=basis, names=tuple(basis.names), samples=samples, log_prob=log_prob, chain=chain,
-        log_prob_trace=lp_trace, coeff_mean=mean_c, coeff_cov=np.atleast_2d(cov_c),
+        basis=basis, names=tuple(basis.names), samples=samples, log_prob=log_prob, chain=sampler.get_chain(),
+        log_prob_trace=sampler.get_log_prob(), coeff_mean=mean_c, coeff_cov=np.atleast_2d(cov_c),
         T_mean=T_mean, T_std=T_std, T_lower=T_lo, T_upper=T_hi, credible_level=level, n_field_samples=nq,
         acceptance_fraction=np.asarray(sampler.acceptance_fraction), tau=tau,
         n_eff=n_eff, converged=converged,
-        c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=n_steps, burn=burn,
-        thin=thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood, weights=weights, importance_ess=ess,
-        likelihood_note=note,
+        c_start=np.asarray(c_start).copy(), laplace=lap, n_walkers=n_walkers, n_steps=chain.n_steps,
+        burn=chain.burn_steps, thin=chain.thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood,
+        weights=weights, importance_ess=ess, likelihood_note=note,
     )
+
+
+def _sampling_model(posterior: Any, basis: Any, chain: Any, moved: dict[str, Any]) -> tuple[LogPosterior, Any]:
+    """:func:`sample_posterior`'s LogPosterior and EnsembleChain, from its arguments and the keywords it
+    took before (:func:`~lftomo.inverse.ensemble.moved_sampling_options`)."""
+    is_model = isinstance(posterior, LogPosterior)
+    chain, definition = moved_sampling_options(moved, chain, definition_allowed=not is_model)
+    if is_model:
+        if basis is not None and basis is not posterior.basis:
+            raise ValueError("basis differs from the LogPosterior's basis; leave basis out (the LogPosterior "
+                             "carries it)")
+        return posterior, chain
+    if basis is None:
+        raise ValueError("basis is required when the posterior is given as problems (or pass a LogPosterior "
+                         "from lt.build_log_posterior)")
+    return build_log_posterior(posterior, basis=basis, **definition), chain
 
 
 def _run_ensemble(target: Callable, p0: np.ndarray, n_walkers: int, K: int, n_steps: int, *, moves: Any,
@@ -1203,23 +1196,17 @@ def _run_ensemble(target: Callable, p0: np.ndarray, n_walkers: int, K: int, n_st
     return sampler
 
 
-def _check_sampling_options(logpost: Any, basis: Any, *, n_walkers, n_steps, thin, burn, init_scale,
-                            credible_level, likelihood, n_importance):
-    """:func:`sample_posterior`'s sampler options, checked and with their defaults:
-    ``(n_walkers, n_steps, thin, burn, init_scale, level, n_importance)``."""
+def _check_sampling_options(logpost: Any, basis: Any, *, chain: EnsembleChain, credible_level: Any,
+                            likelihood: Any) -> tuple[int, float]:
+    """:func:`sample_posterior`'s options that depend on the posterior, checked: ``(n_walkers, level)``
+    (the chain's own ranges are checked when it is made)."""
     K = basis.n_params
-    n_walkers = 2 * max(K + 1, 8) if n_walkers is None else require_int("n_walkers", n_walkers, minimum=1)
+    n_walkers = 2 * max(K + 1, 8) if chain.n_walkers is None else int(chain.n_walkers)
     if n_walkers < 2 * K:
         raise ValueError(f"n_walkers must be >= 2 K = {2 * K} for K = {K} coefficients, got {n_walkers}")
-    n_steps = require_int("n_steps", n_steps, minimum=2)
-    thin = require_int("thin", thin, minimum=1)
-    burn = n_steps // 4 if burn is None else require_int("burn", burn, minimum=0)
-    if burn >= n_steps:
-        raise ValueError(f"burn must be < n_steps = {n_steps}, got {burn}")
     # emcee allocates the whole chain and its log-posterior up front; the results copy them
-    check_allocation(f"a chain of n_steps = {n_steps} x n_walkers = {n_walkers} x {K} coefficients",
-                     2.0 * n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
-    init_scale = require_positive("init_scale", init_scale)
+    check_allocation(f"a chain of n_steps = {chain.n_steps} x n_walkers = {n_walkers} x {K} coefficients",
+                     2.0 * chain.n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
     level = require_finite_scalar("credible_level", credible_level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"credible_level must be in (0, 1), got {level!r}")
@@ -1230,14 +1217,15 @@ def _check_sampling_options(logpost: Any, basis: Any, *, n_walkers, n_steps, thi
             f"likelihood='taylor' needs a linear basis (DCTBasis, BSplineBasis, LinearBasis), "
             f"got {type(basis).__name__}; use likelihood='exact'"
         )
-    n_importance = require_int("n_importance", n_importance, minimum=10)
-    return n_walkers, n_steps, thin, burn, init_scale, level, n_importance
+    return n_walkers, level
 
 
-def _chain_summary(sampler: Any, logpost: Any, target: Any, likelihood: str, *, n_walkers: int, n_steps: int,
-                   burn: int, thin: int, n_importance: int, strict: bool):
+def _chain_summary(sampler: Any, logpost: Any, target: Any, likelihood: str, *, n_walkers: int,
+                   chain: EnsembleChain):
     """Autocorrelation, convergence and the kept samples of a finished emcee run (importance-corrected
     for the Taylor likelihood): ``(tau, converged, samples, log_prob, n_eff, weights, ess)``."""
+    n_steps, burn, thin, strict = chain.n_steps, chain.burn_steps, chain.thin, chain.strict
+    n_importance = chain.n_importance
     tau = np.asarray(sampler.get_autocorr_time(discard=burn, quiet=True, tol=0), dtype=np.float64)
     kept = n_steps - burn
     tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.inf

@@ -16,6 +16,7 @@ import scipy.sparse as sp
 import lftomo as lt
 from lftomo.forward.phantoms import axisymmetric_flame
 from lftomo.inverse.basis import BSplineBasis, DCTBasis, LinearBasis, ParametricFlame
+from lftomo.inverse.ensemble import EnsembleChain
 from lftomo.inverse.posterior import (
     ConvergenceError,
     NormalOperator,
@@ -86,7 +87,8 @@ def test_laplace_is_exact_for_linear_gaussian(linear_case):
 
 
 def test_mcmc_matches_closed_form_linear_gaussian(linear_case):
-    post = sample_posterior(linear_case["prob"], n_walkers=32, n_steps=4000, seed=3, progress=False, **linear_case["kw"])
+    model = build_log_posterior(linear_case["prob"], **linear_case["kw"])
+    post = sample_posterior(model, chain=EnsembleChain(n_walkers=32, n_steps=4000), seed=3, progress=False)
     mean, cov = linear_case["mean"], linear_case["cov"]
     assert post.converged and post.n_eff > 2000
     assert post.samples.shape == (32 * 3000, 8) and post.chain.shape == (4000, 32, 8)
@@ -136,7 +138,7 @@ def test_planck_mcmc_mean_matches_laplace_when_narrow(planck_case):
     lap = laplace_approximation(prob, basis=basis)
     assert lap.converged and np.all(lap.std < 10.0)  # narrow: a few K at 1500-1800 K
     assert np.all(np.abs(lap.c_map - planck_case["c_true"]) < 5 * lap.std)
-    post = sample_posterior(prob, basis=basis, n_walkers=32, n_steps=3000, seed=0, progress=False)
+    post = sample_posterior(prob, basis=basis, chain=EnsembleChain(n_walkers=32, n_steps=3000), seed=0, progress=False)
     assert post.converged
     z = (post.coeff_mean - lap.c_map) / post.coeff_mean_stderr
     assert np.all(np.abs(z) < 5.0), z
@@ -145,16 +147,16 @@ def test_planck_mcmc_mean_matches_laplace_when_narrow(planck_case):
 
 
 def test_short_chain_warns_and_strict_raises(planck_case):
-    kw = dict(basis=planck_case["basis"], n_walkers=16, n_steps=40, seed=1, progress=False)
+    kw = dict(basis=planck_case["basis"], seed=1, progress=False)
     with pytest.warns(UserWarning, match="50 integrated autocorrelation times"):
-        post = sample_posterior(planck_case["prob"], **kw)
+        post = sample_posterior(planck_case["prob"], chain=EnsembleChain(n_walkers=16, n_steps=40), **kw)
     assert not post.converged
     with pytest.raises(ConvergenceError, match="n_steps"):
-        sample_posterior(planck_case["prob"], strict=True, **kw)
+        sample_posterior(planck_case["prob"], chain=EnsembleChain(n_walkers=16, n_steps=40, strict=True), **kw)
 
 
 def test_seeded_runs_are_reproducible(planck_case):
-    kw = dict(basis=planck_case["basis"], n_walkers=16, n_steps=30, burn=10, progress=False)
+    kw = dict(basis=planck_case["basis"], chain=EnsembleChain(n_walkers=16, n_steps=30, burn=10), progress=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         a = sample_posterior(planck_case["prob"], seed=5, **kw)
@@ -299,15 +301,16 @@ def test_bad_input_raises_value_error(planck_case):
     with pytest.raises(ValueError, match="40"):
         LinearBasis(_flame_grid(), np.random.default_rng(0).random((_flame_grid().n_voxels, 41)))
     with pytest.raises(ValueError, match="n_walkers must be >= 2 K = 16.*got 10"):
-        sample_posterior(prob, basis=basis, n_walkers=10, n_steps=10, seed=0, progress=False)
+        sample_posterior(prob, basis=basis, chain=EnsembleChain(n_walkers=10, n_steps=10), seed=0, progress=False)
     with pytest.raises(ValueError, match="T_min < T_max"):
-        sample_posterior(prob, basis=basis, bounds=(3000.0, 300.0), n_steps=10, seed=0, progress=False)
+        build_log_posterior(prob, basis=basis, bounds=(3000.0, 300.0))
     with pytest.raises(ValueError, match="T_min < T_max"):
         laplace_approximation(prob, basis=basis, bounds=(3000.0, 300.0))
     with pytest.raises(ValueError, match="burn must be < n_steps"):
-        sample_posterior(prob, basis=basis, n_steps=10, burn=10, seed=0, progress=False)
+        EnsembleChain(n_steps=10, burn=10)
     with pytest.raises(ValueError, match="grid shape"):
-        sample_posterior(prob, basis=DCTBasis(_flame_grid(), (2, 2, 2)), n_steps=10, progress=False)
+        sample_posterior(prob, basis=DCTBasis(_flame_grid(), (2, 2, 2)), chain=EnsembleChain(n_steps=10),
+                         progress=False)
     with pytest.raises(ValueError, match="prior_std"):
         laplace_approximation(prob, basis=basis, prior_std=-1.0)
     with pytest.raises(ValueError, match="outside the bounds"):
@@ -325,11 +328,12 @@ def test_bad_input_raises_value_error(planck_case):
     with pytest.raises(ValueError, match="emission must be one of"):
         build_log_posterior(prob, basis=basis, emission="blackbody")
     with pytest.raises(ValueError, match="likelihood must be 'auto', 'exact' or 'taylor', got 'fast'"):
-        sample_posterior(prob, basis=basis, likelihood="fast", n_steps=10, progress=False)
+        sample_posterior(prob, basis=basis, likelihood="fast", chain=EnsembleChain(n_steps=10), progress=False)
     with pytest.raises(ValueError, match="n_importance must be an integer >= 10, got 5"):
-        sample_posterior(prob, basis=basis, likelihood="taylor", n_importance=5, n_steps=10, progress=False)
+        EnsembleChain(n_importance=5, n_steps=10)
     with pytest.raises(ValueError, match="likelihood='taylor' needs a linear basis.*ParametricFlame"):
-        sample_posterior(prob, basis=ParametricFlame(g), likelihood="taylor", n_steps=10, progress=False)
+        sample_posterior(prob, basis=ParametricFlame(g), likelihood="taylor", chain=EnsembleChain(n_steps=10),
+                         progress=False)
 
 
 # ------------------------------------------------------------------ large grids: implicit H and the Taylor likelihood
@@ -429,9 +433,10 @@ def test_importance_weights_correct_a_wrong_proposal_to_the_exact_posterior(line
 def test_taylor_sampler_matches_the_exact_sampler(planck_case):
     """Same Planck problem, emcee on the exact and on the Taylor likelihood (with weights): equal moments."""
     prob, basis = planck_case["prob"], planck_case["basis"]
-    kw = dict(basis=basis, n_walkers=32, n_steps=3000, seed=0, progress=False)
-    ex = sample_posterior(prob, likelihood="exact", **kw)
-    ta = sample_posterior(prob, likelihood="taylor", n_importance=3000, **kw)
+    kw = dict(basis=basis, seed=0, progress=False)
+    ex = sample_posterior(prob, likelihood="exact", chain=EnsembleChain(n_walkers=32, n_steps=3000), **kw)
+    ta = sample_posterior(prob, likelihood="taylor", chain=EnsembleChain(n_walkers=32, n_steps=3000, n_importance=3000),
+                          **kw)
     assert ex.likelihood == "exact" and ex.weights is None
     assert ta.likelihood == "taylor" and ta.samples.shape == (3000, 8) and ta.weights.shape == (3000,)
     assert ex.converged and ta.converged and ta.importance_ess > 0.9 * 3000
@@ -445,8 +450,10 @@ def test_taylor_sampler_matches_the_exact_sampler(planck_case):
     # auto: small grids (dense H) sample the exact likelihood
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        assert sample_posterior(prob, basis=basis, n_steps=20, progress=False, seed=1).likelihood == "exact"
-        big = sample_posterior(prob, basis=basis, n_steps=20, progress=False, seed=1, dense_max=0, n_importance=50)
+        short = EnsembleChain(n_steps=20)
+        assert sample_posterior(prob, basis=basis, chain=short, progress=False, seed=1).likelihood == "exact"
+        big = sample_posterior(build_log_posterior(prob, basis=basis, dense_max=0),
+                               chain=EnsembleChain(n_steps=20, n_importance=50), progress=False, seed=1)
     assert big.likelihood == "taylor" and "pilot importance ESS" in big.likelihood_note
 
 
@@ -456,9 +463,62 @@ def test_auto_likelihood_falls_back_to_exact_when_the_taylor_model_is_poor(planc
     broad = LinearProblem(p.A, p.y, 100.0 * p.sigma, p.grid, wavelength=WL)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        post = sample_posterior(broad, basis=planck_case["basis"], n_steps=20, progress=False, seed=1, dense_max=0)
-        forced = sample_posterior(broad, basis=planck_case["basis"], n_steps=200, progress=False, seed=1,
-                                  dense_max=0, likelihood="taylor", n_importance=200)
+        model = build_log_posterior(broad, basis=planck_case["basis"], dense_max=0)
+        post = sample_posterior(model, chain=EnsembleChain(n_steps=20), progress=False, seed=1)
+        forced = sample_posterior(model, chain=EnsembleChain(n_steps=200, n_importance=200), progress=False, seed=1,
+                                  likelihood="taylor")
     assert post.likelihood == "exact" and post.weights is None
     assert "pilot importance ESS" in post.likelihood_note and "< 50 %" in post.likelihood_note
     assert forced.likelihood == "taylor" and forced.importance_ess < 0.5 * 200  # what the pilot foresaw
+
+
+# ------------------------------------------------------------------ the options: a LogPosterior and an EnsembleChain
+def test_old_keywords_warn_and_sample_the_same_chain(planck_case):
+    """The keywords sample_posterior took before still work, each naming its new place, with the same chain."""
+    prob, basis = planck_case["prob"], planck_case["basis"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        new = sample_posterior(build_log_posterior(prob, basis=basis, bounds=(400.0, 2800.0)),
+                               chain=EnsembleChain(n_walkers=16, n_steps=30, burn=10, thin=2), seed=4, progress=False)
+        with pytest.warns(DeprecationWarning) as caught:
+            old = sample_posterior(prob, basis=basis, bounds=(400.0, 2800.0), n_walkers=16, n_steps=30, burn=10,
+                                   thin=2, seed=4, progress=False)
+    messages = [str(w.message) for w in caught if issubclass(w.category, DeprecationWarning)]
+    assert any("bounds=...) is deprecated: pass lt.build_log_posterior(problem, basis=..., bounds=...)" in m
+               for m in messages)
+    assert any("n_walkers=...) is deprecated: pass chain=lt.EnsembleChain(n_walkers=...)" in m for m in messages)
+    assert len(messages) == 5
+    np.testing.assert_array_equal(new.samples, old.samples)
+    assert (old.n_walkers, old.n_steps, old.burn, old.thin) == (16, 30, 10, 2)
+    assert new.laplace.c_map.shape == (8,)
+
+
+def test_sampling_options_refused_where_ambiguous(planck_case):
+    prob, basis = planck_case["prob"], planck_case["basis"]
+    model = build_log_posterior(prob, basis=basis)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'n_walker'"):
+        sample_posterior(prob, basis=basis, n_walker=16)
+    with pytest.raises(ValueError, match="n_steps set twice: by chain="):
+        sample_posterior(prob, basis=basis, chain=EnsembleChain(), n_steps=10)
+    with pytest.raises(ValueError, match="bounds given next to a LogPosterior"):
+        sample_posterior(model, bounds=(300.0, 3000.0))
+    with pytest.raises(ValueError, match="basis differs from the LogPosterior's basis"):
+        sample_posterior(model, basis=DCTBasis(basis.grid, (2, 2, 2)))
+    with pytest.raises(ValueError, match="basis is required"):
+        sample_posterior(prob)
+    with pytest.raises(ValueError, match="chain must be an lt.EnsembleChain, got dict"):
+        sample_posterior(prob, basis=basis, chain={"n_steps": 10})
+    with pytest.raises(ValueError, match="init_scale must be"):
+        EnsembleChain(init_scale=0.0)
+    with pytest.raises(ValueError, match="strict must be True or False"):
+        EnsembleChain(strict="yes")
+    with pytest.raises(ValueError, match="already defines the posterior"):
+        laplace_approximation(model, prior_std=3.0)
+    assert EnsembleChain(n_steps=40).burn_steps == 10 and EnsembleChain(n_steps=40, burn=3).burn_steps == 3
+
+
+def test_laplace_of_a_log_posterior_equals_that_of_its_problem(linear_case):
+    a = laplace_approximation(linear_case["prob"], **linear_case["kw"])
+    b = laplace_approximation(build_log_posterior(linear_case["prob"], **linear_case["kw"]))
+    np.testing.assert_allclose(b.c_map, a.c_map, rtol=1e-12)
+    np.testing.assert_allclose(b.cov, a.cov, rtol=1e-10)

@@ -1,0 +1,149 @@
+"""How :func:`lftomo.sample_posterior` runs emcee's ensemble, as one object.
+
+The posterior itself is defined once, by :func:`lftomo.inverse.posterior.build_log_posterior`
+(data channels, basis, priors, bounds, emission); how it is sampled is an
+:class:`EnsembleChain` (walkers, steps, burn-in, thinning, moves, importance samples).  The
+keywords :func:`~lftomo.inverse.posterior.sample_posterior` took for both before still work,
+each with a DeprecationWarning naming where it lives now (:func:`moved_sampling_options`).
+
+References
+----------
+Goodman, J. & Weare, J. (2010). Ensemble samplers with affine invariance. *Commun. Appl.
+Math. Comput. Sci.* 5, 65–80.
+Foreman-Mackey, D., Hogg, D. W., Lang, D. & Goodman, J. (2013). emcee: the MCMC hammer.
+*PASP* 125, 306–312.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, fields
+from typing import Any
+
+from .._validate import require_int, require_positive
+
+__all__ = ["EnsembleChain", "DEFINITION_KEYWORDS", "moved_sampling_options"]
+
+#: The posterior's definition, set by :func:`~lftomo.inverse.posterior.build_log_posterior`.
+DEFINITION_KEYWORDS = ("prior_mean", "prior_std", "prior", "regularization", "L", "T_scale", "T_ref", "bounds",
+                       "emission", "dense_max")
+
+
+@dataclass(frozen=True)
+class EnsembleChain:
+    """How the affine-invariant ensemble runs (Goodman & Weare 2010, with emcee).
+
+    Parameters
+    ----------
+    n_walkers : int, optional
+        Walkers, >= 2 K for K coefficients; default ``2 · max(K + 1, 8)``.
+    n_steps : int
+        Steps per walker including burn-in, >= 2.
+    burn : int, optional
+        Steps discarded as burn-in, < ``n_steps``; default ``n_steps // 4``.
+    thin : int
+        Keep every ``thin``-th step, >= 1.
+    init_scale : float
+        Size of the walkers' starting ball relative to the Laplace covariance, > 0:
+        walkers start at ``c_start + init_scale · chol(cov) z``.
+    moves : emcee move(s), optional
+        Passed to :class:`emcee.EnsembleSampler`.  Default: the mixture
+        ``[(DEMove(), 0.8), (StretchMove(), 0.2)]`` (docs/accuracy.md, *Posterior sampler moves*).
+    n_importance : int
+        With the Taylor likelihood: thinned samples given exact log-posteriors and
+        importance weights, >= 10.
+    strict : bool
+        Raise :class:`~lftomo.inverse.posterior.ConvergenceError` instead of warning when the
+        chain after burn-in is shorter than 50 integrated autocorrelation times, or the
+        importance ESS is low.
+    max_field_elements : float
+        Memory cap (number of floats) of the temperature-field samples used for the
+        per-voxel quantiles, > 0.
+
+    Raises
+    ------
+    ValueError
+        A value outside the ranges above (the check against K is made when sampling).
+    """
+
+    n_walkers: int | None = None
+    n_steps: int = 2000
+    burn: int | None = None
+    thin: int = 1
+    init_scale: float = 0.1
+    moves: Any = None
+    n_importance: int = 2000
+    strict: bool = False
+    max_field_elements: float = 2e7
+
+    def __post_init__(self) -> None:
+        if self.n_walkers is not None:
+            require_int("n_walkers", self.n_walkers, minimum=2)
+        n_steps = require_int("n_steps", self.n_steps, minimum=2)
+        if self.burn is not None and require_int("burn", self.burn, minimum=0) >= n_steps:
+            raise ValueError(f"burn must be < n_steps = {n_steps}, got {self.burn}")
+        require_int("thin", self.thin, minimum=1)
+        require_positive("init_scale", self.init_scale)
+        require_int("n_importance", self.n_importance, minimum=10)
+        require_positive("max_field_elements", self.max_field_elements)
+        if not isinstance(self.strict, bool):
+            raise ValueError(f"strict must be True or False, got {self.strict!r}")
+
+    @property
+    def burn_steps(self) -> int:
+        """Burn-in actually discarded: ``burn``, or ``n_steps // 4`` when it is None."""
+        return self.n_steps // 4 if self.burn is None else int(self.burn)
+
+
+_CHAIN_FIELDS = tuple(f.name for f in fields(EnsembleChain))
+
+
+def moved_sampling_options(given: dict[str, Any], chain: EnsembleChain | None,
+                           definition_allowed: bool) -> tuple[EnsembleChain, dict[str, Any]]:
+    """The chain and the posterior-definition keywords among the keywords ``given`` to
+    :func:`~lftomo.inverse.posterior.sample_posterior` beyond its own arguments, each with a
+    DeprecationWarning that names where it lives now.
+
+    Parameters
+    ----------
+    given : dict
+        The extra keywords.
+    chain : EnsembleChain or None
+        The ``chain`` argument; a chain keyword next to it is refused.
+    definition_allowed : bool
+        False when the posterior is already a :class:`~lftomo.inverse.posterior.LogPosterior`:
+        its definition cannot be changed by keywords.
+
+    Returns
+    -------
+    (EnsembleChain, dict)
+        The chain (``chain``, or one built from the moved keywords, or the default) and the
+        definition keywords for ``build_log_posterior``.
+
+    Raises
+    ------
+    TypeError
+        A keyword ``sample_posterior`` never took.
+    ValueError
+        A chain keyword next to ``chain=``, or a definition keyword next to a LogPosterior.
+    """
+    unknown = sorted(set(given) - set(_CHAIN_FIELDS) - set(DEFINITION_KEYWORDS))
+    if unknown:
+        raise TypeError(f"sample_posterior() got an unexpected keyword argument {unknown[0]!r}")
+    if chain is not None and not isinstance(chain, EnsembleChain):
+        raise ValueError(f"chain must be an lt.EnsembleChain, got {type(chain).__name__}")
+    moved_chain = {k: v for k, v in given.items() if k in _CHAIN_FIELDS}
+    definition = {k: v for k, v in given.items() if k in DEFINITION_KEYWORDS}
+    if moved_chain and chain is not None:
+        raise ValueError(f"{', '.join(moved_chain)} set twice: by chain={chain!r} and as keywords; give it one way")
+    if definition and not definition_allowed:
+        raise ValueError(f"{', '.join(definition)} given next to a LogPosterior, which already defines the "
+                         "posterior; pass them to lt.build_log_posterior instead")
+    for name in moved_chain:
+        warnings.warn(f"sample_posterior({name}=...) is deprecated: pass chain=lt.EnsembleChain({name}=...)",
+                      DeprecationWarning, stacklevel=3)
+    for name in definition:
+        warnings.warn(f"sample_posterior({name}=...) is deprecated: pass lt.build_log_posterior(problem, "
+                      f"basis=..., {name}=...) as the posterior", DeprecationWarning, stacklevel=3)
+    chain = EnsembleChain(**moved_chain) if moved_chain else (chain or EnsembleChain())
+    return chain, definition
