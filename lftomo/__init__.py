@@ -24,12 +24,13 @@ from .inverse.problem import LinearProblem
 from .inverse.reconstruct import Reconstruction, reconstruct
 from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.regularizers import Prior, GradientPrior, LaplacianPrior, CurvaturePrior, TotalVariationPrior
-from .inverse.lambdarules import LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, LCurveDecades, Fixed
+from .inverse.lambdarules import (LambdaRule, Discrepancy, DiscrepancyBracket, GCV, LCurve, LCurveDecades, Fixed,
+                                  Evidence)
 from .inverse.unknowns import Unknowns, Temperature, TemperatureAbsorption
 from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, DenseLM, AutoSolver
 from .inverse.posterior import Posterior, build_log_posterior, sample_posterior, laplace_approximation
 from .inverse.ensemble import EnsembleChain
-from .inverse.fieldposterior import FieldPosterior, laplace_posterior
+from .inverse.fieldposterior import FieldPosterior, LaplaceCovariance, laplace_posterior
 from .inverse.design import Design, design, compare_designs, design_table, rig_around, standard_configurations
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 from .inverse.subvoxel import interpolate_field, interpolation_matrix
@@ -119,6 +120,8 @@ __all__ = [
     "laplace_approximation",
     "FieldPosterior",
     "laplace_posterior",
+    "LaplaceCovariance",
+    "Evidence",
     "Design",
     "design",
     "compare_designs",

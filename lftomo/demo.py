@@ -778,7 +778,7 @@ def _demo_field_posterior(d: _DemoRun) -> None:
 
     coarse, T_eff, rec = d.r["coarse"], d.r["T_eff"], d.r["rec"]
     with d.st("field_posterior", "posterior of the whole field: Laplace, lambda by evidence"):
-        fpost = lt.laplace_posterior(d.r["problem"], regularization="evidence", lambda0=rec.regularization, T0=rec.T,
+        fpost = lt.laplace_posterior(d.r["problem"], rule=lt.Evidence(lambda0=rec.regularization), T0=rec.T,
                                      prior=DEFAULT_PRIOR, bounds=BOUNDS, seed=d.cfg["seeds"]["posterior"],
                                      progress=d.progress, **d.opts)
     d.r["fpost"] = fpost
@@ -1341,8 +1341,8 @@ def _reconstruct_posterior(problem, rec, inp: _ReconstructInputs, *, basis_name,
     if basis_name == "field":
         if prior == "tv":
             raise LftomoError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
-        post = lt.laplace_posterior(problem, regularization="evidence", prior=prior, bounds=tuple(bounds),
-                                    lambda0=rec.regularization, seed=inp.posterior_seed, max_steps=max_steps,
+        post = lt.laplace_posterior(problem, rule=lt.Evidence(lambda0=rec.regularization), prior=prior,
+                                    bounds=tuple(bounds), seed=inp.posterior_seed, max_steps=max_steps,
                                     symmetry=symmetry)
         metrics = {"basis": "field", **post.summary()}
         if inp.T_true is not None:

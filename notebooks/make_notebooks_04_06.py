@@ -1209,7 +1209,7 @@ NB06 = [
     code(
         """
         t0 = time.perf_counter()
-        fpost = lt.laplace_posterior(problem_mc, regularization="evidence")
+        fpost = lt.laplace_posterior(problem_mc, rule=lt.Evidence())
         ev = fpost.evidence
         print(f"laplace_posterior: {time.perf_counter() - t0:.1f} s ({fpost.method}), converged {ev['converged']}")
         print(f"{'lambda':>10s} {'gamma':>7s} {'log-evidence':>14s} {'chi2/m':>7s}")

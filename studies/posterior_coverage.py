@@ -56,8 +56,9 @@ def draw_row(d, lf, W, W_post, a, ctx):
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")
     t = time.perf_counter()
     if a.laplace_field:
-        reg = a.regularization if a.regularization in ("evidence", "auto") else float(a.regularization)
-        post = lt.laplace_posterior(m, W_post, regularization=reg, method=a.method, n_samples=a.samples,
+        rule = a.regularization if a.regularization in ("evidence", "auto") else lt.Fixed(float(a.regularization))
+        post = lt.laplace_posterior(m, W_post, rule=rule,
+                                    covariance=lt.LaplaceCovariance(method=a.method, n_samples=a.samples),
                                     seed=400 + d, prior=a.prior,
                                     symmetry=None if a.symmetry == "none" else a.symmetry, **sub)
         row = {"draw": d, "coverage_hot": post.coverage(T_true), "n_hot": int(hot.sum()),

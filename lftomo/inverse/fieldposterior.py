@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +63,7 @@ from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
+from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
 from .solvers import temperature_fit
 from .symmetry import resolve_symmetry, ring_problem, ring_start
@@ -340,27 +342,66 @@ def _sampled_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, n_samples: i
                   logdet=float("nan"), deltas=X.T.copy(), cg_iterations=iters)
 
 
+@dataclass(frozen=True)
+class LaplaceCovariance:
+    """How :func:`laplace_posterior` evaluates the posterior covariance ``H⁻¹`` at a given λ.
+
+    Parameters
+    ----------
+    method : {"auto", "dense", "sampled"}
+        ``"dense"``: Cholesky factor of ``H`` (exact variances, trace and log det);
+        ``"sampled"``: ``n_samples`` perturbation-optimisation draws solved by block
+        conjugate gradients (module docstring); ``"auto"``: dense when the unknowns
+        number at most ``dense_max``.
+    dense_max : int
+        Largest number of unknowns (voxels, or ring cells) for the dense method, >= 1
+        (memory 8 n² bytes).
+    n_samples : int
+        Draws for the sampled method's variances, >= 8 (relative std √(2/K)).
+    cg_rtol : float
+        Block conjugate-gradient tolerance (relative residual per draw), > 0.
+    cg_max_iter : int
+        Block conjugate-gradient iteration cap, >= 1.
+    """
+
+    method: str = "auto"
+    dense_max: int = 4096
+    n_samples: int = 64
+    cg_rtol: float = 1e-3
+    cg_max_iter: int = 5000
+
+    def __post_init__(self) -> None:
+        if self.method not in _METHODS:
+            raise ValueError(f"method must be one of {_METHODS}, got {self.method!r}")
+        require_int("dense_max", self.dense_max, minimum=1)
+        require_int("n_samples", self.n_samples, minimum=8)
+        require_positive("cg_rtol", self.cg_rtol)
+        require_int("cg_max_iter", self.cg_max_iter, minimum=1)
+
+
+#: Keywords :func:`laplace_posterior` took before its options moved onto objects, and where each lives now.
+POSTERIOR_MOVED: dict[str, str] = {
+    "regularization": "rule=lt.Evidence(), lt.Fixed(λ) or lt.Discrepancy() (the reconstruction's rule)",
+    **{k: f"rule=lt.Evidence({new}=...)" for k, new in (("lambda0", "lambda0"), ("max_iter", "max_iter"),
+                                                          ("lambda_rtol", "rtol"), ("trace_samples", "trace_samples"))},
+    **{k: f"covariance=lt.LaplaceCovariance({k}=...)" for k in ("method", "dense_max", "n_samples", "cg_rtol",
+                                                                "cg_max_iter")},
+}
+
+
 def laplace_posterior(
     measurement,
     weights=None,
     *,
-    regularization: str | float = "evidence",
-    prior: str = "gradient",
+    prior: Any = "gradient",
+    rule: Any = None,
+    covariance: LaplaceCovariance | None = None,
     bounds: tuple[float, float] = (300.0, 3000.0),
     credible_level: float = 0.9,
-    method: str = "auto",
-    dense_max: int = 4096,
-    n_samples: int = 64,
-    lambda0: float | None = None,
-    max_iter: int = 12,
-    lambda_rtol: float = 0.05,
-    trace_samples: int = 16,
-    cg_rtol: float = 1e-3,
-    cg_max_iter: int = 5000,
-    seed: int | None = 0,
-    progress: bool = False,
     symmetry: Any = None,
     grid: Any = None,
+    seed: int | None = 0,
+    progress: bool = False,
     **options: Any,
 ) -> FieldPosterior:
     """Full-grid Laplace posterior of the temperature field (T only, known ``sigma_a``).
@@ -372,56 +413,40 @@ def laplace_posterior(
         (then ``weights`` must be None).
     weights : WeightMatrix, optional
         Forward model on the reconstruction grid (as for :func:`lftomo.reconstruct`).
-    regularization : "evidence", "auto" or float, keyword-only
-        λ of the smoothness prior: ``"evidence"`` (default) iterates MacKay's
-        fixed point ``λ = γ / ‖L T̂/T_s‖²`` to the maximum of the Laplace
-        evidence; ``"auto"`` takes the reconstruction's own rule (the
-        discrepancy principle by default, a point-estimate rule: its intervals
-        are typically too narrow); a float fixes λ.
-    prior : {"gradient", "laplacian", "curvature"}, keyword-only
-        Quadratic smoothness prior (TV has no Gaussian posterior).
+    prior : {"gradient", "laplacian", "curvature"} or Prior, keyword-only
+        Quadratic smoothness prior (TV has no Gaussian posterior).  Default the
+        gradient prior, whose intervals' coverage was measured (docs/accuracy.md).
+    rule : LambdaRule, optional, keyword-only
+        λ of the smoothness prior: :class:`~lftomo.inverse.lambdarules.Evidence`
+        (default: the maximum of the Laplace evidence), :class:`~lftomo.inverse.lambdarules.Fixed`,
+        or a reconstruction rule (``lt.Discrepancy()``, ``lt.GCV()``, … or its name; ``"auto"``:
+        the reconstruction's default rule: point-estimate rules, whose intervals are typically
+        too narrow).
+    covariance : LaplaceCovariance, optional, keyword-only
+        Dense or sampled evaluation of the covariance, and its settings; default
+        ``LaplaceCovariance()``.
     bounds : (T_min, T_max), keyword-only
         Reconstruction bounds (K); ``T_max − T_min`` scales the prior.
     credible_level : float in (0, 1), keyword-only
-    method : {"auto", "dense", "sampled"}, keyword-only
-        ``"auto"``: dense when the grid has at most ``dense_max`` voxels.
-    dense_max : int, keyword-only
-        Largest voxel count for the dense method (memory 8 n² bytes).
-    n_samples : int ≥ 8, keyword-only
-        Draws for the sampled method's variances (relative std √(2/K)).
-    trace_samples : int ≥ 4, keyword-only
-        Draws for ``tr(H⁻¹M)`` in the evidence iterations of the sampled
-        method (the trace sums over all voxels: its relative standard error is
-        ~0.2 % with 16 draws at 24³); the variances at the final λ use
-        ``n_samples`` draws.
-    lambda0 : float, optional, keyword-only
-        Start of the evidence iteration; default the discrepancy λ.
-    max_iter : int, keyword-only
-        Evidence iterations (each is one warm-started reconstruction).
-    lambda_rtol : float, keyword-only
-        Stop when the fixed point moves λ by less than this fraction (or by
-        less than twice its own sampling noise, for the sampled method).
-    cg_rtol, cg_max_iter : float, int, keyword-only
-        Block conjugate-gradient tolerance (relative residual per draw) and
-        cap (sampled method).  With 1e-3 the standard deviations differ from
-        those of a 1e-8 solve of the same draws by ≤ 1 % (12³ flame study),
-        against a sampling error of √(1/2K) ≈ 9 % for K = 64.
-    seed : int or None, keyword-only
-        Seed of the sampled method's draws.
-    progress : bool, keyword-only
-        Print one line per evidence iteration, and show the reconstructions' progress bars.
     symmetry : None, "axisymmetric" or RingGrid, keyword-only
         Posterior of an axisymmetric field (as in :func:`lftomo.reconstruct`):
         the unknowns are the ring cells, the prior the voxel grid's restricted
         to axisymmetric fields, and the fields are returned on the voxel grid.
-        ``dense_max`` then counts ring cells.
+        ``covariance.dense_max`` then counts ring cells.
     grid : Grid, optional, keyword-only
         Reconstruction grid coarser than the weights' (sub-voxel emission, as
         in :func:`lftomo.reconstruct`); default the weights' grid.
+    seed : int or None, keyword-only
+        Seed of the sampled covariance's draws.
+    progress : bool, keyword-only
+        Print one line per evidence iteration, and show the reconstructions' progress bars.
     **options
         Passed to :func:`lftomo.inverse.solvers.temperature_fit` (e.g. ``linear_max_steps``);
-        ``T0`` starts the first reconstruction (e.g. a reconstruction at
-        ``lambda0`` already made).
+        ``T0`` starts the first reconstruction (e.g. a reconstruction at the evidence
+        rule's ``lambda0`` already made).  The keywords this function took before
+        (``regularization``, ``lambda0``, ``max_iter``, ``lambda_rtol``, ``trace_samples``,
+        ``method``, ``dense_max``, ``n_samples``, ``cg_rtol``, ``cg_max_iter``) still work,
+        each with a DeprecationWarning naming its object (:data:`POSTERIOR_MOVED`).
 
     Returns
     -------
@@ -433,10 +458,9 @@ def laplace_posterior(
         For a bad argument (before any solve).
     """
     t_start = time.perf_counter()
-    prior, regularization, bounds, lam_opts = _check_posterior_options(
-        measurement, prior=prior, method=method, credible_level=credible_level, regularization=regularization,
-        bounds=bounds, options=options, dense_max=dense_max, n_samples=n_samples, trace_samples=trace_samples,
-        max_iter=max_iter, cg_max_iter=cg_max_iter, lambda_rtol=lambda_rtol, cg_rtol=cg_rtol, lambda0=lambda0)
+    prior, bounds, rule, cov, options = _posterior_options(
+        measurement, prior=prior, rule=rule, covariance=covariance, credible_level=credible_level, bounds=bounds,
+        options=options)
     if isinstance(measurement, LinearProblem):
         if weights is not None:
             raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
@@ -449,66 +473,101 @@ def laplace_posterior(
     if ring is not None:
         problem = ring_problem(problem, ring)
     grid = problem.grid
+    method = cov.method
     if method == "auto":
-        method = "dense" if grid.n_voxels <= lam_opts["dense_max"] else "sampled"
+        method = "dense" if grid.n_voxels <= cov.dense_max else "sampled"
     T_start = options.pop("T0", None)
     # the solves show their bars only when asked (lftomo demo --quiet printed them)
     run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": bool(progress)},
-                        method=method, n_samples=lam_opts["n_samples"], rng=np.random.default_rng(seed),
-                        cg_rtol=lam_opts["cg_rtol"], cg_max_iter=lam_opts["cg_max_iter"])
+                        method=method, n_samples=cov.n_samples, rng=np.random.default_rng(seed),
+                        cg_rtol=cov.cg_rtol, cg_max_iter=cov.cg_max_iter)
     if ring is not None:
         T_start = ring_start(T_start, ring)
 
     evidence = None
-    if regularization == "evidence":
+    if isinstance(rule, Evidence):
         rec, lam, st, evidence = _evidence_iterations(
-            run, T_start, lambda0=lam_opts["lambda0"], max_iter=lam_opts["max_iter"],
-            lambda_rtol=lam_opts["lambda_rtol"], trace_samples=lam_opts["trace_samples"], progress=progress)
-        rule = "evidence"
+            run, T_start, lambda0=rule.lambda0, max_iter=rule.max_iter, lambda_rtol=rule.rtol,
+            trace_samples=rule.trace_samples, progress=progress)
+        rule_name = "evidence"
         if method == "sampled":  # the variances at the final λ, with the full number of draws
             st = run.stats_at(rec.T, lam)
     else:
-        rec = run.solve(regularization, T_start)
+        rec = run.solve(rule.value if isinstance(rule, Fixed) else "auto", T_start)
         lam = rec.regularization
         st = run.stats_at(rec.T, lam)
-        rule = rec.lambda_choice.rule if regularization == "auto" else "fixed"
-    return _field_posterior(rec, st, lam, rule=rule, method=method, n_samples=lam_opts["n_samples"],
+        rule_name = "fixed" if isinstance(rule, Fixed) else rec.lambda_choice.rule
+    return _field_posterior(rec, st, lam, rule=rule_name, method=method, n_samples=cov.n_samples,
                             credible_level=credible_level, grid=grid, ring=ring, evidence=evidence, clock=run.clock,
                             t_start=t_start)
 
 
-def _check_posterior_options(measurement, *, prior, method, credible_level, regularization, bounds, options,
-                             dense_max, n_samples, trace_samples, max_iter, cg_max_iter, lambda_rtol, cg_rtol,
-                             lambda0) -> tuple[str, Any, tuple[float, float], dict]:
-    """The checked options of :func:`laplace_posterior` (ValueError naming the argument otherwise):
-    ``(prior name, regularization, bounds, {"dense_max", "n_samples", "trace_samples", "max_iter", "cg_max_iter",
-    "lambda_rtol", "cg_rtol", "lambda0"})``."""
+def _posterior_options(measurement, *, prior, rule, covariance, credible_level, bounds, options):
+    """The checked options of :func:`laplace_posterior` (ValueError naming the argument otherwise), the
+    keywords it took before folded into their objects (with a DeprecationWarning each):
+    ``(prior name, bounds, rule object, LaplaceCovariance, options for the reconstructions)``."""
     prior = resolve_prior(prior, quadratic_only=True, where="laplace_posterior (a Gaussian prior)").name
-    if method not in _METHODS:
-        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     if not (isinstance(credible_level, (int, float)) and 0.0 < float(credible_level) < 1.0):
         raise ValueError(f"credible_level must be in (0, 1), got {credible_level!r}")
-    if isinstance(regularization, str):
-        if regularization not in ("evidence", "auto"):
-            raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {regularization!r}")
-    else:
-        regularization = require_positive("regularization", regularization)
     bounds = require_bounds(bounds)
     if options.get("penalize", "temperature") != "temperature":
         raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
     if isinstance(measurement, (list, tuple)):
         raise ValueError("laplace_posterior takes one Measurement (one wavelength channel)")
-    checked = {
-        "dense_max": require_int("dense_max", dense_max, minimum=1),
-        "n_samples": require_int("n_samples", n_samples, minimum=8),
-        "trace_samples": require_int("trace_samples", trace_samples, minimum=4),
-        "max_iter": require_int("max_iter", max_iter, minimum=1),
-        "cg_max_iter": require_int("cg_max_iter", cg_max_iter, minimum=1),
-        "lambda_rtol": require_positive("lambda_rtol", lambda_rtol),
-        "cg_rtol": require_positive("cg_rtol", cg_rtol),
-        "lambda0": None if lambda0 is None else require_positive("lambda0", lambda0),
-    }
-    return prior, regularization, bounds, checked
+    options = dict(options)
+    moved = {k: options.pop(k) for k in list(options) if k in POSTERIOR_MOVED}
+    for name in moved:
+        warnings.warn(f"laplace_posterior({name}=...) is deprecated: pass {POSTERIOR_MOVED[name]}",
+                      DeprecationWarning, stacklevel=3)
+    cov_kw = {k: moved.pop(k) for k in ("method", "dense_max", "n_samples", "cg_rtol", "cg_max_iter") if k in moved}
+    if cov_kw and covariance is not None:
+        raise ValueError(f"{', '.join(cov_kw)} set twice: by covariance={covariance!r} and as keywords; "
+                         "give it one way")
+    if covariance is not None and not isinstance(covariance, LaplaceCovariance):
+        raise ValueError(f"covariance must be an lt.LaplaceCovariance, got {type(covariance).__name__}")
+    cov = LaplaceCovariance(**cov_kw) if cov_kw else (covariance or LaplaceCovariance())
+    if moved and rule is not None:
+        raise ValueError(f"{', '.join(moved)} set twice: by rule={rule!r} and as keywords; give it one way")
+    rule = _moved_rule(moved) if moved else rule
+    rule, options = _posterior_rule(rule, options)
+    return prior, bounds, rule, cov, options
+
+
+def _moved_rule(moved: dict[str, Any]) -> Any:
+    """The rule object that the old keywords (``regularization``, ``lambda0``, ``max_iter``, ``lambda_rtol``,
+    ``trace_samples``) selected."""
+    reg = moved.pop("regularization", "evidence")
+    evidence_kw = {new: moved[old] for old, new in (("lambda0", "lambda0"), ("max_iter", "max_iter"),
+                                                    ("lambda_rtol", "rtol"), ("trace_samples", "trace_samples"))
+                   if old in moved}
+    if isinstance(reg, str) and reg not in ("evidence", "auto"):
+        raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {reg!r}")
+    if reg == "evidence":
+        return Evidence(**evidence_kw)
+    if evidence_kw:
+        raise ValueError(f"{', '.join(evidence_kw)} belong to the evidence rule, not regularization={reg!r}")
+    return "auto" if reg == "auto" else Fixed(require_positive("regularization", reg))
+
+
+def _posterior_rule(rule: Any, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """``(rule object, options)``: Evidence (the default), Fixed, or a reconstruction rule folded into the
+    reconstructions' keywords (its object then stays only as the marker that the reconstruction chooses λ)."""
+    if rule is None:
+        return Evidence(), options
+    if isinstance(rule, (Evidence, Fixed)):
+        return rule, options
+    if isinstance(rule, str):
+        if rule in ("evidence", "auto"):  # "auto": the reconstruction's own rule, with its keywords in options
+            return (Evidence() if rule == "evidence" else rule), options
+        rule = resolve_rule(rule, fit="T")()
+    if not isinstance(rule, LambdaRule) or "T" not in rule.fits:
+        raise ValueError(f"rule must be lt.Evidence(), lt.Fixed(λ) or a T-only reconstruction rule "
+                         f"(lt.Discrepancy(), lt.GCV(), lt.LCurve() or their names), got {rule!r}")
+    kw = rule.keywords()
+    twice = sorted(set(kw) & set(options))
+    if twice:
+        raise ValueError(f"{', '.join(twice)} set twice: by rule={rule!r} and as keywords; give it one way")
+    return rule, {**options, **kw}
 
 
 class _PosteriorRun:

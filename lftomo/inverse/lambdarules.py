@@ -47,7 +47,7 @@ from typing import Any, Protocol
 import jax.numpy as jnp
 import numpy as np
 
-from .._validate import require_choice
+from .._validate import require_choice, require_int, require_positive
 
 __all__ = [
     "Eval",
@@ -60,6 +60,7 @@ __all__ = [
     "GCV",
     "LCurve",
     "LCurveDecades",
+    "Evidence",
     "RULE_CLASSES",
     "NOISE_SCALES",
     "BRACKET_SEARCHES",
@@ -1154,6 +1155,44 @@ class LCurve(LambdaRule):
 
     def choose(self, path: Any, theta0: Any, lam_ref: float):
         return lcurve_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda)
+
+
+class Evidence(LambdaRule):
+    """λ at the maximum of the Laplace evidence: MacKay's fixed point ``λ = γ / ‖L T̂ / T_s‖²``,
+    ``γ = r − λ tr(H⁻¹ Lₛᵀ Lₛ)`` the number of well-determined directions (r the prior's rank), each
+    step a warm-started reconstruction.  It needs the posterior's Hessian, so it runs in
+    :func:`lftomo.laplace_posterior` (its default rule), not in :func:`lftomo.reconstruct`.
+
+    Parameters
+    ----------
+    lambda0 : float, optional
+        Start of the iteration, > 0; default the discrepancy rule's λ.
+    max_iter : int
+        Iterations, >= 1 (each one reconstruction).
+    rtol : float
+        Stop when a step would move λ by less than this fraction (or by less than twice
+        its own sampling noise, for the sampled covariance), > 0.
+    trace_samples : int
+        Random probes for ``tr(H⁻¹ Lₛᵀ Lₛ)`` in the iterations of the sampled covariance, >= 4.
+
+    References
+    ----------
+    MacKay, D. J. C. (1992). Bayesian interpolation. *Neural Computation* 4, 415–447.
+    """
+
+    name = "evidence"
+    fits = ("laplace_posterior",)
+
+    def __init__(self, lambda0: float | None = None, max_iter: int = 12, rtol: float = 0.05,
+                 trace_samples: int = 16) -> None:
+        self.lambda0 = None if lambda0 is None else require_positive("lambda0", lambda0)
+        self.max_iter = require_int("max_iter", max_iter, minimum=1)
+        self.rtol = require_positive("rtol", rtol)
+        self.trace_samples = require_int("trace_samples", trace_samples, minimum=4)
+
+    def keywords(self) -> dict[str, Any]:
+        return {"lambda0": self.lambda0, "max_iter": self.max_iter, "lambda_rtol": self.rtol,
+                "trace_samples": self.trace_samples}
 
 
 class LCurveDecades(LambdaRule):

@@ -47,7 +47,7 @@ def test_dense_std_equals_independent_gauss_newton_inverse(case):
     """diag(H⁻¹) with J by central differences of A·planck(T) and an explicit inverse."""
     problem, _ = case
     lam = 30.0
-    post = laplace_posterior(problem, regularization=lam, method="dense")
+    post = laplace_posterior(problem, rule=lt.Fixed(lam), covariance=lt.LaplaceCovariance(method="dense"))
     T = post.T_mean.ravel()
     h = 1e-5 * T  # central-difference truncation ~ (h/T)² (c2/λT)² / 6 ≈ 2e-9
     J = np.empty((problem.A.shape[0], T.size))
@@ -69,8 +69,9 @@ def test_sampled_variance_and_trace_within_monte_carlo_error(case):
     trace estimate within 4.5 of its own standard errors of the exact tr(H⁻¹M)."""
     problem, _ = case
     lam, K = 30.0, 400
-    dense = laplace_posterior(problem, regularization=lam, method="dense")
-    samp = laplace_posterior(problem, regularization=lam, method="sampled", n_samples=K, seed=7, cg_rtol=1e-8)
+    dense = laplace_posterior(problem, rule=lt.Fixed(lam), covariance=lt.LaplaceCovariance(method="dense"))
+    samp = laplace_posterior(problem, rule=lt.Fixed(lam), seed=7,
+                             covariance=lt.LaplaceCovariance(method="sampled", n_samples=K, cg_rtol=1e-8))
     np.testing.assert_array_equal(samp.T_mean, dense.T_mean)
     ratio = (samp.T_std / dense.T_std) ** 2
     assert np.max(np.abs(ratio - 1.0)) <= 4.5 * math.sqrt(2.0 / K)
@@ -106,7 +107,7 @@ def _log_evidence(problem, lam, T0):
 def test_evidence_fixed_point_is_the_evidence_maximum(case):
     """MacKay's fixed point lands on the maximum of the Laplace evidence, computed directly at λ/2 and 2λ."""
     problem, _ = case
-    post = laplace_posterior(problem, regularization="evidence", method="dense", lambda0=100.0)
+    post = laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0), covariance=lt.LaplaceCovariance(method="dense"))
     ev = post.evidence
     assert post.lambda_rule == "evidence" and ev["converged"] and ev["rank"] == problem.grid.n_voxels - 1
     lam = post.regularization
@@ -121,8 +122,9 @@ def test_sampled_evidence_lands_where_the_dense_one_does(case):
     Each stops within max(5 %, twice the step's noise) of its fixed point, and the sampled fixed point
     is off by the trace's error: noise = λ·SE(trace)/γ in log λ; allow both stops plus 4 noise."""
     problem, _ = case
-    dense = laplace_posterior(problem, method="dense", lambda0=100.0)
-    samp = laplace_posterior(problem, method="sampled", lambda0=100.0, seed=3)
+    dense = laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0), covariance=lt.LaplaceCovariance(method="dense"))
+    samp = laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0), covariance=lt.LaplaceCovariance(method="sampled"),
+                             seed=3)
     ev = samp.evidence
     assert ev["converged"] and samp.method == "sampled" and samp.n_samples == 64
     noise = ev["lambda"][-1] * ev["trace_se"][-1] / ev["gamma"][-1]
@@ -150,7 +152,7 @@ def test_evidence_recovers_the_prior_and_is_calibrated():
     T = _prior_draw(grid, lam_true, rng)
     assert 900.0 < T.min() and T.max() < 2600.0
     problem = planck_problem(grid, T, 0.01, seed=5)
-    post = laplace_posterior(problem, regularization="evidence", method="dense")
+    post = laplace_posterior(problem, covariance=lt.LaplaceCovariance(method="dense"))
     gamma = post.evidence["gamma"][-1]
     assert abs(math.log(post.regularization / lam_true)) <= 4.0 * math.sqrt(2.0 / gamma)
     J, Ls = precision_factors(problem, post.T_mean)
@@ -167,11 +169,11 @@ def test_evidence_recovers_the_prior_and_is_calibrated():
     "kw, match",
     [
         ({"prior": "tv"}, "prior must be one of"),
-        ({"method": "exact"}, "method must be one of"),
+        ({"covariance": {"method": "dense"}}, "covariance must be an lt.LaplaceCovariance, got dict"),
         ({"credible_level": 1.5}, "credible_level"),
-        ({"regularization": "gcv"}, "regularization must be"),
-        ({"regularization": -1.0}, "regularization"),
-        ({"n_samples": 2}, "n_samples"),
+        ({"rule": lt.DiscrepancyBracket()}, "rule must be lt.Evidence"),
+        ({"rule": "bracket"}, "rule must be one of"),
+        ({"rule": lt.GCV(), "n_lambda": 3}, "n_lambda set twice"),
         ({"bounds": (2000.0, 1000.0)}, "T_min < T_max"),
         ({"penalize": "intensity"}, "penalize"),
     ],
@@ -208,7 +210,7 @@ def test_unconstrained_voxels_raise_a_clear_error_naming_them():
     n_free = (n - 3) - np.linalg.matrix_rank(L_unseen)
     assert n_free > 0
     with pytest.raises(lt.LftomoError) as err:
-        laplace_posterior(problem, regularization=1e-3, prior="curvature", method="dense", max_steps=10)
+        laplace_posterior(problem, rule=lt.Fixed(1e-3), prior="curvature", covariance=lt.LaplaceCovariance(method="dense"), max_steps=10)
     msg = str(err.value)
     assert not isinstance(err.value, np.linalg.LinAlgError)
     assert f"{n_free} direction(s) of the field are constrained neither by the data nor by prior='curvature' " \
@@ -227,9 +229,65 @@ def test_progress_false_silences_the_reconstructions(case, monkeypatch, capsys):
 
     problem, _ = case
     monkeypatch.setattr(solvers, "PROGRESS_MIN_NNZ", 0)  # every problem is "large": bars by default
-    laplace_posterior(problem, regularization="evidence", method="dense", lambda0=100.0, max_iter=2)
+    laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0, max_iter=2), covariance=lt.LaplaceCovariance(method="dense"))
     out = capsys.readouterr()
     assert out.out == "" and out.err == "", out
-    laplace_posterior(problem, regularization="evidence", method="dense", lambda0=100.0, max_iter=2, progress=True)
+    laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0, max_iter=2), covariance=lt.LaplaceCovariance(method="dense"),
+                      progress=True)
     out = capsys.readouterr()
     assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
+
+
+def test_option_objects_refuse_bad_values():
+    for make, match in [(lambda: lt.LaplaceCovariance(method="exact"), "method must be one of"),
+                        (lambda: lt.LaplaceCovariance(n_samples=2), "n_samples"),
+                        (lambda: lt.Evidence(lambda0=-1.0), "lambda0"),
+                        (lambda: lt.Evidence(trace_samples=2), "trace_samples"),
+                        (lambda: lt.Evidence(max_iter=0), "max_iter")]:
+        with pytest.raises(ValueError, match=match):
+            make()
+
+
+@pytest.mark.parametrize("old, new", [
+    (dict(regularization="gcv"), None),
+    (dict(regularization=-1.0), None),
+    (dict(regularization=2.0, lambda0=3.0), None),
+    (dict(regularization="evidence", lambda0=100.0, max_iter=2, method="dense"),
+     dict(rule=lt.Evidence(lambda0=100.0, max_iter=2), covariance=lt.LaplaceCovariance(method="dense"))),
+    (dict(regularization=50.0, method="sampled", n_samples=16, cg_rtol=1e-6),
+     dict(rule=lt.Fixed(50.0), covariance=lt.LaplaceCovariance(method="sampled", n_samples=16, cg_rtol=1e-6))),
+    (dict(regularization="auto", method="dense"),
+     dict(rule="auto", covariance=lt.LaplaceCovariance(method="dense"))),
+])
+def test_old_keywords_warn_and_give_the_same_posterior(case, old, new):
+    """The keywords laplace_posterior took before map onto its objects (each with a DeprecationWarning
+    naming the object), or are refused as before; the posterior is the same either way."""
+    problem, _ = case
+    if new is None:
+        with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="regularization|lambda0"):
+            laplace_posterior(problem, **old)
+        return
+    with pytest.warns(DeprecationWarning) as caught:
+        a = laplace_posterior(problem, seed=1, **old)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, DeprecationWarning)]
+    assert len(msgs) == len(old) and all("laplace_posterior(" in m and "is deprecated: pass" in m for m in msgs)
+    assert any("rule=lt.Evidence(), lt.Fixed(λ)" in m for m in msgs)
+    b = laplace_posterior(problem, seed=1, **new)
+    assert (a.lambda_rule, a.method, a.regularization) == (b.lambda_rule, b.method, b.regularization)
+    np.testing.assert_array_equal(a.T_std, b.T_std)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"rule": lt.Fixed(1.0), "lambda0": 3.0}, "lambda0 set twice: by rule="),
+    ({"covariance": lt.LaplaceCovariance(), "n_samples": 16}, "n_samples set twice: by covariance="),
+])
+def test_old_keyword_next_to_its_object_is_refused(case, kw, match):
+    problem, _ = case
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=match):
+        laplace_posterior(problem, **kw)
+
+
+def test_reconstruct_refuses_the_evidence_rule(case):
+    problem, _ = case
+    with pytest.raises(ValueError, match="does not run for unknowns='T'.*laplace_posterior"):
+        lt.solve_temperature(problem, rule=lt.Evidence())

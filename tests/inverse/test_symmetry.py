@@ -155,7 +155,7 @@ def test_axisymmetric_laplace_posterior_equals_the_gauss_newton_inverse_on_rings
     grid, flame, lf, W = blob_setup
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=3), data="subaperture")
     lam, bounds = 5.0, (500.0, 2500.0)
-    post = lt.laplace_posterior(m, W, regularization=lam, bounds=bounds, symmetry="axisymmetric")
+    post = lt.laplace_posterior(m, W, rule=lt.Fixed(lam), bounds=bounds, symmetry="axisymmetric")
     rec = lt.reconstruct(m, W, rule=lt.Fixed(lam), bounds=bounds, symmetry="axisymmetric", prior="gradient")
     assert post.T_mean.shape == grid.shape and post.method == "dense"
     np.testing.assert_allclose(post.T_mean, rec.T, rtol=1e-6)
