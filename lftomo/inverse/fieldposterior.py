@@ -554,6 +554,8 @@ def _posterior_rule(rule: Any, options: dict[str, Any]) -> tuple[Any, dict[str, 
     reconstructions' keywords (its object then stays only as the marker that the reconstruction chooses λ)."""
     if rule is None:
         return Evidence(), options
+    if isinstance(rule, Fixed) and rule.value <= 0:
+        raise ValueError(f"rule=lt.Fixed({rule.value!r}): the posterior needs λ > 0 (the prior's precision)")
     if isinstance(rule, (Evidence, Fixed)):
         return rule, options
     if isinstance(rule, str):

@@ -172,6 +172,7 @@ def test_evidence_recovers_the_prior_and_is_calibrated():
         ({"covariance": {"method": "dense"}}, "covariance must be an lt.LaplaceCovariance, got dict"),
         ({"credible_level": 1.5}, "credible_level"),
         ({"rule": lt.DiscrepancyBracket()}, "rule must be lt.Evidence"),
+        ({"rule": lt.Fixed(0.0)}, r"needs λ > 0"),
         ({"rule": "bracket"}, "rule must be one of"),
         ({"rule": lt.GCV(), "n_lambda": 3}, "n_lambda set twice"),
         ({"bounds": (2000.0, 1000.0)}, "T_min < T_max"),
