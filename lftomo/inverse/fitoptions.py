@@ -22,10 +22,8 @@ from .unknowns import Unknowns
 #: condition at the box faces (docs/accuracy.md, "Defaults").
 DEFAULT_PRIOR = "curvature"
 #: The T-only discrepancy rule's noise scale when none is given: σ as given, estimated only where
-#: the given σ is too large for any λ to meet the target.  (``"estimated"`` everywhere
-#: under-regularized the focal-stack data of the standard flame into a 28 % error; where σ is
-#: overestimated it beats the L-curve corner used before on non-axisymmetric flames;
-#: docs/accuracy.md, "Defaults".)
+#: the given σ is too large for any λ to meet the target (the measurements behind the choice:
+#: docs/accuracy.md, "Defaults").
 DEFAULT_NOISE_SCALE = "given"
 
 #: Keywords that :func:`lftomo.reconstruct` took before its options moved onto objects, and where each lives now.
