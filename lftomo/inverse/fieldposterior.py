@@ -109,9 +109,9 @@ class FieldPosterior:
         posterior is expanded onto the voxel grid (``solution`` stays on the
         ring cells).
     metadata : dict
-        ``"cg_iterations"`` (of the last sampled evaluation), ``"solve_s"`` and
-        ``"posterior_s"``: seconds in the reconstructions and in the posterior
-        evaluations.
+        ``"prior"`` (the smoothness prior's name), ``"cg_iterations"`` (of the last
+        sampled evaluation), ``"solve_s"`` and ``"posterior_s"``: seconds in the
+        reconstructions and in the posterior evaluations.
     """
 
     T_mean: np.ndarray
@@ -150,6 +150,7 @@ class FieldPosterior:
         return {
             "regularization": self.regularization,
             "lambda_rule": self.lambda_rule,
+            "prior": self.metadata.get("prior"),
             "method": self.method,
             "n_samples": self.n_samples,
             "credible_level": self.credible_level,
@@ -498,8 +499,8 @@ def laplace_posterior(
         st = run.stats_at(rec.T, lam)
         rule_name = "fixed" if isinstance(rule, Fixed) else rec.lambda_choice.rule
     return _field_posterior(rec, st, lam, rule=rule_name, method=method, n_samples=cov.n_samples,
-                            credible_level=credible_level, grid=grid, ring=ring, evidence=evidence, clock=run.clock,
-                            t_start=t_start)
+                            credible_level=credible_level, grid=grid, ring=ring, evidence=evidence,
+                            metadata={"prior": prior, **run.clock}, t_start=t_start)
 
 
 def _posterior_options(measurement, *, prior, rule, covariance, credible_level, bounds, options):
@@ -638,8 +639,8 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
     return rec, lam, st, evidence
 
 
-def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_level, grid, ring, evidence, clock,
-                     t_start) -> FieldPosterior:
+def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_level, grid, ring, evidence,
+                     metadata, t_start) -> FieldPosterior:
     """The :class:`FieldPosterior` of the reconstruction ``rec`` and the statistics ``st`` (on the voxel grid)."""
     n = grid.n_voxels
     std = np.sqrt(st.var).reshape(grid.shape)
@@ -655,6 +656,6 @@ def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_
         credible_level=float(credible_level), regularization=float(lam), lambda_rule=rule, method=method,
         n_samples=0 if method == "dense" else n_samples, samples=samples, evidence=evidence, solution=rec,
         grid=grid, elapsed_s=time.perf_counter() - t_start,
-        metadata={"cg_iterations": st.cg_iterations, **clock},
+        metadata={"cg_iterations": st.cg_iterations, **metadata},
         symmetry=ring,
     )
