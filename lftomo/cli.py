@@ -627,7 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="lambda rule with --regularization auto")
     rc.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
                     help="discrepancy rule: trust the noise model's sigma (given), or only its shape and estimate "
-                         "its scale from the residual of the least-regularized fit (estimated); default given")
+                         "its scale from the residual of the least-regularized fit (estimated); default given, "
+                         "estimated with --symmetry axisymmetric")
     rc.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
                     help="smoothness prior (default curvature: second differences, free faces)")
     rc.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")

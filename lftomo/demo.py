@@ -42,7 +42,8 @@ import numpy as np
 
 from .errors import LftomoError
 from .forward.sampler import DEFAULT_SAMPLER
-from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, problem_on_grid, rule_from_names
+from .inverse.reconstruct import (DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, problem_on_grid,
+                                  rule_from_names)
 
 #: Folder inside the report folder that keeps the long stages of an unfinished run.
 RESUME_DIR = ".lftomo-resume"
@@ -690,6 +691,7 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
     err_ax = temperature_errors(rec_ax.T, T_eff, HOT)
     err_ax_core = temperature_errors(rec_ax.T, T_eff, HOT_CORE)
     d.metrics["reconstruction_axisymmetric"] = {**rec_ax.summary(), "prior": DEFAULT_PRIOR,
+                                                "noise_scale": DEFAULT_NOISE_SCALE_RINGS,
                                                 "errors_T_gt_800K": err_ax, "errors_T_gt_1400K": err_ax_core}
     fig_ax = slice_figure([("effective truth", T_eff, "T"), ("axisymmetric fit", rec_ax.T, "T"),
                            ("axisymmetric fit − truth", rec_ax.T - T_eff, "error")], coarse,
@@ -701,7 +703,9 @@ def _demo_reconstruct_axisymmetric(d: _DemoRun) -> None:
                  "the vertical axis through the box centre: every horizontal layer has one temperature per ring of "
                  "voxels at equal distance from the axis (lftomo.ring_grid; "
                  f"{rec_ax.symmetry.n_rings} rings instead of {coarse.shape[0] * coarse.shape[2]} voxels per "
-                 "layer), the same prior and λ rule. One camera sees the flame through a few-degree "
+                 "layer), the same prior; the discrepancy rule's noise scale is estimated from the residual "
+                 "(the library's default on ring cells, which are far fewer than the data). One camera sees the "
+                 "flame through a few-degree "
                  "aperture and cannot place emission in depth (section 5's error is mostly that); an "
                  "axisymmetric field has no depth to place — its depth profile at one lateral position is its "
                  "lateral profile at another, as in Abel inversion. Only for flames that are axisymmetric."),
@@ -1515,7 +1519,7 @@ def run_reconstruct(
 
     prior = DEFAULT_PRIOR if prior is None else prior  # the library's defaults, named in metrics.json
     if noise_scale is None and rule == "discrepancy" and regularization == "auto":
-        noise_scale = DEFAULT_NOISE_SCALE
+        noise_scale = DEFAULT_NOISE_SCALE_RINGS if symmetry else DEFAULT_NOISE_SCALE
     sym_text = ", axisymmetric" if symmetry else ""
     with st("reconstruct", f"reconstruct ({rule} rule, {prior} prior{sym_text})"):
         try:

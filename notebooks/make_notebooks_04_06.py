@@ -391,7 +391,8 @@ NB04 = [
         lattice's own symmetry makes these rings exact, no interpolation). The forward model is
         `W P` (`P` the 0/1 map from ring cells to voxels, exact because `I_b(P t) = P I_b(t)`),
         the prior the same smoothness term restricted to axisymmetric fields (the library's
-        default, the curvature prior), λ by the same rule. A single camera cannot place emission in depth (§4's
+        default, the curvature prior), λ by the same rule with its noise scale estimated (the library's default
+        on ring cells, which are far fewer than the data). A single camera cannot place emission in depth (§4's
         per-depth errors); an axisymmetric field has no depth to place: its depth profile at one
         lateral position is its lateral profile at another — the principle of Abel inversion.
         """

@@ -21,10 +21,15 @@ from .unknowns import Unknowns
 #: The T-only fit's prior when none is given: second differences per axis, no boundary
 #: condition at the box faces (docs/accuracy.md, "Defaults").
 DEFAULT_PRIOR = "curvature"
-#: The T-only discrepancy rule's noise scale when none is given: σ as given, estimated only where
-#: the given σ is too large for any λ to meet the target (the measurements behind the choice:
+#: The T-only discrepancy rule's noise scale when none is given, on voxels: σ as given, estimated only
+#: where the given σ is too large for any λ to meet the target (the measurements behind the choice:
 #: docs/accuracy.md, "Defaults").
 DEFAULT_NOISE_SCALE = "given"
+#: The same on axisymmetric ring cells (``symmetry="axisymmetric"``): σ trusted up to a common factor,
+#: estimated from the least-regularized fit.  Ring cells are far fewer than the data and leave no depth
+#: ambiguity for a small λ to fall into (docs/accuracy.md, "The 24³ T-only studies rerun with the
+#: stratified sampler").
+DEFAULT_NOISE_SCALE_RINGS = "estimated"
 
 #: Keywords that :func:`lftomo.reconstruct` took before its options moved onto objects, and where each lives now.
 MOVED_OPTIONS: dict[str, str] = {
@@ -98,13 +103,15 @@ def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tup
     return what, {**options, **what.keywords()}
 
 
-def temperature_defaults(*, regularization: Any, prior: Any, rule: Any, options: dict[str, Any]) -> dict[str, Any]:
+def temperature_defaults(*, regularization: Any, prior: Any, rule: Any, options: dict[str, Any],
+                         rings: bool = False) -> dict[str, Any]:
     """The T-only fit engine's keywords for ``prior``, ``rule`` and ``options`` (folded by :func:`fit_keywords`)
     with the library's defaults where they are not given: :data:`DEFAULT_PRIOR`, the discrepancy rule and,
-    for it, :data:`DEFAULT_NOISE_SCALE`."""
+    for it, :data:`DEFAULT_NOISE_SCALE` (:data:`DEFAULT_NOISE_SCALE_RINGS` when the unknowns are ring
+    cells, ``rings``)."""
     kw = dict(options)
     if rule in (None, "discrepancy") and regularization == "auto":
-        kw.setdefault("noise_scale", DEFAULT_NOISE_SCALE)
+        kw.setdefault("noise_scale", DEFAULT_NOISE_SCALE_RINGS if rings else DEFAULT_NOISE_SCALE)
     return {**kw, "regularization": regularization, "prior": DEFAULT_PRIOR if prior is None else prior,
             "rule": "discrepancy" if rule is None else rule}
 

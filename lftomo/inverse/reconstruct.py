@@ -23,8 +23,8 @@ from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
-    DEFAULT_NOISE_SCALE, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns, moved_options,
-    temperature_defaults)
+    DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
+    moved_options, temperature_defaults)
 from .unknowns import resolve_unknowns
 
 
@@ -152,7 +152,7 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         sol = temperature_fit(problem, bounds=bounds, T0=T0, method=method,
                               **temperature_defaults(regularization=regularization, prior=prior, rule=rule,
-                                                     options=options))
+                                                     options=options, rings=ring is not None))
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
               "total": time.perf_counter() - t0}
     choice = sol.lambda_choice
@@ -311,10 +311,12 @@ def reconstruct(
         ``"lcurve"`` for ``"T+sigma_a"``) or a rule object with its
         parameters, e.g. ``Discrepancy(noise_scale="estimated")``,
         ``GCV(n_lambda=9)``; ``Fixed(λ)`` fixes λ.  Default each fit's own: for
-        ``"T"`` the discrepancy rule with σ as given
+        ``"T"`` the discrepancy rule with σ as given on voxels
         (:data:`DEFAULT_NOISE_SCALE`; a given σ too large for any λ to meet
-        the target is treated as known up to a factor), for ``"T+sigma_a"``
-        the bracketing discrepancy search with the noise scale estimated.
+        the target is treated as known up to a factor) and with the noise
+        scale estimated on ring cells (:data:`DEFAULT_NOISE_SCALE_RINGS`), for
+        ``"T+sigma_a"`` the bracketing discrepancy search with the noise scale
+        estimated.
     solver : Solver, optional
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
         ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``,

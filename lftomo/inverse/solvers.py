@@ -200,6 +200,7 @@ from .lambdarules import (  # noqa: E402
 from .problem import LinearProblem  # noqa: E402
 from .projected import Linearization  # noqa: E402
 from .regularizers import Prior, resolve_prior  # noqa: E402
+from .symmetry import RingGrid  # noqa: E402
 from .unknowns import PENALIZED as PENALIZE  # noqa: E402  (what the prior acts on)
 from .unknowns import resolve_unknowns  # noqa: E402
 from .fitoptions import (  # noqa: E402
@@ -814,7 +815,9 @@ def solve_temperature(
         object with its parameters (``Discrepancy(noise_scale="estimated")``,
         ``GCV(n_lambda=9)``, ``LCurve(...)``); ``Fixed(λ)`` fixes λ.  Default
         the discrepancy rule with σ as given
-        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE`).
+        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE`), with the noise scale
+        estimated when the problem is on ring cells
+        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RINGS`).
     solver : Solver, optional, keyword-only
         ``LevenbergMarquardt(...)`` (default) or ``GaussNewton(...)`` with
         their step counts and tolerances (:mod:`lftomo.inverse.solverchoice`).
@@ -858,8 +861,10 @@ def solve_temperature(
     regularization, method, rule, options = fit_keywords(
         "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
+    rings = isinstance(getattr(problem, "grid", None), RingGrid)
     return temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
-                           **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options))
+                           **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
+                                                  rings=rings))
 
 
 def temperature_fit(

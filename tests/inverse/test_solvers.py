@@ -582,6 +582,34 @@ def test_default_prior_is_the_library_default(gray_noisy, monkeypatch):
     assert seen["rule"] == "discrepancy" and seen["noise_scale"] == "given" and seen["regularization"] == "auto"
 
 
+def test_default_noise_scale_is_estimated_on_ring_cells(monkeypatch):
+    """On ring cells (symmetry="axisymmetric") the default discrepancy rule estimates the noise scale
+    (DEFAULT_NOISE_SCALE_RINGS); on voxels σ is taken as given; a rule object overrides either."""
+    import scipy.sparse as sp
+
+    import lftomo.inverse.solvers as S
+    from lftomo.inverse.fitoptions import DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS
+    from lftomo.inverse.problem import LinearProblem
+    from lftomo.inverse.symmetry import ring_grid, ring_problem
+
+    grid = lt.Grid((6, 4, 6), (-0.01, -0.01, 0.99), (0.01, 0.01, 1.01))
+    A = sp.random(300, grid.n_voxels, density=0.2, random_state=1, format="csr")
+    voxels = LinearProblem(A, np.ones(300), np.ones(300), grid)
+    rings = ring_problem(voxels, ring_grid(grid))
+    seen = []
+
+    def spy(problem, **kw):
+        seen.append(kw.get("noise_scale"))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(S, "temperature_fit", spy)
+    for problem, rule in ((voxels, None), (rings, None), (rings, lt.Discrepancy(noise_scale="given"))):
+        with pytest.raises(RuntimeError, match="stop"):
+            solve_temperature(problem, rule=rule)
+    assert seen == [DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, "given"]
+    assert (DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS) == ("given", "estimated")
+
+
 def test_bad_baseline_input(gray_clean):
     problem, _ = gray_clean
     with pytest.raises(ValueError, match="regularization"):

@@ -218,3 +218,23 @@ def test_symmetry_refuses_bad_input(blob_setup):
         rg.project(np.zeros((2, 2)))
     with pytest.raises(ValueError, match="columns"):
         rg.reduce(sp.csr_matrix((3, 10)))
+
+
+def test_reconstruct_on_ring_cells_estimates_the_noise_scale_by_default(blob_setup, monkeypatch):
+    """lt.reconstruct(..., symmetry="axisymmetric") hands the engine the ring cells' default noise scale
+    (estimated); without symmetry, σ as given."""
+    import lftomo.inverse.solvers as S
+
+    grid, flame, lf, W = blob_setup
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=3), data="subaperture")
+    seen = []
+
+    def spy(problem, **kw):
+        seen.append((type(problem.grid).__name__, kw.get("noise_scale")))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(S, "temperature_fit", spy)
+    for symmetry in ("axisymmetric", None):
+        with pytest.raises(RuntimeError, match="stop"):
+            lt.reconstruct(m, W, symmetry=symmetry)
+    assert seen == [("RingGrid", "estimated"), ("Grid", "given")]
