@@ -16,13 +16,13 @@ Foreman-Mackey, D., Hogg, D. W., Lang, D. & Goodman, J. (2013). emcee: the MCMC 
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, fields
 from typing import Any
 
 from .._validate import require_int, require_positive
+from .fitoptions import moved_options
 
-__all__ = ["EnsembleChain", "DEFINITION_KEYWORDS", "moved_sampling_options"]
+__all__ = ["EnsembleChain", "DEFINITION_KEYWORDS", "SAMPLING_MOVED", "moved_sampling_options"]
 
 #: The posterior's definition, set by :func:`~lftomo.inverse.posterior.build_log_posterior`.
 DEFINITION_KEYWORDS = ("prior_mean", "prior_std", "prior", "regularization", "L", "T_scale", "T_ref", "bounds",
@@ -96,6 +96,11 @@ class EnsembleChain:
 
 
 _CHAIN_FIELDS = tuple(f.name for f in fields(EnsembleChain))
+#: The keywords :func:`~lftomo.inverse.posterior.sample_posterior` took before, and where each lives now.
+SAMPLING_MOVED: dict[str, str] = {
+    **{k: f"chain=lt.EnsembleChain({k}=...)" for k in _CHAIN_FIELDS},
+    **{k: f"lt.build_log_posterior(problem, basis=..., {k}=...) as the posterior" for k in DEFINITION_KEYWORDS},
+}
 
 
 def moved_sampling_options(given: dict[str, Any], chain: EnsembleChain | None,
@@ -127,7 +132,7 @@ def moved_sampling_options(given: dict[str, Any], chain: EnsembleChain | None,
     ValueError
         A chain keyword next to ``chain=``, or a definition keyword next to a LogPosterior.
     """
-    unknown = sorted(set(given) - set(_CHAIN_FIELDS) - set(DEFINITION_KEYWORDS))
+    unknown = sorted(set(given) - set(SAMPLING_MOVED))
     if unknown:
         raise TypeError(f"sample_posterior() got an unexpected keyword argument {unknown[0]!r}")
     if chain is not None and not isinstance(chain, EnsembleChain):
@@ -139,11 +144,6 @@ def moved_sampling_options(given: dict[str, Any], chain: EnsembleChain | None,
     if definition and not definition_allowed:
         raise ValueError(f"{', '.join(definition)} given next to a LogPosterior, which already defines the "
                          "posterior; pass them to lt.build_log_posterior instead")
-    for name in moved_chain:
-        warnings.warn(f"sample_posterior({name}=...) is deprecated: pass chain=lt.EnsembleChain({name}=...)",
-                      DeprecationWarning, stacklevel=3)
-    for name in definition:
-        warnings.warn(f"sample_posterior({name}=...) is deprecated: pass lt.build_log_posterior(problem, "
-                      f"basis=..., {name}=...) as the posterior", DeprecationWarning, stacklevel=3)
+    moved_options(given, "sample_posterior", table=SAMPLING_MOVED, stacklevel=5)  # the caller of sample_posterior
     chain = EnsembleChain(**moved_chain) if moved_chain else (chain or EnsembleChain())
     return chain, definition

@@ -48,8 +48,7 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -63,6 +62,7 @@ from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors
+from .fitoptions import moved_options
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
 from .solvers import temperature_fit
@@ -381,12 +381,13 @@ class LaplaceCovariance:
 
 
 #: Keywords :func:`laplace_posterior` took before its options moved onto objects, and where each lives now.
+#: The evidence rule's old keywords → :class:`~lftomo.inverse.lambdarules.Evidence`'s parameters.
+_EVIDENCE_MOVED = {"lambda0": "lambda0", "max_iter": "max_iter", "lambda_rtol": "rtol", "trace_samples": "trace_samples"}
+_COVARIANCE_FIELDS = tuple(f.name for f in fields(LaplaceCovariance))
 POSTERIOR_MOVED: dict[str, str] = {
     "regularization": "rule=lt.Evidence(), lt.Fixed(λ) or lt.Discrepancy() (the reconstruction's rule)",
-    **{k: f"rule=lt.Evidence({new}=...)" for k, new in (("lambda0", "lambda0"), ("max_iter", "max_iter"),
-                                                          ("lambda_rtol", "rtol"), ("trace_samples", "trace_samples"))},
-    **{k: f"covariance=lt.LaplaceCovariance({k}=...)" for k in ("method", "dense_max", "n_samples", "cg_rtol",
-                                                                "cg_max_iter")},
+    **{old: f"rule=lt.Evidence({new}=...)" for old, new in _EVIDENCE_MOVED.items()},
+    **{k: f"covariance=lt.LaplaceCovariance({k}=...)" for k in _COVARIANCE_FIELDS},
 }
 
 
@@ -516,11 +517,9 @@ def _posterior_options(measurement, *, prior, rule, covariance, credible_level, 
     if isinstance(measurement, (list, tuple)):
         raise ValueError("laplace_posterior takes one Measurement (one wavelength channel)")
     options = dict(options)
-    moved = {k: options.pop(k) for k in list(options) if k in POSTERIOR_MOVED}
-    for name in moved:
-        warnings.warn(f"laplace_posterior({name}=...) is deprecated: pass {POSTERIOR_MOVED[name]}",
-                      DeprecationWarning, stacklevel=3)
-    cov_kw = {k: moved.pop(k) for k in ("method", "dense_max", "n_samples", "cg_rtol", "cg_max_iter") if k in moved}
+    moved = moved_options({k: options.pop(k) for k in list(options) if k in POSTERIOR_MOVED}, "laplace_posterior",
+                          table=POSTERIOR_MOVED, stacklevel=4)
+    cov_kw = {k: moved.pop(k) for k in _COVARIANCE_FIELDS if k in moved}
     if cov_kw and covariance is not None:
         raise ValueError(f"{', '.join(cov_kw)} set twice: by covariance={covariance!r} and as keywords; "
                          "give it one way")
@@ -538,9 +537,7 @@ def _moved_rule(moved: dict[str, Any]) -> Any:
     """The rule object that the old keywords (``regularization``, ``lambda0``, ``max_iter``, ``lambda_rtol``,
     ``trace_samples``) selected."""
     reg = moved.pop("regularization", "evidence")
-    evidence_kw = {new: moved[old] for old, new in (("lambda0", "lambda0"), ("max_iter", "max_iter"),
-                                                    ("lambda_rtol", "rtol"), ("trace_samples", "trace_samples"))
-                   if old in moved}
+    evidence_kw = {new: moved[old] for old, new in _EVIDENCE_MOVED.items() if old in moved}
     if isinstance(reg, str) and reg not in ("evidence", "auto"):
         raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {reg!r}")
     if reg == "evidence":

@@ -65,7 +65,8 @@ TEMPERATURE_MOVED = tuple(k for k in MOVED_OPTIONS if k not in (
 
 
 def moved_options(given: dict[str, Any], function: str = "reconstruct",
-                  allowed: tuple[str, ...] | None = None) -> dict[str, Any]:
+                  allowed: tuple[str, ...] | None = None, *, table: dict[str, str] | None = None,
+                  stacklevel: int = 3) -> dict[str, Any]:
     """The fit keywords among ``given``, each with a DeprecationWarning naming where it lives now.
 
     Parameters
@@ -75,20 +76,25 @@ def moved_options(given: dict[str, Any], function: str = "reconstruct",
     function : str
         The front end's name, for the messages.
     allowed : tuple of str, optional
-        The moved keywords that front end took (default: all of :data:`MOVED_OPTIONS`).
+        The moved keywords that front end took (default: all of ``table``).
+    table : dict, optional
+        Old keyword → where it lives now (default :data:`MOVED_OPTIONS`).
+    stacklevel : int
+        Of the warnings: 3 when the front end calls this function itself.
 
     Raises
     ------
     TypeError
         A keyword that the front end never took, as Python itself would.
     """
-    allowed = tuple(MOVED_OPTIONS) if allowed is None else allowed
+    table = MOVED_OPTIONS if table is None else table
+    allowed = tuple(table) if allowed is None else allowed
     unknown = sorted(set(given) - set(allowed))
     if unknown:
         raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}")
     for name in given:
-        warnings.warn(f"{function}({name}=...) is deprecated: pass {MOVED_OPTIONS[name]}", DeprecationWarning,
-                      stacklevel=3)
+        warnings.warn(f"{function}({name}=...) is deprecated: pass {table[name]}", DeprecationWarning,
+                      stacklevel=stacklevel)
     return dict(given)
 
 
