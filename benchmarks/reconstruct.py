@@ -200,10 +200,10 @@ def main() -> None:
 
 def posterior_benchmark(problem, sol, t_nl, T, args):
     t = time.perf_counter()
-    post = lt.laplace_posterior(problem, rule=lt.Evidence(lambda0=sol.regularization), T0=sol.T,
+    post = lt.laplace_posterior(problem, rule=lt.Evidence(lambda0=sol.regularization), start=sol.T,
                                 covariance=lt.LaplaceCovariance(method="sampled", n_samples=args.samples),
-                                rtol=args.rtol, atol=args.rtol,
-                                max_steps=args.max_steps, linear_max_steps=args.linear_max_steps)
+                                solver=lt.LevenbergMarquardt(rtol=args.rtol, atol=args.rtol, max_steps=args.max_steps,
+                                                             linear_max_steps=args.linear_max_steps))
     t_lp = time.perf_counter() - t
     ev = post.evidence
     print(f"laplace_posterior    : {t_lp:8.2f} s  ({ev['iterations']} evidence iterations, "

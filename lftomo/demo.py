@@ -784,8 +784,8 @@ def _demo_field_posterior(d: _DemoRun) -> None:
     with d.st("field_posterior", "posterior of the whole field: Laplace, lambda by evidence"):
         # the posterior's own default prior (gradient), not the reconstruction's: its intervals' coverage is
         # the measured one (docs/accuracy.md); the evidence iteration starts at that prior's discrepancy λ
-        fpost = lt.laplace_posterior(d.r["problem"], rule=lt.Evidence(), T0=rec.T, bounds=BOUNDS,
-                                     seed=d.cfg["seeds"]["posterior"], progress=d.progress, **d.opts)
+        fpost = lt.laplace_posterior(d.r["problem"], rule=lt.Evidence(), start=rec.T, bounds=BOUNDS,
+                                     solver=d.solver, seed=d.cfg["seeds"]["posterior"], progress=d.progress)
     d.r["fpost"] = fpost
     ev = fpost.evidence
     hot_eff = T_eff > HOT
@@ -1350,7 +1350,8 @@ def _reconstruct_posterior(problem, rec, inp: _ReconstructInputs, *, basis_name,
         if prior == "tv":
             raise LftomoError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
         post = lt.laplace_posterior(problem, rule=lt.Evidence(lambda0=rec.regularization), prior=prior,
-                                    bounds=tuple(bounds), seed=inp.posterior_seed, max_steps=max_steps,
+                                    bounds=tuple(bounds), seed=inp.posterior_seed,
+                                    solver=lt.LevenbergMarquardt(max_steps=max_steps),
                                     symmetry=symmetry)
         metrics = {"basis": "field", **post.summary()}
         if inp.T_true is not None:

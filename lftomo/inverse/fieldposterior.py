@@ -61,10 +61,11 @@ from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
-from .reconstruct import problem_on_grid, temperature_errors
-from .fitoptions import moved_options
+from .reconstruct import problem_on_grid, temperature_errors, temperature_start
+from .fitoptions import MOVED_OPTIONS, moved_options
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
+from .solverchoice import LevenbergMarquardt, resolve_solver
 from .solvers import temperature_fit
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
@@ -384,10 +385,20 @@ class LaplaceCovariance:
 #: The evidence rule's old keywords → :class:`~lftomo.inverse.lambdarules.Evidence`'s parameters.
 _EVIDENCE_MOVED = {"lambda0": "lambda0", "max_iter": "max_iter", "lambda_rtol": "rtol", "trace_samples": "trace_samples"}
 _COVARIANCE_FIELDS = tuple(f.name for f in fields(LaplaceCovariance))
+#: The solver's settings, which it passed on to the reconstructions.
+_SOLVER_MOVED = ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")
+#: The reconstruction rules' settings, which it passed on too (they set how the evidence iteration's first λ
+#: is chosen, or the rule given as ``rule=``).
+_RULE_MOVED = ("noise_scale", "discrepancy_safety", "search_steps", "search_rtol", "subvoxel_search", "lambda_range",
+               "n_lambda", "gcv_probes")
 POSTERIOR_MOVED: dict[str, str] = {
     "regularization": "rule=lt.Evidence(), lt.Fixed(λ) or lt.Discrepancy() (the reconstruction's rule)",
     **{old: f"rule=lt.Evidence({new}=...)" for old, new in _EVIDENCE_MOVED.items()},
     **{k: f"covariance=lt.LaplaceCovariance({k}=...)" for k in _COVARIANCE_FIELDS},
+    **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))" for k in _SOLVER_MOVED},
+    **{k: MOVED_OPTIONS[k].split(" (lt.DiscrepancyBracket")[0] for k in _RULE_MOVED},
+    "T0": "start=T0",
+    "penalize": "nothing: the posterior's prior acts on T, its only choice",
 }
 
 
@@ -398,13 +409,15 @@ def laplace_posterior(
     prior: Any = "gradient",
     rule: Any = None,
     covariance: LaplaceCovariance | None = None,
+    solver: Any = None,
+    start: Any = None,
     bounds: tuple[float, float] = (300.0, 3000.0),
     credible_level: float = 0.9,
     symmetry: Any = None,
     grid: Any = None,
     seed: int | None = 0,
     progress: bool = False,
-    **options: Any,
+    **moved: Any,
 ) -> FieldPosterior:
     """Full-grid Laplace posterior of the temperature field (T only, known ``sigma_a``).
 
@@ -427,6 +440,15 @@ def laplace_posterior(
     covariance : LaplaceCovariance, optional, keyword-only
         Dense or sampled evaluation of the covariance, and its settings; default
         ``LaplaceCovariance()``.
+    solver : Solver, optional, keyword-only
+        The reconstructions' algorithm and settings (as for :func:`lftomo.reconstruct`,
+        ``unknowns="T"``): ``lt.LevenbergMarquardt(max_steps=...)``, ``lt.GaussNewton(...)``
+        or ``lt.AutoSolver(...)``.  Default the reconstruction's.
+    start : optional, keyword-only
+        Where the first reconstruction starts (as for :func:`lftomo.reconstruct`): a
+        temperature field of the reconstruction grid's shape (K), a number, or a
+        :class:`~lftomo.Reconstruction` on the same box (e.g. one already made at the
+        evidence rule's ``lambda0``).  Default the linear baseline.
     bounds : (T_min, T_max), keyword-only
         Reconstruction bounds (K); ``T_max − T_min`` scales the prior.
     credible_level : float in (0, 1), keyword-only
@@ -442,13 +464,11 @@ def laplace_posterior(
         Seed of the sampled covariance's draws.
     progress : bool, keyword-only
         Print one line per evidence iteration, and show the reconstructions' progress bars.
-    **options
-        Passed to :func:`lftomo.inverse.solvers.temperature_fit` (e.g. ``linear_max_steps``);
-        ``T0`` starts the first reconstruction (e.g. a reconstruction at the evidence
-        rule's ``lambda0`` already made).  The keywords this function took before
-        (``regularization``, ``lambda0``, ``max_iter``, ``lambda_rtol``, ``trace_samples``,
-        ``method``, ``dense_max``, ``n_samples``, ``cg_rtol``, ``cg_max_iter``) still work,
-        each with a DeprecationWarning naming its object (:data:`POSTERIOR_MOVED`).
+    **moved
+        The keywords this function took before its options moved onto the objects
+        above (``regularization``, ``lambda0``, ``method``, ``n_samples``, ``T0``,
+        ``max_steps``, ``linear_max_steps``, ``noise_scale``, …) still work, each with a
+        DeprecationWarning naming where it lives now (:data:`POSTERIOR_MOVED`).
 
     Returns
     -------
@@ -460,9 +480,9 @@ def laplace_posterior(
         For a bad argument (before any solve).
     """
     t_start = time.perf_counter()
-    prior, bounds, rule, cov, options = _posterior_options(
-        measurement, prior=prior, rule=rule, covariance=covariance, credible_level=credible_level, bounds=bounds,
-        options=options)
+    prior, bounds, rule, cov, start, options = _posterior_options(
+        measurement, prior=prior, rule=rule, covariance=covariance, solver=solver, start=start,
+        credible_level=credible_level, bounds=bounds, options=moved)
     if isinstance(measurement, LinearProblem):
         if weights is not None:
             raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
@@ -471,6 +491,7 @@ def laplace_posterior(
         if weights is None:
             raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
         problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights
+    T_start = temperature_start(start, problem.grid)
     ring = resolve_symmetry(symmetry, problem.grid)
     if ring is not None:
         problem = ring_problem(problem, ring)
@@ -478,7 +499,6 @@ def laplace_posterior(
     method = cov.method
     if method == "auto":
         method = "dense" if grid.n_voxels <= cov.dense_max else "sampled"
-    T_start = options.pop("T0", None)
     # the solves show their bars only when asked (lftomo demo --quiet printed them)
     run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": bool(progress)},
                         method=method, n_samples=cov.n_samples, rng=np.random.default_rng(seed),
@@ -504,10 +524,10 @@ def laplace_posterior(
                             metadata={"prior": prior, **run.clock}, t_start=t_start)
 
 
-def _posterior_options(measurement, *, prior, rule, covariance, credible_level, bounds, options):
+def _posterior_options(measurement, *, prior, rule, covariance, solver, start, credible_level, bounds, options):
     """The checked options of :func:`laplace_posterior` (ValueError naming the argument otherwise), the
     keywords it took before folded into their objects (with a DeprecationWarning each):
-    ``(prior name, bounds, rule object, LaplaceCovariance, options for the reconstructions)``."""
+    ``(prior name, bounds, rule object, LaplaceCovariance, start, keywords of the reconstructions)``."""
     prior = resolve_prior(prior, quadratic_only=True, where="laplace_posterior (a Gaussian prior)").name
     if not (isinstance(credible_level, (int, float)) and 0.0 < float(credible_level) < 1.0):
         raise ValueError(f"credible_level must be in (0, 1), got {credible_level!r}")
@@ -516,9 +536,13 @@ def _posterior_options(measurement, *, prior, rule, covariance, credible_level, 
         raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
     if isinstance(measurement, (list, tuple)):
         raise ValueError("laplace_posterior takes one Measurement (one wavelength channel)")
-    options = dict(options)
-    moved = moved_options({k: options.pop(k) for k in list(options) if k in POSTERIOR_MOVED}, "laplace_posterior",
-                          table=POSTERIOR_MOVED, stacklevel=4)
+    moved = moved_options(dict(options), "laplace_posterior", table=POSTERIOR_MOVED, stacklevel=4)
+    options = {k: moved.pop(k) for k in (*_RULE_MOVED, "penalize") if k in moved}
+    if "T0" in moved:
+        if start is not None:
+            raise ValueError("give either start or T0, not both")
+        start = moved.pop("T0")
+    options.update(_solver_keywords(solver, {k: moved.pop(k) for k in _SOLVER_MOVED if k in moved}))
     cov_kw = {k: moved.pop(k) for k in _COVARIANCE_FIELDS if k in moved}
     if cov_kw and covariance is not None:
         raise ValueError(f"{', '.join(cov_kw)} set twice: by covariance={covariance!r} and as keywords; "
@@ -530,7 +554,22 @@ def _posterior_options(measurement, *, prior, rule, covariance, credible_level, 
         raise ValueError(f"{', '.join(moved)} set twice: by rule={rule!r} and as keywords; give it one way")
     rule = _moved_rule(moved) if moved else rule
     rule, options = _posterior_rule(rule, options)
-    return prior, bounds, rule, cov, options
+    return prior, bounds, rule, cov, start, options
+
+
+def _solver_keywords(solver: Any, old: dict[str, Any]) -> dict[str, Any]:
+    """The reconstructions' solver keywords (``method`` and the settings given) from ``solver`` or from the
+    old keywords ``old`` (which build a :class:`~lftomo.LevenbergMarquardt`); None: the reconstruction's."""
+    if old and solver is not None:
+        raise ValueError(f"{', '.join(old)} set twice: by solver={solver!r} and as keywords; give it one way")
+    if old:
+        solver = LevenbergMarquardt(**old)
+    if solver is None:
+        return {}
+    kw = resolve_solver(solver, fit="T").keywords()
+    if kw["method"] == "auto":  # the T-only fit's own choice
+        kw["method"] = "levenberg-marquardt"
+    return kw
 
 
 def _moved_rule(moved: dict[str, Any]) -> Any:

@@ -142,7 +142,7 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
                          + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
     t0 = time.perf_counter()
     problem, grid = _temperature_problem(measurement, weights, grid)
-    T0 = _temperature_start(options.pop("T0", None), grid)
+    T0 = temperature_start(options.pop("T0", None), grid)
     ring = resolve_symmetry(symmetry, grid)
     if ring is not None:
         problem = ring_problem(problem, ring)
@@ -251,7 +251,7 @@ def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]
     return opts
 
 
-def _temperature_start(T0: Any, grid: Grid) -> Any:
+def temperature_start(T0: Any, grid: Grid) -> Any:
     """``T0`` as :func:`~lftomo.inverse.solvers.solve_temperature` takes it: a Reconstruction's
     temperature is interpolated to ``grid`` (same box, same or coarser grid)."""
     if not isinstance(T0, Reconstruction):

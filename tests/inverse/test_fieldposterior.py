@@ -7,6 +7,7 @@ Synthetic straight-line operator (``lftomo.inverse.synthetic``); grids of
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -174,7 +175,6 @@ def test_evidence_recovers_the_prior_and_is_calibrated():
         ({"rule": lt.DiscrepancyBracket()}, "rule must be lt.Evidence"),
         ({"rule": lt.Fixed(0.0)}, r"needs λ > 0"),
         ({"rule": "bracket"}, "rule must be one of"),
-        ({"rule": lt.GCV(), "n_lambda": 3}, "n_lambda set twice"),
         ({"bounds": (2000.0, 1000.0)}, "T_min < T_max"),
         ({"penalize": "intensity"}, "penalize"),
     ],
@@ -211,7 +211,8 @@ def test_unconstrained_voxels_raise_a_clear_error_naming_them():
     n_free = (n - 3) - np.linalg.matrix_rank(L_unseen)
     assert n_free > 0
     with pytest.raises(lt.LftomoError) as err:
-        laplace_posterior(problem, rule=lt.Fixed(1e-3), prior="curvature", covariance=lt.LaplaceCovariance(method="dense"), max_steps=10)
+        laplace_posterior(problem, rule=lt.Fixed(1e-3), prior="curvature", covariance=lt.LaplaceCovariance(method="dense"),
+                          solver=lt.LevenbergMarquardt(max_steps=10))
     msg = str(err.value)
     assert not isinstance(err.value, np.linalg.LinAlgError)
     assert f"{n_free} direction(s) of the field are constrained neither by the data nor by prior='curvature' " \
@@ -281,11 +282,55 @@ def test_old_keywords_warn_and_give_the_same_posterior(case, old, new):
 @pytest.mark.parametrize("kw, match", [
     ({"rule": lt.Fixed(1.0), "lambda0": 3.0}, "lambda0 set twice: by rule="),
     ({"covariance": lt.LaplaceCovariance(), "n_samples": 16}, "n_samples set twice: by covariance="),
+    ({"rule": lt.GCV(), "n_lambda": 3}, "n_lambda set twice"),
 ])
 def test_old_keyword_next_to_its_object_is_refused(case, kw, match):
     problem, _ = case
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=match):
         laplace_posterior(problem, **kw)
+
+
+def test_solver_and_start_objects_equal_the_old_engine_keywords(case):
+    """``solver=`` and ``start=`` give the posterior that the engine keywords ``max_steps``,
+    ``linear_max_steps`` and ``T0`` gave (those warn and name the objects); the solver's cap reaches
+    the reconstruction (without it the solve takes more steps and ends elsewhere)."""
+    problem, _ = case
+    T0 = np.full(problem.grid.shape, 1200.0)
+    common = dict(rule=lt.Fixed(50.0), covariance=lt.LaplaceCovariance(method="dense"))
+    with pytest.warns(DeprecationWarning) as caught:
+        a = laplace_posterior(problem, T0=T0, max_steps=3, linear_max_steps=20, **common)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, DeprecationWarning)]
+    assert len(msgs) == 3, msgs
+    assert any("T0=...) is deprecated: pass start=T0" in m for m in msgs), msgs
+    assert any("max_steps=...) is deprecated: pass solver=lt.LevenbergMarquardt(max_steps=...)" in m
+               for m in msgs), msgs
+    b = laplace_posterior(problem, start=T0, solver=lt.LevenbergMarquardt(max_steps=3, linear_max_steps=20),
+                          **common)
+    np.testing.assert_array_equal(a.T_mean, b.T_mean)
+    np.testing.assert_array_equal(a.T_std, b.T_std)
+    assert b.solution.iterations <= 3
+    c = laplace_posterior(problem, start=T0, solver=lt.AutoSolver(), **common)  # the reconstruction's own
+    assert c.solution.iterations > 3 and not np.array_equal(c.T_mean, b.T_mean)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"solver": lt.LevenbergMarquardt(), "max_steps": 5}, "max_steps set twice: by solver="),
+    ({"start": 1000.0, "T0": 1000.0}, "either start or T0"),
+    ({"solver": lt.DenseLM()}, "does not run unknowns='T'"),
+    ({"solver": "lm"}, "solver must be one of lftomo's solver objects"),
+])
+def test_solver_and_start_clashes_are_refused(case, kw, match):
+    problem, _ = case
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        with pytest.raises(ValueError, match=match):
+            laplace_posterior(problem, rule=lt.Fixed(50.0), **kw)
+
+
+def test_unknown_keyword_is_a_type_error(case):
+    problem, _ = case
+    with pytest.raises(TypeError, match="unexpected keyword argument 'max_step'"):
+        laplace_posterior(problem, max_step=5)
 
 
 def test_reconstruct_refuses_the_evidence_rule(case):
