@@ -111,6 +111,7 @@ from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
 from .sampler import DEFAULT_SAMPLER
+from .segmentrows import linearized_rows, row_pattern
 from .dda import max_segments, ray_box, traverse
 from .rng import rng_init, rng_uniform, rng_uniform_open
 from .scattering import RR_DEPTH, sample_hg_direction
@@ -442,10 +443,8 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
     mode 0: ``out_val`` = W entries (zeros dropped), ``out_sig`` = background;
     mode 1: W (``out_val``) and its directional derivative along ``direction``
     (``out_val2``) on the pattern of crossed voxels, ``out_sig`` = background;
-    mode 2: ``out_val`` = Jacobian ``∂signal/∂σ_a`` for ``I_b = direction``,
-    ``out_sig`` = signal (pattern: crossed voxels);
-    mode 3: mode 2 and W (``out_val2``, same pattern) from the same walk;
     mode 4: ``out_sig`` = signal for ``I_b = direction`` only (nothing stored).
+    (The signal's Jacobian and W together: :mod:`lftomo.forward.segmentrows`.)
     """
     n = out_cnt.shape[0]
     for k in prange(n):
@@ -466,38 +465,6 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
                     sig += wn * T * em * direction[j]
                     T -= T * em
                 sig += wn * T * ray_L[ray]
-                continue
-            if mode >= 2:
-                # forward: total optical depth; backward: radiance behind each voxel
-                tau_tot = 0.0
-                for s in range(a, b):
-                    tau_tot += sigma_a[seg_vox[s]] * seg_len[s]
-                Lb = ray_L[ray]
-                sig += wn * math.exp(-tau_tot) * Lb
-                tau_after = 0.0  # optical depth behind voxel s
-                for s in range(b - 1, a - 1, -1):
-                    j = seg_vox[s]
-                    ell = seg_len[s]
-                    tj = sigma_a[j] * ell
-                    em = -math.expm1(-tj)
-                    T_le = math.exp(-(tau_tot - tau_after))  # transmittance to the back face of j
-                    w_j = wn * math.exp(-(tau_tot - tau_after - tj)) * em  # W entry: in front of j × emissivity
-                    sig += w_j * direction[j]
-                    val = wn * ell * T_le * (direction[j] - Lb)
-                    Lb = Lb + em * (direction[j] - Lb)  # radiance at the front face of j
-                    tau_after += tj
-                    q = p[j]
-                    if q < 0:
-                        p[j] = cnt
-                        out_idx[o + cnt] = j
-                        out_val[o + cnt] = val
-                        if mode == 3:
-                            out_val2[o + cnt] = w_j
-                        cnt += 1
-                    else:
-                        out_val[o + q] += val
-                        if mode == 3:
-                            out_val2[o + q] += w_j
                 continue
             T = 1.0
             D = 0.0  # Σ_{k<j} direction_k ℓ_k
@@ -526,7 +493,7 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
                     if mode == 1:
                         out_val2[o + q] += val2
             sig += wn * T * ray_L[ray]
-        if cnt > 1 and (mode == 1 or mode == 3):
+        if cnt > 1 and mode == 1:
             order = np.argsort(out_idx[o:o + cnt])
             si = out_idx[o:o + cnt][order]
             sv = out_val[o:o + cnt][order]
@@ -1705,7 +1672,7 @@ class RaySegments:
         seg_per_row = self.ray_ptr[self.row_ray_ptr[1:]] - self.ray_ptr[self.row_ray_ptr[:-1]]
         bound = int(seg_per_row.sum())
         limit = _memory_limit(memory_limit)
-        two = mode in (1, 3)  # a second value array
+        two = mode == 1  # a second value array
         if mode == 4:
             bound = 0  # the signal only: nothing stored
         est = bound * (8 + 4 + (8 if two else 0)) + n_rows * 32
@@ -1845,9 +1812,8 @@ class RaySegments:
         J : scipy.sparse.csr_matrix, shape (n_rows, n_vox)
             Units of signal per m⁻¹.
         """
-        ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
-        idx, val, _, indptr, sig, _ = self._run(sigma_a, ib, 2, memory_limit)
-        return sig, sp.csr_matrix((val, idx, indptr), shape=(self.n_rows, self.n_voxels))
+        sig, J, _ = self.linearized(Ib, sigma_a, memory_limit=memory_limit)
+        return sig, J
 
     def linearized(self, Ib, sigma_a, *, memory_limit: float | None = None):
         """Signal, its Jacobian with respect to ``sigma_a`` (:meth:`jacobian`) and ``W(sigma_a)`` from one walk.
@@ -1862,9 +1828,27 @@ class RaySegments:
             voxels; the same values as :meth:`weights`' to rounding).
         """
         ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
-        idx, val, val2, indptr, sig, _ = self._run(sigma_a, ib, 3, memory_limit)
+        sa = self._sigma(sigma_a)
+        est = self.n_segments * (4 + 4 + 8 + 8) + self.n_rows * 32  # slots, pattern and two value arrays, at most
+        limit = _memory_limit(memory_limit)
+        if est > limit:
+            raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
+                             f"memory_limit = {limit / 1e9:.3g} GB")
+        pattern = self._row_pattern
+        sig, J, W = linearized_rows(self.row_ray_ptr, self.ray_ptr, self.ray_weight, self.ray_radiance, self.voxel,
+                                    self.length, pattern, self.rays_per_pixel, sa, ib)
+        indptr, indices = pattern[0], pattern[1]
         shape = (self.n_rows, self.n_voxels)
-        return sig, sp.csr_matrix((val, idx, indptr), shape=shape), sp.csr_matrix((val2, idx, indptr), shape=shape)
+        return sig, sp.csr_matrix((J, indices, indptr), shape=shape), sp.csr_matrix((W, indices, indptr), shape=shape)
+
+    @cached_property
+    def _row_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows' fixed sparsity pattern (:func:`~lftomo.forward.segmentrows.row_pattern`), read-only: the
+        matrices of :meth:`linearized` share it."""
+        pattern = row_pattern(self.row_ray_ptr, self.ray_ptr, self.voxel, self.n_voxels)
+        for a in pattern:
+            a.flags.writeable = False
+        return pattern
 
     def forward(self, Ib, sigma_a) -> np.ndarray:
         """Signal (n_rows,) for ``Ib`` and ``sigma_a`` (numpy, exact): ``W(σ) @ Ib + background(σ)``."""

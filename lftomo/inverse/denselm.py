@@ -78,9 +78,11 @@ def _damped_step(G: np.ndarray, g: np.ndarray, damping: np.ndarray, fixed: np.nd
     free = ~fixed
     h = np.zeros(g.size) if h_fixed is None else np.where(fixed, h_fixed, 0.0)
     if free.any():
-        A = G[np.ix_(free, free)] + np.diag(damping[free])
+        A = G.copy() if free.all() else G[np.ix_(free, free)]
+        A.flat[::A.shape[0] + 1] += damping[free]
         rhs = g[free] + (G[np.ix_(free, fixed)] @ h[fixed] if fixed.any() and h_fixed is not None else 0.0)
-        h[free] = -sla.cho_solve(sla.cho_factor(A, lower=False, check_finite=False), rhs, check_finite=False)
+        h[free] = -sla.cho_solve(sla.cho_factor(A, lower=False, overwrite_a=True, check_finite=False), rhs,
+                                 check_finite=False)
     return h
 
 

@@ -175,13 +175,16 @@ def _same_csr(A: sp.csr_matrix, B: sp.csr_matrix) -> bool:
 
 
 @njit(cache=True, parallel=True)
-def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_parts, g_parts):
-    """Per row ``r``: ``j_r = [A[r] M, B[r] M]`` (2 n_u); ``G += j_rᵀ j_r`` (upper triangle), ``g += j_r res[r]``.
+def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, rows, row_w, a_cs, b_cs, n_u, G_parts,
+                             g_parts):
+    """Per selected row ``k`` (table row ``r = rows[k]``, weight ``w = row_w[k]``):
+    ``j_k = w [A[r] diag(a_cs) M, B[r] diag(b_cs) M]`` (2 n_u); ``G += j_kᵀ j_k`` (upper triangle),
+    ``g += j_k res[k]``.  Rows of weight 0 contribute nothing and are skipped.
 
-    The rows are split into ``G_parts.shape[0]`` contiguous chunks, run in
+    The selected rows are split into ``G_parts.shape[0]`` contiguous chunks, run in
     parallel, each accumulating into its own ``G_parts[c]``, ``g_parts[c]``.
     """
-    n_rows = ap.shape[0] - 1
+    n_rows = rows.shape[0]
     n_parts = G_parts.shape[0]
     n = 2 * n_u
     for c in prange(n_parts):
@@ -190,10 +193,15 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_par
         touched = np.empty(n, np.int64)
         G = G_parts[c]
         g = g_parts[c]
-        for r in range(c * n_rows // n_parts, (c + 1) * n_rows // n_parts):
+        for k_row in range(c * n_rows // n_parts, (c + 1) * n_rows // n_parts):
+            w = row_w[k_row]
+            if w == 0.0:
+                continue
+            r = rows[k_row]
             nt = 0
             for k in range(ap[r], ap[r + 1]):
-                q, v = ai[k], ad[k]
+                q = ai[k]
+                v = ad[k] * a_cs[q]
                 for t in range(mp[q], mp[q + 1]):
                     j = mi[t]
                     if not mark[j]:
@@ -202,7 +210,8 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_par
                         nt += 1
                     acc[j] += v * md[t]
             for k in range(bp[r], bp[r + 1]):
-                q, v = bi[k], bd[k]
+                q = bi[k]
+                v = bd[k] * b_cs[q]
                 for t in range(mp[q], mp[q + 1]):
                     j = n_u + mi[t]
                     if not mark[j]:
@@ -215,8 +224,8 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_par
             cols = np.sort(touched[:nt])
             vals = np.empty(nt)
             for x in range(nt):
-                vals[x] = acc[cols[x]]
-            rr = res[r]
+                vals[x] = acc[cols[x]] * w
+            rr = res[k_row]
             for x in range(nt):
                 i = cols[x]
                 vi = vals[x]
@@ -229,22 +238,47 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, n_u, G_par
                 mark[cols[x]] = False
 
 
+def _scale_vector(name: str, value, n: int) -> np.ndarray:
+    """``value`` (None: 1; a number; or an array of ``n``) as a float64 array of ``n``."""
+    if value is None:
+        return np.ones(n)
+    if np.ndim(value) == 0:
+        return np.full(n, float(value))
+    arr = np.ascontiguousarray(value, dtype=np.float64)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must be a number or an array of shape ({n},), got shape {arr.shape}")
+    return arr
+
+
 def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_matrix | None,
-                               res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``G = JᵀJ`` (dense) and ``g = Jᵀ res`` of ``J = [A M, B M]``, without forming ``J``.
+                               res: np.ndarray, *, rows: np.ndarray | None = None,
+                               row_weight: np.ndarray | None = None, column_scale: tuple = (None, None),
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """``G = JᵀJ`` (dense) and ``g = Jᵀ res`` of ``J = diag(w) [A[rows] diag(a) M, B[rows] diag(b) M]``,
+    without forming ``J``.
 
     The Gauss–Newton matrix of a joint fit whose two Jacobian blocks (``∂r/∂T``
-    and ``∂r/∂σ_a`` on the segment table's voxels, sparse, one row per datum)
-    are summed onto few unknowns by ``M`` (interpolation and ring expansion,
+    and ``∂r/∂σ_a`` on the segment table's voxels, sparse, one row per table
+    row) are taken at the data's rows, whitened (``w``), scaled per column
+    (the chain rule's ``a = ∂I_b/∂T``, ``b`` the wavelength's absorption factor)
+    and summed onto few unknowns by ``M`` (interpolation and ring expansion,
     ``E P``; ``None``: the identity).  One pass over the rows, parallel, with a
-    dense accumulator per row (``benchmarks/normal_equations.py`` times it
-    against scipy's ``(A M)``, ``hstack`` and ``JᵀJ`` sparse products).
+    dense accumulator per row and no copy of ``A`` or ``B``
+    (``benchmarks/normal_equations.py`` times it against scipy's ``(A M)``,
+    ``hstack`` and ``JᵀJ`` sparse products).
 
     Parameters
     ----------
-    A, B : scipy.sparse.csr_matrix, shape (m, n_q)
+    A, B : scipy.sparse.csr_matrix, shape (m_table, n_q)
     M : scipy.sparse.csr_matrix of shape (n_q, n_u), or None (n_u = n_q)
     res : ndarray, shape (m,)
+        The residual of each selected row.
+    rows : ndarray of int, shape (m,), optional
+        The table rows of the data, in order (repeats allowed); default all (m = m_table).
+    row_weight : ndarray, shape (m,), optional
+        ``w``; default 1.  Rows of weight 0 contribute nothing.
+    column_scale : (a, b)
+        Each None (1), a number, or an array of shape (n_q,).
 
     Returns
     -------
@@ -252,23 +286,41 @@ def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_mat
     g : ndarray, shape (2 n_u,)
     """
     A, B = sp.csr_matrix(A, dtype=np.float64), sp.csr_matrix(B, dtype=np.float64)
-    if A.shape != B.shape or A.shape[0] != np.shape(res)[0]:
-        raise ValueError(f"A {A.shape}, B {B.shape} and res {np.shape(res)} must have the same rows (and A, B columns)")
+    rows = np.arange(A.shape[0], dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    if A.shape != B.shape or rows.shape != np.shape(res):
+        raise ValueError(f"A {A.shape}, B {B.shape} and res {np.shape(res)} must have the same rows (and A, B columns)"
+                         + ("" if rows.size == A.shape[0] else f" ({rows.size} rows selected)"))
+    if rows.size and (rows.min() < 0 or rows.max() >= A.shape[0]):
+        raise ValueError(f"rows must index the {A.shape[0]} rows of A and B")
     if M is None:
         M = sp.identity(A.shape[1], format="csr", dtype=np.float64)
     M = sp.csr_matrix(M, dtype=np.float64)
     if M.shape[0] != A.shape[1]:
         raise ValueError(f"M has {M.shape[0]} rows, A and B {A.shape[1]} columns")
+    w = _scale_vector("row_weight", row_weight, rows.size)
+    a_cs, b_cs = (_scale_vector(f"column_scale[{k}]", v, A.shape[1]) for k, v in enumerate(column_scale))
     n_u = M.shape[1]
-    n_parts = max(1, min(get_num_threads(), A.shape[0]))
+    n_parts = max(1, min(get_num_threads(), rows.size))
     G_parts = np.zeros((n_parts, 2 * n_u, 2 * n_u))
     g_parts = np.zeros((n_parts, 2 * n_u))
     with SCIPY_LOCK:
         _normal_equations_kernel(A.indptr, A.indices, A.data, B.indptr, B.indices, B.data, M.indptr, M.indices,
-                                 M.data, np.ascontiguousarray(res, dtype=np.float64), n_u, G_parts, g_parts)
-    G = G_parts[0]
-    for part in G_parts[1:]:
-        G += part
-    lower = np.tril_indices(2 * n_u, -1)
-    G[lower] = G.T[lower]  # the kernel filled the upper triangle
-    return G, g_parts.sum(axis=0)
+                                 M.data, np.ascontiguousarray(res, dtype=np.float64), rows, w, a_cs, b_cs, n_u,
+                                 G_parts, g_parts)
+    return _symmetric_sum(G_parts), g_parts.sum(axis=0)
+
+
+@njit(cache=True, parallel=True)
+def _symmetric_sum(G_parts):
+    """``Σ_c G_parts[c]`` of upper triangles, returned as the full symmetric matrix (one pass, in place of
+    a sum of the parts and a fancy-indexed copy of the upper triangle onto the lower one)."""
+    n_parts, n = G_parts.shape[0], G_parts.shape[1]
+    G = np.empty((n, n))
+    for i in prange(n):
+        for j in range(i, n):
+            v = 0.0
+            for c in range(n_parts):
+                v += G_parts[c, i, j]
+            G[i, j] = v
+            G[j, i] = v
+    return G

@@ -711,14 +711,6 @@ class DenseLMPath(_JointPath):
         self.to_seg_csr = None if model.to_seg is None else sp.csr_matrix(model.to_seg)
         self._prior_gram = None
 
-    def data_rows(self, M, c, column_scale):
-        """The table rows of channel ``c``'s data, whitened (× valid/σ), columns × ``column_scale`` (an array or
-        a number): ``diag(w) M[rows] diag(s)`` by scaling the CSR values in place of two sparse products."""
-        M = sp.csr_matrix(M)[self.model.rows_np[c]]
-        M.data *= np.repeat(self.row_weight[c], np.diff(M.indptr))
-        M.data *= column_scale[M.indices] if np.ndim(column_scale) else column_scale
-        return M
-
     def _signal(self, c, Ib, sa_c):
         """The channel's signal, ``∂F/∂σ`` and ``W(σ)`` at ``(I_b, σ)`` from one walk of the segment table
         (:meth:`~lftomo.RaySegments.linearized`), cached for the last point evaluated: at every trial point,
@@ -739,7 +731,8 @@ class DenseLMPath(_JointPath):
         if not with_jacobian:
             return F, data[0]
         data_sq, G, g = data
-        return F, data_sq, G + lam * self.prior_gram(), g + lam * g_prior
+        G += lam * self.prior_gram()  # (G is this evaluation's own array)
+        return F, data_sq, G, g + lam * g_prior
 
     def data_terms(self, x, with_jacobian):
         """``(χ²,)`` of the data at the unit-box point ``x``, or ``(χ², G_d, g_d)`` with the data's
@@ -749,9 +742,7 @@ class DenseLMPath(_JointPath):
         T, sref = lo + (hi - lo) * x[:n_u], md.space.sigma_of_unit(x[n_u:])  # ∂T/∂x = T_max − T_min
         Tv, sv = (T, sref) if md.to_seg is None else (md.to_seg @ T, md.to_seg @ sref)
         data_sq = 0.0
-        if with_jacobian:
-            G = np.zeros((2 * n_u, 2 * n_u))
-            g = np.zeros(2 * n_u)
+        G = g = None
         for c in range(len(md.ms)):
             sa_c = sv * md.factors[c]
             signal, dF_ds, W = self._signal(c, blackbody(Tv, md.wls[c]), sa_c)
@@ -759,12 +750,15 @@ class DenseLMPath(_JointPath):
             data_sq += float(res @ res)
             if with_jacobian:
                 # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ_ref, summed per
-                # unknown (E P) inside the normal-equations kernel; ∂σ_ref/∂u is applied below
-                Wc = self.data_rows(W, c, dblackbody_dT(Tv, md.wls[c]) * (hi - lo))
-                Jc = self.data_rows(dF_ds, c, md.factors[c])
-                Gc, gc = projected_normal_equations(Wc, Jc, self.to_seg_csr, res)
-                G += Gc
-                g += gc
+                # unknown (E P), all inside the normal-equations kernel; ∂σ_ref/∂u is applied below
+                Gc, gc = projected_normal_equations(
+                    W, dF_ds, self.to_seg_csr, res, rows=md.rows_np[c], row_weight=self.row_weight[c],
+                    column_scale=(dblackbody_dT(Tv, md.wls[c]) * (hi - lo), md.factors[c]))
+                if G is None:
+                    G, g = Gc, gc
+                else:
+                    G += Gc
+                    g += gc
         if not with_jacobian:
             return (data_sq,)
         d = md.space.dsigma_du(sref)  # the σ_ref columns: ∂/∂u = ∂σ_ref/∂u · ∂/∂σ_ref

@@ -447,8 +447,8 @@ def test_segments_derivative_matches_finite_differences(grid, blob, segments):
     # the background depends on sigma_a too: J of Ib = 0 is -l T L_s, not zero
     _, J0 = S.jacobian(np.zeros_like(Ib), sa)
     assert J0.min() < 0
-    # one walk for all three (the joint fit's step): the same signal, J and W to rounding (W's entries are
-    # computed from the optical depth in front of each voxel instead of a running transmittance)
+    # one walk for all three (the joint fit's step): the same signal and J, and W to rounding (the rows
+    # are rebuilt on the table's fixed pattern, W's entries from the transmittance to each segment)
     sig3, J3, W3 = S.linearized(Ib, sa)
     W0 = S.weights(sa).matrix
     np.testing.assert_allclose(sig3, sig, rtol=1e-12, atol=1e-14 * sig.max())

@@ -69,6 +69,30 @@ def test_projected_normal_equations_equal_the_explicit_products():
         projected_normal_equations(A, B, M.T.tocsr(), res)
 
 
+def test_projected_normal_equations_with_rows_weights_and_column_scales():
+    """The joint fit's form: rows selected (out of order, one repeated), whitened (one weight 0) and columns
+    scaled (an array for A, a number for B), against the explicit products of the scaled submatrices."""
+    rng = np.random.default_rng(1)
+    A = sp.random(300, 60, density=0.06, random_state=4, format="csr")
+    B = sp.random(300, 60, density=0.09, random_state=5, format="csr")
+    M = sp.random(60, 11, density=0.2, random_state=6, format="csr")
+    rows = np.concatenate([rng.permutation(300)[:200], [7, 7]])
+    w = rng.uniform(0.5, 2.0, rows.size)
+    w[3] = 0.0
+    a = rng.uniform(0.1, 3.0, 60)
+    b = 0.7
+    res = rng.standard_normal(rows.size)
+    G, g = projected_normal_equations(A, B, M, res, rows=rows, row_weight=w, column_scale=(a, b))
+    Wd = sp.diags(w)
+    J = sp.hstack([Wd @ A[rows] @ sp.diags(a) @ M, Wd @ (b * B[rows]) @ M]).toarray()
+    np.testing.assert_allclose(G, J.T @ J, rtol=1e-12, atol=1e-12 * np.abs(J.T @ J).max())
+    np.testing.assert_allclose(g, J.T @ res, rtol=1e-12, atol=1e-12 * np.abs(J.T @ res).max())
+    with pytest.raises(ValueError, match="rows must index"):
+        projected_normal_equations(A, B, M, res, rows=rows + 300)
+    with pytest.raises(ValueError, match=r"column_scale\[0\] must be a number or an array of shape \(60,\)"):
+        projected_normal_equations(A, B, M, res, rows=rows, column_scale=(a[:5], None))
+
+
 def test_equal_matrices_share_a_handle_and_the_registry_entry_lives_with_them():
     """host_csr keys its handle on the content: an equal matrix reuses the handle (and so the compiled
     functions); another matrix gets its own; the entry goes with the last object of its handle."""
