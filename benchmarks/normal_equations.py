@@ -9,7 +9,10 @@ the interpolation and ring expansion onto the unknowns.  Problem: the
 16 views of the seed camera, 16 rays/pixel).  Reference, in the same run: the
 same ``G`` and ``g`` by scipy (``A @ M``, ``B @ M``, ``hstack``, ``JᵀJ`` sparse,
 then dense).  Prints the best of ``--repeat`` times of each, their ratio and
-the largest relative difference of ``G`` and ``g``.
+the largest relative difference of ``G`` and ``g``.  Then two channels on the
+table's one pattern (the joint fit's two wavelengths), in one pass
+(:func:`lftomo.inverse.hostsparse.channels_normal_equations`) against one call
+each, in the same run.
 
 Usage::
 
@@ -25,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 import lftomo as lt
-from lftomo.inverse.hostsparse import projected_normal_equations
+from lftomo.inverse.hostsparse import channels_normal_equations, projected_normal_equations
 from lftomo.inverse.subvoxel import interpolation_matrix
 
 from joint_fit import setup  # (benchmarks/ is the script's folder, first on sys.path)
@@ -74,6 +77,19 @@ def main():
     diff = max(np.abs(G - G0).max() / np.abs(G0).max(), np.abs(g - g0).max() / np.abs(g0).max())
     print(f"projected_normal_equations: {t_kernel:.3f} s; scipy: {t_scipy:.3f} s; "
           f"ratio {t_scipy / t_kernel:.1f}x faster; largest relative difference {diff:.1e}")
+    # two wavelengths on the table's one pattern (the joint fit's step): one pass against one call each
+    A2, B2 = A.copy(), B.copy()
+    A2.data *= 0.6
+    B2.data *= 1.7
+    res2 = np.random.default_rng(1).normal(size=A.shape[0])
+    chans = [(A, B, res, None, (None, None)), (A2, B2, res2, None, (None, None))]
+    t_two, (G2, g2) = best_time(lambda: channels_normal_equations(chans, M), a.repeat)
+    t_each, (G1, g1) = best_time(lambda: [sum(x) for x in zip(projected_normal_equations(A, B, M, res),
+                                                                  projected_normal_equations(A2, B2, M, res2))],
+                                 a.repeat)
+    diff2 = max(np.abs(G2 - G1).max() / np.abs(G1).max(), np.abs(g2 - g1).max() / np.abs(g1).max())
+    print(f"two channels in one pass (channels_normal_equations): {t_two:.3f} s; one call each: {t_each:.3f} s; "
+          f"ratio {t_each / t_two:.2f}x faster; largest relative difference {diff2:.1e}")
 
 
 if __name__ == "__main__":

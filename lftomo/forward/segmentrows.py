@@ -89,9 +89,10 @@ def row_pattern(row_ray_ptr: np.ndarray, ray_ptr: np.ndarray, voxel: np.ndarray,
 
     Returns
     -------
-    indptr : ndarray, shape (n_rows + 1,), int64
-    indices : ndarray, shape (nnz,), int32
-        CSR pattern: the distinct voxels each row's rays cross, increasing.
+    indptr : ndarray, shape (n_rows + 1,)
+    indices : ndarray, shape (nnz,)
+        CSR pattern: the distinct voxels each row's rays cross, increasing (int32, or int64 both
+        when nnz needs it).
     slot : ndarray, shape (n_segments,), int32
         Position of each segment's voxel within its row (add ``indptr[row]``).
     """
@@ -101,11 +102,14 @@ def row_pattern(row_ray_ptr: np.ndarray, ray_ptr: np.ndarray, voxel: np.ndarray,
     _count_row_voxels(row_ray_ptr, ray_ptr, voxel, np.zeros((n_threads, n_voxels), np.bool_), counts)
     indptr = np.zeros(n_rows + 1, np.int64)
     np.cumsum(counts, out=indptr[1:])
-    indices = np.empty(int(indptr[-1]), np.int32)
+    nnz = int(indptr[-1])
+    # scipy keeps a CSR matrix's index arrays as given (without a copy) when both have one dtype that holds nnz
+    index_dtype = np.int32 if nnz < np.iinfo(np.int32).max else np.int64
+    indices = np.empty(nnz, index_dtype)
     slot = np.empty(voxel.size, np.int32)
     _fill_row_pattern(row_ray_ptr, ray_ptr, voxel, indptr, np.full((n_threads, n_voxels), -1, np.int32),
                       indices, slot)
-    return indptr, indices, slot
+    return indptr.astype(index_dtype), indices, slot
 
 
 @njit(cache=True, parallel=True)

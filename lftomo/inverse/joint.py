@@ -187,7 +187,7 @@ from ..interrupt import stop_between_steps
 from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
-from .hostsparse import projected_normal_equations
+from .hostsparse import channels_normal_equations
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
@@ -708,6 +708,7 @@ class DenseLMPath(_JointPath):
         self.valid_np = [r >= 0 for r in model.rows]
         self.row_weight = [w.diagonal() for w in model.whiten]  # valid/σ per datum
         self.sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ, W): the last point evaluated
+        self.jac_cache = None  # (key of x, (χ², G_d, g_d)): the last Gauss–Newton matrices formed
         self.to_seg_csr = None if model.to_seg is None else sp.csr_matrix(model.to_seg)
         self._prior_gram = None
 
@@ -731,18 +732,32 @@ class DenseLMPath(_JointPath):
         if not with_jacobian:
             return F, data[0]
         data_sq, G, g = data
-        G += lam * self.prior_gram()  # (G is this evaluation's own array)
-        return F, data_sq, G, g + lam * g_prior
+        return F, data_sq, G + lam * self.prior_gram(), g + lam * g_prior
 
     def data_terms(self, x, with_jacobian):
         """``(χ²,)`` of the data at the unit-box point ``x``, or ``(χ², G_d, g_d)`` with the data's
-        Gauss–Newton matrix and gradient half in the unit-box unknowns (:meth:`evaluate` without the prior)."""
+        Gauss–Newton matrix and gradient half in the unit-box unknowns (:meth:`evaluate` without the prior).
+
+        The last ``(χ², G_d, g_d)`` is kept (read-only): a solve starts where the λ search's linearisation
+        (or the previous solve) ended, and needs the same matrices there."""
+        if with_jacobian:
+            key = hashlib.blake2b(np.ascontiguousarray(x, np.float64).tobytes(), digest_size=16).digest()
+            if self.jac_cache is not None and self.jac_cache[0] == key:
+                return self.jac_cache[1]
+            out = self._data_terms(x, True)
+            for a in out[1:]:
+                a.flags.writeable = False
+            self.jac_cache = (key, out)
+            return out
+        return self._data_terms(x, False)
+
+    def _data_terms(self, x, with_jacobian):
         md = self.model
         n_u, lo, hi = md.n_u, md.lo, md.hi
         T, sref = lo + (hi - lo) * x[:n_u], md.space.sigma_of_unit(x[n_u:])  # ∂T/∂x = T_max − T_min
         Tv, sv = (T, sref) if md.to_seg is None else (md.to_seg @ T, md.to_seg @ sref)
         data_sq = 0.0
-        G = g = None
+        channels = []
         for c in range(len(md.ms)):
             sa_c = sv * md.factors[c]
             signal, dF_ds, W = self._signal(c, blackbody(Tv, md.wls[c]), sa_c)
@@ -751,21 +766,31 @@ class DenseLMPath(_JointPath):
             if with_jacobian:
                 # ∂r/∂x: whitened data rows of W(σ) diag(I_b'(T)) ∂T/∂x and of ∂F/∂σ_ref, summed per
                 # unknown (E P), all inside the normal-equations kernel; ∂σ_ref/∂u is applied below
-                Gc, gc = projected_normal_equations(
-                    W, dF_ds, self.to_seg_csr, res, rows=md.rows_np[c], row_weight=self.row_weight[c],
-                    column_scale=(dblackbody_dT(Tv, md.wls[c]) * (hi - lo), md.factors[c]))
-                if G is None:
-                    G, g = Gc, gc
-                else:
-                    G += Gc
-                    g += gc
+                channels.append((W, dF_ds, res, self.row_weight[c],
+                                 (dblackbody_dT(Tv, md.wls[c]) * (hi - lo), md.factors[c])))
         if not with_jacobian:
             return (data_sq,)
+        G, g = self._normal_equations(channels)
         d = md.space.dsigma_du(sref)  # the σ_ref columns: ∂/∂u = ∂σ_ref/∂u · ∂/∂σ_ref
         G[:, n_u:] *= d
         G[n_u:, :] *= d[:, None]
         g[n_u:] *= d
         return data_sq, G, g
+
+    def _normal_equations(self, channels) -> tuple[np.ndarray, np.ndarray]:
+        """``Σ_c J_cᵀJ_c``, ``Σ_c J_cᵀ r_c`` of the channels: in one pass over the rows where they share the
+        rows and the table (the wavelengths of one camera), else one pass per group of channels that do."""
+        md = self.model
+        groups: dict = {}
+        for c, ch in enumerate(channels):  # (the matrices' pattern: the memory of their index arrays)
+            key = (*(a.__array_interface__["data"][0] for a in (ch[0].indptr, ch[0].indices, ch[1].indptr,
+                                                                ch[1].indices)), md.rows_np[c].tobytes())
+            groups.setdefault(key, (md.rows_np[c], []))[1].append(ch)
+        G = g = None
+        for rows, chans in groups.values():
+            Gk, gk = channels_normal_equations(chans, self.to_seg_csr, rows=rows)
+            G, g = (Gk, gk) if G is None else (G + Gk, g + gk)
+        return G, g
 
     def prior_terms(self, x) -> tuple[float, np.ndarray]:
         """``‖R‖²`` of the prior at the unit-box point ``x`` and its gradient half ``J_Rᵀ R`` (per unit λ)."""

@@ -93,6 +93,35 @@ def test_projected_normal_equations_with_rows_weights_and_column_scales():
         projected_normal_equations(A, B, M, res, rows=rows, column_scale=(a[:5], None))
 
 
+def test_channels_in_one_pass_equal_the_sum_of_each_channel():
+    """Three channels on one pattern (different values, weights, scales and residuals) in one pass give the
+    sum of their single-channel matrices; channels whose patterns differ are refused."""
+    from lftomo.inverse.hostsparse import channels_normal_equations
+
+    rng = np.random.default_rng(2)
+    A = sp.random(200, 40, density=0.1, random_state=7, format="csr")
+    B = sp.random(200, 40, density=0.1, random_state=8, format="csr")
+    M = sp.random(40, 9, density=0.3, random_state=9, format="csr")
+    rows = rng.permutation(200)[:150]
+    chans = []
+    for k in range(3):
+        Ak, Bk = A.copy(), B.copy()
+        Ak.data = Ak.data * rng.uniform(0.5, 2.0, Ak.nnz)
+        Bk.data = Bk.data * rng.uniform(0.5, 2.0, Bk.nnz)
+        chans.append((Ak, Bk, rng.standard_normal(150), rng.uniform(0.5, 2.0, 150),
+                      (rng.uniform(0.1, 3.0, 40), float(k + 1))))
+    for n in (2, 3):
+        G, g = channels_normal_equations(chans[:n], M, rows=rows)
+        parts = [projected_normal_equations(a, b, M, r, rows=rows, row_weight=w, column_scale=cs)
+                 for a, b, r, w, cs in chans[:n]]
+        G1, g1 = sum(p[0] for p in parts), sum(p[1] for p in parts)
+        np.testing.assert_allclose(G, G1, rtol=1e-12, atol=1e-12 * np.abs(G1).max())
+        np.testing.assert_allclose(g, g1, rtol=1e-12, atol=1e-12 * np.abs(g1).max())
+    other = sp.random(200, 40, density=0.1, random_state=10, format="csr")
+    with pytest.raises(ValueError, match="share one sparsity pattern"):
+        channels_normal_equations([chans[0], (other, chans[1][1], *chans[1][2:])], M, rows=rows)
+
+
 def test_equal_matrices_share_a_handle_and_the_registry_entry_lives_with_them():
     """host_csr keys its handle on the content: an equal matrix reuses the handle (and so the compiled
     functions); another matrix gets its own; the entry goes with the last object of its handle."""
