@@ -560,6 +560,13 @@ def _memory_limit(value) -> int:
     return int(value)
 
 
+def _check_rebuild_memory(est: int, limit: int) -> None:
+    """Refuse a rebuild from the segment table that needs ``est`` bytes, more than ``limit``."""
+    if est > limit:
+        raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
+                         f"memory_limit = {limit / 1e9:.3g} GB")
+
+
 def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> np.ndarray:
     """Scalar, ``grid.shape`` or ``(n_vox,)`` -> contiguous float64 (n_vox,)."""
     n = grid.n_voxels
@@ -1675,10 +1682,7 @@ class RaySegments:
         two = mode == 1  # a second value array
         if mode == 4:
             bound = 0  # the signal only: nothing stored
-        est = bound * (8 + 4 + (8 if two else 0)) + n_rows * 32
-        if est > limit:
-            raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
-                             f"memory_limit = {limit / 1e9:.3g} GB")
+        _check_rebuild_memory(bound * (8 + 4 + (8 if two else 0)) + n_rows * 32, limit)
         pos = _pos_scratch(self.n_voxels)
         inv_n = 1.0 / self.rays_per_pixel
         idx_all = np.empty(max(bound, 1), np.int32)
@@ -1829,11 +1833,8 @@ class RaySegments:
         """
         ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
         sa = self._sigma(sigma_a)
-        est = self.n_segments * (4 + 4 + 8 + 8) + self.n_rows * 32  # slots, pattern and two value arrays, at most
-        limit = _memory_limit(memory_limit)
-        if est > limit:
-            raise LftomoError(f"rebuilding from the segment table needs up to {est / 1e9:.3g} GB, more than "
-                             f"memory_limit = {limit / 1e9:.3g} GB")
+        # slots, pattern and two value arrays, at most
+        _check_rebuild_memory(self.n_segments * (4 + 4 + 8 + 8) + self.n_rows * 32, _memory_limit(memory_limit))
         pattern = self._row_pattern
         sig, J, W = linearized_rows(self.row_ray_ptr, self.ray_ptr, self.ray_weight, self.ray_radiance, self.voxel,
                                     self.length, pattern, self.rays_per_pixel, sa, ib)

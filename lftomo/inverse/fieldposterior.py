@@ -62,10 +62,10 @@ from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors, temperature_start
-from .fitoptions import MOVED_OPTIONS, moved_options
+from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
-from .solverchoice import LevenbergMarquardt, resolve_solver
+from .solverchoice import LevenbergMarquardt
 from .solvers import temperature_fit
 from .symmetry import resolve_symmetry, ring_problem, ring_start
 
@@ -566,10 +566,8 @@ def _solver_keywords(solver: Any, old: dict[str, Any]) -> dict[str, Any]:
         solver = LevenbergMarquardt(**old)
     if solver is None:
         return {}
-    kw = resolve_solver(solver, fit="T").keywords()
-    if kw["method"] == "auto":  # the T-only fit's own choice
-        kw["method"] = "levenberg-marquardt"
-    return kw
+    _, method, _, kw = fit_keywords("T", regularization="auto", method=None, rule=None, solver=solver, options={})
+    return {**kw, "method": method}
 
 
 def _moved_rule(moved: dict[str, Any]) -> Any:

@@ -269,10 +269,15 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, rows, row_
                 mark[cols[x]] = False
 
 
+def buffer_key(a: np.ndarray) -> tuple:
+    """The memory ``a`` reads and how (address, dtype, shape, strides): two live arrays with the same key
+    are equal, without comparing them."""
+    return (a.__array_interface__["data"][0], a.dtype.str, a.shape, a.strides)
+
+
 def same_buffer(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether ``a`` and ``b`` are the same memory read the same way (then equal, without comparing them)."""
-    return (a.dtype == b.dtype and a.shape == b.shape and a.strides == b.strides
-            and a.__array_interface__["data"][0] == b.__array_interface__["data"][0])
+    """Whether ``a`` and ``b`` are the same memory read the same way (:func:`buffer_key`)."""
+    return buffer_key(a) == buffer_key(b)
 
 
 def _scale_vector(name: str, value, n: int) -> np.ndarray:

@@ -187,7 +187,7 @@ from ..interrupt import stop_between_steps
 from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
-from .hostsparse import channels_normal_equations
+from .hostsparse import buffer_key, channels_normal_equations
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
@@ -783,8 +783,8 @@ class DenseLMPath(_JointPath):
         md = self.model
         groups: dict = {}
         for c, ch in enumerate(channels):  # (the matrices' pattern: the memory of their index arrays)
-            key = (*(a.__array_interface__["data"][0] for a in (ch[0].indptr, ch[0].indices, ch[1].indptr,
-                                                                ch[1].indices)), md.rows_np[c].tobytes())
+            key = (*(buffer_key(a) for a in (ch[0].indptr, ch[0].indices, ch[1].indptr, ch[1].indices)),
+                   md.rows_np[c].tobytes())
             groups.setdefault(key, (md.rows_np[c], []))[1].append(ch)
         G = g = None
         for rows, chans in groups.values():
