@@ -16,6 +16,8 @@ the Tikhonov term is — no basis truncation, so what is left of the miss is the
 prior's bias.  ``--regularization evidence`` (default there) picks λ by
 empirical Bayes (MacKay's fixed point for the largest Laplace evidence);
 ``auto`` takes the reconstruction's discrepancy λ; a number fixes λ.
+``--noise-scale estimated``: the evidence rule estimates the noise's scale
+with λ (``lt.Evidence(noise_scale="estimated")``) and scales the covariance.
 ``--method dense`` (exact, small grids) or ``sampled`` (matrix-free draws).
 
 Noise model, camera and data selection as in ``studies/accuracy.py``.
@@ -56,7 +58,10 @@ def draw_row(d, lf, W, W_post, a, ctx):
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")
     t = time.perf_counter()
     if a.laplace_field:
-        rule = a.regularization if a.regularization in ("evidence", "auto") else lt.Fixed(float(a.regularization))
+        if a.regularization == "evidence":
+            rule = lt.Evidence(noise_scale=a.noise_scale)
+        else:
+            rule = "auto" if a.regularization == "auto" else lt.Fixed(float(a.regularization))
         post = lt.laplace_posterior(m, W_post, rule=rule,
                                     covariance=lt.LaplaceCovariance(method=a.method, n_samples=a.samples),
                                     seed=400 + d, prior=a.prior,
@@ -68,7 +73,8 @@ def draw_row(d, lf, W, W_post, a, ctx):
                "median_std_K": float(np.median(post.T_std[hot])), "seconds": time.perf_counter() - t,
                "solve_s": post.metadata["solve_s"], "posterior_s": post.metadata["posterior_s"]}
         if post.evidence is not None:
-            row["evidence"] = {k: post.evidence[k] for k in ("lambda", "gamma", "log_evidence", "converged")}
+            row["evidence"] = {k: post.evidence[k] for k in ("lambda", "gamma", "log_evidence", "converged",
+                                                             "noise_scale")}
         return row
     post = lt.sample_posterior(m.problem(W, coarse), basis=basis,
                                chain=lt.EnsembleChain(n_walkers=a.walkers, n_steps=a.steps), seed=400 + d,
@@ -105,6 +111,8 @@ def main():
     ap.add_argument("--regularization", default="evidence",
                     help="λ for --laplace-field: 'evidence' (empirical Bayes), 'auto' (the reconstruction's "
                          "discrepancy rule) or a number")
+    ap.add_argument("--noise-scale", choices=("given", "estimated"), default="given",
+                    help="--regularization evidence: σ as given, or its scale estimated with λ (lt.Evidence)")
     ap.add_argument("--method", choices=("auto", "dense", "sampled"), default="auto",
                     help="--laplace-field: dense (exact, n <= 4096) or sampled (matrix-free draws)")
     ap.add_argument("--samples", type=int, default=64, help="--laplace-field --method sampled: draws")

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -510,10 +510,11 @@ def laplace_posterior(
     if isinstance(rule, Evidence):
         rec, lam, st, evidence = _evidence_iterations(
             run, T_start, lambda0=rule.lambda0, max_iter=rule.max_iter, lambda_rtol=rule.rtol,
-            trace_samples=rule.trace_samples, progress=progress)
+            trace_samples=rule.trace_samples, noise_scale=rule.noise_scale, progress=progress)
         rule_name = "evidence"
         if method == "sampled":  # the variances at the final λ, with the full number of draws
             st = run.stats_at(rec.T, lam)
+        st = _scaled_stats(st, evidence["noise_scale"][-1])
     else:
         rec = run.solve(rule.value if isinstance(rule, Fixed) else "auto", T_start)
         lam = rec.regularization
@@ -638,30 +639,38 @@ class _PosteriorRun:
         return st
 
 
-def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lambda_rtol, trace_samples, progress):
-    """MacKay's fixed point ``λ = γ / ‖L T̂/T_s‖²`` from the discrepancy λ (or ``lambda0``), each step a
-    warm-started reconstruction.  Returns ``(reconstruction, λ, statistics, evidence record)``."""
+def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lambda_rtol, trace_samples, noise_scale,
+                         progress):
+    """MacKay's fixed point ``λ = γ / (β ‖L T̂/T_s‖²)`` from the discrepancy λ (or ``lambda0``), each step a
+    warm-started reconstruction; ``β = 1`` for ``noise_scale="given"``, else ``β = (m − γ) / χ²`` (the
+    noise's precision relative to the given σ, :class:`~lftomo.inverse.lambdarules.Evidence`).
+    Returns ``(reconstruction, λ, statistics, evidence record)``."""
     rec = run.solve("auto" if lambda0 is None else lambda0, T_start)
-    r = run.problem.grid.n_voxels - _null_dimension(run.Ls)
+    r, n = run.problem.grid.n_voxels - _null_dimension(run.Ls), run.problem.grid.n_voxels
     lam = rec.regularization
-    path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2")}
+    path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2", "noise_scale")}
     converged = False
     for it in range(max_iter):
         if it > 0:
             rec = run.solve(lam, rec.T)
         st = run.stats_at(rec.T, lam, trace_samples)
-        R2 = rec.regularization_norm**2
+        R2, chi2_sum = rec.regularization_norm**2, rec.residual_norm**2
         gamma = r - lam * st.trace
-        log_ev = (-0.5 * (rec.residual_norm**2 + lam * R2) + 0.5 * r * math.log(lam) - 0.5 * st.logdet)
-        for k, v in zip(path, (lam, gamma, st.trace, st.trace_se, log_ev, rec.chi2)):
+        m = chi2_sum / rec.chi2 if rec.chi2 > 0 else float("inf")  # the fit's data count
+        beta = (m - gamma) / chi2_sum if (noise_scale == "estimated" and chi2_sum > 0) else 1.0
+        # log p(y | α = λβ, β) up to a constant: the Laplace evidence of the scaled likelihood and prior
+        log_ev = (-0.5 * beta * (chi2_sum + lam * R2) + 0.5 * r * math.log(lam * beta)
+                  + 0.5 * (m - n) * math.log(beta) - 0.5 * st.logdet)
+        for k, v in zip(path, (lam, gamma, st.trace, st.trace_se, log_ev, rec.chi2, 1.0 / math.sqrt(beta))):
             path[k].append(float(v))
         if progress:
-            print(f"evidence iteration {it}: lambda {lam:.4g}, gamma {gamma:.1f} of {r}, chi2/m {rec.chi2:.3f}",
-                  flush=True)
-        if not (gamma > 0 and R2 > 0):
+            scale = f", noise scale {1.0 / math.sqrt(beta):.3g}" if noise_scale == "estimated" else ""
+            print(f"evidence iteration {it}: lambda {lam:.4g}, gamma {gamma:.1f} of {r}, chi2/m {rec.chi2:.3f}"
+                  f"{scale}", flush=True)
+        if not (gamma > 0 and R2 > 0 and beta > 0):
             raise RuntimeError(f"evidence fixed point broke down at lambda={lam:g} (gamma={gamma:g}, "
-                               f"|L T/T_s|^2={R2:g})")
-        step = math.log(gamma / R2 / lam)
+                               f"|L T/T_s|^2={R2:g}, beta={beta:g})")
+        step = math.log(gamma / (beta * R2) / lam)
         noise = lam * st.trace_se / gamma  # std of the step from the trace's sampling error
         if abs(step) <= max(lambda_rtol, 2.0 * noise):
             converged = True
@@ -669,8 +678,14 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
         if it == max_iter - 1:
             break  # keep λ consistent with the last reconstruction
         lam = lam * math.exp(min(max(step, -math.log(10.0)), math.log(10.0)))
-    evidence = {**path, "converged": converged, "iterations": len(path["lambda"]), "rank": r}
+    evidence = {**path, "converged": converged, "iterations": len(path["lambda"]), "rank": r,
+                "noise_scale_rule": noise_scale}
     return rec, lam, st, evidence
+
+
+def _scaled_stats(st: _Stats, s: float) -> _Stats:
+    """The statistics of the covariance ``s² H⁻¹`` (variances and draws; trace and log det stay ``H``'s)."""
+    return replace(st, var=st.var * s * s, deltas=None if st.deltas is None else st.deltas * s)
 
 
 def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_level, grid, ring, evidence,

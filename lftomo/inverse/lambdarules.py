@@ -1174,6 +1174,12 @@ class Evidence(LambdaRule):
         its own sampling noise, for the sampled covariance), > 0.
     trace_samples : int
         Random probes for ``tr(H⁻¹ Lₛᵀ Lₛ)`` in the iterations of the sampled covariance, >= 4.
+    noise_scale : {"given", "estimated"}
+        ``"given"``: the data's σ is the noise (β = 1).  ``"estimated"``: σ is known up to
+        one scale ``s`` (σ_true = s σ), estimated with λ at the evidence's maximum over both
+        (MacKay's second fixed point ``1/s² = β = (m − γ) / χ²``, ``χ²`` the fit's whitened
+        misfit over its ``m`` data); λ then follows ``λ = γ χ² / ((m − γ) ‖L T̂ / T_s‖²)``
+        and the posterior covariance is ``s² H⁻¹``.
 
     References
     ----------
@@ -1184,15 +1190,16 @@ class Evidence(LambdaRule):
     fits = ("laplace_posterior",)
 
     def __init__(self, lambda0: float | None = None, max_iter: int = 12, rtol: float = 0.05,
-                 trace_samples: int = 16) -> None:
+                 trace_samples: int = 16, noise_scale: str = "given") -> None:
         self.lambda0 = None if lambda0 is None else require_positive("lambda0", lambda0)
         self.max_iter = require_int("max_iter", max_iter, minimum=1)
         self.rtol = require_positive("rtol", rtol)
         self.trace_samples = require_int("trace_samples", trace_samples, minimum=4)
+        self.noise_scale = _noise_scale(noise_scale)
 
     def keywords(self) -> dict[str, Any]:
         return {"lambda0": self.lambda0, "max_iter": self.max_iter, "lambda_rtol": self.rtol,
-                "trace_samples": self.trace_samples}
+                "trace_samples": self.trace_samples, "noise_scale": self.noise_scale}
 
 
 class LCurveDecades(LambdaRule):

@@ -166,6 +166,54 @@ def test_evidence_recovers_the_prior_and_is_calibrated():
     assert 0.75 <= post.coverage(T, hot=0.0) <= 1.0
 
 
+def _scaled_sigma(problem, factor):
+    return LinearProblem(problem.A, problem.y, factor * problem.sigma, problem.grid, problem.wavelength)
+
+
+def test_estimated_noise_scale_makes_the_posterior_independent_of_sigmas_scale(case):
+    """With the noise scale estimated, σ given 3× too large (or not) gives the same λ and intervals:
+    (λ, β) and the covariance s² H⁻¹ are invariant under σ → cσ (λ → λ/c², β → c² β).  With σ as
+    given, the 3× σ widens the intervals (the test can fail)."""
+    problem, _ = case
+    rule = lt.Evidence(lambda0=100.0, noise_scale="estimated", rtol=1e-5, max_iter=60)
+    dense = lt.LaplaceCovariance(method="dense")
+    a = laplace_posterior(problem, rule=rule, covariance=dense)
+    b = laplace_posterior(_scaled_sigma(problem, 3.0), rule=rule, covariance=dense)
+    assert a.evidence["converged"] and b.evidence["converged"]
+    assert b.regularization == pytest.approx(a.regularization / 9.0, rel=1e-3)
+    assert b.evidence["noise_scale"][-1] == pytest.approx(a.evidence["noise_scale"][-1] / 3.0, rel=1e-3)
+    np.testing.assert_allclose(b.T_std, a.T_std, rtol=1e-3)
+    np.testing.assert_allclose(b.T_mean, a.T_mean, rtol=1e-4)
+    given = laplace_posterior(_scaled_sigma(problem, 3.0), rule=lt.Evidence(lambda0=100.0), covariance=dense)
+    assert np.median(given.T_std / a.T_std) > 1.5
+    assert given.evidence["noise_scale"] == [1.0] * given.evidence["iterations"]
+
+
+def test_estimated_noise_scale_recovers_the_true_noise_and_is_calibrated():
+    """Truth from the prior, data with σ_true and σ given 3× too large: the estimated scale s
+    is within 4 of its standard error (√(1/(2(m − γ))) relative) of 1/3, λ within 4 of its
+    sampling std of λ_true/9 (λ in units of the given σ), and the standardised errors under
+    s² H⁻¹ have mean z² within 4 standard errors of 1 (as in the test with the true σ)."""
+    grid = lt.Grid((6, 6, 6), (-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
+    lam_true = 300.0
+    T = _prior_draw(grid, lam_true, np.random.default_rng(11))
+    problem = _scaled_sigma(planck_problem(grid, T, 0.01, seed=5), 3.0)
+    post = laplace_posterior(problem, rule=lt.Evidence(noise_scale="estimated"),
+                             covariance=lt.LaplaceCovariance(method="dense"))
+    ev = post.evidence
+    gamma, s, m = ev["gamma"][-1], ev["noise_scale"][-1], problem.y.size
+    assert abs(s * 3.0 - 1.0) <= 4.0 * math.sqrt(1.0 / (2.0 * (m - gamma)))
+    assert abs(math.log(9.0 * post.regularization / lam_true)) <= 4.0 * math.sqrt(2.0 / gamma)
+    J, Ls = precision_factors(problem, post.T_mean)
+    cov = s * s * np.linalg.inv((J.T @ J).toarray() + post.regularization * (Ls.T @ Ls).toarray())
+    np.testing.assert_allclose(post.T_std.ravel(), np.sqrt(np.diag(cov)), rtol=1e-6)
+    sd = np.sqrt(np.diag(cov))
+    C = cov / np.outer(sd, sd)
+    z2 = np.mean(((post.T_mean - T).ravel() / sd) ** 2)
+    assert abs(z2 - 1.0) <= 4.0 * math.sqrt(2.0 * np.sum(C * C)) / grid.n_voxels
+    assert 0.75 <= post.coverage(T, hot=0.0) <= 1.0
+
+
 @pytest.mark.parametrize(
     "kw, match",
     [
