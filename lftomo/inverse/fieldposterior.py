@@ -98,7 +98,9 @@ class FieldPosterior:
         For ``lambda_rule="evidence"``: per iterate ``"lambda"``, ``"gamma"``,
         ``"trace"`` (tr H⁻¹M), ``"trace_se"`` (its standard error; 0 when
         exact), ``"log_evidence"`` (up to a constant; NaN for ``"sampled"``),
-        and ``"converged"``, ``"iterations"``.
+        ``"chi2"`` (χ²/m of the reconstruction), ``"noise_scale"`` (the scale ``s``
+        of σ: 1 with ``Evidence(noise_scale="given")``; the covariance is ``s² H⁻¹``),
+        and ``"converged"``, ``"iterations"``, ``"rank"``, ``"noise_scale_rule"``.
     solution : TemperatureSolution
         The regularized reconstruction at ``regularization``
         (:func:`lftomo.inverse.solvers.temperature_fit`).
