@@ -56,7 +56,7 @@ def grid_shape(n, free):
     return (2 * n // 3, n, 2 * n // 3) if free else (n,) * 3
 
 
-def setup(n, refine, seed, free):
+def setup(n, refine, seed, free=False):
     """The data (two channels), the segment table's camera and views, the effective truth on the grid."""
     cam = lt.Camera.seed(1.0)
     shape = grid_shape(n, free)

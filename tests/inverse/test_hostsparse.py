@@ -117,6 +117,12 @@ def test_channels_in_one_pass_equal_the_sum_of_each_channel():
         G1, g1 = sum(p[0] for p in parts), sum(p[1] for p in parts)
         np.testing.assert_allclose(G, G1, rtol=1e-12, atol=1e-12 * np.abs(G1).max())
         np.testing.assert_allclose(g, g1, rtol=1e-12, atol=1e-12 * np.abs(g1).max())
+    # a read-only channel (a cached table's matrices are) next to writeable ones: the same sums
+    ro = chans[1][0].copy()
+    ro.data.flags.writeable = False
+    G_ro, g_ro = channels_normal_equations([chans[0], (ro, *chans[1][1:]), chans[2]], M, rows=rows)
+    np.testing.assert_array_equal(G_ro, channels_normal_equations(chans, M, rows=rows)[0])
+    np.testing.assert_array_equal(g_ro, g)
     other = sp.random(200, 40, density=0.1, random_state=10, format="csr")
     with pytest.raises(ValueError, match="share one sparsity pattern"):
         channels_normal_equations([chans[0], (other, chans[1][1], *chans[1][2:])], M, rows=rows)
