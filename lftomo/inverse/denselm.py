@@ -162,7 +162,11 @@ def levenberg_marquardt_dense(
         determined valley (T against σ_a where the flame is dark) Levenberg–Marquardt
         creeps with small accepted steps long after the objective has settled
         to this precision (docs/accuracy.md, *Measurements behind the solvers'
-        choices*).
+        choices*).  A solve that reaches ``max_steps`` is also converged when its
+        last ``slow_window`` trial points (accepted or not) together reduced ``F``
+        by less than that: a solve continued in short pieces (the joint λ
+        search's inexact solves) would otherwise never count its rejected trials
+        and go on piece after piece at a settled objective.
     xtol, gtol : float
         Converged when the step is below ``xtol (‖p‖ + xtol)``, unless the
         box cut that step while the projected gradient, scaled like
@@ -198,6 +202,7 @@ def levenberg_marquardt_dense(
         return DenseLMResult(p, float(F), float(data_sq), 0, False, float(mu0), "non-finite objective at the start")
     F_start = float(F)
     accepted = [float(F)]  # F after each accepted step (the start first)
+    trials = [float(F)]  # F after each trial point (unchanged by a rejected one)
     d_max = np.zeros(p.size)
     mu, nu = float(mu0), 2.0
     steps = 0
@@ -233,6 +238,7 @@ def levenberg_marquardt_dense(
         F_try, data_try = evaluate(p_try, False)
         steps += 1
         rho = (F - F_try) / predicted if (np.isfinite(F_try) and predicted > 0) else -1.0
+        trials.append(float(F_try) if rho > 0 else float(F))
         if rho > 0:
             actual = F - F_try
             p, data_sq = p_try, data_try
@@ -261,4 +267,8 @@ def levenberg_marquardt_dense(
             if mu > 1e16:
                 message = "damping diverged (no descent step found)"
                 break
+    if (not converged and steps >= max_steps and len(trials) > slow_window
+            and trials[-1 - slow_window] - F <= slow_rtol * F):
+        converged, message = True, (f"max_steps ({max_steps}) reached with the relative reduction over the last "
+                                    f"{slow_window} trial points below {slow_rtol:g}")
     return DenseLMResult(p, float(F), float(data_sq), steps, converged, float(mu), message)

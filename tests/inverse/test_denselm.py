@@ -76,6 +76,27 @@ def test_slow_convergence_rule_counts_accepted_steps():
     assert fast.objective > 10.0 * full.objective
 
 
+def test_a_capped_solve_at_a_settled_objective_counts_its_rejected_trials():
+    """A solve that reaches ``max_steps`` is converged when its last ``slow_window`` trial points,
+    rejected ones included, reduced F by at most ``slow_rtol · F``: every trial rejected (F never
+    falls) converges at the cap; a capped solve that is still reducing F from a far start does not."""
+    y = _decay_data()
+    p0 = np.array([0.5, 5.0, -1.0])
+    base = _evaluate(y)
+
+    def never_lower(p, with_jacobian):  # every trial point evaluates a little worse than the start
+        out = base(p0, with_jacobian)
+        return out if with_jacobian else (out[0] * (1.0 + 1e-9), out[1])
+
+    stuck = levenberg_marquardt_dense(never_lower, p0, max_steps=10, slow_window=10, xtol=0.0)
+    assert stuck.converged and "trial points" in stuck.message, stuck.message
+    assert stuck.steps == 10 and np.array_equal(stuck.p, p0)
+    short = levenberg_marquardt_dense(never_lower, p0, max_steps=9, slow_window=10, xtol=0.0)
+    assert not short.converged and "max_steps" in short.message  # fewer trials than the window
+    moving = levenberg_marquardt_dense(base, p0, max_steps=10, slow_window=10, ftol=0.0)
+    assert not moving.converged, moving.message
+
+
 def test_bound_active_at_the_optimum_is_reached_exactly():
     """With c ≤ 0.3 (the unconstrained c is 0.5) the optimum has c on its bound: the projected
     method puts it there exactly and agrees with scipy's trust-region-reflective solver."""
