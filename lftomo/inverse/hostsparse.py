@@ -401,11 +401,19 @@ def _symmetric_sum(G_parts):
     a sum of the parts and a fancy-indexed copy of the upper triangle onto the lower one)."""
     n_parts, n = G_parts.shape[0], G_parts.shape[1]
     G = np.empty((n, n))
-    for i in prange(n):
-        for j in range(i, n):
-            v = 0.0
-            for c in range(n_parts):
-                v += G_parts[c, i, j]
-            G[i, j] = v
-            G[j, i] = v
+    b = 64  # in square blocks, so that the mirrored writes G[j, i] stay in cache
+    n_blocks = (n + b - 1) // b
+    for bi in prange(n_blocks):
+        i0, i1 = bi * b, min(n, bi * b + b)
+        for j0 in range(i0, n, b):
+            j1 = min(n, j0 + b)
+            for i in range(i0, i1):
+                for j in range(max(i, j0), j1):
+                    v = 0.0
+                    for c in range(n_parts):
+                        v += G_parts[c, i, j]
+                    G[i, j] = v
+            for j in range(j0, j1):
+                for i in range(i0, min(i1, j + 1)):
+                    G[j, i] = G[i, j]
     return G

@@ -152,3 +152,13 @@ def test_equal_matrices_share_a_handle_and_the_registry_entry_lives_with_them():
     del b
     gc.collect()
     assert key not in hs._REGISTRY
+
+
+@pytest.mark.parametrize("n", [1, 63, 64, 130])
+def test_symmetric_sum_of_upper_triangles(n):
+    """The parts' upper triangles summed and mirrored, for sizes below, at and across the kernel's blocks."""
+    from lftomo.inverse.hostsparse import _symmetric_sum
+
+    P = np.triu(np.random.default_rng(n).standard_normal((3, n, n)))
+    U = np.triu(P.sum(axis=0))
+    np.testing.assert_allclose(_symmetric_sum(P), U + np.triu(U, 1).T, rtol=1e-15, atol=1e-15)
