@@ -649,6 +649,7 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
     Returns ``(reconstruction, λ, statistics, evidence record)``."""
     rec = run.solve("auto" if lambda0 is None else lambda0, T_start)
     r, n = run.problem.grid.n_voxels - _null_dimension(run.Ls), run.problem.grid.n_voxels
+    m = run.problem.y.size  # the data χ² is summed over
     lam = rec.regularization
     path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2", "noise_scale")}
     converged = False
@@ -658,7 +659,6 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
         st = run.stats_at(rec.T, lam, trace_samples)
         R2, chi2_sum = rec.regularization_norm**2, rec.residual_norm**2
         gamma = r - lam * st.trace
-        m = chi2_sum / rec.chi2 if rec.chi2 > 0 else float("inf")  # the fit's data count
         beta = (m - gamma) / chi2_sum if (noise_scale == "estimated" and chi2_sum > 0) else 1.0
         # log p(y | α = λβ, β) up to a constant: the Laplace evidence of the scaled likelihood and prior
         log_ev = (-0.5 * beta * (chi2_sum + lam * R2) + 0.5 * r * math.log(lam * beta)

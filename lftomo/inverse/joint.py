@@ -731,8 +731,10 @@ class DenseLMPath(_JointPath):
         F = data[0] + lam * prior_sq
         if not with_jacobian:
             return F, data[0]
-        data_sq, G, g = data
-        return F, data_sq, G + lam * self.prior_gram(), g + lam * g_prior
+        data_sq, G_d, g = data
+        G = lam * self.prior_gram()  # one new n × n array: G_d is the kept, read-only one
+        G += G_d
+        return F, data_sq, G, g + lam * g_prior
 
     def data_terms(self, x, with_jacobian):
         """``(χ²,)`` of the data at the unit-box point ``x``, or ``(χ², G_d, g_d)`` with the data's
