@@ -133,3 +133,63 @@ def test_non_finite_trial_points_are_rejected_not_accepted():
         return (np.nan,) + out[1:] if p[1] > 3.0 else out
     res = levenberg_marquardt_dense(guarded, np.array([2.0, 2.9, 0.5]), max_steps=200)
     assert res.converged and np.isfinite(res.objective) and res.p[1] <= 3.0
+
+
+@pytest.mark.parametrize("n_fixed", [0, 1, 5, 30])
+def test_steps_on_faces_of_the_box_reuse_one_factor_and_equal_the_reduced_solve(n_fixed):
+    """The damped step with some unknowns fixed at given moves, from the factor of the whole
+    free system (bordered form, few fixed) or a new factor (many fixed), equals the solve of the
+    reduced system written out with numpy."""
+    from lftomo.inverse.denselm import _DampedSystem
+
+    rng = np.random.default_rng(n_fixed)
+    n = 60
+    J = rng.standard_normal((90, n))
+    G, g = J.T @ J, rng.standard_normal(n)
+    damping = rng.uniform(0.1, 2.0, n)
+    held = np.zeros(n, bool)
+    held[[3, 17]] = True
+    system = _DampedSystem(G, g, damping, held)
+    fixed = held.copy()
+    fixed[rng.choice(np.flatnonzero(~held), n_fixed, replace=False)] = True
+    moves = np.where(fixed & ~held, rng.standard_normal(n), 0.0)
+    free = ~fixed
+    A = G[np.ix_(free, free)] + np.diag(damping[free])
+    expected = moves.copy()
+    expected[free] = np.linalg.solve(A, -(g[free] + G[np.ix_(free, fixed)] @ moves[fixed]))
+    h = system.step(fixed, moves)
+    np.testing.assert_allclose(h, expected, rtol=1e-9, atol=1e-12)
+    assert np.all(h[fixed] == moves[fixed])
+    # the cached columns are reused by a second, larger face
+    more = fixed.copy()
+    more[np.flatnonzero(~fixed)[:2]] = True
+    moves2 = np.where(more & ~held, moves + 0.1, 0.0)
+    free2 = ~more
+    expected2 = moves2.copy()
+    A2 = G[np.ix_(free2, free2)] + np.diag(damping[free2])
+    expected2[free2] = np.linalg.solve(A2, -(g[free2] + G[np.ix_(free2, more)] @ moves2[more]))
+    np.testing.assert_allclose(system.step(more, moves2), expected2, rtol=1e-9, atol=1e-12)
+
+
+def test_many_unknowns_on_bounds_reach_the_bounded_least_squares_solution():
+    """A linear least-squares problem with 80 unknowns, a third of them on a bound at the optimum:
+    the projected method (its faces solved from one factor per trial) reaches scipy's lsq_linear."""
+    rng = np.random.default_rng(7)
+    n = 80
+    A = rng.standard_normal((200, n))
+    x_true = rng.uniform(-1.0, 1.0, n)
+    b = A @ x_true + 0.3 * rng.standard_normal(200)
+    lo, hi = np.full(n, -0.5), np.full(n, 0.6)
+
+    def evaluate(x, with_jacobian):
+        r = A @ x - b
+        F = float(r @ r)
+        return (F, F, A.T @ A, A.T @ r) if with_jacobian else (F, F)
+
+    res = levenberg_marquardt_dense(evaluate, np.zeros(n), lower=lo, upper=hi, max_steps=300, ftol=1e-14,
+                                    slow_rtol=1e-14)
+    ref = so.lsq_linear(A, b, bounds=(lo, hi), tol=1e-14, method="bvls")
+    on_bound = (ref.x <= lo + 1e-12) | (ref.x >= hi - 1e-12)
+    assert on_bound.sum() >= n // 4
+    np.testing.assert_allclose(res.p, ref.x, atol=1e-6)
+    assert res.objective <= 2.0 * ref.cost * (1 + 1e-9)
