@@ -76,9 +76,9 @@ class _DampedSystem:
     *from the same factor*: with ``A`` the damped matrix of the free unknowns,
     ``u = A⁻¹ g_F`` and ``Z = A⁻¹ E`` (``E`` the columns of the newly fixed
     set S), the minimiser of ``½ hᵀAh + g_Fᵀh`` with ``h_S = m`` is
-    ``h = Z λ − u``, ``(Eᵀ Z) λ = m + u_S`` (the bordered, or Schur-complement,
-    form of the reduced system; Golub & Van Loan 2013, *Matrix Computations*,
-    §12.1).  Each fixed unknown costs two triangular solves (2 n² flops)
+    ``h = Z λ − u``, ``(Eᵀ Z) λ = m + u_S`` (the Schur-complement method for
+    the KKT system of an equality-constrained quadratic program; Nocedal &
+    Wright 2006, *Numerical Optimization*, 2nd ed., §16.2).  Each fixed unknown costs two triangular solves (2 n² flops)
     instead of a new factorisation (n³/3); when S is large the reduced
     system is factorised afresh instead.
     """
