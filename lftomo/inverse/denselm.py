@@ -78,9 +78,10 @@ class _DampedSystem:
     set S), the minimiser of ``½ hᵀAh + g_Fᵀh`` with ``h_S = m`` is
     ``h = Z λ − u``, ``(Eᵀ Z) λ = m + u_S`` (the Schur-complement method for
     the KKT system of an equality-constrained quadratic program; Nocedal &
-    Wright 2006, *Numerical Optimization*, 2nd ed., §16.2).  Each fixed unknown costs two triangular solves (2 n² flops)
-    instead of a new factorisation (n³/3); when S is large the reduced
-    system is factorised afresh instead.
+    Wright 2006, *Numerical Optimization*, 2nd ed., §16.2).  Each fixed
+    unknown costs two triangular solves (2 n² flops, its column of ``Z`` is
+    kept for the next face) instead of a new factorisation (n³/3); when S is
+    large the reduced system is factorised afresh instead.
     """
 
     #: re-factorise when the fixed set exceeds this fraction of the free unknowns
