@@ -35,6 +35,7 @@ from .inverse.design import Design, design, compare_designs, design_table, rig_a
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 from .inverse.subvoxel import interpolate_field, interpolation_matrix
 from .inverse.symmetry import RingGrid, ring_grid
+from .inverse.parameterize import Parameterization, Voxels, Splines, SubVoxel
 from .rawio import RawFrame, read_raw, write_raw, subtract_dark, CameraDescription, load_camera_description
 from .calibration import (MicrolensGrid, calibrate_grid, decode_operator, decode_views, refocus_views,
                           RadiometricCalibration, radiometric_calibration, save_calibration, load_calibration)
@@ -133,6 +134,10 @@ __all__ = [
     "ParametricFlame",
     "RingGrid",
     "ring_grid",
+    "Parameterization",
+    "Voxels",
+    "Splines",
+    "SubVoxel",
     "interpolation_matrix",
     "interpolate_field",
     "Comparison",

@@ -67,7 +67,7 @@ from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
 from .solverchoice import LevenbergMarquardt
 from .solvers import temperature_fit
-from .symmetry import resolve_symmetry, ring_problem, ring_start
+from .symmetry import resolve_symmetry
 
 _METHODS = ("auto", "dense", "sampled")
 
@@ -496,7 +496,7 @@ def laplace_posterior(
     T_start = temperature_start(start, problem.grid)
     ring = resolve_symmetry(symmetry, problem.grid)
     if ring is not None:
-        problem = ring_problem(problem, ring)
+        problem = ring.apply(problem)
     grid = problem.grid
     method = cov.method
     if method == "auto":
@@ -506,7 +506,7 @@ def laplace_posterior(
                         method=method, n_samples=cov.n_samples, rng=np.random.default_rng(seed),
                         cg_rtol=cov.cg_rtol, cg_max_iter=cov.cg_max_iter)
     if ring is not None:
-        T_start = ring_start(T_start, ring)
+        T_start = ring.start(T_start)
 
     evidence = None
     if isinstance(rule, Evidence):

@@ -198,6 +198,7 @@ from .result import Reconstruction
 from .rigsegments import SegmentStack, rows_of_pixels
 from .solvers import baseline_start
 from .subvoxel import interpolate_field, require_same_box, resolve_quadrature
+from .parameterize import require_selection
 from .symmetry import resolve_symmetry
 from .unknowns import SIGMA_A_SPACES
 
@@ -474,8 +475,10 @@ class JointModel:
         self.n = self.grid.n_voxels
         self.ring = resolve_symmetry(symmetry, self.grid)
         ring, E = self.ring, self.E
-        self.n_u = self.n if ring is None else ring.n_voxels
-        self.cell = None if ring is None else jnp.asarray(ring.cell_of_voxel)
+        require_selection(ring)
+        self.n_u = self.n if ring is None else ring.n_params
+        # a selection's one column per row: the unknown each voxel takes
+        self.cell = None if ring is None else jnp.asarray(sp.csr_matrix(ring.expansion).indices)
         to_seg = ring.expansion if E is None and ring is not None else E
         if E is not None and ring is not None:
             to_seg = (E @ ring.expansion).tocsr()

@@ -12,6 +12,7 @@ transmittance in JAX.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from typing import Any
@@ -21,7 +22,8 @@ import numpy as np
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
-from .symmetry import resolve_symmetry, ring_problem, ring_start
+from .parameterize import require_selection
+from .symmetry import resolve_symmetry
 from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
     DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
     moved_options, temperature_defaults)
@@ -56,15 +58,14 @@ def problem_on_grid(measurement, weights, grid: Grid | None = None):
     """
     wgrid = weights_grid(weights)
     problem = measurement.problem(weights, wgrid)
-    from .problem import LinearProblem
+    from .parameterize import SubVoxel
     from .subvoxel import resolve_quadrature
 
     grid, E = resolve_quadrature(grid, wgrid, "weights'")
     if E is None:
         return problem, wgrid
-    meta = {**problem.metadata, "quadrature_grid": wgrid.to_dict()}
-    return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=grid, wavelength=problem.wavelength,
-                         background=problem.background, metadata=meta, interpolation=E), grid
+    problem = dataclasses.replace(problem, metadata={**problem.metadata, "quadrature_grid": wgrid.to_dict()})
+    return SubVoxel(coarse=grid, grid=wgrid).apply(problem), grid
 
 
 def _temperature_problem(measurement, weights, grid: Grid | None):
@@ -145,8 +146,8 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     T0 = temperature_start(options.pop("T0", None), grid)
     ring = resolve_symmetry(symmetry, grid)
     if ring is not None:
-        problem = ring_problem(problem, ring)
-        T0 = ring_start(T0, ring)
+        problem = ring.apply(problem)
+        T0 = ring.start(T0)
     warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
     t_setup = time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
@@ -172,7 +173,7 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
         data_kind=_data_kind(measurement),
         details=sol,
         symmetry=ring,
-        metadata={"quadrature_grid": problem.metadata["quadrature_grid"]} if problem.interpolation is not None else {},
+        metadata={k: problem.metadata[k] for k in ("quadrature_grid",) if k in problem.metadata},
         lambda_note=choice.note,
         lambda_path=tuple((float(lam), float(c), float(r)) for lam, c, r in
                           zip(choice.candidates, choice.chi2, choice.regularization_norms)),
@@ -190,6 +191,7 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
     if isinstance(getattr(first, "metadata", None), dict) and first.metadata.get("grid") is not None:
         g = grid if grid is not None else weights_grid(first)
         ring = resolve_symmetry(symmetry, g)
+        require_selection(ring)
         # unknowns: T and σ_ref per voxel (or ring cell)
         warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
     rule_kw = {} if rule is None else {"rule": rule}
@@ -324,14 +326,18 @@ def reconstruct(
         default choice with settings.  Default: matrix-free
         Levenberg–Marquardt for ``"T"``; for ``"T+sigma_a"`` chosen by the
         number of unknowns.
-    symmetry : None, "axisymmetric" or RingGrid
-        ``"axisymmetric"``: fit an axisymmetric field about the vertical (+y)
+    symmetry : None, "axisymmetric" or Parameterization
+        The set of fields fitted (:mod:`lftomo.inverse.parameterize`).
+        ``"axisymmetric"``: an axisymmetric field about the vertical (+y)
         axis through the box centre (:func:`lftomo.ring_grid`); a
         :class:`~lftomo.RingGrid` chooses the axis and ring tolerance.  The
         unknowns are then the ring cells (voxels of one layer at the same
         distance from the axis), the forward model ``A P`` and the prior the
-        voxel grid's restricted to axisymmetric fields; ``T`` is returned on the
-        voxel grid.  Default None: every voxel free.
+        voxel grid's restricted to axisymmetric fields.  Any other convex
+        parameterisation of the grid, e.g. :class:`~lftomo.Splines` (a
+        smooth field of B-spline control temperatures), for ``"T"``.  ``T``
+        is returned on the voxel grid.  Default None (:class:`~lftomo.Voxels`):
+        every voxel free.
     grid : Grid, optional
         Reconstruction grid.  Default: the weight matrix's (or, for
         ``"T+sigma_a"``, the ray-segment table's) grid.  A coarser grid than the weights' (same box) turns on

@@ -72,7 +72,7 @@ import scipy.sparse as sp  # noqa: E402
 from jax.experimental import sparse as jsparse  # noqa: E402
 
 from .._validate import require_positive  # noqa: E402
-from .symmetry import RingGrid  # noqa: E402
+from .parameterize import Parameterization  # noqa: E402
 
 __all__ = [
     "PRIORS",
@@ -230,10 +230,11 @@ class Prior:
 
         Parameters
         ----------
-        grid : Grid or RingGrid
-            Reconstruction grid.  For a :class:`~lftomo.inverse.symmetry.RingGrid`
-            the voxel grid's operator restricted to axisymmetric fields, ``L P``
-            (rows of the voxel grid, columns = ring cells).
+        grid : Grid or Parameterization
+            Reconstruction grid.  For a parameterisation (a
+            :class:`~lftomo.inverse.symmetry.RingGrid`, :class:`~lftomo.Splines`, …)
+            the voxel grid's operator restricted to its fields, ``L P``
+            (rows of the voxel grid, columns = its unknowns).
         dimensionless : bool, keyword-only
             Scale by ``h̄^k`` (``h̄ = (dx dy dz)^{1/3}``, ``k`` the order of the
             differences) so that ``L x`` holds differences between voxels, not
@@ -243,7 +244,7 @@ class Prior:
         -------
         scipy.sparse.csr_matrix, shape (rows, n)
         """
-        if isinstance(grid, RingGrid):
+        if isinstance(grid, Parameterization):
             return (self.operator(grid.grid, dimensionless=dimensionless) @ grid.expansion).tocsr()
         _, h = _check_grid(grid)
         L = self._raw_operator(grid)
@@ -414,10 +415,11 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
 
     Parameters
     ----------
-    grid : Grid or RingGrid
-        Reconstruction grid.  For a :class:`~lftomo.inverse.symmetry.RingGrid`
-        the operator is the voxel grid's, restricted to axisymmetric fields:
-        ``L P`` (rows of the voxel grid, columns = ring cells).
+    grid : Grid or Parameterization
+        Reconstruction grid.  For a parameterisation (a
+        :class:`~lftomo.inverse.symmetry.RingGrid`, :class:`~lftomo.Splines`, …)
+        the operator is the voxel grid's, restricted to its fields:
+        ``L P`` (rows of the voxel grid, columns = its unknowns).
     prior : {"gradient", "laplacian", "tv", "curvature"} or Prior
         ``"gradient"`` and ``"tv"`` give :func:`gradient_operator`,
         ``"laplacian"`` gives :func:`laplacian_operator`, ``"curvature"``

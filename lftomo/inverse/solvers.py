@@ -200,7 +200,7 @@ from .lambdarules import (  # noqa: E402
 from .problem import LinearProblem  # noqa: E402
 from .projected import Linearization  # noqa: E402
 from .regularizers import Prior, resolve_prior  # noqa: E402
-from .symmetry import RingGrid  # noqa: E402
+from .parameterize import Parameterization  # noqa: E402
 from .unknowns import PENALIZED as PENALIZE  # noqa: E402  (what the prior acts on)
 from .unknowns import resolve_unknowns  # noqa: E402
 from .fitoptions import (  # noqa: E402
@@ -861,7 +861,7 @@ def solve_temperature(
     regularization, method, rule, options = fit_keywords(
         "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
-    rings = isinstance(getattr(problem, "grid", None), RingGrid)
+    rings = isinstance(getattr(problem, "grid", None), Parameterization)  # ring cells or another reduced set
     return temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
                            **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
                                                   rings=rings))

@@ -35,13 +35,13 @@ import scipy.sparse as sp
 
 from .._validate import require_nonnegative, require_vector
 from ..forward.grid import Grid
-from .problem import LinearProblem
+from .parameterize import Parameterization, Voxels
 
-__all__ = ["RingGrid", "ring_grid", "resolve_symmetry", "ring_problem"]
+__all__ = ["RingGrid", "ring_grid", "resolve_symmetry"]
 
 
 @dataclass(frozen=True, eq=False)
-class RingGrid:
+class RingGrid(Parameterization):
     """Ring cells of an axisymmetric field on a voxel grid (axis parallel to +y).
 
     Build it with :func:`ring_grid`.  A ring cell is the set of voxels of one
@@ -151,19 +151,9 @@ class RingGrid:
         sums = np.bincount(self.cell_of_voxel, weights=f.ravel(), minlength=self.n_voxels)
         return (sums / self._cell_counts).reshape(self.shape)
 
-    def reduce(self, A: Any) -> sp.csr_matrix:
-        """``A P``: a matrix acting on voxel values (columns = voxels) made to act on ring cells."""
-        if not sp.issparse(A):
-            raise ValueError(f"A must be a scipy sparse matrix, got {type(A).__name__}")
-        if A.shape[1] != self.grid.n_voxels:
-            raise ValueError(
-                f"A has {A.shape[1]} columns; the voxel grid of this ring grid has {self.grid.n_voxels} voxels"
-            )
-        return (sp.csr_matrix(A) @ self.expansion).tocsr()
-
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly description (grid, axis, tolerance, ring count)."""
-        return {"grid": self.grid.to_dict(), "axis": list(self.axis), "tolerance": self.tolerance,
+        return {"kind": "RingGrid", "grid": self.grid.to_dict(), "axis": list(self.axis), "tolerance": self.tolerance,
                 "n_rings": self.n_rings}
 
     def __repr__(self) -> str:
@@ -235,61 +225,39 @@ def ring_grid(grid: Grid, *, axis: Any = None, tolerance: float | None = None) -
     )
 
 
-def resolve_symmetry(symmetry: Any, grid: Grid) -> RingGrid | None:
-    """The ring grid that a ``symmetry`` argument asks for on ``grid``.
+def resolve_symmetry(symmetry: Any, grid: Grid) -> Parameterization | None:
+    """The parameterisation that a ``symmetry`` argument asks for on ``grid``.
 
     Parameters
     ----------
-    symmetry : None, "axisymmetric" or RingGrid
-        None: no symmetry (returns None); ``"axisymmetric"``: rings about the
-        vertical axis through the box centre; a RingGrid: itself, which must be
-        built on ``grid``.
+    symmetry : None, "axisymmetric" or Parameterization
+        None or :class:`~lftomo.inverse.parameterize.Voxels`: every voxel
+        free (returns None); ``"axisymmetric"``: rings about
+        the vertical axis through the box centre; a
+        :class:`~lftomo.inverse.parameterize.Parameterization` (a RingGrid,
+        :class:`~lftomo.Splines`, …): itself, which must be built on ``grid``.
     grid : Grid
         The reconstruction grid.
 
     Returns
     -------
-    RingGrid or None
+    Parameterization or None
     """
+    allowed = "None, 'axisymmetric' or a Parameterization (RingGrid, lftomo.Splines, ...)"
     if symmetry is None:
         return None
     if isinstance(symmetry, str):
         if symmetry != "axisymmetric":
-            raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {symmetry!r}")
+            raise ValueError(f"symmetry must be {allowed}, got {symmetry!r}")
         return ring_grid(grid)
-    if isinstance(symmetry, RingGrid):
+    if isinstance(symmetry, Parameterization):
+        if isinstance(symmetry, Voxels) and symmetry.grid == grid:
+            return None
         if symmetry.grid != grid:
             raise ValueError(
-                f"symmetry is a RingGrid on grid shape {tuple(symmetry.grid.shape)} "
-                f"(box {symmetry.grid.lower}–{symmetry.grid.upper}); the weights' grid is "
+                f"symmetry is a {type(symmetry).__name__} on grid shape {tuple(symmetry.grid.shape)} "
+                f"(box {symmetry.grid.lower}–{symmetry.grid.upper}); the reconstruction grid is "
                 f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})"
             )
         return symmetry
-    raise ValueError(f"symmetry must be None, 'axisymmetric' or a RingGrid, got {type(symmetry).__name__}")
-
-
-def ring_problem(problem: LinearProblem, ring: RingGrid) -> LinearProblem:
-    """The same data with the forward model ``A P`` on the ring cells of ``ring``.
-
-    With sub-voxel emission (``problem.interpolation`` E) ``A`` is kept and the
-    interpolation becomes ``E P`` (ring cells → quadrature voxels).
-    """
-    if problem.grid != ring.grid:
-        raise ValueError(f"the problem's grid {tuple(problem.grid.shape)} is not the ring grid's "
-                         f"{tuple(ring.grid.shape)}")
-    if problem.interpolation is not None:
-        return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=ring,
-                             wavelength=problem.wavelength, background=problem.background,
-                             metadata=problem.metadata, interpolation=ring.reduce(problem.interpolation))
-    return LinearProblem(A=ring.reduce(problem.A), y=problem.y, sigma=problem.sigma, grid=ring,
-                         wavelength=problem.wavelength, background=problem.background, metadata=problem.metadata)
-
-
-def ring_start(T0: Any, ring: RingGrid) -> Any:
-    """A starting field on the voxel grid becomes its ring means; scalars, strings and None pass through."""
-    if T0 is None or isinstance(T0, str) or np.ndim(T0) == 0:
-        return T0
-    arr = np.asarray(T0, dtype=np.float64)
-    if arr.shape in (tuple(ring.grid.shape), (ring.grid.n_voxels,)):
-        return ring.project(arr)
-    return arr
+    raise ValueError(f"symmetry must be {allowed}, got {type(symmetry).__name__}")

@@ -590,12 +590,12 @@ def test_default_noise_scale_is_estimated_on_ring_cells(monkeypatch):
     import lftomo.inverse.solvers as S
     from lftomo.inverse.fitoptions import DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS
     from lftomo.inverse.problem import LinearProblem
-    from lftomo.inverse.symmetry import ring_grid, ring_problem
+    from lftomo.inverse.symmetry import ring_grid
 
     grid = lt.Grid((6, 4, 6), (-0.01, -0.01, 0.99), (0.01, 0.01, 1.01))
     A = sp.random(300, grid.n_voxels, density=0.2, random_state=1, format="csr")
     voxels = LinearProblem(A, np.ones(300), np.ones(300), grid)
-    rings = ring_problem(voxels, ring_grid(grid))
+    rings = ring_grid(grid).apply(voxels)
     seen = []
 
     def spy(problem, **kw):

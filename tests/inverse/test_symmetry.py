@@ -203,7 +203,7 @@ def test_symmetry_refuses_bad_input(blob_setup):
     with pytest.raises(ValueError, match="symmetry must be"):
         lt.reconstruct(m, W, symmetry="spherical")
     other = lt.ring_grid(lt.Grid((4, 4, 4), (-0.01, -0.01, 0.99), (0.01, 0.01, 1.01)))
-    with pytest.raises(ValueError, match="weights' grid"):
+    with pytest.raises(ValueError, match="reconstruction grid"):
         lt.reconstruct(m, W, symmetry=other)
     with pytest.raises(ValueError, match="outside the box"):
         lt.ring_grid(grid, axis=(0.5, 1.0))
