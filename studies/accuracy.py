@@ -16,7 +16,7 @@ at the voxel centres, on the same voxels.
 Usage::
 
     python studies/accuracy.py [--n 24] [--refine 2] [--rays 64] [--weight-rays 64] [--draws 1]
-        [--symmetry axisymmetric] [--prior laplacian|curvature] [--quadrature 2] [--save fields.npz]
+        [--symmetry axisymmetric | --splines 12,12,12] [--prior laplacian|curvature] [--quadrature 2] [--save fields.npz]
         [--json results.json] [--workers N | --scheduler tcp://host:8786]
 
 With ``--workers``/``--scheduler`` the draws run as Dask tasks (the light field, weights and
@@ -60,6 +60,8 @@ def draw_row(d, reg, lf, W, a, ctx):
     else:
         rule = a.rule
     sym = None if a.symmetry == "none" else a.symmetry
+    if a.splines:
+        sym = lt.Splines(coarse, tuple(int(k) for k in a.splines.split(",")))
     rec = lt.reconstruct(m, W, rule=rule, solver=solver, prior=a.prior, symmetry=sym, grid=coarse)
     dt = time.perf_counter() - t
     e = rec.errors(T_true)
@@ -121,6 +123,9 @@ def main():
                     help="LSMR iterations per nonlinear step (0: the solver's default)")
     ap.add_argument("--symmetry", default="none", choices=["none", "axisymmetric"],
                     help="axisymmetric: fit ring cells about the box's vertical axis (lt.ring_grid)")
+    ap.add_argument("--splines", default="",
+                    help="kx,ky,kz: fit a smooth field of that many B-spline control temperatures per axis "
+                         "(lt.Splines; replaces --symmetry)")
     ap.add_argument("--quadrature", type=int, default=1,
                     help="sub-voxel emission: weights on a grid this many times finer, T interpolated to it "
                          "(lt.reconstruct(grid=...)); 1: uniform emission per voxel")

@@ -1,4 +1,5 @@
 import numpy as np
+import scipy.sparse as sp
 import pytest
 
 import lftomo as lt
@@ -34,6 +35,27 @@ def gray_blob():
 def ideal_camera():
     """Seed camera with the ideal thin main lens (no aberrations)."""
     return lt.Camera.seed(1.0, main_lens={"ideal": True})
+
+
+def narrow_view_lines(grid, n, max_angle_deg, seed):
+    """Path lengths (× 1e-6 m² sr) of ``n`` lines within ±``max_angle_deg`` of +z through random points of
+    ``grid``'s box, by sampling each line every 1/8 voxel: a narrow single view, built independently of
+    lftomo's tracer.  Returns the sparse (rows, voxels) matrix without its empty rows."""
+    rng = np.random.default_rng(seed)
+    p = grid.lower + rng.random((n, 3)) * grid.size
+    ang = np.deg2rad(max_angle_deg) * rng.uniform(-1, 1, size=(n, 2))
+    u = np.stack([np.sin(ang[:, 0]), np.sin(ang[:, 1]), np.ones(n)], axis=1)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    h = grid.spacing.min() / 8
+    s = np.arange(-0.05, 0.05, h)
+    pts = p[:, None, :] + s[None, :, None] * u[:, None, :]
+    idx = np.floor((pts - grid.lower) / grid.spacing).astype(int)
+    ok = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2)
+    r, k = np.nonzero(ok)
+    cols = np.ravel_multi_index(tuple(idx[r, k].T), grid.shape)
+    A = sp.csr_matrix((np.full(r.size, h * 1e-6), (r, cols)), shape=(n, grid.n_voxels))
+    A.sum_duplicates()
+    return A[np.diff(A.indptr) > 0]
 
 
 def white_plane(z=1.0, size=0.4, radiance=1.0):

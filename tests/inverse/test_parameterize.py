@@ -7,6 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 import lftomo as lt
+from conftest import narrow_view_lines
 from lftomo.inverse.parameterize import Parameterization
 from lftomo.inverse.problem import LinearProblem
 from lftomo.inverse.regularizers import prior_operator
@@ -16,22 +17,8 @@ GRID = lt.Grid((6, 8, 6), (-0.015, 0.0, -0.015), (0.015, 0.04, 0.015))
 
 
 def _lines(grid, n=1500, seed=3):
-    """Path-length matrix of ``n`` lines within ±10° of +z through random points (independent of lftomo's tracer)."""
-    rng = np.random.default_rng(seed)
-    p = grid.lower + rng.random((n, 3)) * grid.size
-    ang = np.deg2rad(10.0) * rng.uniform(-1, 1, size=(n, 2))
-    u = np.stack([np.sin(ang[:, 0]), np.sin(ang[:, 1]), np.ones(n)], axis=1)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    h = grid.spacing.min() / 8
-    s = np.arange(-0.05, 0.05, h)
-    pts = p[:, None, :] + s[None, :, None] * u[:, None, :]
-    idx = np.floor((pts - grid.lower) / grid.spacing).astype(int)
-    ok = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=2)
-    r, k = np.nonzero(ok)
-    cols = np.ravel_multi_index(tuple(idx[r, k].T), grid.shape)
-    A = sp.csr_matrix((np.full(r.size, h * 1e-6), (r, cols)), shape=(n, grid.n_voxels))
-    A.sum_duplicates()
-    return A[np.diff(A.indptr) > 0]
+    """Lines within ±10° of +z through random points (independent of lftomo's tracer)."""
+    return narrow_view_lines(grid, n, 10.0, seed)
 
 
 def test_splines_are_a_convex_partition_of_unity_and_project_inverts_expand():

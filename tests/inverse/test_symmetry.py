@@ -7,6 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 import lftomo as lt
+from conftest import narrow_view_lines
 from lftomo.inverse.problem import LinearProblem
 from lftomo.inverse.regularizers import prior_operator
 from lftomo.inverse.synthetic import line_operator
@@ -93,23 +94,7 @@ def test_axisymmetric_solve_recovers_noise_free_field_and_beats_the_free_fit_on_
     g = lt.Grid((8, 3, 8), (-0.02, 0.0, -0.02), (0.02, 0.015, 0.02))
     rg = lt.ring_grid(g)
     T = _radial_field(g)
-    rng = np.random.default_rng(3)
-    # lines within ±3° of +z through random points: a single narrow view
-    n = 2000
-    p = g.lower + rng.random((n, 3)) * g.size
-    ang = np.deg2rad(3.0) * rng.uniform(-1, 1, size=(n, 2))
-    u = np.stack([np.sin(ang[:, 0]), np.sin(ang[:, 1]), np.ones(n)], axis=1)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    h = g.spacing.min() / 8
-    s = np.arange(-0.05, 0.05, h)
-    pts = p[:, None, :] + s[None, :, None] * u[:, None, :]
-    idx = np.floor((pts - g.lower) / g.spacing).astype(int)
-    ok = np.all((idx >= 0) & (idx < np.asarray(g.shape)), axis=2)
-    r, k = np.nonzero(ok)
-    cols = np.ravel_multi_index(tuple(idx[r, k].T), g.shape)
-    A = sp.csr_matrix((np.full(r.size, h * 1e-6), (r, cols)), shape=(n, g.n_voxels))
-    A.sum_duplicates()
-    A = A[np.diff(A.indptr) > 0]
+    A = narrow_view_lines(g, 2000, 3.0, seed=3)  # lines within ±3° of +z: a single narrow view
     y = A @ lt.gray_intensity(T).ravel()
     sigma = 1e-3 * y + 1e-9 * y.max()
     ring_problem = LinearProblem(A=rg.reduce(A), y=y, sigma=sigma, grid=rg, wavelength=None)
