@@ -174,6 +174,7 @@ class _Stats:
     logdet: float  # log det H (NaN: not computed)
     deltas: np.ndarray | None  # (K, n) draws of N(0, H⁻¹)
     cg_iterations: int
+    cov: np.ndarray | None = None  # (n, n) H⁻¹ (K²), dense method only
 
 
 def precision_factors(problem: Any, T: Any, *, prior: str = "gradient",
@@ -245,7 +246,9 @@ def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, *, prior: str 
         raise np.linalg.LinAlgError(f"inverting the Laplace precision failed (dpotri info {info})")
     i, j = np.maximum(M.row, M.col), np.minimum(M.row, M.col)
     trace = float(np.sum(inv[i, j] * M.data))
-    return _Stats(var=np.diag(inv).copy(), trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0)
+    var = np.diag(inv).copy()
+    cov = np.tril(inv) + np.tril(inv, -1).T
+    return _Stats(var=var, trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0, cov=cov)
 
 
 def _unconstrained_message(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, prior: str | None,
@@ -687,7 +690,22 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
 
 def _scaled_stats(st: _Stats, s: float) -> _Stats:
     """The statistics of the covariance ``s² H⁻¹`` (variances and draws; trace and log det stay ``H``'s)."""
-    return replace(st, var=st.var * s * s, deltas=None if st.deltas is None else st.deltas * s)
+    return replace(st, var=st.var * s * s, deltas=None if st.deltas is None else st.deltas * s,
+                   cov=None if st.cov is None else st.cov * (s * s))
+
+
+def _expanded_std(par, st: _Stats, std: np.ndarray) -> np.ndarray:
+    """Voxel std of ``P p`` for unknowns ``p`` of covariance ``C``: ``sqrt(diag(P C Pᵀ))``; a selection's
+    is the unknowns' own std, expanded."""
+    if par.is_selection:
+        return par.expand(std)
+    P = sp.csr_matrix(par.expansion)
+    if st.cov is not None:
+        var = np.asarray(P.multiply(P @ st.cov).sum(axis=1)).ravel()
+    else:
+        d = np.asarray(P @ st.deltas.reshape(-1, P.shape[1]).T)  # (n_voxels, K) draws on the voxels
+        var = np.mean(d * d, axis=1)
+    return np.sqrt(var).reshape(par.grid.shape)
 
 
 def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_level, grid, ring, evidence,
@@ -698,8 +716,8 @@ def _field_posterior(rec, st: _Stats, lam, *, rule, method, n_samples, credible_
     z = float(ndtri(0.5 + 0.5 * float(credible_level)))
     T_hat = rec.T
     samples = None if st.deltas is None else T_hat.reshape(1, -1) + st.deltas.reshape(-1, n)
-    if ring is not None:  # back on the voxel grid
-        T_hat, std, grid = ring.expand(T_hat), ring.expand(std), ring.grid
+    if ring is not None:  # back on the voxel grid: std of P p is sqrt(diag(P C Pᵀ)), P's rows for a selection
+        T_hat, std, grid = ring.expand(T_hat), _expanded_std(ring, st, std), ring.grid
     if samples is not None:
         samples = ring.expand(samples) if ring is not None else samples.reshape((-1, *grid.shape))
     return FieldPosterior(

@@ -153,7 +153,7 @@ class RingGrid(Parameterization):
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly description (grid, axis, tolerance, ring count)."""
-        return {"kind": "RingGrid", "grid": self.grid.to_dict(), "axis": list(self.axis), "tolerance": self.tolerance,
+        return {"grid": self.grid.to_dict(), "axis": list(self.axis), "tolerance": self.tolerance,
                 "n_rings": self.n_rings}
 
     def __repr__(self) -> str:
