@@ -62,6 +62,7 @@ from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .reconstruct import problem_on_grid, temperature_errors, temperature_start
+from .result import symmetry_name
 from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
@@ -162,7 +163,8 @@ class FieldPosterior:
                 k: [None if isinstance(x, float) and not math.isfinite(x) else x for x in v] if isinstance(v, list) else v
                 for k, v in self.evidence.items()},
             "elapsed_s": self.elapsed_s,
-            "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
+            "symmetry": None if self.symmetry is None else {"kind": symmetry_name(self.symmetry),
+                                                            **self.symmetry.to_dict()},
         }
 
 

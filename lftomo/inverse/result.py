@@ -48,9 +48,10 @@ class Reconstruction:
     details : Any
         The solver's own result object (for an axisymmetric fit its fields
         live on the ring cells).
-    symmetry : RingGrid or None
-        The ring grid of an axisymmetric reconstruction (``T`` is then
-        ``symmetry.expand`` of the ring-cell solution), else None.
+    symmetry : Parameterization or None
+        The parameterisation fitted: the ring grid of an axisymmetric
+        reconstruction, or e.g. :class:`~lftomo.Splines` (``T`` is then
+        ``symmetry.expand`` of the solution), else None (free voxels).
     lambda_note : str
         What the λ rule did, in words (bracketing, fallbacks, the estimated
         noise scale, a polish).
@@ -82,7 +83,7 @@ class Reconstruction:
         return (f"Reconstruction(unknowns={self.unknowns!r}, data={self.data_kind!r}, grid={tuple(self.grid.shape)}, "
                 f"T={float(np.min(self.T)):.0f}..{float(np.max(self.T)):.0f} K, lambda={self.regularization:.3g} "
                 f"({self.lambda_rule}), chi2/m={self.chi2:.4g}, iterations={self.iterations}, "
-                f"converged={self.converged}, symmetry={'axisymmetric' if self.symmetry is not None else None})")
+                f"converged={self.converged}, symmetry={symmetry_name(self.symmetry)})")
 
     def errors(self, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
         """Relative temperature errors against ``T_true`` (same grid) where ``T_true > hot`` (K).
@@ -107,9 +108,19 @@ class Reconstruction:
             "iterations": self.iterations,
             "converged": self.converged,
             "timing_s": self.timing,
-            "symmetry": None if self.symmetry is None else {"kind": "axisymmetric", **self.symmetry.to_dict()},
+            "symmetry": None if self.symmetry is None else {"kind": symmetry_name(self.symmetry),
+                                                            **self.symmetry.to_dict()},
             "quadrature_grid": self.metadata.get("quadrature_grid"),
         }
+
+
+def symmetry_name(par: Any) -> str | None:
+    """``"axisymmetric"`` for ring cells, else the parameterisation's class name (None: free voxels)."""
+    from .symmetry import RingGrid
+
+    if par is None:
+        return None
+    return "axisymmetric" if isinstance(par, RingGrid) else type(par).__name__
 
 
 def temperature_errors(T: np.ndarray, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:

@@ -102,6 +102,7 @@ def test_reconstruct_takes_splines_as_symmetry_and_the_joint_fit_refuses_them(gr
     rec = lt.reconstruct(m, W, symmetry=s, rule=lt.Fixed(1e-6), bounds=(500.0, 2500.0),
                          solver=lt.LevenbergMarquardt(max_steps=50))
     assert rec.T.shape == grid.shape and rec.symmetry is s
+    assert rec.summary()["symmetry"]["kind"] == "Splines" and "symmetry=Splines" in repr(rec)
     np.testing.assert_allclose(s.expand(s.project(rec.T)), rec.T, rtol=1e-9)  # in the span by construction
     assert rec.errors(flame.T, hot=1000.0)["mean_rel"] < 0.05  # a 27-coefficient smooth fit of a Gaussian blob
     seg = lt.ray_segments(lt.Camera.seed(1.0, mla={"count": (12, 12)}), grid, rays_per_pixel=2, seed=1)
