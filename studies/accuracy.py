@@ -56,7 +56,7 @@ def draw_row(d, reg, lf, W, a, ctx):
     if reg != "auto":
         rule = lt.Fixed(reg)
     elif a.rule == "discrepancy":
-        rule = lt.Discrepancy(noise_scale=a.noise_scale)
+        rule = lt.Discrepancy(noise_scale=a.noise_scale, subvoxel_search=a.subvoxel_search)
     else:
         rule = a.rule
     sym = None if a.symmetry == "none" else a.symmetry
@@ -126,6 +126,8 @@ def main():
     ap.add_argument("--splines", default="",
                     help="kx,ky,kz: fit a smooth field of that many B-spline control temperatures per axis "
                          "(lt.Splines; replaces --symmetry)")
+    ap.add_argument("--subvoxel-search", default=None, choices=["surrogate", "full"],
+                    help="with sub-voxel emission or --splines: choose λ on the surrogate A P or on the model itself")
     ap.add_argument("--quadrature", type=int, default=1,
                     help="sub-voxel emission: weights on a grid this many times finer, T interpolated to it "
                          "(lt.reconstruct(grid=...)); 1: uniform emission per voxel")

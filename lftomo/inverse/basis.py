@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 import scipy.optimize as so
-from scipy.interpolate import BSpline
 
 from .._validate import require_array, require_finite_scalar, require_int, require_positive
+from .parameterize import bspline_design
 
 __all__ = [
     "MAX_COEFFS",
@@ -278,15 +278,6 @@ class DCTBasis(LinearBasis):
         return f"DCTBasis(grid shape {tuple(self.grid.shape)}, n_coeffs={self.n_coeffs})"
 
 
-def _bspline_1d(x: np.ndarray, lo: float, hi: float, n: int, degree: int) -> np.ndarray:
-    d = min(degree, n - 1)
-    if n == 1:
-        return np.ones((x.size, 1))
-    interior = np.linspace(lo, hi, n - d + 1)[1:-1]
-    t = np.concatenate([np.full(d + 1, lo), interior, np.full(d + 1, hi)])
-    return BSpline.design_matrix(x, t, d).toarray()
-
-
 class BSplineBasis(LinearBasis):
     """Tensor-product clamped B-splines over the grid box.
 
@@ -324,7 +315,7 @@ class BSplineBasis(LinearBasis):
         k = _per_axis("n_coeffs", n_coeffs, grid)
         _check_n_params(int(np.prod(k)), f"n_coeffs={k}")
         mats = [
-            _bspline_1d(grid.centers[a], grid.lower[a], grid.upper[a], k[a], deg) for a in range(3)
+            bspline_design(grid.centers[a], grid.lower[a], grid.upper[a], k[a], deg) for a in range(3)
         ]
         B = np.kron(np.kron(mats[0], mats[1]), mats[2])
         names = [f"bspline[{a},{b},{c}]" for a in range(k[0]) for b in range(k[1]) for c in range(k[2])]
