@@ -316,7 +316,8 @@ def reconstruct(
         ``"T"`` the discrepancy rule with σ as given on voxels
         (:data:`DEFAULT_NOISE_SCALE`; a given σ too large for any λ to meet
         the target is treated as known up to a factor) and with the noise
-        scale estimated on ring cells (:data:`DEFAULT_NOISE_SCALE_RINGS`), for
+        scale estimated on ring cells or another ``symmetry``
+        (:data:`DEFAULT_NOISE_SCALE_RINGS`: a reduced field has model error), for
         ``"T+sigma_a"`` the bracketing discrepancy search with the noise scale
         estimated.
     solver : Solver, optional

@@ -816,7 +816,7 @@ def solve_temperature(
         ``GCV(n_lambda=9)``, ``LCurve(...)``); ``Fixed(λ)`` fixes λ.  Default
         the discrepancy rule with σ as given
         (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE`), with the noise scale
-        estimated when the problem is on ring cells
+        estimated when the problem is on ring cells or another parameterisation
         (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RINGS`).
     solver : Solver, optional, keyword-only
         ``LevenbergMarquardt(...)`` (default) or ``GaussNewton(...)`` with
