@@ -176,7 +176,8 @@ class _Stats:
     logdet: float  # log det H (NaN: not computed)
     deltas: np.ndarray | None  # (K, n) draws of N(0, H⁻¹)
     cg_iterations: int
-    cov: np.ndarray | None = None  # (n, n) H⁻¹ (K²), dense method only
+    cov_lower: np.ndarray | None = None  # (n, n) H⁻¹ in its lower triangle (K²), dense method only
+    cov_scale: float = 1.0  # the covariance is cov_scale · H⁻¹
 
 
 def precision_factors(problem: Any, T: Any, *, prior: str = "gradient",
@@ -248,9 +249,8 @@ def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, *, prior: str 
         raise np.linalg.LinAlgError(f"inverting the Laplace precision failed (dpotri info {info})")
     i, j = np.maximum(M.row, M.col), np.minimum(M.row, M.col)
     trace = float(np.sum(inv[i, j] * M.data))
-    var = np.diag(inv).copy()
-    cov = np.tril(inv) + np.tril(inv, -1).T
-    return _Stats(var=var, trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0, cov=cov)
+    return _Stats(var=np.diag(inv).copy(), trace=trace, trace_se=0.0, logdet=logdet, deltas=None, cg_iterations=0,
+                  cov_lower=inv)
 
 
 def _unconstrained_message(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, prior: str | None,
@@ -693,7 +693,7 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
 def _scaled_stats(st: _Stats, s: float) -> _Stats:
     """The statistics of the covariance ``s² H⁻¹`` (variances and draws; trace and log det stay ``H``'s)."""
     return replace(st, var=st.var * s * s, deltas=None if st.deltas is None else st.deltas * s,
-                   cov=None if st.cov is None else st.cov * (s * s))
+                   cov_scale=st.cov_scale * s * s)
 
 
 def _expanded_std(par, st: _Stats, std: np.ndarray) -> np.ndarray:
@@ -702,8 +702,9 @@ def _expanded_std(par, st: _Stats, std: np.ndarray) -> np.ndarray:
     if par.is_selection:
         return par.expand(std)
     P = sp.csr_matrix(par.expansion)
-    if st.cov is not None:
-        var = np.asarray(P.multiply(P @ st.cov).sum(axis=1)).ravel()
+    if st.cov_lower is not None:  # symmetrised only here, for the parameterisations that need it
+        C = np.tril(st.cov_lower) + np.tril(st.cov_lower, -1).T
+        var = st.cov_scale * np.asarray(P.multiply(P @ C).sum(axis=1)).ravel()
     else:
         d = np.asarray(P @ st.deltas.reshape(-1, P.shape[1]).T)  # (n_voxels, K) draws on the voxels
         var = np.mean(d * d, axis=1)

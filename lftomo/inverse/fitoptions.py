@@ -110,14 +110,14 @@ def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tup
 
 
 def temperature_defaults(*, regularization: Any, prior: Any, rule: Any, options: dict[str, Any],
-                         rings: bool = False) -> dict[str, Any]:
+                         reduced: bool = False) -> dict[str, Any]:
     """The T-only fit engine's keywords for ``prior``, ``rule`` and ``options`` (folded by :func:`fit_keywords`)
     with the library's defaults where they are not given: :data:`DEFAULT_PRIOR`, the discrepancy rule and,
     for it, :data:`DEFAULT_NOISE_SCALE` (:data:`DEFAULT_NOISE_SCALE_RINGS` when the unknowns are ring
-    cells, ``rings``)."""
+    cells or another reduced parameterisation, ``reduced``)."""
     kw = dict(options)
     if rule in (None, "discrepancy") and regularization == "auto":
-        kw.setdefault("noise_scale", DEFAULT_NOISE_SCALE_RINGS if rings else DEFAULT_NOISE_SCALE)
+        kw.setdefault("noise_scale", DEFAULT_NOISE_SCALE_RINGS if reduced else DEFAULT_NOISE_SCALE)
     return {**kw, "regularization": regularization, "prior": DEFAULT_PRIOR if prior is None else prior,
             "rule": "discrepancy" if rule is None else rule}
 

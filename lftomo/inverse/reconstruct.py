@@ -148,12 +148,12 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     if ring is not None:
         problem = ring.apply(problem)
         T0 = ring.start(T0)
-    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else int(np.prod(ring.shape)))
+    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else ring.n_params)
     t_setup = time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         sol = temperature_fit(problem, bounds=bounds, T0=T0, method=method,
                               **temperature_defaults(regularization=regularization, prior=prior, rule=rule,
-                                                     options=options, rings=ring is not None))
+                                                     options=options, reduced=ring is not None))
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
               "total": time.perf_counter() - t0}
     choice = sol.lambda_choice
@@ -193,7 +193,7 @@ def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, m
         ring = resolve_symmetry(symmetry, g)
         require_selection(ring)
         # unknowns: T and σ_ref per voxel (or ring cell)
-        warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_voxels))
+        warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_params))
     rule_kw = {} if rule is None else {"rule": rule}
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         return solve_temperature_absorption(ms, weights, regularization=regularization,

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..forward.grid import Grid
+from .symmetry import RingGrid
 
 __all__ = ["Reconstruction", "temperature_errors"]
 
@@ -116,8 +117,6 @@ class Reconstruction:
 
 def symmetry_name(par: Any) -> str | None:
     """``"axisymmetric"`` for ring cells, else the parameterisation's class name (None: free voxels)."""
-    from .symmetry import RingGrid
-
     if par is None:
         return None
     return "axisymmetric" if isinstance(par, RingGrid) else type(par).__name__

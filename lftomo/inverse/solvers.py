@@ -861,10 +861,10 @@ def solve_temperature(
     regularization, method, rule, options = fit_keywords(
         "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
-    rings = isinstance(getattr(problem, "grid", None), Parameterization)  # ring cells or another reduced set
     return temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
                            **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
-                                                  rings=rings))
+                                                  reduced=isinstance(getattr(problem, "grid", None),
+                                                                     Parameterization)))
 
 
 def temperature_fit(
