@@ -103,7 +103,8 @@ def main() -> None:
                          "by_threshold": by_threshold, "converged": bool(rec.converged),
                          "lambda": float(rec.regularization), "chi2": float(rec.chi2),
                          "method": rec.details.get("method"), "n_data": int(sum(m.size for m in ms)),
-                         "setup_s": t_setup, "fit_s": time.perf_counter() - t - t_setup})
+                         "setup_s": t_setup, "fit_s": time.perf_counter() - t - t_setup,
+                         "lambda_note": rec.lambda_note, "lambda_path": [list(p) for p in rec.lambda_path]})
             r = rows[-1]
             errs = "; ".join(f"above {h} K: {m:.2%} / {x:.1%} ({k} voxels)" for h, (m, x, k) in by_threshold.items())
             print(f"{name}, draw {draw}: mean / max {errs}, converged {r['converged']}, lambda {r['lambda']:.3g}, chi2/m {r['chi2']:.3f}, {r['method']}, "

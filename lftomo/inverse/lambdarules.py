@@ -213,6 +213,10 @@ JOINT_LAMBDA_SETTLED = 10.0 ** 0.125 - 1.0
 #: 900 nm: nine steps left ‖R‖ at 2.5 where the solve at the same λ reached 1.2; docs/accuracy.md).
 JOINT_INNER_STEPS = 10
 
+#: With the noise scale estimated and its reference solve unconverged, the joint search checks ``s²`` on a
+#: solve at this fraction of the λ it found (:func:`projected_bracket_search`).
+SCALE_PROBE = 1e-2
+
 #: The message of the projected Gauss–Newton steps the projected search records on the solve path.
 PROJECTED_STEP = "projected Gauss–Newton step of the discrepancy search"
 
@@ -466,8 +470,10 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
        to ``tol`` (a warm-started λ continuation); a step that reverses the previous
        one's direction is halved in log λ (an inexact solve lags its λ, so
        successive linearisations overshoot alternately); where the
-       linearisation cannot reach the target at any λ (far from the fit)
-       the next one keeps its λ.
+       linearisation's misfit stays above the target at every λ (far from
+       the fit) the next one keeps its λ, where it stays below it at every λ
+       (an iterate whose fit still descends along a poorly observed
+       direction) the next one is a decade higher.
     2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
        when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
        linearisation at its solution moves by less than ``lam_settled``;
@@ -508,9 +514,12 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
             return None
         lam_new, lin, proj, side = found
         if side != 0:
-            if not (inner_steps and side < 0):
+            if not inner_steps or (side > 0 and lam >= lam_hi):
                 return None
-            lam_new = lam  # χ²/m above the target at every λ: far from the fit yet, solve on at this λ
+            # χ²/m above the target at every λ: far from the fit yet, solve on at this λ.  Below it at every λ:
+            # an iterate stopped short of its fit cannot raise the projected misfit (the fit still descends
+            # along a poorly observed direction that more λ would smooth away): solve on a decade higher
+            lam_new = lam if side < 0 else min(10.0 * lam, lam_hi)
         if inner_steps:
             move = math.log(lam_new / lam)
             if move * last_move < 0.0:
@@ -871,7 +880,9 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
     :func:`bracket_search`, ``s²`` rests on the least ``χ²`` of the solves so
     far: when a later solve fits better (the first one stopped at its step
     budget), ``s²`` is estimated again from it and the search resumes from
-    its own result (at most ``max_rounds`` searches).  The final solve need
+    its own result (at most ``max_rounds`` searches).  Where the best fit so
+    far is itself unconverged, one more solve at :data:`SCALE_PROBE` × the λ
+    found, from its solution, is made before that check.  The final solve need
     not have converged (the joint solvers stop at their step budget; the
     fit's polish continues it).  Returns what :func:`bracket_search` returns,
     or None where the projected search gives way (the solves made here are
@@ -895,6 +906,12 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
         if scale_info is None or k == max_rounds - 1:  # (the target reported is the one the search met)
             break
         ref = min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
+        if not ref.converged:
+            # s² rests on a solve stopped at its step budget: at a small λ the fit creeps along directions
+            # the data barely see, and its χ² overstates the noise.  A solve at SCALE_PROBE × the λ found,
+            # started from its solution, fits at least as well where it converges; s² is checked on it
+            path.solve(max(lam_min, SCALE_PROBE * found[0].lam), found[0].theta, objective_rtol=search_rtol)
+            ref = min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
         if ref.chi2 >= scale_info["chi2_ref"] * (1.0 - 0.1 * tol):
             break
         target = ref.chi2 * m / (m - scale_info["dof"])

@@ -21,6 +21,7 @@ from lftomo.inverse.lambdarules import (
     JOINT_LAMBDA_SETTLED,
     LAMBDA_SETTLED,
     LCurveDecades,
+    projected_bracket_search,
     projected_discrepancy_search,
     resolve_rule,
 )
@@ -203,6 +204,101 @@ def test_inexact_projected_search_halves_a_reversing_lambda_step(monkeypatch):
     e, note = found
     assert e.lam == pytest.approx(path.lam_star, rel=1e-12), note
     assert [x.lam for x in path.evals] == pytest.approx([4000.0, 1000.0], rel=1e-12)
+
+
+class ClimbingProjection:
+    """Below λ* the projected misfit stays under the target at every λ (``side = +1``: an iterate stopped
+    short of its fit); from λ* on it asks for λ*."""
+
+    def __init__(self, lam_of_iterate):
+        self.lam_of_iterate, self.k = lam_of_iterate, 1
+
+    def discrepancy_lambda(self, target, lam_lo, lam_hi, lam_start):
+        return (lam_hi, 1) if self.lam_of_iterate < OvershootingPath.lam_star * (1 - 1e-9) else (
+            OvershootingPath.lam_star, 0)
+
+
+def test_inexact_projected_search_climbs_a_decade_where_the_target_is_out_of_reach_from_below(monkeypatch):
+    """Inexact solves, and a linearisation that puts χ²/m below the target at every λ: the search solves
+    on a decade higher each time (1 → 10 → 100 → 1000 = λ*), where the converged solve meets the target
+    and ends it; it does not give way to the ladder.  At the top of the λ range it does give way."""
+    import lftomo.inverse.projected as projected
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", ClimbingProjection)
+    path = OvershootingPath()
+    found = projected_discrepancy_search(path, np.array([0.0]), 1.0, 1.0, 1e-3, 1e-4,
+                                         lam_range=(1e-3, 1e6), require_converged=False,
+                                         lam_settled=JOINT_LAMBDA_SETTLED, inner_steps=10)
+    assert found is not None
+    assert [x.lam for x in path.evals] == pytest.approx([10.0, 100.0, 1000.0], rel=1e-12), found[1]
+    assert found[0].lam == pytest.approx(path.lam_star, rel=1e-12)
+    path = OvershootingPath()
+    assert projected_discrepancy_search(path, np.array([0.0]), 1.0, 1.0, 1e-3, 1e-4, lam_range=(1e-3, 1.0),
+                                        require_converged=False, inner_steps=10) is None
+    assert path.evals == []
+
+
+class CreepingPath:
+    """Converged solves have ``χ²/m = c(λ) = 0.99 + 0.01 √(λ/1000)``; a solve converges only from a start
+    within a factor 100 in λ (``theta`` is log λ), else it stops at its budget 0.02 above ``c(λ)`` (the
+    joint fit's first solve at a small λ, creeping along poorly observed directions).  ν = 100 of
+    m = 10⁵."""
+
+    nu = 100.0
+
+    def __init__(self):
+        self.m_total, self.n_unknowns, self.evals = 10**5, 10, []
+
+    @staticmethod
+    def c(lam):
+        return 0.99 + 0.01 * math.sqrt(lam / 1000.0)
+
+    @staticmethod
+    def root(target):
+        return 1000.0 * ((target - 0.99) / 0.01) ** 2
+
+    def linearization(self, theta, lam):
+        return float(np.exp(theta[0]))
+
+    def fit_dof(self, e):
+        return self.nu, 0.0
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        ok = abs(math.log(lam) - float(start[0])) <= math.log(100.0) + 1e-9
+        e = Eval(float(lam), np.array([math.log(lam)]), self.c(lam) + (0.0 if ok else 0.02), 1.0, 10, ok, "")
+        self.evals.append(e)
+        return e
+
+
+class RootProjection:
+    """The projected discrepancy equation solved exactly for :class:`CreepingPath`'s converged χ²/m."""
+
+    def __init__(self, lam_of_iterate):
+        self.k = 1
+
+    def discrepancy_lambda(self, target, lam_lo, lam_hi, lam_start):
+        return CreepingPath.root(target), 0
+
+
+def test_estimated_scale_is_checked_on_a_converged_solve_when_its_reference_crept(monkeypatch):
+    """The joint search's s² from a first solve (λ = 0.01) stopped at its budget is 0.02 too large, so the
+    first round meets it at λ₁ = c⁻¹(s²₁) ≈ 4.4e3.  As that reference is unconverged, a solve at λ₁/100 is
+    made from λ₁'s solution; it converges and fits better, s² is re-estimated from it
+    (χ²(λ₁/100)·m/(m − ν)) and the second round meets that at its root.  Without the check the search would
+    end at λ₁, 46× too high."""
+    import lftomo.inverse.projected as projected
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", RootProjection)
+    path = CreepingPath()
+    m, nu = path.m_total, path.nu
+    e, note, target, info, met = projected_bracket_search(path, np.array([math.log(1e4)]), lam_start=0.01,
+                                                          lam_min=1e-3, lam_max=1e6, estimate_scale=True)
+    lam1 = path.root((path.c(0.01) + 0.02) * m / (m - nu))
+    s2 = path.c(lam1 / 100.0) * m / (m - nu)
+    assert met and target == pytest.approx(s2, rel=1e-12), note
+    assert info["lambda_ref"] == pytest.approx(lam1 / 100.0, rel=1e-12)
+    assert e.converged and e.lam == pytest.approx(path.root(s2), rel=1e-9)
+    assert lam1 / e.lam > 40.0
 
 
 class BracketingProjection:
