@@ -892,6 +892,10 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
     target, scale_info, note = 1.0, None, ""
     tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
     start, lam_ref = theta0, lam_start
+
+    def best_fit():  # the least χ² of this search's solves (the projected steps, with no solve, left out)
+        return min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
+
     if estimate_scale:
         first = path.solve(lam_start, theta0, objective_rtol=search_rtol)
         target, tol, _, scale_info = estimated_target(path, first, 0.0, tol)
@@ -905,13 +909,13 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
             return None
         if scale_info is None or k == max_rounds - 1:  # (the target reported is the one the search met)
             break
-        ref = min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
+        ref = best_fit()
         if not ref.converged:
             # s² rests on a solve stopped at its step budget: at a small λ the fit creeps along directions
             # the data barely see, and its χ² overstates the noise.  A solve at SCALE_PROBE × the λ found,
             # started from its solution, fits at least as well where it converges; s² is checked on it
             path.solve(max(lam_min, SCALE_PROBE * found[0].lam), found[0].theta, objective_rtol=search_rtol)
-            ref = min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
+            ref = best_fit()
         if ref.chi2 >= scale_info["chi2_ref"] * (1.0 - 0.1 * tol):
             break
         target = ref.chi2 * m / (m - scale_info["dof"])
