@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import scipy.linalg as sla
@@ -45,11 +46,14 @@ from lftomo.radiation import blackbody
 
 
 def linearised_path(J, Ls, r0, T_hat, lams, T_true, hot):
-    """Per λ: the linearised solution's χ², ‖L T‖², influence trace, log-evidence and error above ``hot``."""
+    """Per λ: the linearised solution's χ², ‖L T‖², influence trace, log-evidence and error above ``hot``
+    (the curvature prior's ``Ls``)."""
     G = (J.T @ J).toarray()
     M = (Ls.T @ Ls).toarray()
     g, MT = J.T @ r0, M @ T_hat
-    rank = G.shape[0] - 1  # the curvature and gradient priors leave the constants free
+    # the curvature prior (second differences along each axis) leaves the 8 functions
+    # 1, x, y, z, xy, xz, yz, xyz free
+    rank = G.shape[0] - 8
     sel = T_true > hot
     rows = []
     for lam in lams:
@@ -103,12 +107,15 @@ def main() -> None:
     T_hat = fit.T.ravel()
     J, Ls = precision_factors(problem, T_hat, prior="curvature")
     rows = linearised_path(J, Ls, residual(T_hat), T_hat, a.lam * np.logspace(-2, 2, 25), T_true, a.hot)
-    used = int(np.count_nonzero(Aw.getnnz(axis=1)))
+    # GCV over the rows the model reaches (as lftomo.GCV): the empty rows' misfit does not depend on λ
+    rows_used = Aw.getnnz(axis=1) > 0
+    used = int(np.count_nonzero(rows_used))
+    r_empty = residual(T_hat)[~rows_used]
+    chi2_empty = float(r_empty @ r_empty)
     for r in rows:
-        r["gcv"] = used * r["chi2"] / (used - r["trace"]) ** 2
+        r["gcv"] = used * (r["chi2"] - chi2_empty) / (used - r["trace"]) ** 2
         r["upre"] = r["chi2"] + 2.0 * r["trace"] - m
-    curv = lcurve_curvature([type("E", (), {"lam": r["lam"], "chi2": r["chi2"] / m, "reg": np.sqrt(r["reg"])})
-                             for r in rows])
+    curv = lcurve_curvature([SimpleNamespace(lam=r["lam"], chi2=r["chi2"] / m, reg=np.sqrt(r["reg"])) for r in rows])
     print("| λ | χ²/m | tr H | mean |ΔT|/T above hot |", "\n|---|---|---|---|")
     for r in rows:
         print(f"| {r['lam']:.3g} | {r['chi2'] / m:.4f} | {r['trace']:.1f} | {100 * r['error']:.2f} % |")
