@@ -42,18 +42,17 @@ from lftomo.inverse.fieldposterior import precision_factors
 from lftomo.inverse.lambdarules import lcurve_curvature
 from lftomo.inverse.problem import stack_problems
 from lftomo.inverse.reconstruct import problem_on_grid
+from lftomo.inverse.regularizers import CurvaturePrior
 from lftomo.radiation import blackbody
 
 
-def linearised_path(J, Ls, r0, T_hat, lams, T_true, hot):
+def linearised_path(J, Ls, r0, T_hat, lams, T_true, hot, null):
     """Per λ: the linearised solution's χ², ‖L T‖², influence trace, log-evidence and error above ``hot``
-    (the curvature prior's ``Ls``)."""
+    (the curvature prior's ``Ls``, ``null`` the dimension of its null space)."""
     G = (J.T @ J).toarray()
     M = (Ls.T @ Ls).toarray()
     g, MT = J.T @ r0, M @ T_hat
-    # the curvature prior (second differences along each axis) leaves the 8 functions
-    # 1, x, y, z, xy, xz, yz, xyz free
-    rank = G.shape[0] - 8
+    rank = G.shape[0] - null
     sel = T_true > hot
     rows = []
     for lam in lams:
@@ -106,7 +105,8 @@ def main() -> None:
     print(f"χ²/m of the truth on {a.n}³: {r_true @ r_true / m:.4f} (m = {m})", flush=True)
     T_hat = fit.T.ravel()
     J, Ls = precision_factors(problem, T_hat, prior="curvature")
-    rows = linearised_path(J, Ls, residual(T_hat), T_hat, a.lam * np.logspace(-2, 2, 25), T_true, a.hot)
+    null = CurvaturePrior().null_dimension(grid)  # 1, x, y, z, xy, xz, yz, xyz: 8
+    rows = linearised_path(J, Ls, residual(T_hat), T_hat, a.lam * np.logspace(-2, 2, 25), T_true, a.hot, null)
     # GCV over the rows the model reaches (as lftomo.GCV): the empty rows' misfit does not depend on λ
     rows_used = Aw.getnnz(axis=1) > 0
     used = int(np.count_nonzero(rows_used))

@@ -223,13 +223,6 @@ def _scaled_prior(grid: Any, prior: str, bounds: tuple[float, float]) -> sp.csr_
     return (prior_operator(grid, prior, dimensionless=True) / float(bounds[1] - bounds[0])).tocsr()
 
 
-def _null_dimension(Ls: sp.csr_matrix) -> int:
-    """Dimension of the prior's null space: 1 when constants are free, else 0."""
-    n = Ls.shape[1]
-    scale = float(abs(Ls).sum(axis=1).max()) or 1.0
-    return 1 if float(np.abs(Ls @ np.ones(n)).max()) <= 1e-10 * scale else 0
-
-
 def _dense_stats(J: sp.csr_matrix, Ls: sp.csr_matrix, lam: float, *, prior: str | None = None,
                  shape: tuple | None = None) -> _Stats:
     """Exact ``diag(H⁻¹)``, ``tr(H⁻¹M)`` and ``log det H`` by a Cholesky factor of ``H = JᵀJ + λ LsᵀLs``.
@@ -653,7 +646,8 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
     noise's precision relative to the given σ, :class:`~lftomo.inverse.lambdarules.Evidence`).
     Returns ``(reconstruction, λ, statistics, evidence record)``."""
     rec = run.solve("auto" if lambda0 is None else lambda0, T_start)
-    r, n = run.problem.grid.n_voxels - _null_dimension(run.Ls), run.problem.grid.n_voxels
+    n = run.problem.grid.n_voxels
+    r = n - resolve_prior(run.prior).null_dimension(run.problem.grid)  # the prior's rank
     m = run.problem.y.size  # the data χ² is summed over
     lam = rec.regularization
     path = {k: [] for k in ("lambda", "gamma", "trace", "trace_se", "log_evidence", "chi2", "noise_scale")}

@@ -259,6 +259,56 @@ class Prior:
     def _raw_operator(self, grid: Any) -> sp.csr_matrix:
         raise NotImplementedError
 
+    def null_basis(self, grid: Any) -> np.ndarray:
+        """A basis of the fields the penalty does not see on a voxel grid (``L x = 0``).
+
+        The first-difference priors (gradient with Neumann faces, its Laplacian
+        ``−DᵀD``, TV) leave the constants free.  Subclasses with a larger null
+        space override this.
+
+        Parameters
+        ----------
+        grid : Grid
+            Voxel grid (not a parameterisation; :meth:`null_dimension` takes both).
+
+        Returns
+        -------
+        ndarray, shape (n, d)
+            Orthonormal columns (C-order voxels).
+        """
+        shape, _ = _check_grid(grid)
+        n = int(np.prod(shape))
+        return np.full((n, 1), 1.0 / np.sqrt(n))
+
+    def null_dimension(self, grid: Any) -> int:
+        """Dimension of the prior's null space: the number of directions it leaves free.
+
+        It sets the prior's rank ``r = n − d`` in the Laplace evidence
+        (MacKay 1992, eq. 4.9; :class:`~lftomo.inverse.lambdarules.Evidence`).
+
+        Parameters
+        ----------
+        grid : Grid or Parameterization
+            For a parameterisation with expansion ``P`` (full column rank) the
+            null space of ``L P`` is that of the fields ``P p`` in the voxel
+            grid's null space: ``d = dim(range P ∩ null L)``, found by
+            projecting :meth:`null_basis` onto ``range P`` (LSQR).
+
+        Returns
+        -------
+        int
+        """
+        if not isinstance(grid, Parameterization):
+            return int(self.null_basis(grid).shape[1])
+        from scipy.sparse.linalg import lsqr
+
+        N = self.null_basis(grid.grid)
+        P = sp.csr_matrix(grid.expansion)
+        R = np.column_stack([N[:, j] - P @ lsqr(P, N[:, j], atol=1e-14, btol=1e-14, iter_lim=10 * P.shape[1])[0]
+                             for j in range(N.shape[1])])
+        s = np.linalg.svd(R, compute_uv=False)
+        return int(N.shape[1] - np.count_nonzero(s > 1e-6))
+
     @staticmethod
     def residual_fn(x: Any, L: Any, eps: Any) -> jax.Array:
         """``R(x)`` from ``L`` (BCOO, HostCSR or anything with ``@``) in traced JAX code.
@@ -335,6 +385,17 @@ class CurvaturePrior(Prior):
 
     def _raw_operator(self, grid: Any) -> sp.csr_matrix:
         return curvature_operator(grid)
+
+    def null_basis(self, grid: Any) -> np.ndarray:
+        """The fields linear in each coordinate (1, x, y, z, xy, xz, yz, xyz): ``∏ min(n_a, 2)``
+        directions (an axis of one voxel adds none, of two voxels no differences at all),
+        orthonormalised, shape (n, d)."""
+        shape, _ = _check_grid(grid)
+        axes = [np.linspace(-1.0, 1.0, k) if k > 1 else np.zeros(1) for k in shape]
+        factors = [[np.ones(k)] + ([u] if k > 1 else []) for k, u in zip(shape, axes)]
+        cols = [np.einsum("i,j,k->ijk", a, b, c).ravel() for a in factors[0] for b in factors[1] for c in factors[2]]
+        q, _ = np.linalg.qr(np.column_stack(cols))
+        return q
 
 
 class TotalVariationPrior(Prior):

@@ -121,3 +121,28 @@ def test_a_prior_subclass_is_usable_by_name_free_code():
     expect = hbar2 * np.sum((np.diff(f, axis=0) / GRID.spacing[0]) ** 2)
     assert XOnly().value(x, GRID) == pytest.approx(expect, rel=1e-12)
     assert resolve_prior(XOnly()).name == "x-gradient"
+
+
+@pytest.mark.parametrize("shape", [(4, 3, 5), (1, 4, 3), (2, 5, 1), (3, 2, 2), (1, 1, 6)])
+def test_null_dimension_is_the_operators_rank_deficit(shape):
+    """Independent: n − numerical rank of the dense operator, for every prior (the curvature prior's
+    null space is the fields linear in each coordinate: 8 on a grid with every axis ≥ 2 voxels)."""
+    grid = lt.Grid(shape=shape, lower=(0.0, 0.0, 0.0), upper=(0.008, 0.006, 0.015))
+    for name in PRIORS:
+        p = resolve_prior(name)
+        L = p.operator(grid).toarray()
+        assert p.null_dimension(grid) == grid.n_voxels - np.linalg.matrix_rank(L), (name, shape)
+        N = p.null_basis(grid)
+        assert np.allclose(N.T @ N, np.eye(N.shape[1])) and np.abs(L @ N).max() < 1e-9
+    assert CurvaturePrior().null_dimension(GRID) == 8
+
+
+def test_null_dimension_on_a_parameterization_is_that_of_L_P():
+    """Rings and splines: k − rank(L P) by a dense SVD against the projection of the voxel null basis."""
+    grid = lt.Grid((6, 8, 6), (-0.015, 0.0, -0.015), (0.015, 0.04, 0.015))
+    for par in (lt.ring_grid(grid), lt.Splines(grid, (3, 4, 3))):
+        for name in ("gradient", "laplacian", "curvature"):
+            p = resolve_prior(name)
+            LP = p.operator(par).toarray()
+            assert p.null_dimension(par) == LP.shape[1] - np.linalg.matrix_rank(LP), (type(par).__name__, name)
+    assert CurvaturePrior().null_dimension(lt.ring_grid(grid)) == 2  # a + b z: the rings' multilinear fields
