@@ -18,8 +18,10 @@ likelihood
 
     log p(y | λ) ≈ −½ Φ(T̂_λ) + (r/2) log λ − ½ log det H + const
 
-(``r = rank L``: the gradient and Laplacian priors leave the constant field
-free, ``r = n − 1``).  Its stationarity condition is MacKay's fixed point
+(``r = rank L = n − d``, ``d`` the dimension of the prior's null space,
+:meth:`~lftomo.inverse.regularizers.Prior.null_dimension`: the gradient and
+Laplacian priors leave the constant field free, ``d = 1``; the curvature prior
+the fields linear in each coordinate, ``d = 8``).  Its stationarity condition is MacKay's fixed point
 (MacKay 1992, "Bayesian interpolation", Neural Computation 4: 415–447, eq. 4.9
 there in other notation)
 
