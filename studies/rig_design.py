@@ -52,6 +52,7 @@ def main() -> None:
                     help="the discrepancy rule's noise scale (lt.Discrepancy); default: the library's rule")
     ap.add_argument("--quadrature", type=int, default=1,
                     help="sub-voxel emission: the weights on the grid refined by this factor (lt.design(quadrature=))")
+    ap.add_argument("--first-draw", type=int, default=0, help="draw k uses design seed 1000 (first_draw + k)")
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     t0 = time.perf_counter()
@@ -68,7 +69,7 @@ def main() -> None:
     rows_by_draw = []
     for draw in range(a.draws):
         designs = design_configurations(configs, grid, flame, rays_per_pixel=a.rays, noise=a.noise, hot=a.hot,
-                                        seed=1000 * draw, sampler=a.sampler, quadrature=a.quadrature,
+                                        seed=1000 * (a.first_draw + draw), sampler=a.sampler, quadrature=a.quadrature,
                                         rule=None if a.noise_scale == "default" else lt.Discrepancy(noise_scale=a.noise_scale),
                                         progress=True)
         rows_by_draw.append(compare_designs(designs))

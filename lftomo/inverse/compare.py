@@ -66,7 +66,7 @@ def effective_truth(medium, dst: Grid, wavelength: float | None):
 
 
 #: How :func:`monte_carlo_std` uses its per-view floor.
-MC_FLOORS = ("bound", "prior")
+MC_FLOORS = ("bound", "prior", "calibrated")
 
 
 def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, floor: str = "bound") -> np.ndarray:
@@ -100,6 +100,14 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
       Monte Carlo error as it is; for models with little discretisation error
       (sub-voxel emission), with the discrepancy rule's
       ``noise_scale="estimated"``.
+    * ``floor="calibrated"``: ``"prior"`` scaled by one factor per channel so
+      that its total over the decoded pixels equals the render's own,
+      ``Σ se² = Σ se_d²`` (before the weights' share is added).  The
+      stratified sampler's ``se_d`` is honest in total but scatters from pixel
+      to pixel (``K − 1`` degrees of freedom) and vanishes where no ray hit;
+      the floor's shape puts the variance where the signal's edges are.  The
+      noise model is then right in total, which the discrepancy rule's
+      ``χ²/m = 1`` needs.
 
     Both are checked against the difference of two independent renders
     (``studies/mc_noise_model.py``; the measurements are in docs/accuracy.md,
@@ -113,7 +121,7 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
         The noise-free render (``std_error`` set), raw (rows, cols) or (n_λ, rows, cols).
     weights_rays_per_pixel, rays_per_pixel : int
         Rays per pixel of the weight matrix and of the render.
-    floor : {"bound", "prior"}
+    floor : {"bound", "prior", "calibrated"}
         How the floor enters (above).
 
     Returns
@@ -133,6 +141,12 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     else:  # scaled-inverse-χ² posterior: the render's sample variance (ν dof), the floor a prior worth one ray
         nu = mc_degrees_of_freedom(lf, rays_per_pixel)
         out = np.sqrt((fl**2 + nu * se**2) / (nu + 1))
+        if floor == "calibrated":
+            for c in range(out.shape[0]):
+                dec = out[c] > 0
+                total = float(np.sum(out[c][dec] ** 2))
+                if total > 0:
+                    out[c] *= np.sqrt(float(np.sum(se[c][dec] ** 2)) / total)
     out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
     return out.reshape(np.shape(lf.raw))
 
@@ -189,7 +203,7 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
     rays_per_pixel, weights_rays_per_pixel : int
         Rays per pixel of the render and of the weight matrix.
     min_etendue_fraction : float or None
-    floor : {"bound", "prior"}
+    floor : {"bound", "prior", "calibrated"}
         Passed to :func:`monte_carlo_std`.
 
     Returns
