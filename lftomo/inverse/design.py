@@ -29,8 +29,7 @@ or given.  The data of each camera are its lit sub-aperture pixels (étendue
 above 0.2 of the peak) of a render of the flame itself, with noise
 ``σ = noise × max(signal, 10⁻³ × peak)`` (:func:`lftomo.add_noise`) and the
 Monte Carlo error of the render and of the weights added to σ
-(:func:`lftomo.inverse.compare.with_monte_carlo_noise`, floor ``"calibrated"``: right in total, so
-that the discrepancy rule's ``χ²/m = 1`` means what it says):
+(:func:`lftomo.inverse.compare.with_monte_carlo_noise`, floor ``"prior"``, the less pessimistic one):
 the prediction is that of lftomo's own synthetic pipeline at these rays,
 conservative for a real camera's images, which have no Monte Carlo error.
 Model error of a coarse grid (flame detail below the voxel size) is not part
@@ -256,7 +255,7 @@ def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_
         bar.update(1)
         noisy = with_monte_carlo_noise(add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), lf,
                                        rays_per_pixel=data_rays_per_pixel, weights_rays_per_pixel=rays_per_pixel,
-                                       floor="calibrated")
+                                       floor="prior")
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: weights")
         Ws.append(weights(cam, grid, sigma_a=sa, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
                           seed=seed + 3 * k + 1, lightfield=noisy, sampler=sampler, progress=False))

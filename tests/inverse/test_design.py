@@ -179,10 +179,10 @@ def test_design_with_sub_voxel_emission_linearises_the_sub_voxel_model(blob_desi
         design(cam, grid, flame, quadrature=0)
 
 
-def test_design_data_carry_the_calibrated_monte_carlo_error(blob_design):
-    """The design's σ² is the added noise plus the Monte Carlo error with the ``"calibrated"`` floor (right in
-    total, tests/inverse/test_compare.py), not the ``"prior"`` one: an independent render with the design's seeds
-    (design seed 0, camera 0: render 0, noise 2) gives both parts."""
+def test_design_data_carry_the_prior_floors_monte_carlo_error(blob_design):
+    """The design's σ² is the added noise plus the Monte Carlo error with the ``"prior"`` floor, not the
+    ``"calibrated"`` one (docs/experiment_design.md measures both): an independent render with the design's
+    seeds (design seed 0, camera 0: render 0, noise 2) gives both parts."""
     from lftomo.inverse.compare import monte_carlo_std
 
     cam, grid, flame, d = blob_design
@@ -192,6 +192,6 @@ def test_design_data_carry_the_calibrated_monte_carlo_error(blob_design):
     m, ref = d.measurements[0], lt.Measurement.from_lightfield(noisy)
     np.testing.assert_array_equal(m.y, ref.y)
     mc2 = m.sigma**2 - ref.sigma**2
-    for floor, match in (("calibrated", True), ("prior", False)):
+    for floor, match in (("prior", True), ("calibrated", False)):
         want = monte_carlo_std(lf, weights_rays_per_pixel=64, rays_per_pixel=64, floor=floor).reshape(-1)[m.raw_index]
         assert np.allclose(mc2, want**2, rtol=1e-9, atol=1e-12 * float(np.max(want**2))) is match, floor
