@@ -31,7 +31,8 @@ from .inverse.solverchoice import Solver, LevenbergMarquardt, GaussNewton, Dense
 from .inverse.posterior import Posterior, build_log_posterior, sample_posterior, laplace_approximation
 from .inverse.ensemble import EnsembleChain
 from .inverse.fieldposterior import FieldPosterior, LaplaceCovariance, laplace_posterior
-from .inverse.design import Design, design, compare_designs, design_table, rig_around, standard_configurations
+from .inverse.design import (Design, design, compare_designs, design_table, rig_around, standard_configurations,
+                             SimulatedCamera, simulate_camera)
 from .inverse.basis import DCTBasis, BSplineBasis, ParametricFlame
 from .inverse.subvoxel import interpolate_field, interpolation_matrix
 from .inverse.symmetry import RingGrid, ring_grid
@@ -129,6 +130,8 @@ __all__ = [
     "design_table",
     "rig_around",
     "standard_configurations",
+    "SimulatedCamera",
+    "simulate_camera",
     "DCTBasis",
     "BSplineBasis",
     "ParametricFlame",

@@ -47,21 +47,15 @@ from lftomo.radiation import blackbody
 WL = 650e-9
 
 
-def simulate(cams, grid, wgrid, flame, sa_w, rays, seed, noise):
+def simulate(cams, wgrid, flame, sa_w, rays, seed, noise):
     """Per camera: (noisy light field, Monte Carlo variance with the prior floor, its calibrated factor, weights)."""
     out = []
     for k, cam in enumerate(cams):
-        lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=rays, seed=seed + 3 * k, wavelengths=(WL,),
-                       sampler="stratified", progress=False)
-        lf = dataclasses.replace(lf, min_etendue_fraction=0.2)
-        noisy = dataclasses.replace(lt.add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), min_etendue_fraction=0.2)
-        mc2 = monte_carlo_std(lf, weights_rays_per_pixel=rays, rays_per_pixel=rays, floor="prior") ** 2
-        cal = monte_carlo_std(lf, weights_rays_per_pixel=rays, rays_per_pixel=rays, floor="calibrated") ** 2
-        factor = float(cal.sum() / mc2.sum())
-        data = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc2))
-        W = lt.weights(cam, wgrid, sigma_a=sa_w, wavelength=WL, rays_per_pixel=rays, seed=seed + 3 * k + 1,
-                       lightfield=data, sampler="stratified", progress=False)
-        out.append((noisy, mc2, factor, W))
+        sim = lt.simulate_camera(cam, flame, wavelength=WL, noise=noise, rays_per_pixel=rays, seed=seed + 3 * k,
+                                 sampler="stratified", floor="prior", weights_grid=wgrid, sigma_a=sa_w)
+        mc2, cal = (monte_carlo_std(sim.lightfield, weights_rays_per_pixel=rays, rays_per_pixel=rays, floor=f) ** 2
+                    for f in ("prior", "calibrated"))
+        out.append((sim.noisy, mc2, float(cal.sum() / mc2.sum()), sim.weights))
     return out
 
 
@@ -111,7 +105,7 @@ def main() -> None:
     flame = lt.phantoms.two_lobed_flame(lt.phantoms.default_flame_grid((2 * a.n,) * 3))
     cfg = standard_configurations(lt.Camera.seed(1.0), grid)[a.config]
     sa, T = effective_truth(flame, grid, WL)
-    sim = simulate(cfg["rig"], grid, wgrid, flame, interpolate_field(sa, grid, wgrid),
+    sim = simulate(cfg["rig"], wgrid, flame, interpolate_field(sa, grid, wgrid),
                    max(1, a.rays // cfg["ray_share"]), a.seed, 0.01)
     Ws = [s[3] for s in sim]
     print(f"{a.config}, seed {a.seed}: calibrated factor per camera {[round(s[2], 4) for s in sim]}", flush=True)

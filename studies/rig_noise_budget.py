@@ -31,7 +31,7 @@ import dataclasses
 import numpy as np
 
 import lftomo as lt
-from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
+from lftomo.inverse.compare import effective_truth
 from lftomo.inverse.design import standard_configurations
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.subvoxel import interpolate_field
@@ -41,10 +41,9 @@ from lftomo.radiation import blackbody
 def camera_terms(cam, k, grid, wgrid, flame, sa_w, sa_f, T_f, rays, noise):
     """Sums over one camera's rows: (m, noise, noise allotted, render − W I_b, σ² allotted to it, same with
     the exact σₐ)."""
-    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=rays, seed=3 * k, wavelengths=(650e-9,),
-                   sampler="stratified", progress=False)
-    noisy = lt.add_noise(lf, relative_std=noise, seed=3 * k + 2)
-    data = with_monte_carlo_noise(noisy, lf, rays_per_pixel=rays, weights_rays_per_pixel=rays, floor="prior")
+    sim = lt.simulate_camera(cam, flame, wavelength=650e-9, noise=noise, rays_per_pixel=rays, seed=3 * k,
+                             sampler="stratified", floor="prior")
+    lf, noisy, data = sim.lightfield, sim.noisy, sim.data
     Ib = blackbody(T_f.ravel(), 650e-9)
     misfit = []
     for sa in (sa_w, sa_f):

@@ -47,6 +47,7 @@ Estimation Theory*. Prentice Hall.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -60,7 +61,7 @@ from ..errors import LftomoError
 from ..forward.grid import Grid
 from ..forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 
-__all__ = ["Design", "design", "psf_widths", "rig_around", "compare_designs", "design_table",
+__all__ = ["Design", "design", "SimulatedCamera", "simulate_camera", "psf_widths", "rig_around", "compare_designs", "design_table",
            "standard_configurations", "design_configurations", "cramer_rao_bound",
            "DESIGN_DENSE_MAX"]
 
@@ -232,35 +233,109 @@ def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, 
             f"and handles at most dense_max={dense_max} (16³): use a coarser reconstruction grid")
 
 
-def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar,
-                  sampler):
-    """Per camera: the simulated measurement and its weights on ``grid``.
+@dataclass(frozen=True, eq=False)
+class SimulatedCamera:
+    """One camera's synthetic data as lftomo's studies fit them (:func:`simulate_camera`).
 
-    As the library's synthetic studies do: the flame rendered with
-    ``data_rays_per_pixel`` rays, relative noise ``noise``
-    (:func:`lftomo.add_noise`), and the Monte Carlo error of the render and of
-    the weights added to σ (:func:`lftomo.inverse.compare.with_monte_carlo_noise`).
+    Attributes
+    ----------
+    lightfield : LightField
+        The noise-free Monte Carlo render (``std_error`` set), with the decode's
+        étendue threshold ``min_etendue_fraction``.
+    noisy : LightField
+        ``lightfield`` with measurement noise (:func:`lftomo.add_noise`);
+        ``noise_std`` is the measurement noise alone.
+    data : LightField
+        ``noisy`` with the Monte Carlo error of the render and of the weights
+        added to ``noise_std`` (:func:`lftomo.inverse.compare.with_monte_carlo_noise`).
+    weights : WeightMatrix or None
+        The weight matrix on the requested grid (None if none was asked for).
+    """
+
+    lightfield: Any
+    noisy: Any
+    data: Any
+    weights: Any = None
+
+    @property
+    def measurement(self):
+        """:class:`~lftomo.Measurement` of ``data`` (its lit sub-aperture pixels)."""
+        from .measurement import Measurement
+
+        return Measurement.from_lightfield(self.data)
+
+
+def simulate_camera(camera, flame, *, wavelength: float, noise: float, rays_per_pixel: int,
+                    data_rays_per_pixel: int | None = None, seed: int = 0, sampler: str = DEFAULT_SAMPLER,
+                    floor: str = "prior", weights_grid: Grid | None = None, sigma_a: np.ndarray | None = None,
+                    min_etendue_fraction: float = 0.2) -> SimulatedCamera:
+    """Render a flame with one camera, add noise and the Monte Carlo error model, build its weights.
+
+    The synthetic pipeline of :func:`design` and of the rig studies: the flame
+    rendered with ``data_rays_per_pixel`` rays (seed ``seed``), relative noise
+    ``noise`` (seed ``seed + 2``), σ² = noise² + Monte Carlo variance of the
+    render and of weights of ``rays_per_pixel`` rays (floor ``floor``), and,
+    with ``weights_grid``, the weights there (seed ``seed + 1``; ``sigma_a``
+    on that grid, 1/m).
+
+    Parameters
+    ----------
+    camera : Camera
+    flame : Medium
+    wavelength : float
+        m.
+    noise : float
+        Relative measurement noise (:func:`lftomo.add_noise`).
+    rays_per_pixel : int
+        Rays per pixel of the weights.
+    data_rays_per_pixel : int, optional
+        Rays per pixel of the render (default ``rays_per_pixel``).
+    seed : int
+    sampler : {"stratified", "independent"}
+    floor : {"bound", "prior", "calibrated"}
+        Monte Carlo floor (:func:`lftomo.inverse.compare.monte_carlo_std`).
+    weights_grid : Grid, optional
+    sigma_a : ndarray, shape ``weights_grid.shape``, optional
+    min_etendue_fraction : float
+        View pixels below this fraction of the peak étendue are not data.
+
+    Returns
+    -------
+    SimulatedCamera
     """
     from ..forward.render import render
     from ..forward.scene import Scene
     from ..forward.weights import weights
     from .compare import with_monte_carlo_noise
-    from .measurement import Measurement, add_noise
+    from .measurement import add_noise
 
+    data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
+    lf = render(Scene(medium=flame), camera, rays_per_pixel=data_rays, seed=seed, wavelengths=(wavelength,),
+                sampler=sampler, progress=False)
+    lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
+    noisy = add_noise(lf, relative_std=noise, seed=seed + 2)
+    data = with_monte_carlo_noise(noisy, lf, rays_per_pixel=data_rays, weights_rays_per_pixel=rays_per_pixel,
+                                  min_etendue_fraction=min_etendue_fraction, floor=floor)
+    W = None
+    if weights_grid is not None:
+        W = weights(camera, weights_grid, sigma_a=sigma_a, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
+                    seed=seed + 1, lightfield=data, sampler=sampler, progress=False)
+    return SimulatedCamera(lightfield=lf, noisy=noisy, data=data, weights=W)
+
+
+def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar,
+                  sampler):
+    """Per camera (seeds ``seed + 3 k``): the simulated measurement and its weights on ``grid``
+    (:func:`simulate_camera`, floor ``"prior"``)."""
     ms, Ws = [], []
     for k, cam in enumerate(cams):
-        bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render")
-        lf = render(Scene(medium=flame), cam, rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k,
-                    wavelengths=(wavelength,), sampler=sampler, progress=False)
-        bar.update(1)
-        noisy = with_monte_carlo_noise(add_noise(lf, relative_std=noise, seed=seed + 3 * k + 2), lf,
-                                       rays_per_pixel=data_rays_per_pixel, weights_rays_per_pixel=rays_per_pixel,
-                                       floor="prior")
-        bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: weights")
-        Ws.append(weights(cam, grid, sigma_a=sa, wavelength=wavelength, rays_per_pixel=rays_per_pixel,
-                          seed=seed + 3 * k + 1, lightfield=noisy, sampler=sampler, progress=False))
-        bar.update(1)
-        ms.append(Measurement.from_lightfield(noisy))
+        bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render and weights")
+        sim = simulate_camera(cam, flame, wavelength=wavelength, noise=noise, rays_per_pixel=rays_per_pixel,
+                              data_rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k, sampler=sampler,
+                              floor="prior", weights_grid=grid, sigma_a=sa)
+        bar.update(2)
+        ms.append(sim.measurement)
+        Ws.append(sim.weights)
     return ms, Ws
 
 

@@ -195,3 +195,27 @@ def test_design_data_carry_the_prior_floors_monte_carlo_error(blob_design):
     for floor, match in (("prior", True), ("calibrated", False)):
         want = monte_carlo_std(lf, weights_rays_per_pixel=64, rays_per_pixel=64, floor=floor).reshape(-1)[m.raw_index]
         assert np.allclose(mc2, want**2, rtol=1e-9, atol=1e-12 * float(np.max(want**2))) is match, floor
+
+
+def test_simulate_camera_is_render_noise_and_weights_with_its_seeds(blob_design):
+    """``lt.simulate_camera``: the render (seed s, ``data_rays_per_pixel``), the noise (seed s + 2), σ² with the
+    Monte Carlo error of render and weights for the floor asked (here ``"calibrated"``, weights of a different ray
+    count) and the weights (seed s + 1), each equal to the library's own step run independently."""
+    from lftomo.inverse.compare import monte_carlo_std
+
+    cam, grid, flame, _ = blob_design
+    sa = np.full(grid.shape, 5.0)
+    sim = lt.simulate_camera(cam, flame, wavelength=WL, noise=0.02, rays_per_pixel=8, data_rays_per_pixel=16,
+                             seed=11, floor="calibrated", weights_grid=grid, sigma_a=sa)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=16, seed=11, wavelengths=(WL,), progress=False)
+    np.testing.assert_array_equal(sim.lightfield.raw, lf.raw)
+    assert sim.lightfield.min_etendue_fraction == 0.2
+    noisy = lt.add_noise(lf, relative_std=0.02, seed=13)
+    np.testing.assert_array_equal(sim.noisy.raw, noisy.raw)
+    mc = monte_carlo_std(sim.lightfield, weights_rays_per_pixel=8, rays_per_pixel=16, floor="calibrated")
+    np.testing.assert_allclose(sim.data.noise_std**2, noisy.noise_std**2 + mc**2, rtol=1e-12)
+    W = lt.weights(cam, grid, sigma_a=sa, wavelength=WL, rays_per_pixel=8, seed=12, lightfield=sim.data,
+                   progress=False)
+    assert (sim.weights.matrix != W.matrix).nnz == 0
+    assert sim.measurement.y.size == lt.Measurement.from_lightfield(sim.data).y.size
+    assert lt.simulate_camera(cam, flame, wavelength=WL, noise=0.02, rays_per_pixel=4).weights is None
