@@ -33,7 +33,6 @@ import dataclasses
 import time
 
 import numpy as np
-import scipy.linalg as sla
 
 import lftomo as lt
 from lftomo.inverse.compare import effective_truth, monte_carlo_std
@@ -41,8 +40,10 @@ from lftomo.inverse.design import standard_configurations
 from lftomo.inverse.fieldposterior import precision_factors
 from lftomo.inverse.problem import stack_problems
 from lftomo.inverse.reconstruct import problem_on_grid
+from lftomo.inverse.regularizers import CurvaturePrior
 from lftomo.inverse.subvoxel import interpolate_field
 from lftomo.radiation import blackbody
+from rig_lambda_rules import linearised_path  # (studies/ is the script's folder, first on sys.path)
 
 WL = 650e-9
 
@@ -77,17 +78,10 @@ def linearised_picks(problem, T_lin, T_true, lams, hot):
     def residual(T):
         return yw - Aw @ blackbody(problem.model_temperature(T), problem.wavelength)
 
-    r0, rt = residual(T_lin), residual(T_true)
-    G, M = (J.T @ J).toarray(), (Ls.T @ Ls).toarray()
-    g, MT = J.T @ r0, M @ T_lin
-    sel = T_true > hot
-    rows = []
-    for lam in lams:
-        cho = sla.cho_factor(G + lam * M, lower=True, check_finite=False)
-        d = sla.cho_solve(cho, g - lam * MT, check_finite=False)
-        r, T = r0 - J @ d, T_lin + d
-        rows.append((float(lam), float(r @ r) / m, float(np.mean(np.abs(T[sel] - T_true[sel]) / T_true[sel]))))
-    return rows, float(rt @ rt) / m
+    rt = residual(T_true)
+    rows = linearised_path(J, Ls, residual(T_lin), T_lin, lams, T_true, hot,
+                           CurvaturePrior().null_dimension(problem.grid), influence=False)
+    return [(r["lam"], r["chi2"] / m, r["error"]) for r in rows], float(rt @ rt) / m
 
 
 def main() -> None:
