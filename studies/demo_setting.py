@@ -84,6 +84,8 @@ def main():
                     help="the discrepancy rule's λ search (lt.Discrepancy(search=...))")
     ap.add_argument("--min-etendue", type=float, default=demo.MIN_ETENDUE_FRACTION,
                     help="leave out view pixels below this fraction of the peak étendue (the demo's 0.2; 0 keeps all)")
+    ap.add_argument("--solver", default="auto", choices=list(SOLVERS),
+                    help="the --config fits' solver (auto: the library's default)")
     ap.add_argument("--subvoxel", action="store_true",
                     help="weights on a 32³ grid (the 16³ σₐ interpolated): the 16³ fit with sub-voxel emission")
     a = ap.parse_args()
@@ -92,20 +94,24 @@ def main():
         run_draw(a, lf, W, coarse, T_eff, noise_seed)
 
 
+#: ``--solver``: the library's choice, or dense Levenberg–Marquardt.
+SOLVERS = {"auto": lt.AutoSolver, "dense-lm": lt.DenseLM}
+
+
 def run_draw(a, lf, W, coarse, T_eff, noise_seed: int) -> None:
     """Every ``--config`` and ``--lambdas`` row on one noise draw."""
     noisy = lt.add_noise(lf, relative_std=demo.NOISE, seed=noise_seed)
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.rays,
                                    min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
     head = (f"{a.sampler} floor={a.mc_floor} etendue>={a.min_etendue:g} noise_seed={noise_seed}"
-            f"{' subvoxel' if a.subvoxel else ''}")
+            f"{' subvoxel' if a.subvoxel else ''}{'' if a.solver == 'auto' else ' solver=' + a.solver}")
     for cfg in filter(None, a.config.split(",")):
         kind, prior, scale = cfg.split(":")
         m = lt.Measurement.from_lightfield(noisy, data=kind,
                                            depths=list(demo.COMPARE_DEPTHS) if kind == "refocus" else None)
         t = time.perf_counter()
         rec = lt.reconstruct(m, W, prior=prior, rule=lt.Discrepancy(noise_scale=scale, search=a.search),
-                             bounds=demo.BOUNDS, grid=coarse)
+                             bounds=demo.BOUNDS, grid=coarse, solver=SOLVERS[a.solver]())
         report(f"{head} {cfg} search={a.search}", rec, T_eff, time.perf_counter() - t)
         print(f"    {rec.lambda_note}", flush=True)
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")

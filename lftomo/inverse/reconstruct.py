@@ -138,9 +138,9 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     """The ``unknowns="T"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
     from .solvers import temperature_fit
 
-    if method not in ("levenberg-marquardt", "gauss-newton"):
-        raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton' for unknowns='T', got {method!r}"
-                         + (" ('dense-lm' is for unknowns='T+sigma_a')" if method == "dense-lm" else ""))
+    if method not in ("levenberg-marquardt", "gauss-newton", "dense-lm"):
+        raise ValueError(f"method must be 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for unknowns='T', "
+                         f"got {method!r}")
     t0 = time.perf_counter()
     problem, grid = _temperature_problem(measurement, weights, grid)
     T0 = temperature_start(options.pop("T0", None), grid)

@@ -11,8 +11,9 @@ for ``"T+sigma_a"``).
     optimistix's matrix-free solvers: each step solves its linear system by
     LSMR on products with the sparse forward operator (both fits).
 ``DenseLM``
-    Levenberg–Marquardt on exact dense normal equations (joint fit only; for
-    few unknowns, e.g. axisymmetric ring cells or a smooth basis).
+    Levenberg–Marquardt on exact dense normal equations, for few unknowns
+    (axisymmetric ring cells, a smooth basis, a 16³ grid): both fits; the
+    T-only fit needs a quadratic prior (not total variation).
 ``AutoSolver``
     The fit's own choice by problem size (what ``solver=None`` gives), with
     settings that apply to whichever algorithm it picks.
@@ -150,18 +151,23 @@ class AutoSolver(Solver):
 
 
 class DenseLM(Solver):
-    """Levenberg–Marquardt on exact dense normal equations, for joint fits with few unknowns.
+    """Levenberg–Marquardt on exact dense normal equations, for fits with few unknowns.
+
+    Each step forms ``JᵀJ`` (n × n) from the sparse weights and solves the
+    damped normal equations by Cholesky (:mod:`lftomo.inverse.denselm`; the
+    T-only fit: :mod:`lftomo.inverse.densetemperature`, quadratic priors).
+    Memory and time grow as n² and n³: a few thousand unknowns.
 
     Parameters
     ----------
     max_steps : int, optional
-        Levenberg–Marquardt iterations per solve.
+        Levenberg–Marquardt trial points per solve.
     polish_steps, engine : optional
         As for :class:`LevenbergMarquardt`.
     """
 
     method = "dense-lm"
-    fits = ("T+sigma_a",)
+    fits = ("T", "T+sigma_a")
 
     def __init__(self, max_steps: int | None = None, polish_steps: int | None = None,
                  engine: str | None = None) -> None:

@@ -197,6 +197,7 @@ from .lambdarules import (  # noqa: E402
     objective,
     resolve_rule,
 )
+from .densetemperature import DenseTemperatureFit  # noqa: E402
 from .problem import LinearProblem  # noqa: E402
 from .projected import Linearization  # noqa: E402
 from .regularizers import Prior, resolve_prior  # noqa: E402
@@ -224,7 +225,7 @@ __all__ = [
 ]
 
 #: Nonlinear least-squares methods of :func:`solve_temperature`.
-METHODS = ("levenberg-marquardt", "gauss-newton")
+METHODS = ("levenberg-marquardt", "gauss-newton", "dense-lm")
 #: λ rules of :func:`solve_temperature` for ``regularization="auto"``.
 RULES = ("discrepancy", "gcv", "lcurve")
 CHUNK = 10
@@ -514,7 +515,8 @@ class _Runner:
         self.colsq_A = np.asarray(s.A_s.multiply(s.A_s).sum(axis=0)).ravel()
         self.colsq_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
         self.colsq_L = self.colsq_L / s.prior_model.curvature_divisor
-        self.solver = nonlinear_solver(method, rtol, atol, linear_rtol, linear_max_steps)
+        self.dense = _dense_fit(s) if method == "dense-lm" else None
+        self.solver = None if self.dense else nonlinear_solver(method, rtol, atol, linear_rtol, linear_max_steps)
         self.rtol, self.atol, self.max_steps = rtol, atol, max_steps
         self.evals: list[Eval] = []
         self.total_steps = 0
@@ -609,6 +611,8 @@ class _Runner:
         precision.
         """
         max_steps = self.max_steps if max_steps is None else min(int(max_steps), self.max_steps)
+        if self.dense is not None:
+            return self._solve_dense(lam, theta0, max_steps, objective_rtol)
         args = self.args(lam)
         theta = np.asarray(theta0, dtype=np.float64)
         steps, converged, message = 0, False, "max_steps reached"
@@ -651,6 +655,23 @@ class _Runner:
         self.evals.append(e)
         return e
 
+    def _solve_dense(self, lam: float, theta0, max_steps: int, objective_rtol: float | None) -> Eval:
+        """:meth:`solve` by dense Levenberg–Marquardt in the unit box of T (``method="dense-lm"``)."""
+        bar = self.bar
+
+        def on_step(k, F, data_sq, mu):
+            bar.update(1)
+            bar.set_postfix_str(f"λ={lam:.3g} χ²/m={(data_sq + self.s.chi2_empty) / self.s.m_total:.4g}")
+
+        T, res = self.dense.solve(lam, self.T_of(np.asarray(theta0, dtype=np.float64)), max_steps=max_steps,
+                                  slow_rtol=1e-6 if objective_rtol is None else objective_rtol, on_step=on_step)
+        theta = _theta_of_T(T, self.s.tmin, self.s.tmax, clip=1e-12)
+        self.total_steps += res.steps
+        chi2, reg = self.terms(theta, lam)
+        e = Eval(float(lam), theta, chi2, reg, res.steps, res.converged, f"dense LM: {res.message}")
+        self.evals.append(e)
+        return e
+
     @property
     def m_total(self) -> int:
         """Number of data (rows of ``A``, empty ones included)."""
@@ -688,9 +709,19 @@ class _Runner:
 
 
 # --------------------------------------------------------------------------- λ helpers
-def _theta_of_T(T: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
-    frac = np.clip((np.asarray(T, dtype=np.float64) - tmin) / (tmax - tmin), 1e-2, 1.0 - 1e-2)
+def _theta_of_T(T: np.ndarray, tmin: float, tmax: float, clip: float = 1e-2) -> np.ndarray:
+    frac = np.clip((np.asarray(T, dtype=np.float64) - tmin) / (tmax - tmin), clip, 1.0 - clip)
     return np.log(frac) - np.log1p(-frac)
+
+
+def _dense_fit(s: _Setup) -> DenseTemperatureFit:
+    """The dense Levenberg–Marquardt form of the fit (quadratic priors only)."""
+    if not s.prior_model.quadratic:
+        raise ValueError(f"method='dense-lm' needs a quadratic prior (its Gauss–Newton matrix LᵀL); "
+                         f"prior={s.prior!r} is not: use method='levenberg-marquardt'")
+    return DenseTemperatureFit(A=s.A_s if s.E is None else s.A_q, d=s.d, L=s.L, E=s.E, tmin=s.tmin, tmax=s.tmax,
+                               wavelength=s.wavelength, I_scale=s.I_scale, I_reg=s.I_reg, T_scale=s.T_scale,
+                               penalize=s.penalize)
 
 
 def _balanced_lambda(s: _Setup, T: np.ndarray) -> float:

@@ -369,7 +369,7 @@ def test_solver_and_start_objects_equal_the_old_engine_keywords(case):
 @pytest.mark.parametrize("kw, match", [
     ({"solver": lt.LevenbergMarquardt(), "max_steps": 5}, "max_steps set twice: by solver="),
     ({"start": 1000.0, "T0": 1000.0}, "either start or T0"),
-    ({"solver": lt.DenseLM()}, "does not run unknowns='T'"),
+    ({"solver": lt.DenseLM(polish_steps=2)}, "joint fit"),
     ({"solver": "lm"}, "solver must be one of lftomo's solver objects"),
 ])
 def test_solver_and_start_clashes_are_refused(case, kw, match):

@@ -502,7 +502,7 @@ def test_bounded_baseline_nonnegative(gray_noisy):
         ({"bounds": (-10.0, 300.0)}, "bounds"),
         ({"prior": "sobolev"}, "prior"),
         ({"solver": "newton"}, "solver"),
-        ({"solver": lt.DenseLM()}, "does not run unknowns='T'"),
+        ({"solver": lt.DenseLM(engine="jax")}, "joint fit"),
         ({"rule": "guess"}, "rule"),
         ({"rule": lt.DiscrepancyBracket()}, "does not run"),
         ({"unknowns": "T+sigma_a"}, "unknowns"),
