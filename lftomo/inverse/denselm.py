@@ -197,7 +197,6 @@ def levenberg_marquardt_dense(
     lower: np.ndarray | None = None,
     upper: np.ndarray | None = None,
     on_step: Callable[[int, float, float, float], None] | None = None,
-    scaling: str = "max",
 ) -> DenseLMResult:
     """Minimise ``‖r(p)‖²`` by Levenberg–Marquardt on exact dense normal equations.
 
@@ -272,7 +271,7 @@ def levenberg_marquardt_dense(
     while steps < max_steps:
         check_interrupt()
         diag = np.diag(G).copy()
-        d_max = np.maximum(d_max, diag) if scaling == "max" else diag
+        d_max = np.maximum(d_max, diag)
         D = np.maximum(d_max, 1e-12 * max(float(d_max.max()), 1e-300))
         # active set (Bertsekas 1982): on a bound with the descent direction (−g) pointing out of the box
         held = ((p <= lo) & (g > 0)) | ((p >= hi) & (g < 0))
