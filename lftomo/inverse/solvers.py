@@ -656,16 +656,16 @@ class _Runner:
         return e
 
     def _solve_dense(self, lam: float, theta0, max_steps: int, objective_rtol: float | None) -> Eval:
-        """:meth:`solve` by dense Levenberg–Marquardt in the unit box of T (``method="dense-lm"``)."""
+        """:meth:`solve` by dense Levenberg–Marquardt on the same log-odds (``method="dense-lm"``)."""
         bar = self.bar
 
         def on_step(k, F, data_sq, mu):
             bar.update(1)
             bar.set_postfix_str(f"λ={lam:.3g} χ²/m={(data_sq + self.s.chi2_empty) / self.s.m_total:.4g}")
 
-        T, res = self.dense.solve(lam, self.T_of(np.asarray(theta0, dtype=np.float64)), max_steps=max_steps,
-                                  slow_rtol=1e-6 if objective_rtol is None else objective_rtol, on_step=on_step)
-        theta = _theta_of_T(T, self.s.tmin, self.s.tmax, clip=1e-12)
+        res = self.dense.solve(lam, theta0, max_steps=max_steps,
+                               slow_rtol=1e-6 if objective_rtol is None else objective_rtol, on_step=on_step)
+        theta = res.p
         self.total_steps += res.steps
         chi2, reg = self.terms(theta, lam)
         e = Eval(float(lam), theta, chi2, reg, res.steps, res.converged, f"dense LM: {res.message}")
@@ -709,8 +709,8 @@ class _Runner:
 
 
 # --------------------------------------------------------------------------- λ helpers
-def _theta_of_T(T: np.ndarray, tmin: float, tmax: float, clip: float = 1e-2) -> np.ndarray:
-    frac = np.clip((np.asarray(T, dtype=np.float64) - tmin) / (tmax - tmin), clip, 1.0 - clip)
+def _theta_of_T(T: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
+    frac = np.clip((np.asarray(T, dtype=np.float64) - tmin) / (tmax - tmin), 1e-2, 1.0 - 1e-2)
     return np.log(frac) - np.log1p(-frac)
 
 
