@@ -323,7 +323,7 @@ def reconstruct(
     solver : Solver, optional
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
         ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``,
-        ``DenseLM(...)`` for ``"T+sigma_a"``, or ``AutoSolver(...)``: the
+        ``DenseLM(...)`` (few unknowns; for ``"T"`` a quadratic prior), or ``AutoSolver(...)``: the
         default choice with settings.  Default: matrix-free
         Levenberg–Marquardt for ``"T"``; for ``"T+sigma_a"`` chosen by the
         number of unknowns.
