@@ -955,9 +955,7 @@ def temperature_fit(
         the bounds; ``"uniform"`` or a float: a uniform field (the middle of the
         bounds for ``"uniform"``).  Values are clipped 0.1 % inside the bounds.
     method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}, keyword-only
-        ``optimistix.LevenbergMarquardt`` or ``optimistix.GaussNewton`` (matrix-free), or
-        Levenberg–Marquardt on dense normal equations
-        (:class:`~lftomo.inverse.densetemperature.DenseTemperatureFit`; quadratic priors).
+        optimistix's matrix-free solvers, or dense normal equations (:mod:`~lftomo.inverse.densetemperature`).
     rule : {"discrepancy", "gcv", "lcurve"}, keyword-only
         λ rule when ``regularization="auto"`` (ignored otherwise).
     max_steps : int, keyword-only
