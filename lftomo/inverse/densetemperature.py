@@ -31,6 +31,7 @@ from scipy.special import expit
 
 from ..radiation import blackbody, dblackbody_dT
 from .denselm import DenseLMResult, levenberg_marquardt_dense
+from .hostsparse import projected_normal_equations
 
 __all__ = ["DenseTemperatureFit", "DENSE_TEMPERATURE_FTOL"]
 
@@ -105,12 +106,12 @@ class DenseTemperatureFit:
         F = data_sq + lam * float(rr @ rr)
         if not with_jacobian:
             return F, data_sq
-        dI = sp.diags(dblackbody_dT(Tq, self.wavelength) * ((self.tmax - self.tmin) / self.I_scale))
-        J = (self.A @ (dI if self.E is None else dI @ self.E)).tocsr()
+        # the data block J = A diag(dI) E, in one parallel pass over A's rows without forming J
+        dI = dblackbody_dT(Tq, self.wavelength) * ((self.tmax - self.tmin) / self.I_scale)
+        G, g = projected_normal_equations(self.A, None, self.E, rd, column_scale=(dI, None))
         Jr = (self.L @ sp.diags(du)).tocsr()
-        G = (J.T @ J).toarray()
         G += lam * (Jr.T @ Jr).toarray()
-        g = J.T @ rd + lam * (Jr.T @ rr)
+        g += lam * (Jr.T @ rr)
         return F, data_sq, G, g
 
     def evaluate_log_odds(self, theta: np.ndarray, lam: float, with_jacobian: bool) -> tuple:

@@ -213,12 +213,13 @@ def _normal_equations_kernel(ap, ai, ad, bp, bi, bd, mp, mi, md, res, rows, row_
     written once per row for all of them.
 
     The selected rows are split into ``G_parts.shape[0]`` contiguous chunks, run in
-    parallel, each accumulating into its own ``G_parts[c]``, ``g_parts[c]``.
+    parallel, each accumulating into its own ``G_parts[c]``, ``g_parts[c]``.  With ``B`` empty (no entries
+    in any row) and ``G_parts`` of shape (parts, n_u, n_u) the same pass gives the ``A`` block alone.
     """
     n_rows = rows.shape[0]
     n_parts = G_parts.shape[0]
     K = len(ad)
-    n = 2 * n_u
+    n = G_parts.shape[1]
     for part in prange(n_parts):
         acc = np.zeros((n, K))
         mark = np.zeros(n, np.bool_)
@@ -293,12 +294,12 @@ def _scale_vector(name: str, value, n: int) -> np.ndarray:
     return arr
 
 
-def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_matrix | None,
+def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix | None, M: sp.csr_matrix | None,
                                res: np.ndarray, *, rows: np.ndarray | None = None,
                                row_weight: np.ndarray | None = None, column_scale: tuple = (None, None),
                                ) -> tuple[np.ndarray, np.ndarray]:
     """``G = JᵀJ`` (dense) and ``g = Jᵀ res`` of ``J = diag(w) [A[rows] diag(a) M, B[rows] diag(b) M]``,
-    without forming ``J``.
+    without forming ``J``; with ``B`` None, of the one block ``J = diag(w) A[rows] diag(a) M``.
 
     The Gauss–Newton matrix of a joint fit whose two Jacobian blocks (``∂r/∂T``
     and ``∂r/∂σ_a`` on the segment table's voxels, sparse, one row per table
@@ -314,6 +315,7 @@ def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_mat
     Parameters
     ----------
     A, B : scipy.sparse.csr_matrix, shape (m_table, n_q)
+        ``B`` None: no second block (a temperature-only fit's Jacobian).
     M : scipy.sparse.csr_matrix of shape (n_q, n_u), or None (n_u = n_q)
     res : ndarray, shape (m,)
         The residual of each selected row.
@@ -326,8 +328,8 @@ def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix, M: sp.csr_mat
 
     Returns
     -------
-    G : ndarray, shape (2 n_u, 2 n_u), symmetric
-    g : ndarray, shape (2 n_u,)
+    G : ndarray, shape (2 n_u, 2 n_u) (``B`` None: (n_u, n_u)), symmetric
+    g : ndarray, shape (2 n_u,) (``B`` None: (n_u,))
     """
     return channels_normal_equations([(A, B, res, row_weight, column_scale)], M, rows=rows)
 
@@ -341,15 +343,22 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *,
     same ``indptr`` and ``indices``), the ``B_c`` one pattern, and all use the same
     ``rows`` — as a ray-segment table's matrices at several wavelengths do.
     One pass over the rows for all channels: each entry of ``G`` a row touches
-    is updated once, with the sum of the channels' products.
+    is updated once, with the sum of the channels' products.  ``B_c`` None in
+    every channel: the ``A`` block alone.
 
     Returns
     -------
-    G : ndarray, shape (2 n_u, 2 n_u), symmetric
-    g : ndarray, shape (2 n_u,)
+    G : ndarray, shape (2 n_u, 2 n_u) (every ``B_c`` None: (n_u, n_u)), symmetric
+    g : ndarray, shape (2 n_u,) (every ``B_c`` None: (n_u,))
     """
-    A0, B0 = (sp.csr_matrix(channels[0][k], dtype=np.float64) for k in (0, 1))
+    one_block = channels[0][1] is None
+    if any((c[1] is None) != one_block for c in channels):
+        raise ValueError("B must be None in every channel or in none")
+    A0 = sp.csr_matrix(channels[0][0], dtype=np.float64)
     m_table, n_q = A0.shape
+    # no second block: an empty pattern of A's shape (no row has an entry), so the kernel's B pass adds nothing
+    B0 = sp.csr_matrix(A0.shape, dtype=np.float64) if one_block else sp.csr_matrix(channels[0][1], dtype=np.float64)
+    channels = [(A, B0 if one_block else B, *rest) for A, B, *rest in channels]
     rows = np.arange(m_table, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
     if rows.size and (rows.min() < 0 or rows.max() >= m_table):
         raise ValueError(f"rows must index the {m_table} rows of A and B")
@@ -375,9 +384,10 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *,
         a_all.append(_scale_vector("column_scale[0]", column_scale[0], n_q))
         b_all.append(_scale_vector("column_scale[1]", column_scale[1], n_q))
     n_u = M.shape[1]
+    n = n_u if one_block else 2 * n_u
     n_parts = max(1, min(get_num_threads(), rows.size))
-    G_parts = np.zeros((n_parts, 2 * n_u, 2 * n_u))
-    g_parts = np.zeros((n_parts, 2 * n_u))
+    G_parts = np.zeros((n_parts, n, n))
+    g_parts = np.zeros((n_parts, n))
     with SCIPY_LOCK:
         # the data arrays go as tuples: stacking them would copy 2 K nnz doubles a call
         _normal_equations_kernel(A0.indptr, A0.indices, _one_type(ad), B0.indptr, B0.indices, _one_type(bd), M.indptr,

@@ -93,6 +93,36 @@ def test_projected_normal_equations_with_rows_weights_and_column_scales():
         projected_normal_equations(A, B, M, res, rows=rows, column_scale=(a[:5], None))
 
 
+def test_one_block_equals_the_explicit_products():
+    """``B`` None (the temperature-only fit's Jacobian ``diag(w) A[rows] diag(a) M``): against the explicit
+    products, with and without ``M``, and in two channels; a None next to a block is refused."""
+    from lftomo.inverse.hostsparse import channels_normal_equations
+
+    rng = np.random.default_rng(3)
+    A = sp.random(250, 50, density=0.08, random_state=11, format="csr")
+    M = sp.random(50, 13, density=0.2, random_state=12, format="csr")
+    rows = np.concatenate([rng.permutation(250)[:180], [4, 4]])
+    w = rng.uniform(0.5, 2.0, rows.size)
+    a = rng.uniform(0.1, 3.0, 50)
+    res = rng.standard_normal(rows.size)
+    for MM in (M, None):
+        G, g = projected_normal_equations(A, None, MM, res, rows=rows, row_weight=w, column_scale=(a, None))
+        J = (sp.diags(w) @ A[rows] @ sp.diags(a) @ (sp.identity(50) if MM is None else MM)).toarray()
+        assert G.shape == (J.shape[1], J.shape[1]) and g.shape == (J.shape[1],)
+        np.testing.assert_allclose(G, J.T @ J, rtol=1e-12, atol=1e-12 * np.abs(J.T @ J).max())
+        np.testing.assert_allclose(g, J.T @ res, rtol=1e-12, atol=1e-12 * np.abs(J.T @ res).max())
+    A2 = A.copy()
+    A2.data = A2.data * rng.uniform(0.5, 2.0, A2.nnz)
+    G2, g2 = channels_normal_equations([(A, None, res, w, (a, None)), (A2, None, -res, w, (1.0, None))], M,
+                                       rows=rows)
+    J2 = (sp.diags(w) @ A2[rows] @ M).toarray()
+    J = (sp.diags(w) @ A[rows] @ sp.diags(a) @ M).toarray()
+    np.testing.assert_allclose(G2, J.T @ J + J2.T @ J2, rtol=1e-12, atol=1e-12 * np.abs(G2).max())
+    np.testing.assert_allclose(g2, J.T @ res - J2.T @ res, rtol=1e-12, atol=1e-12 * np.abs(g2).max())
+    with pytest.raises(ValueError, match="None in every channel or in none"):
+        channels_normal_equations([(A, None, res, w, (a, None)), (A, A, res, w, (a, None))], M, rows=rows)
+
+
 def test_channels_in_one_pass_equal_the_sum_of_each_channel():
     """Three channels on one pattern (different values, weights, scales and residuals) in one pass give the
     sum of their single-channel matrices; channels whose patterns differ are refused."""
