@@ -21,7 +21,7 @@ design's), for each ``f`` of ``--scales`` (``calibrated``: the factor of
 Usage::
 
     python studies/rig_mc_floor.py --config "two cameras at 90°" --lam 1220 --mode linearised
-    python studies/rig_mc_floor.py --config "one camera" --scales calibrated --mode fit [--seed 1000]
+    python studies/rig_mc_floor.py --config "one camera" --scales calibrated --mode fit [--seed 1000] [--solver dense-lm]
 
 Linearised: about 2 min a configuration after the fixed-λ fit (10–20 min, one core).
 Fit: 7–45 min a configuration and scale on one core.
@@ -93,7 +93,10 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=16)
     ap.add_argument("--rays", type=int, default=64, help="rays per pixel in total over the rig")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--solver", default="auto", choices=["auto", "dense-lm"],
+                    help="--mode fit: the library's choice, or lt.DenseLM() (converged solves)")
     a = ap.parse_args()
+    solver = lt.DenseLM() if a.solver == "dense-lm" else None
     grid = lt.phantoms.default_flame_grid((a.n,) * 3)
     wgrid = grid.refined(2)
     flame = lt.phantoms.two_lobed_flame(lt.phantoms.default_flame_grid((2 * a.n,) * 3))
@@ -106,7 +109,7 @@ def main() -> None:
 
     def fit(ms, rule=None):
         return lt.reconstruct(ms if len(ms) > 1 else ms[0], Ws if len(Ws) > 1 else Ws[0], grid=grid, rule=rule,
-                              progress=False)
+                              solver=solver, progress=False)
 
     T_true = T.ravel()
     if a.mode == "linearised":
