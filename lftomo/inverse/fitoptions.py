@@ -49,13 +49,17 @@ MOVED_OPTIONS: dict[str, str] = {
     "seed": "rule=lt.GCV(seed=...)",
     "lambda_max": "rule=lt.DiscrepancyBracket(lambda_max=...) or lt.LCurveDecades(lambda_max=...)",
     **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))"
-       for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},
+       for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},  # MATRIX_FREE_SETTINGS
     **{k: f"solver=lt.AutoSolver({k}=...) (or lt.LevenbergMarquardt, lt.DenseLM)" for k in ("polish_steps", "engine")},
     **{k: f"unknowns=lt.Temperature({k}=...)" for k in ("penalize", "T_ref")},
     "tv_eps": "prior=lt.TotalVariationPrior(eps=...)",
     **{k: f"unknowns=lt.TemperatureAbsorption({k}=...)"
        for k in ("alpha", "sigma_a_space", "sigma_a_min", "sigma_a_max", "sigma_a_scale", "sigma_a_ridge")},
 }
+
+#: The moved keywords that set optimistix's matrix-free solver (:data:`MOVED_OPTIONS` sends them to
+#: ``lt.LevenbergMarquardt``): given without ``method``, they keep selecting it.
+MATRIX_FREE_SETTINGS = ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")
 
 #: The keywords :func:`lftomo.solve_temperature` took before they moved onto objects (``T0`` is still its own
 #: argument; the others of :data:`MOVED_OPTIONS` belong to the joint fit).
@@ -158,6 +162,8 @@ def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solve
     regularization = opts.pop("regularization", regularization)
     method = opts.pop("method", method)
     rule = opts.pop("rule", rule)
-    if method is None or method == "auto":  # the joint fit picks its solver by the number of unknowns
-        method = "auto" if fit == "T+sigma_a" else "levenberg-marquardt"
+    if method is None:  # each fit picks its solver by the number of unknowns ...
+        # ... unless the old T-only keywords name optimistix's settings: the matrix-free solver they were for
+        matrix_free = fit == "T" and any(k in options for k in MATRIX_FREE_SETTINGS)
+        method = "levenberg-marquardt" if matrix_free else "auto"
     return regularization, method, rule, opts

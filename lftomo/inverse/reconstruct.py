@@ -138,9 +138,9 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
     """The ``unknowns="T"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
     from .solvers import temperature_fit
 
-    if method not in ("levenberg-marquardt", "gauss-newton", "dense-lm"):
-        raise ValueError(f"method must be 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for unknowns='T', "
-                         f"got {method!r}")
+    if method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
+        raise ValueError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
+                         f"unknowns='T', got {method!r}")
     t0 = time.perf_counter()
     problem, grid = _temperature_problem(measurement, weights, grid)
     T0 = temperature_start(options.pop("T0", None), grid)
@@ -324,9 +324,10 @@ def reconstruct(
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
         ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``,
         ``DenseLM(...)`` (few unknowns; for ``"T"`` a quadratic prior), or ``AutoSolver(...)``: the
-        default choice with settings.  Default: matrix-free
-        Levenberg–Marquardt for ``"T"``; for ``"T+sigma_a"`` chosen by the
-        number of unknowns.
+        default choice with settings.  Default: chosen by the number of
+        unknowns, dense Levenberg–Marquardt for few (``"T"``: at most
+        :data:`~lftomo.inverse.solvers.DENSE_T_MAX_UNKNOWNS`, with a quadratic
+        prior), matrix-free above.
     symmetry : None, "axisymmetric" or Parameterization
         The set of fields fitted (:mod:`lftomo.inverse.parameterize`).
         ``"axisymmetric"``: an axisymmetric field about the vertical (+y)

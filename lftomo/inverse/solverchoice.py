@@ -127,10 +127,11 @@ class GaussNewton(_MatrixFree):
 
 
 class AutoSolver(Solver):
-    """The fit's own choice of algorithm, with settings: matrix-free Levenberg–Marquardt for
-    ``unknowns="T"``; for ``"T+sigma_a"`` dense Levenberg–Marquardt up to a number of unknowns,
-    matrix-free above it (:func:`lftomo.inverse.joint.solve_temperature_absorption`).  This is what
-    ``solver=None`` gives, with every setting at the fit's default.
+    """The fit's own choice of algorithm, with settings: dense Levenberg–Marquardt up to a number
+    of unknowns, matrix-free Levenberg–Marquardt above it (``unknowns="T"``:
+    :func:`lftomo.inverse.solvers.resolve_method`, which also keeps a total-variation prior
+    matrix-free; ``"T+sigma_a"``: :func:`lftomo.inverse.joint.solve_temperature_absorption`).  This is
+    what ``solver=None`` gives, with every setting at the fit's default.
 
     Parameters
     ----------

@@ -31,8 +31,11 @@ dimensionless; ``χ²/m`` below always means ``‖(A I_b + bg − y)/σ‖² / m
 
 Solver
 ------
+Up to :data:`DENSE_T_MAX_UNKNOWNS` unknowns with a quadratic prior (``method="auto"``, the default),
+Levenberg–Marquardt on the exact dense normal equations in the same log-odds
+(:mod:`lftomo.inverse.densetemperature`).  Otherwise, and on request,
 ``optimistix.least_squares`` with ``optimistix.LevenbergMarquardt`` or
-``optimistix.GaussNewton``.  The Jacobian is never formed: optimistix
+``optimistix.GaussNewton``.  There the Jacobian is never formed: optimistix
 linearises the residual with ``jax.linearize`` and each (damped) Gauss–Newton
 step is solved matrix-free by LSMR (``lineax.LSMR`` on the stacked operator
 ``[J; √μ I]``, with ``A`` and ``L`` applied by scipy's CSR kernels through
@@ -209,6 +212,7 @@ from .fitoptions import (  # noqa: E402
 
 __all__ = [
     "METHODS",
+    "DENSE_T_MAX_UNKNOWNS",
     "RULES",
     "PENALIZE",
     "planck_jax",
@@ -224,8 +228,10 @@ __all__ = [
     "baseline_start",
 ]
 
-#: Nonlinear least-squares methods of :func:`solve_temperature`.
-METHODS = ("levenberg-marquardt", "gauss-newton", "dense-lm")
+#: Nonlinear least-squares methods of :func:`solve_temperature` (``"auto"``: :func:`resolve_method`).
+METHODS = ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm")
+#: ``method="auto"`` solves by dense Levenberg–Marquardt up to this many unknowns (16³), with a quadratic prior.
+DENSE_T_MAX_UNKNOWNS = 4096
 #: λ rules of :func:`solve_temperature` for ``regularization="auto"``.
 RULES = ("discrepancy", "gcv", "lcurve")
 CHUNK = 10
@@ -824,9 +830,9 @@ def solve_temperature(
     """Reconstruct the temperature field of a linear problem by regularized nonlinear least squares.
 
     Minimises ``‖(A I_b(T) + bg − y)/σ‖² + λ ‖R(T)‖²`` with ``T`` in
-    ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, using
-    optimistix (matrix-free; the module docstring gives the residual, its
-    scaling and the λ rules).  The same fit as :func:`lftomo.reconstruct`
+    ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, by dense
+    or matrix-free Levenberg–Marquardt (the module docstring gives the
+    residual, its scaling, the solvers and the λ rules).  The same fit as :func:`lftomo.reconstruct`
     with ``unknowns="T"``, on a problem assembled by the caller.
 
     Parameters
@@ -905,7 +911,7 @@ def temperature_fit(
     prior: Any = DEFAULT_PRIOR,
     bounds: tuple[float, float] = (300.0, 3000.0),
     T0: Any = None,
-    method: str = "levenberg-marquardt",
+    method: str = "auto",
     rule: str = "discrepancy",
     max_steps: int = 200,
     rtol: float = 1e-6,
@@ -932,9 +938,9 @@ def temperature_fit(
     :func:`solve_temperature` (and :func:`lftomo.reconstruct`) take the
     parameters below on objects (rule, solver, prior, unknowns) and fold them
     into these keywords (:mod:`lftomo.inverse.fitoptions`).  Minimises ``‖(A I_b(T) + bg − y)/σ‖² + λ ‖R(T)‖²`` with ``T`` in
-    ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, using
-    optimistix (matrix-free; see the module docstring for the residual, its
-    scaling and the λ rules).
+    ``bounds`` through ``T = T_min + (T_max − T_min) sigmoid(θ)``, by dense
+    or matrix-free Levenberg–Marquardt (the module docstring gives the
+    residual, its scaling, the solvers and the λ rules).
 
     Parameters
     ----------
@@ -954,8 +960,9 @@ def temperature_fit(
         balanced weight of the linear problem until ``χ²/m ≤ 2``) clipped into
         the bounds; ``"uniform"`` or a float: a uniform field (the middle of the
         bounds for ``"uniform"``).  Values are clipped 0.1 % inside the bounds.
-    method : {"levenberg-marquardt", "gauss-newton", "dense-lm"}, keyword-only
-        optimistix's matrix-free solvers, or dense normal equations (:mod:`~lftomo.inverse.densetemperature`).
+    method : {"auto", "levenberg-marquardt", "gauss-newton", "dense-lm"}, keyword-only
+        optimistix's matrix-free solvers, or dense normal equations (:mod:`~lftomo.inverse.densetemperature`);
+        ``"auto"``: by the number of unknowns and the prior (:func:`resolve_method`).
     rule : {"discrepancy", "gcv", "lcurve"}, keyword-only
         λ rule when ``regularization="auto"`` (ignored otherwise).
     max_steps : int, keyword-only
@@ -1037,6 +1044,7 @@ def temperature_fit(
     """
     t_start = time.perf_counter()
     problem = _check_problem(problem)
+    method = resolve_method(method, problem, prior)
     options = dict(prior=prior, bounds=bounds, T0=T0, method=method, rule=rule, max_steps=max_steps, rtol=rtol,
                    atol=atol, penalize=penalize, T_ref=T_ref, tv_eps=tv_eps, discrepancy_safety=discrepancy_safety,
                    lambda_range=lambda_range, n_lambda=n_lambda, gcv_probes=gcv_probes, seed=seed,
@@ -1047,6 +1055,21 @@ def temperature_fit(
     if problem.interpolation is not None and regularization == "auto" and subvoxel_search == "surrogate":
         return _solve_subvoxel_by_surrogate(problem, **options)
     return _solve_checked(problem, regularization=regularization, t_start=t_start, **options)
+
+
+def resolve_method(method: str, problem: LinearProblem, prior: Any) -> str:
+    """``method``, with ``"auto"`` replaced by the solver for ``problem``: ``"dense-lm"`` when it has at most
+    :data:`DENSE_T_MAX_UNKNOWNS` unknowns (voxels, ring cells or coarse voxels of sub-voxel emission) and
+    ``prior`` is quadratic, else ``"levenberg-marquardt"`` (matrix-free)."""
+    method = require_choice("method", method, METHODS)
+    if method != "auto":
+        return method
+    n = problem.A.shape[1] if problem.interpolation is None else problem.interpolation.shape[1]
+    try:
+        quadratic = resolve_prior(prior).quadratic
+    except (TypeError, ValueError):
+        quadratic = False  # (an invalid prior is reported by the fit's own checks)
+    return "dense-lm" if quadratic and n <= DENSE_T_MAX_UNKNOWNS else "levenberg-marquardt"
 
 
 def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0, method, rule, max_steps, rtol, atol,

@@ -100,3 +100,26 @@ def test_dense_fit_needs_a_quadratic_prior(case):
                        progress=False)
     with pytest.raises(ValueError, match="joint fit"):
         lt.reconstruct(sim.measurement, sim.weights, grid=grid, solver=lt.DenseLM(polish_steps=2), progress=False)
+
+
+def test_the_default_solver_is_dense_up_to_its_size_and_for_quadratic_priors(case, monkeypatch):
+    """``solver=None`` (``method="auto"``) runs the dense fit on a 5³ problem (the same field, bit for bit, as
+    ``solver=lt.DenseLM()``), the matrix-free fit for a total-variation prior, and the matrix-free fit once the
+    unknowns exceed ``DENSE_T_MAX_UNKNOWNS`` (lowered here below 5³)."""
+    sim, grid, _ = case
+    kw = dict(grid=grid, rule=lt.Fixed(100.0), progress=False)
+    auto = lt.reconstruct(sim.measurement, sim.weights, **kw)
+    dense = lt.reconstruct(sim.measurement, sim.weights, solver=lt.DenseLM(), **kw)
+    assert auto.details.method == "dense-lm" and auto.converged
+    np.testing.assert_array_equal(auto.T, dense.T)
+    tv = lt.reconstruct(sim.measurement, sim.weights, prior="tv", solver=lt.AutoSolver(max_steps=3), **kw)
+    assert tv.details.method == "levenberg-marquardt"
+    problem, _ = problem_on_grid(sim.measurement, sim.weights, grid)
+    assert S.resolve_method("auto", problem, "curvature") == "dense-lm"
+    assert S.resolve_method("gauss-newton", problem, "curvature") == "gauss-newton"
+    monkeypatch.setattr(S, "DENSE_T_MAX_UNKNOWNS", grid.n_voxels - 1)
+    assert S.resolve_method("auto", problem, "curvature") == "levenberg-marquardt"
+    big = lt.reconstruct(sim.measurement, sim.weights, solver=lt.AutoSolver(max_steps=3), **kw)
+    assert big.details.method == "levenberg-marquardt"
+    with pytest.raises(ValueError, match="method must be one of"):
+        S.resolve_method("newton", problem, "curvature")
