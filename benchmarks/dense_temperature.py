@@ -1,5 +1,6 @@
-"""The T-only solvers against each other on free voxels: optimistix's matrix-free Levenberg–Marquardt (the
-default, ``lt.LevenbergMarquardt()``) and ``lt.DenseLM()`` (exact dense normal equations, bounds by projection).
+"""The T-only solvers against each other on free voxels: optimistix's matrix-free Levenberg–Marquardt
+(``lt.LevenbergMarquardt()``, the default above 16³ unknowns) and ``lt.DenseLM()`` (exact dense normal equations
+in the same log-odds, the default up to 16³).
 
 Problem: the demo's setting at ``--n``³: the standard axisymmetric flame defined on a grid twice as fine,
 rendered by the seed camera (stratified sampler, ``--rays`` rays per pixel), 1 % noise plus the Monte
@@ -10,9 +11,14 @@ emission), the library's default prior, free voxels.  First at a fixed λ (``--l
 Printed per solver: λ, steps, wall time, the objective ``χ² + λ‖R‖²`` reached and the mean error above
 800 K; then the ratios dense / matrix-free of the times (and, at the fixed λ, the objectives' difference).
 
+``--normal-equations`` times only the dense fit's ``JᵀJ`` and ``Jᵀr`` on the same problem (``J = A diag(dI) E``,
+whitened, sub-voxel): the parallel row kernel the fit uses
+(:func:`lftomo.inverse.hostsparse.projected_normal_equations` with no second block) against scipy's sparse
+products, best of three, and their largest relative difference.
+
 Usage::
 
-    python benchmarks/dense_temperature.py [--n 12] [--rays 32] [--lam 1e5] [--max-steps 200]
+    python benchmarks/dense_temperature.py [--n 12] [--rays 32] [--lam 1e5] [--max-steps 200] [--normal-equations]
 """
 
 from __future__ import annotations
@@ -21,9 +27,11 @@ import argparse
 import time
 
 import numpy as np
+import scipy.sparse as sp
 
 import lftomo as lt
 from lftomo.inverse.compare import effective_truth
+from lftomo.inverse.hostsparse import projected_normal_equations
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.subvoxel import interpolate_field
 
@@ -34,6 +42,7 @@ def main() -> None:
     ap.add_argument("--rays", type=int, default=32, help="rays per pixel of the render and of the weights")
     ap.add_argument("--lam", type=float, default=1e5, help="the fixed λ of the first comparison")
     ap.add_argument("--max-steps", type=int, default=200)
+    ap.add_argument("--normal-equations", action="store_true", help="time JᵀJ only: kernel against scipy")
     a = ap.parse_args()
     if a.n < 2 or a.rays < 2 or a.max_steps < 1 or not a.lam > 0:
         ap.error(f"need --n >= 2, --rays >= 2, --max-steps >= 1, --lam > 0; got {a.n}, {a.rays}, {a.max_steps}, "
@@ -50,6 +59,9 @@ def main() -> None:
     print(f"{a.n}³ free voxels (quadrature 2), {m.size} data; render and weights {time.perf_counter() - t:.0f} s",
           flush=True)
     problem, _ = problem_on_grid(m, sim.weights, grid)
+    if a.normal_equations:
+        normal_equations(problem)
+        return
     hot = T_true > 800.0
 
     def error(T):
@@ -73,6 +85,35 @@ def main() -> None:
           f"{o_d - o_mf:+.4g} ({(o_d - o_mf) / o_mf:+.2e} relative)")
     t_mf, t_d = rows[("discrepancy", "matrix-free")][0], rows[("discrepancy", "dense")][0]
     print(f"discrepancy: time ratio dense / matrix-free {t_d / t_mf:.3f} (each at its own λ, above)")
+
+
+def normal_equations(problem) -> None:
+    """Time ``JᵀJ``, ``Jᵀr`` of ``J = diag(1/σ) A diag(dI) E`` by the row kernel and by scipy (best of three)."""
+    A = (sp.diags(1.0 / problem.sigma) @ problem.A).tocsr()
+    E = problem.interpolation.tocsr()
+    rng = np.random.default_rng(0)
+    dI, r = rng.uniform(0.1, 1.0, A.shape[1]), rng.standard_normal(A.shape[0])
+
+    def scipy_products():
+        J = (A @ (sp.diags(dI) @ E)).tocsr()
+        return (J.T @ J).toarray(), J.T @ r
+
+    def kernel():
+        return projected_normal_equations(A, None, E, r, column_scale=(dI, None))
+
+    kernel()  # compile
+    times = {}
+    for name, f in (("scipy", scipy_products), ("kernel", kernel)):
+        best = np.inf
+        for _ in range(3):
+            t = time.perf_counter()
+            G, g = f()
+            best = min(best, time.perf_counter() - t)
+        times[name] = (best, G, g)
+    (ts, Gs, gs), (tk, Gk, gk) = times["scipy"], times["kernel"]
+    diff = max(np.abs(Gk - Gs).max() / np.abs(Gs).max(), np.abs(gk - gs).max() / np.abs(gs).max())
+    print(f"JᵀJ of {A.shape[0]} rows × {E.shape[1]} unknowns (A {A.nnz} nnz, E {E.nnz} nnz): kernel {tk:.3f} s, "
+          f"scipy {ts:.3f} s, ratio {tk / ts:.3f}; largest relative difference {diff:.1e}")
 
 
 if __name__ == "__main__":
