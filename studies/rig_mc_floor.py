@@ -93,10 +93,11 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=16)
     ap.add_argument("--rays", type=int, default=64, help="rays per pixel in total over the rig")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--solver", default="auto", choices=["auto", "dense-lm"],
-                    help="--mode fit: the library's choice, or lt.DenseLM() (converged solves)")
+    ap.add_argument("--solver", default="auto", choices=["auto", "dense-lm", "levenberg-marquardt"],
+                    help="--mode fit: the library's choice (dense up to 16³ unknowns), lt.DenseLM() or the "
+                         "matrix-free lt.LevenbergMarquardt()")
     a = ap.parse_args()
-    solver = lt.DenseLM() if a.solver == "dense-lm" else None
+    solver = {"auto": None, "dense-lm": lt.DenseLM(), "levenberg-marquardt": lt.LevenbergMarquardt()}[a.solver]
     grid = lt.phantoms.default_flame_grid((a.n,) * 3)
     wgrid = grid.refined(2)
     flame = lt.phantoms.two_lobed_flame(lt.phantoms.default_flame_grid((2 * a.n,) * 3))
