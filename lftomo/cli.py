@@ -390,13 +390,13 @@ def cmd_series(args) -> int:
     else:
         W = _series_forward(args, frames, out)
     from .inverse.reconstruct import rule_from_names
-    from .inverse.solverchoice import LevenbergMarquardt
+    from .inverse.solverchoice import AutoSolver
 
     try:
         rule = rule_from_names(args.rule, args.regularization, args.noise_scale)
     except ValueError as exc:
         raise LftomoError(f"--rule/--regularization/--noise-scale: {exc}") from None
-    opts = {"rule": rule, "bounds": tuple(args.bounds), "solver": LevenbergMarquardt(max_steps=args.max_steps)}
+    opts = {"rule": rule, "bounds": tuple(args.bounds), "solver": AutoSolver(max_steps=args.max_steps)}
     if args.prior is not None:
         opts["prior"] = args.prior
     t0 = time.perf_counter()

@@ -161,7 +161,7 @@ def test_saturated_pixels_are_flagged_and_left_out(frames):
 
 def _reconstruct(lf, W, grid):
     m = lt.Measurement.from_lightfield(with_model_error(lf, W), data="subaperture")
-    return lt.reconstruct(m, W, bounds=(300.0, 3000.0), solver=lt.LevenbergMarquardt(max_steps=50),
+    return lt.reconstruct(m, W, bounds=(300.0, 3000.0), solver=lt.AutoSolver(max_steps=50),
                           grid=grid).T   # the CLI's defaults
 
 
