@@ -961,8 +961,7 @@ def temperature_fit(
         the bounds; ``"uniform"`` or a float: a uniform field (the middle of the
         bounds for ``"uniform"``).  Values are clipped 0.1 % inside the bounds.
     method : {"auto", "levenberg-marquardt", "gauss-newton", "dense-lm"}, keyword-only
-        optimistix's matrix-free solvers, or dense normal equations (:mod:`~lftomo.inverse.densetemperature`);
-        ``"auto"``: by the number of unknowns and the prior (:func:`resolve_method`).
+        Matrix-free (optimistix) or dense (:mod:`~lftomo.inverse.densetemperature`); "auto": :func:`resolve_method`.
     rule : {"discrepancy", "gcv", "lcurve"}, keyword-only
         λ rule when ``regularization="auto"`` (ignored otherwise).
     max_steps : int, keyword-only
