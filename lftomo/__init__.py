@@ -21,6 +21,7 @@ from .forward import phantoms, reference_cases
 from .forward.weights import WeightMatrix, RaySegments, RefocusWeights, weights, ray_segments, weights_refocus
 from .inverse.measurement import SensorModel, add_noise, saturated_mask, Measurement
 from .inverse.problem import LinearProblem
+from .inverse.fitproblem import Problem
 from .inverse.reconstruct import Reconstruction, reconstruct
 from .inverse.solvers import solve_temperature, solve_linear_baseline
 from .inverse.regularizers import Prior, GradientPrior, LaplacianPrior, CurvaturePrior, TotalVariationPrior
@@ -91,6 +92,7 @@ __all__ = [
     "saturated_mask",
     "Measurement",
     "LinearProblem",
+    "Problem",
     "Prior",
     "GradientPrior",
     "LaplacianPrior",

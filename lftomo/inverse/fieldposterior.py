@@ -63,6 +63,7 @@ from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
+from .fitproblem import Problem, as_problem
 from .reconstruct import problem_on_grid, temperature_errors, temperature_start
 from .result import symmetry_name
 from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options
@@ -425,9 +426,11 @@ def laplace_posterior(
 
     Parameters
     ----------
-    measurement : Measurement or LinearProblem
+    measurement : Measurement, LinearProblem or Problem
         One wavelength channel; a :class:`LinearProblem` is used as it is
-        (then ``weights`` must be None).
+        (then ``weights`` must be None); a T-only :class:`~lftomo.Problem`
+        (one camera or a rig) with its own grid and parameterisation (then
+        ``weights``, ``symmetry`` and ``grid`` must be None).
     weights : WeightMatrix, optional
         Forward model on the reconstruction grid (as for :func:`lftomo.reconstruct`).
     prior : {"gradient", "laplacian", "curvature"} or Prior, keyword-only
@@ -485,7 +488,10 @@ def laplace_posterior(
     prior, bounds, rule, cov, start, options = _posterior_options(
         measurement, prior=prior, rule=rule, covariance=covariance, solver=solver, start=start,
         credible_level=credible_level, bounds=bounds, options=moved)
-    if isinstance(measurement, LinearProblem):
+    if isinstance(measurement, Problem):
+        problem, symmetry = as_problem(measurement, weights, unknowns="T", symmetry=symmetry,
+                                       grid=grid).linear_problem(), measurement.parameterization
+    elif isinstance(measurement, LinearProblem):
         if weights is not None:
             raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
         problem = measurement

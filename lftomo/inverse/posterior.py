@@ -539,7 +539,10 @@ class LogPosterior:
 
 
 def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
+    from .fitproblem import Problem
+
     probs = list(problem) if isinstance(problem, Sequence) else [problem]
+    probs = [p.linear_problem() if isinstance(p, Problem) else p for p in probs]
     if not probs:
         raise ValueError("problem must be a LinearProblem or a non-empty sequence of them, got an empty sequence")
     for i, p in enumerate(probs):
@@ -589,7 +592,7 @@ def build_log_posterior(
 
     Parameters
     ----------
-    problem : LinearProblem or sequence of LinearProblem
+    problem : LinearProblem, T-only Problem, or sequence of them
         One problem per wavelength channel, all on the basis grid.
     basis : TemperatureBasis
         Reduced parameterisation, K <= 40.
@@ -1058,7 +1061,7 @@ def sample_posterior(
 
     Parameters
     ----------
-    posterior : LogPosterior, or LinearProblem or sequence of LinearProblem
+    posterior : LogPosterior, or LinearProblem, T-only Problem, or a sequence of them
         The posterior, as :func:`build_log_posterior` defines it (priors, bounds,
         emission); or the data channels (one problem per wavelength, all on
         ``basis.grid``), whose posterior is then ``build_log_posterior(posterior,

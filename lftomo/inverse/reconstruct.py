@@ -12,9 +12,7 @@ transmittance in JAX.
 
 from __future__ import annotations
 
-import dataclasses
 import time
-import warnings
 from typing import Any
 
 import numpy as np
@@ -22,140 +20,32 @@ import numpy as np
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
-from .parameterize import require_selection
-from .symmetry import resolve_symmetry
+from .fitproblem import (  # noqa: F401  (problem_on_grid, weights_grid, warn_underdetermined re-exported)
+    Problem, as_problem, check_types, problem_on_grid, warn_underdetermined, weights_grid)
 from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
     DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
     moved_options, temperature_defaults)
 from .unknowns import resolve_unknowns
 
 
-def weights_grid(W) -> Grid:
-    """The grid a weight matrix was built on (from its metadata)."""
-    g = W.metadata.get("grid")
-    if g is None:
-        raise ValueError("the weight matrix carries no grid metadata")
-    return Grid.from_dict(g)
-
-
-def problem_on_grid(measurement, weights, grid: Grid | None = None):
-    """The linear problem of ``measurement`` with ``weights``, on the reconstruction grid ``grid``.
-
-    Parameters
-    ----------
-    measurement : Measurement
-    weights : WeightMatrix
-        On the reconstruction grid, or on a finer *quadrature* grid inside its
-        box (sub-voxel emission, :mod:`lftomo.inverse.subvoxel`).
-    grid : Grid, optional
-        Reconstruction grid; default the weight matrix's grid.
-
-    Returns
-    -------
-    (LinearProblem, Grid)
-        The problem (with ``interpolation`` when ``grid`` is not the weights'
-        grid) and the reconstruction grid.
-    """
-    wgrid = weights_grid(weights)
-    problem = measurement.problem(weights, wgrid)
-    from .parameterize import SubVoxel
-    from .subvoxel import resolve_quadrature
-
-    grid, E = resolve_quadrature(grid, wgrid, "weights'")
-    if E is None:
-        return problem, wgrid
-    problem = dataclasses.replace(problem, metadata={**problem.metadata, "quadrature_grid": wgrid.to_dict()})
-    return SubVoxel(coarse=grid, grid=wgrid).apply(problem), grid
-
-
-def _temperature_problem(measurement, weights, grid: Grid | None):
-    """The T-only problem of one camera (``Measurement``, ``WeightMatrix``) or of
-    a rig (sequences of equal length: camera ``k``'s data with its own weights),
-    stacked by :func:`lftomo.inverse.problem.stack_problems`."""
-    from .problem import stack_problems, taken_by_camera_of
-
-    if not isinstance(measurement, (list, tuple)):
-        if isinstance(weights, (list, tuple)):
-            raise ValueError(f"weights is a sequence of {len(weights)} but measurement is one Measurement: give one "
-                             "measurement per weight matrix (one per camera)")
-        return problem_on_grid(measurement, weights, grid)
-    if not isinstance(weights, (list, tuple)) or len(weights) != len(measurement):
-        n_w = len(weights) if isinstance(weights, (list, tuple)) else 1
-        raise ValueError(
-            f"unknowns='T' with {len(measurement)} measurements needs one weight matrix per measurement (the "
-            f"camera that took it), got {n_w}; several wavelengths of one camera are fitted with "
-            "unknowns='T+sigma_a'")
-    if len(measurement) == 0:
-        raise ValueError("measurement is an empty sequence: give at least one Measurement")
-    for k, (m, w) in enumerate(zip(measurement, weights)):
-        if not taken_by_camera_of(m, w):
-            raise ValueError(f"weights[{k}] was built for another camera (or pose) than the one that took "
-                             f"measurement[{k}]: pair each camera's data with its own weight matrix")
-    parts = [problem_on_grid(m, w, grid) for m, w in zip(measurement, weights)]
-    grids = {p[1] for p in parts}
-    if len(grids) > 1:
-        raise ValueError(f"the weight matrices are on different grids ({sorted(map(repr, grids))}): build every "
-                         "camera's weights on the same grid")
-    return stack_problems([p[0] for p in parts]), parts[0][1]
-
-
-def _data_kind(measurement) -> str:
-    kinds = {m.kind for m in measurement} if isinstance(measurement, (list, tuple)) else {measurement.kind}
-    return kinds.pop() if len(kinds) == 1 else "mixed"
-
-
-def _check_types(measurement: Any, weights: Any) -> None:
-    """Type checks at the API boundary (before any attribute is read)."""
-    import scipy.sparse as sp
-
-    from ..errors import LftomoError
-    from ..forward.weights import RaySegments, RefocusWeights, WeightMatrix
-    from .measurement import Measurement
-
-    ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
-    for k, m in enumerate(ms):
-        if not isinstance(m, Measurement):
-            where = "measurement" if len(ms) == 1 and not isinstance(measurement, (list, tuple)) else f"measurement[{k}]"
-            raise LftomoError(f"{where} must be an lftomo.Measurement, got {type(m).__name__}")
-    ws = list(weights) if isinstance(weights, (list, tuple)) else [weights]
-    for w in ws:
-        if not isinstance(w, (WeightMatrix, RaySegments, RefocusWeights)) and not sp.issparse(w):
-            raise LftomoError(f"weights must be an lftomo.WeightMatrix, RaySegments or RefocusWeights, got "
-                              f"{type(w).__name__}")
-
-
-def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
-    """Warn (UserWarning) when fewer data than unknowns are fitted: the field is
-    then fixed by the prior more than by the data, whatever the solver reports."""
-    if n_data < n_unknowns:
-        warnings.warn(f"reconstructing {n_unknowns} unknowns from only {n_data} data: the data cannot determine "
-                      "the field, the result is mostly the smoothness prior; use more views or pixels, or a "
-                      "coarser grid", UserWarning, stacklevel=3)
-
-
-def _reconstruct_temperature(measurement, weights, *, regularization, prior, bounds, method, rule, symmetry, grid,
-                             options) -> Reconstruction:
+def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds, method, rule, options,
+                             t_assemble: float) -> Reconstruction:
     """The ``unknowns="T"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
     from .solvers import temperature_fit
 
-    if method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
-        raise ValueError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
-                         f"unknowns='T', got {method!r}")
     t0 = time.perf_counter()
-    problem, grid = _temperature_problem(measurement, weights, grid)
+    ring, grid = problem.parameterization, problem.grid
+    linear = problem.fitted_problem()
     T0 = temperature_start(options.pop("T0", None), grid)
-    ring = resolve_symmetry(symmetry, grid)
     if ring is not None:
-        problem = ring.apply(problem)
         T0 = ring.start(T0)
-    warn_underdetermined(int(np.size(problem.y)), grid.n_voxels if ring is None else ring.n_params)
-    t_setup = time.perf_counter() - t0
+    t_setup = t_assemble + time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-        sol = temperature_fit(problem, bounds=bounds, T0=T0, method=method,
+        sol = temperature_fit(linear, bounds=bounds, T0=T0, method=method,
                               **temperature_defaults(regularization=regularization, prior=prior, rule=rule,
                                                      options=options, reduced=ring is not None))
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
-              "total": time.perf_counter() - t0}
+              "total": t_assemble + time.perf_counter() - t0}
     choice = sol.lambda_choice
     return Reconstruction(
         T=sol.T if ring is None else ring.expand(sol.T),
@@ -170,36 +60,27 @@ def _reconstruct_temperature(measurement, weights, *, regularization, prior, bou
         converged=sol.converged,
         timing=timing,
         unknowns="T",
-        data_kind=_data_kind(measurement),
+        data_kind=problem.data_kind,
         details=sol,
         symmetry=ring,
-        metadata={k: problem.metadata[k] for k in ("quadrature_grid",) if k in problem.metadata},
+        metadata={k: linear.metadata[k] for k in ("quadrature_grid",) if k in linear.metadata},
         lambda_note=choice.note,
         lambda_path=tuple((float(lam), float(c), float(r)) for lam, c, r in
                           zip(choice.candidates, choice.chi2, choice.regularization_norms)),
     )
 
 
-def _reconstruct_joint(measurement, weights, *, regularization, prior, bounds, method, rule, symmetry, grid, options):
+def _reconstruct_joint(problem: Problem, *, regularization, prior, bounds, method, rule, options):
     """The ``unknowns="T+sigma_a"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
     from .joint import solve_temperature_absorption
 
-    ms = list(measurement) if isinstance(measurement, (list, tuple)) else [measurement]
-    if len(ms) < 2:
-        raise ValueError(f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}")
-    first = weights[0] if isinstance(weights, (list, tuple)) and weights else weights  # a rig: one table per channel
-    if isinstance(getattr(first, "metadata", None), dict) and first.metadata.get("grid") is not None:
-        g = grid if grid is not None else weights_grid(first)
-        ring = resolve_symmetry(symmetry, g)
-        require_selection(ring)
-        # unknowns: T and σ_ref per voxel (or ring cell)
-        warn_underdetermined(sum(m.size for m in ms), 2 * (g.n_voxels if ring is None else ring.n_params))
     rule_kw = {} if rule is None else {"rule": rule}
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-        return solve_temperature_absorption(ms, weights, regularization=regularization,
+        return solve_temperature_absorption(list(problem.measurements), problem.forward,
+                                            regularization=regularization,
                                             prior=DEFAULT_PRIOR if prior is None else prior, bounds=bounds,
-                                            method=method, symmetry=symmetry, grid=grid, **rule_kw,
-                                            **options)
+                                            method=method, symmetry=problem.parameterization, grid=problem.grid,
+                                            **rule_kw, **options)
 
 
 def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noise_scale: str | None = None) -> Any:
@@ -267,9 +148,9 @@ def temperature_start(T0: Any, grid: Grid) -> Any:
 
 def reconstruct(
     measurement,
-    weights,
+    weights=None,
     *,
-    unknowns: Any = "T",
+    unknowns: Any = None,
     prior: Any = None,
     rule: Any = None,
     solver: Any = None,
@@ -284,11 +165,14 @@ def reconstruct(
 
     Parameters
     ----------
-    measurement : Measurement or sequence of Measurement
+    measurement : Measurement, sequence of Measurement, or Problem
         Noisy data (:meth:`Measurement.from_lightfield`); one per wavelength
         for ``unknowns="T+sigma_a"`` (a rig: one per camera and wavelength);
         for ``"T"`` one per camera of a rig (same wavelength), with
-        ``weights`` the matching sequence.
+        ``weights`` the matching sequence.  Or a :class:`~lftomo.Problem`
+        (:meth:`Problem.from_data`: data, forward models, unknowns, grid and
+        parameterisation, checked); ``weights``, ``symmetry`` and ``grid`` are
+        then its own and not given.
     weights : WeightMatrix or sequence of WeightMatrix, or RaySegments (or a sequence) for ``"T+sigma_a"``
         Forward model on the reconstruction grid, built for the known
         ``sigma_a`` (``"T"``); rows must cover the raw pixels the data use.
@@ -297,8 +181,8 @@ def reconstruct(
         ``"T+sigma_a"`` likewise ``weights[k]`` the ray-segment table of the
         camera that took ``measurement[k]`` (the same object for each of its
         wavelengths).
-    unknowns : "T", "T+sigma_a" or Unknowns
-        What is fitted (:mod:`lftomo.inverse.unknowns`): the temperature with
+    unknowns : "T", "T+sigma_a" or Unknowns, optional
+        Default ``"T"`` (a Problem's: its own).  What is fitted (:mod:`lftomo.inverse.unknowns`): the temperature with
         the absorption known (``"T"`` = :class:`~lftomo.Temperature`), or
         temperature and soot absorption from two or more wavelengths
         (``"T+sigma_a"`` = :class:`~lftomo.TemperatureAbsorption`, whose
@@ -375,11 +259,15 @@ def reconstruct(
     -------
     Reconstruction
     """
-    what = resolve_unknowns(unknowns)
+    given = isinstance(measurement, Problem)
+    if given:
+        what = as_problem(measurement, weights, unknowns=unknowns, symmetry=symmetry, grid=grid).unknowns
+    else:
+        what = resolve_unknowns("T" if unknowns is None else unknowns)
+        check_types(measurement, weights)
     fit = what.name
     options = moved_options(moved)
-    _check_types(measurement, weights)
-    what, options = fold_unknowns(unknowns, what, options)
+    what, options = fold_unknowns(what if given else unknowns, what, options)
     options = _fold_start(start, options, fit)
     regularization, method, rule, options = fit_keywords(
         fit, regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
@@ -390,10 +278,16 @@ def reconstruct(
         raise ValueError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+    if fit == "T" and method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
+        raise ValueError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
+                         f"unknowns='T', got {method!r}")
     if progress is not None:
         options["progress"] = progress
+    t0 = time.perf_counter()
+    problem = measurement if given else Problem.from_data(measurement, weights, unknowns=what, symmetry=symmetry,
+                                                          grid=grid)
     if fit == "T+sigma_a":
-        return _reconstruct_joint(measurement, weights, regularization=regularization, prior=prior, bounds=bounds,
-                                  method=method, rule=rule, symmetry=symmetry, grid=grid, options=options)
-    return _reconstruct_temperature(measurement, weights, regularization=regularization, prior=prior, bounds=bounds,
-                                    method=method, rule=rule, symmetry=symmetry, grid=grid, options=options)
+        return _reconstruct_joint(problem, regularization=regularization, prior=prior, bounds=bounds,
+                                  method=method, rule=rule, options=options)
+    return _reconstruct_temperature(problem, regularization=regularization, prior=prior, bounds=bounds,
+                                    method=method, rule=rule, options=options, t_assemble=time.perf_counter() - t0)

@@ -1,0 +1,113 @@
+"""lt.Problem: the data, forward models, unknowns and parameterisation of a fit, checked once."""
+
+import numpy as np
+import pytest
+
+import lftomo as lt
+from lftomo.inverse.problem import stack_problems
+from lftomo.inverse.reconstruct import problem_on_grid, warn_underdetermined
+
+
+@pytest.fixture(scope="module")
+def blob(gray_blob):
+    cam, grid, flame, lf, W = gray_blob
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="subaperture")
+    return grid, flame, m, W
+
+
+FAST = dict(rule=lt.Fixed(1e-3), solver=lt.LevenbergMarquardt(max_steps=8), bounds=(500.0, 2500.0))
+
+
+def _same_operator(p, q):
+    assert p.A.shape == q.A.shape and abs(p.A - q.A).max() == 0.0
+    np.testing.assert_array_equal(p.y, q.y)
+    np.testing.assert_array_equal(p.sigma, q.sigma)
+
+
+def test_problem_holds_the_checked_pieces_of_a_temperature_fit(blob):
+    """Its linear problem is the one problem_on_grid assembles; with symmetry its fitted problem is the ring
+    parameterisation's; counts of data and unknowns are those of the operators."""
+    grid, flame, m, W = blob
+    p = lt.Problem.from_data(m, W)
+    ref, g = problem_on_grid(m, W)
+    assert p.grid == g == grid and p.parameterization is None and p.unknowns == lt.Temperature()
+    _same_operator(p.linear_problem(), ref)
+    assert p.fitted_problem() is p.linear_problem()
+    assert (p.n_data, p.n_unknowns) == (ref.y.size, grid.n_voxels) and p.data_kind == "subaperture"
+    rings = lt.Problem.from_data(m, W, symmetry="axisymmetric")
+    ring = rings.parameterization
+    assert isinstance(ring, lt.RingGrid) and rings.n_unknowns == ring.n_params < grid.n_voxels
+    _same_operator(rings.fitted_problem(), ring.apply(ref))
+    assert "unknowns" in repr(rings) and len(repr(rings)) < 200
+    # a rig: each camera's rows stacked (here the same camera twice)
+    rig = lt.Problem.from_data([m, m], [W, W])
+    _same_operator(rig.linear_problem(), stack_problems([ref, ref]))
+    assert rig.n_data == 2 * ref.y.size
+
+
+@pytest.mark.parametrize("symmetry", [None, "axisymmetric"])
+def test_reconstruct_of_a_problem_is_reconstruct_of_its_data(blob, symmetry):
+    grid, flame, m, W = blob
+    by_data = lt.reconstruct(m, W, symmetry=symmetry, **FAST)
+    by_problem = lt.reconstruct(lt.Problem.from_data(m, W, symmetry=symmetry), **FAST)
+    np.testing.assert_array_equal(by_problem.T, by_data.T)
+    assert by_problem.regularization == by_data.regularization and by_problem.chi2 == by_data.chi2
+    assert (by_problem.symmetry is None) == (symmetry is None)
+
+
+def test_laplace_posterior_of_a_problem_is_that_of_its_data(blob):
+    grid, flame, m, W = blob
+    kw = dict(rule=lt.Fixed(1e-3), solver=lt.LevenbergMarquardt(max_steps=8), bounds=(500.0, 2500.0))
+    by_data = lt.laplace_posterior(m, W, **kw)
+    by_problem = lt.laplace_posterior(lt.Problem.from_data(m, W), **kw)
+    np.testing.assert_array_equal(by_problem.T_mean, by_data.T_mean)
+    np.testing.assert_array_equal(by_problem.T_std, by_data.T_std)
+
+
+def test_problem_refuses_what_it_cannot_fit_before_any_work(blob):
+    grid, flame, m, W = blob
+    p = lt.Problem.from_data(m, W)
+    with pytest.raises(ValueError, match="weights given with a Problem"):
+        lt.reconstruct(p, W)
+    with pytest.raises(ValueError, match="symmetry, grid given with a Problem"):
+        lt.reconstruct(p, symmetry="axisymmetric", grid=grid)
+    with pytest.raises(ValueError, match="unknowns='T\\+sigma_a' given with a Problem whose unknowns are "
+                                         "Temperature"):
+        lt.reconstruct(p, unknowns="T+sigma_a")
+    with pytest.raises(ValueError, match="weights is required"):
+        lt.reconstruct(m)
+    with pytest.raises(ValueError, match="one weight matrix per measurement"):
+        lt.Problem.from_data([m, m], W)
+    with pytest.raises(lt.LftomoError, match="measurement must be an lftomo.Measurement, got ndarray"):
+        lt.Problem.from_data(np.zeros(3), W)
+    with pytest.raises(ValueError, match="2 or more wavelengths"):
+        lt.Problem.from_data(m, W, unknowns="T+sigma_a")
+    other = lt.Grid(shape=(3, 3, 3), lower=(-0.1, -0.1, 0.9), upper=(0.1, 0.1, 1.1))
+    with pytest.raises(ValueError, match="symmetry is a RingGrid on grid shape"):
+        lt.Problem.from_data(m, W, symmetry=lt.ring_grid(other))
+    with pytest.warns(UserWarning, match="unknowns from only") as rec:
+        warn_underdetermined(10, 125)
+    assert rec[0].filename == __file__       # the warning points at the first line outside lftomo
+
+
+def test_joint_problem_and_its_fit(gray_blob):
+    """A two-wavelength problem: its unknowns count T and σₐ per ring cell; it has no linear problem; fitting
+    it is fitting its data."""
+    cam = lt.Camera.seed(1.0, mla={"count": (10, 10)})
+    grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.005, T_peak=1900.0,
+                                      T_ambient=1000.0, sigma_a_peak=30.0)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=8, seed=2, wavelengths=(650e-9, 800e-9),
+                   progress=False)
+    noisy = lt.add_noise(lf, relative_std=0.01, seed=3)
+    ms = [lt.Measurement.from_lightfield(noisy, data="subaperture", channel=c) for c in range(2)]
+    seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2, progress=False)
+    p = lt.Problem.from_data(ms, seg, unknowns="T+sigma_a", symmetry="axisymmetric")
+    assert p.n_unknowns == 2 * p.parameterization.n_params and p.n_data == sum(m.size for m in ms)
+    with pytest.raises(ValueError, match="linear_problem\\(\\) is the T-only fit's"):
+        p.linear_problem()
+    kw = dict(rule=lt.Fixed(10.0), solver=lt.DenseLM(max_steps=5), bounds=(500.0, 2500.0))
+    by_data = lt.reconstruct(ms, seg, unknowns="T+sigma_a", symmetry="axisymmetric", **kw)
+    by_problem = lt.reconstruct(p, **kw)
+    np.testing.assert_array_equal(by_problem.T, by_data.T)
+    np.testing.assert_array_equal(by_problem.sigma_a, by_data.sigma_a)
