@@ -8,7 +8,8 @@ grid for σₐ interpolated from its ``n``³ effective value, design seed
 ``seed + 3k + 2``).  σ² = noise² + ``f`` × the Monte Carlo variance of
 :func:`lftomo.inverse.compare.monte_carlo_std` with ``floor="prior"`` (the
 design's), for each ``f`` of ``--scales`` (``calibrated``: the factor of
-``floor="calibrated"``, the render's own Σ se² over the floor's total).
+``floor="calibrated"``, the render's own Σ se² over the floor's total; ``bound``: σ² = noise² + the
+Monte Carlo variance with the library's default floor, ``floor="bound"``).
 
 * ``--mode linearised``: the T-only fit linearised about a fixed-λ fit at
   ``--lam`` (σ as the design's), then for each scale the exact linearised
@@ -54,18 +55,20 @@ def simulate(cams, wgrid, flame, sa_w, rays, seed, noise):
     for k, cam in enumerate(cams):
         sim = lt.simulate_camera(cam, flame, wavelength=WL, noise=noise, rays_per_pixel=rays, seed=seed + 3 * k,
                                  sampler="stratified", floor="prior", weights_grid=wgrid, sigma_a=sa_w)
-        mc2, cal = (monte_carlo_std(sim.lightfield, weights_rays_per_pixel=rays, rays_per_pixel=rays, floor=f) ** 2
-                    for f in ("prior", "calibrated"))
-        out.append((sim.noisy, mc2, float(cal.sum() / mc2.sum()), sim.weights))
+        mc2, cal, bound = (monte_carlo_std(sim.lightfield, weights_rays_per_pixel=rays, rays_per_pixel=rays,
+                                           floor=f) ** 2 for f in ("prior", "calibrated", "bound"))
+        out.append((sim.noisy, mc2, float(cal.sum() / mc2.sum()), sim.weights, bound))
     return out
 
 
 def measurements(sim, scale):
-    """The measurements with σ² = noise² + f × the prior floor's Monte Carlo variance (f per camera)."""
+    """The measurements with σ² = noise² + f × the prior floor's Monte Carlo variance (f per camera), or
+    (``scale="bound"``) + the library's default (``"bound"``) floor's."""
     ms = []
-    for noisy, mc2, factor, _ in sim:
-        f = factor if scale == "calibrated" else float(scale)
-        ms.append(lt.Measurement.from_lightfield(dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + f * mc2))))
+    for noisy, mc2, factor, _, bound in sim:
+        f = factor if scale == "calibrated" else 1.0 if scale == "bound" else float(scale)
+        var = noisy.noise_std**2 + f * (bound if scale == "bound" else mc2)
+        ms.append(lt.Measurement.from_lightfield(dataclasses.replace(noisy, noise_std=np.sqrt(var))))
     return ms
 
 
@@ -89,7 +92,8 @@ def main() -> None:
     ap.add_argument("--config", default="two cameras at 90°")
     ap.add_argument("--mode", default="linearised", choices=["linearised", "fit"])
     ap.add_argument("--lam", type=float, default=1220.0, help="λ of the fixed-λ fit linearised about")
-    ap.add_argument("--scales", default="1,calibrated,0.5,0.25", help="comma-separated factors f, or calibrated")
+    ap.add_argument("--scales", default="1,calibrated,0.5,0.25",
+                    help="comma-separated factors f, calibrated, or bound (the library's default floor)")
     ap.add_argument("--n", type=int, default=16)
     ap.add_argument("--rays", type=int, default=64, help="rays per pixel in total over the rig")
     ap.add_argument("--seed", type=int, default=0)
