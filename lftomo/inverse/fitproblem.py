@@ -200,14 +200,15 @@ class Problem:
         if what.name == "T+sigma_a":
             return cls._joint(measurement, forward, what, symmetry, grid)
         ms, ws = _paired_temperature_channels(measurement, forward)
-        grids = {resolve_quadrature(grid, weights_grid(w), "weights'")[0] for w in ws}
+        parts = [problem_on_grid(m, w, grid) for m, w in zip(ms, ws)]   # assembled and checked now
+        grids = {p[1] for p in parts}
         if len(grids) > 1:
             raise ValueError(f"the weight matrices are on different grids ({sorted(map(repr, grids))}): build every "
                              "camera's weights on the same grid")
         g = grids.pop()
         ring = resolve_symmetry(symmetry, g)
         problem = cls(measurements=ms, forward=ws, unknowns=what, grid=g, parameterization=ring)
-        problem.linear_problem()        # assembled (and checked) now, before any long work
+        problem.__dict__["_linear_problem"] = stack_problems([p[0] for p in parts])  # the cached property's value
         warn_underdetermined(problem.n_data, problem.n_unknowns)
         return problem
 
