@@ -63,9 +63,8 @@ from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
-from .fitproblem import Problem, as_problem
-from .reconstruct import problem_on_grid, temperature_errors, temperature_start
-from .result import symmetry_name
+from .fitproblem import Problem, as_problem, problem_on_grid, temperature_start
+from .result import symmetry_name, temperature_errors
 from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior

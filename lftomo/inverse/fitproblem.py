@@ -35,7 +35,8 @@ from ..forward.grid import Grid
 from .measurement import Measurement
 from .parameterize import Parameterization, SubVoxel, require_selection
 from .problem import LinearProblem, stack_problems, taken_by_camera_of
-from .subvoxel import resolve_quadrature
+from .result import Reconstruction
+from .subvoxel import interpolate_field, require_same_box, resolve_quadrature
 from .symmetry import resolve_symmetry
 from .unknowns import Unknowns, resolve_unknowns
 
@@ -276,6 +277,16 @@ class Problem:
         par = "voxels" if self.parameterization is None else type(self.parameterization).__name__
         return (f"Problem({len(self.measurements)} channel(s), unknowns={self.unknowns!r}, grid "
                 f"{tuple(self.grid.shape)}, {par}: {self.n_data} data, {self.n_unknowns} unknowns)")
+
+
+def temperature_start(T0: Any, grid: Grid) -> Any:
+    """``T0`` as the T-only fit takes it: a Reconstruction's
+    temperature is interpolated to ``grid`` (same box, same or coarser grid)."""
+    if not isinstance(T0, Reconstruction):
+        return T0
+    src = T0.grid
+    require_same_box(src, grid)
+    return np.asarray(T0.T, dtype=float) if src == grid else interpolate_field(T0.T, src, grid)
 
 
 def as_problem(measurement: Any, weights: Any, *, unknowns: Any, symmetry: Any, grid: Any) -> Problem:

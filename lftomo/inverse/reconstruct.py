@@ -20,8 +20,9 @@ import numpy as np
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
-from .fitproblem import (  # noqa: F401  (problem_on_grid, weights_grid, warn_underdetermined re-exported)
-    Problem, as_problem, check_types, problem_on_grid, warn_underdetermined, weights_grid)
+from .fitproblem import (  # noqa: F401  (problem_on_grid, weights_grid, warn_underdetermined, temperature_start
+    Problem, as_problem, check_types, problem_on_grid, temperature_start, warn_underdetermined,  # re-exported)
+    weights_grid)
 from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
     DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
     moved_options, temperature_defaults)
@@ -132,18 +133,6 @@ def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]
     else:
         opts["T0"] = start
     return opts
-
-
-def temperature_start(T0: Any, grid: Grid) -> Any:
-    """``T0`` as :func:`~lftomo.inverse.solvers.solve_temperature` takes it: a Reconstruction's
-    temperature is interpolated to ``grid`` (same box, same or coarser grid)."""
-    if not isinstance(T0, Reconstruction):
-        return T0
-    from .subvoxel import interpolate_field, require_same_box
-
-    src = T0.grid
-    require_same_box(src, grid)
-    return np.asarray(T0.T, dtype=float) if src == grid else interpolate_field(T0.T, src, grid)
 
 
 def reconstruct(

@@ -816,7 +816,7 @@ def _gcv_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = 
 
 # --------------------------------------------------------------------------- public solvers
 def solve_temperature(
-    problem: LinearProblem,
+    problem: Any,
     *,
     prior: Any = None,
     rule: Any = None,
@@ -837,10 +837,13 @@ def solve_temperature(
 
     Parameters
     ----------
-    problem : LinearProblem
+    problem : LinearProblem or Problem
         Forward operator ``A`` (m, n) (m² sr), data ``y`` (m,), noise ``sigma``
         (m,), grid (n voxels), wavelength (m) or None for gray, background,
-        and optionally the sub-voxel interpolation.
+        and optionally the sub-voxel interpolation.  Or a T-only
+        :class:`~lftomo.Problem` (one camera or a rig): its
+        :meth:`~lftomo.Problem.fitted_problem` is solved and the solution
+        returned on the voxels of its grid.
     prior : str or Prior, optional, keyword-only
         ``"gradient"``, ``"laplacian"``, ``"tv"``, ``"curvature"`` or a
         :class:`~lftomo.inverse.regularizers.Prior` with its parameters (e.g.
@@ -865,7 +868,9 @@ def solve_temperature(
         ``(T_min, T_max)`` (K), ``0 < T_min < T_max``.
     T0 : None, float, "uniform" or array of shape grid.shape, keyword-only
         Initial temperature (K); None: the linear baseline clipped into the
-        bounds (:func:`temperature_fit`).
+        bounds (:func:`temperature_fit`).  With a Problem also a
+        :class:`~lftomo.Reconstruction` (interpolated to its grid) or a field
+        on its voxels (projected onto its parameterisation).
     progress : bool, optional, keyword-only
         A progress bar on stderr over the solver's steps; default shown for
         large problems.
@@ -878,13 +883,15 @@ def solve_temperature(
     Returns
     -------
     TemperatureSolution
-        Fields ``T`` and ``I_b`` on ``grid.shape``, λ and how it was chosen,
+        Fields ``T`` and ``I_b`` on ``grid.shape`` (a Problem's: its voxels,
+        ``P p`` for a parameterisation ``P``), λ and how it was chosen,
         ``χ²/m``, norms, iterations, convergence flag and timing.
 
     Raises
     ------
     ValueError
-        Before any solving, for a problem that is not a LinearProblem, bad
+        Before any solving, for a problem that is neither a LinearProblem nor a
+        T-only Problem, bad
         bounds, an unknown prior, rule or solver (or one that does not run
         this fit), a parameter given both on an object and as a keyword, or a
         bad ``T0``.
@@ -898,10 +905,29 @@ def solve_temperature(
     regularization, method, rule, options = fit_keywords(
         "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
-    return temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
-                           **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
-                                                  reduced=isinstance(getattr(problem, "grid", None),
-                                                                     Parameterization)))
+    problem, par, T0 = _fitted(problem, T0)
+    sol = temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
+                          **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
+                                                 reduced=isinstance(getattr(problem, "grid", None), Parameterization)))
+    if par is None:
+        return sol
+    T = par.expand(sol.T)
+    return dataclasses.replace(sol, T=T, I_b=blackbody(T, problem.wavelength))
+
+
+def _fitted(problem: Any, T0: Any) -> tuple[Any, Parameterization | None, Any]:
+    """A :class:`~lftomo.Problem`'s fitted linear problem, its parameterisation (None on voxels) and
+    ``T0`` in its unknowns; a LinearProblem (or anything else: :func:`temperature_fit` checks it) as it is."""
+    from .fitproblem import Problem, temperature_start
+
+    if not isinstance(problem, Problem):
+        return problem, None, T0
+    if problem.unknowns.name != "T":
+        raise ValueError(f"solve_temperature fits T only; this Problem's unknowns are {problem.unknowns!r}: "
+                         "use lftomo.reconstruct(problem)")
+    par = problem.parameterization
+    T0 = temperature_start(T0, problem.grid)
+    return problem.fitted_problem(), par, (T0 if par is None else par.start(T0))
 
 
 def temperature_fit(

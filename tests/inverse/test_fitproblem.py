@@ -55,6 +55,22 @@ def test_reconstruct_of_a_problem_is_reconstruct_of_its_data(blob, symmetry):
     assert (by_problem.symmetry is None) == (symmetry is None)
 
 
+@pytest.mark.parametrize("symmetry", [None, "axisymmetric"])
+def test_solve_temperature_of_a_problem_is_its_reconstruction(blob, symmetry):
+    """solve_temperature takes a T-only Problem: the same fit as reconstruct, its fields on the voxels
+    (a ring fit expanded, I_b the blackbody radiance of that field); a start from a Reconstruction works."""
+    grid, flame, m, W = blob
+    p = lt.Problem.from_data(m, W, symmetry=symmetry)
+    rec = lt.reconstruct(p, **FAST)
+    sol = lt.solve_temperature(p, **FAST)
+    assert sol.T.shape == grid.shape
+    np.testing.assert_array_equal(sol.T, rec.T)
+    np.testing.assert_array_equal(sol.I_b, lt.blackbody_intensity(rec.T, m.wavelength).reshape(grid.shape))
+    assert sol.regularization == rec.regularization and sol.chi2 == rec.chi2
+    warm = lt.solve_temperature(p, T0=rec, **FAST)
+    np.testing.assert_array_equal(warm.T, lt.reconstruct(p, start=rec, **FAST).T)
+
+
 def test_laplace_posterior_of_a_problem_is_that_of_its_data(blob):
     grid, flame, m, W = blob
     kw = dict(rule=lt.Fixed(1e-3), solver=lt.LevenbergMarquardt(max_steps=8), bounds=(500.0, 2500.0))
@@ -106,6 +122,8 @@ def test_joint_problem_and_its_fit(gray_blob):
     assert p.n_unknowns == 2 * p.parameterization.n_params and p.n_data == sum(m.size for m in ms)
     with pytest.raises(ValueError, match="linear_problem\\(\\) is the T-only fit's"):
         p.linear_problem()
+    with pytest.raises(ValueError, match="solve_temperature fits T only"):
+        lt.solve_temperature(p)
     kw = dict(rule=lt.Fixed(10.0), solver=lt.DenseLM(max_steps=5), bounds=(500.0, 2500.0))
     by_data = lt.reconstruct(ms, seg, unknowns="T+sigma_a", symmetry="axisymmetric", **kw)
     by_problem = lt.reconstruct(p, **kw)
