@@ -13,9 +13,12 @@ Timed, in one run:
 
 * the joint fit as a user runs it: ``lt.reconstruct(ms, segments,
   unknowns="T+sigma_a", symmetry="axisymmetric", grid=grid)`` with the
-  library's defaults, started from the same fit on a ``--coarse``³ grid
-  (``start=``; its own segment table, also timed; ``--coarse 0``: the
-  two-colour start), λ by the discrepancy rule with the search of
+  library's defaults: with ``--coarse auto`` (default) its own start (on
+  grids above ``COARSE_START_MIN_VOXELS``, the same fit on a grid half as
+  fine per axis, from the same segment table), with ``--coarse N`` the same
+  fit on an N³ grid with its own segment table, given as ``start=`` (also
+  timed), with ``--coarse 0`` the two-colour start (``start="two-colour"``);
+  λ by the discrepancy rule with the search of
   ``--search`` (``lt.DiscrepancyBracket(search=...)``);
 * the reference: the T-only fit of the 650 nm channel alone with σₐ known
   (the effective truth's), the same segment table, sub-voxel model and
@@ -33,7 +36,7 @@ are in ``studies/accuracy_joint.py``).
 
 Usage::
 
-    python benchmarks/joint_fit.py [--n 24] [--coarse 12] [--refine 2] [--search projected|bracket] [--seed 100]
+    python benchmarks/joint_fit.py [--n 24] [--coarse auto|N|0] [--refine 2] [--search projected|bracket] [--seed 100]
                                    [--free] [--solver auto|dense-lm|levenberg-marquardt]
 """
 
@@ -104,7 +107,9 @@ def solves(rec) -> str:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=24, help="reconstruction voxels per axis")
-    ap.add_argument("--coarse", type=int, default=12, help="voxels per axis of the coarse start (0: none)")
+    ap.add_argument("--coarse", default="auto",
+                    help="the start: auto (the library's coarse-to-fine start), N (the same fit on an N³ grid with "
+                         "its own segment table, as start=) or 0 (two-colour)")
     ap.add_argument("--refine", type=int, default=2, help="truth grid refinement factor")
     ap.add_argument("--search", default="projected", choices=BRACKET_SEARCHES,
                     help="the discrepancy rule's search (lt.DiscrepancyBracket(search=...))")
@@ -115,16 +120,16 @@ def main():
                     help="the fit's solver (auto: the library's choice by the number of unknowns)")
     a = ap.parse_args()
     symmetry = None if a.free else "axisymmetric"
-    if a.coarse and a.coarse >= a.n:
-        ap.error(f"--coarse must be smaller than --n, got {a.coarse}")
+    if a.coarse != "auto" and not (a.coarse.isdigit() and int(a.coarse) < a.n):
+        ap.error(f"--coarse must be auto or a whole number smaller than --n, got {a.coarse!r}")
     t = time.perf_counter()
     cam, views, grid, ms, sa_true, T_true = setup(a.n, a.refine, a.seed, a.free)
     print(f"setup (render, noise): {time.perf_counter() - t:.1f} s; {len(views)} views, {ms[0].size} data per channel",
           flush=True)
     hot = T_true > 800.0
-    start, t_coarse = None, 0.0
-    if a.coarse:
-        grid_c = lt.phantoms.default_flame_grid(grid_shape(a.coarse, a.free))
+    start, t_coarse = (None if a.coarse == "auto" else "two-colour"), 0.0
+    if a.coarse not in ("auto", "0"):
+        grid_c = lt.phantoms.default_flame_grid(grid_shape(int(a.coarse), a.free))
         start, _, seg_c_time, t_coarse = joint_fit(ms, cam, views, grid_c, a.search, symmetry, a.solver)
         print(f"coarse fit {grid_c.shape}: {t_coarse:7.1f} s (segment table {seg_c_time:.1f} s), λ "
               f"{start.regularization:.3g}, {solves(start)}", flush=True)
@@ -136,6 +141,10 @@ def main():
           f"{rec.converged}; |ΔT|/T above 800 K: mean {e.mean():.2%}, max {e.max():.1%}; above 1200 K: mean "
           f"{e1200.mean():.2%}, max {e1200.max():.1%}")
     print(f"  λ rule: {rec.lambda_note}")
+    if "coarse_start" in rec.metadata:
+        c = rec.metadata["coarse_start"]
+        print(f"  the library's coarse start: grid {tuple(c['grid'])}, λ {c['lambda']:.3g}, {c['seconds']:.1f} s "
+              "(inside the joint fit's time)")
     total = t_coarse + t_fine
     # the reference: the T-only fit of the 650 nm data with σₐ known (the effective truth's), same segment
     # table, sub-voxel model, symmetry and defaults

@@ -12,6 +12,7 @@ transmittance in JAX.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
@@ -71,17 +72,66 @@ def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds,
     )
 
 
+#: ``unknowns="T+sigma_a"`` with λ chosen by its rule on a grid of more voxels than this, and no start given:
+#: the fit first runs on a grid half as fine per axis (:func:`coarse_grid`; the same box, channels and forward
+#: model, which serves it as sub-voxel quadrature) and starts from that fit's fields and λ (coarse-to-fine;
+#: docs/accuracy.md, *The joint fit's coarse-to-fine start as a default*).
+COARSE_START_MIN_VOXELS = 4096
+
+#: ``start`` value that asks a joint fit for tomographic two-colour pyrometry on its own grid, no coarse fit.
+TWO_COLOUR_START = "two-colour"
+
+
+def coarse_grid(grid: Grid) -> Grid:
+    """The grid of a coarse-to-fine start: ``ceil(n / 2)`` voxels per axis (at least 2) in the same box."""
+    return Grid(shape=tuple(max(2, (int(n) + 1) // 2) for n in grid.shape), lower=grid.lower, upper=grid.upper)
+
+
+def _coarse_problem(problem: Problem, regularization: Any, options: dict) -> Problem | None:
+    """The problem of the joint fit's coarse-to-fine start (None where none is made: a start given, λ
+    fixed, a grid of at most :data:`COARSE_START_MIN_VOXELS` voxels, or a parameterisation other than
+    ring cells)."""
+    from .symmetry import RingGrid, ring_grid
+
+    ring = problem.parameterization
+    if (regularization != "auto" or problem.grid.n_voxels <= COARSE_START_MIN_VOXELS
+            or any(k in options for k in ("start", "T0", "sigma_a0"))
+            or not (ring is None or isinstance(ring, RingGrid))):
+        return None
+    coarse = coarse_grid(problem.grid)
+    symmetry = None if ring is None else ring_grid(coarse, axis=ring.axis, tolerance=ring.tolerance)
+    return Problem.from_data(list(problem.measurements), problem.forward, unknowns=problem.unknowns,
+                             symmetry=symmetry, grid=coarse)
+
+
 def _reconstruct_joint(problem: Problem, *, regularization, prior, bounds, method, rule, options):
-    """The ``unknowns="T+sigma_a"`` branch of :func:`reconstruct` (arguments folded and checked there)."""
+    """The ``unknowns="T+sigma_a"`` branch of :func:`reconstruct` (arguments folded and checked there), from
+    a coarse-to-fine start on large grids (:data:`COARSE_START_MIN_VOXELS`)."""
     from .joint import solve_temperature_absorption
 
+    options = dict(options)
+    two_colour = options.pop(TWO_COLOUR_START, False)
+    coarse = None if two_colour else _coarse_problem(problem, regularization, options)
+    t0 = time.perf_counter()
+    if coarse is not None:
+        options["start"] = _reconstruct_joint(coarse, regularization=regularization, prior=prior, bounds=bounds,
+                                              method=method, rule=rule, options=options)
+    t_coarse = time.perf_counter() - t0
     rule_kw = {} if rule is None else {"rule": rule}
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
-        return solve_temperature_absorption(list(problem.measurements), problem.forward,
-                                            regularization=regularization,
-                                            prior=DEFAULT_PRIOR if prior is None else prior, bounds=bounds,
-                                            method=method, symmetry=problem.parameterization, grid=problem.grid,
-                                            **rule_kw, **options)
+        rec = solve_temperature_absorption(list(problem.measurements), problem.forward,
+                                           regularization=regularization,
+                                           prior=DEFAULT_PRIOR if prior is None else prior, bounds=bounds,
+                                           method=method, symmetry=problem.parameterization, grid=problem.grid,
+                                           **rule_kw, **options)
+    if coarse is None:
+        return rec
+    start = options["start"]
+    info = {"grid": list(coarse.grid.shape), "lambda": float(start.regularization), "seconds": t_coarse,
+            "chi2": float(start.chi2)}
+    return dataclasses.replace(rec, timing={**rec.timing, "coarse_start": t_coarse,
+                                            "total": rec.timing.get("total", 0.0) + t_coarse},
+                               metadata={**rec.metadata, "coarse_start": info})
 
 
 def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noise_scale: str | None = None) -> Any:
@@ -121,7 +171,11 @@ def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]
     if "T0" in options or "sigma_a0" in options:
         raise ValueError("give either start or T0 / sigma_a0, not both")
     opts = dict(options)
-    if isinstance(start, Reconstruction):
+    if isinstance(start, str) and start == TWO_COLOUR_START:
+        if fit != "T+sigma_a":
+            raise ValueError(f"start={start!r} is for unknowns='T+sigma_a'; give a temperature field for 'T'")
+        opts[TWO_COLOUR_START] = True
+    elif isinstance(start, Reconstruction):
         if fit == "T+sigma_a":
             opts["start"] = start
         else:
@@ -228,7 +282,12 @@ def reconstruct(
         Temperature bounds (K), enforced by parameterisation.
     start : optional
         Where the fit starts.  None: the fit's own start (``"T"``: the linear
-        baseline; ``"T+sigma_a"``: tomographic two-colour pyrometry).  A
+        baseline; ``"T+sigma_a"``: tomographic two-colour pyrometry, or, with λ
+        chosen by the rule on a grid of more than
+        :data:`COARSE_START_MIN_VOXELS` voxels, the same fit on
+        :func:`coarse_grid` first: ``metadata["coarse_start"]``).
+        ``"two-colour"`` (``"T+sigma_a"``): the two-colour start on the grid
+        itself, no coarse fit.  A
         temperature field of shape ``grid.shape`` (K), a float, or
         ``"uniform"``; for ``"T+sigma_a"`` also a pair ``(T, sigma_a)`` of
         fields (``sigma_a`` at the first wavelength, m⁻¹).  A

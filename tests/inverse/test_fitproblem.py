@@ -106,9 +106,9 @@ def test_problem_refuses_what_it_cannot_fit_before_any_work(blob):
     assert rec[0].filename == __file__       # the warning points at the first line outside lftomo
 
 
-def test_joint_problem_and_its_fit(gray_blob):
-    """A two-wavelength problem: its unknowns count T and σₐ per ring cell; it has no linear problem; fitting
-    it is fitting its data."""
+@pytest.fixture(scope="module")
+def two_colour_blob():
+    """Two wavelengths of a sooting blob on a 4³ grid and the camera's ray-segment table."""
     cam = lt.Camera.seed(1.0, mla={"count": (10, 10)})
     grid = lt.Grid(shape=(4, 4, 4), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
     flame = lt.phantoms.gaussian_blob(grid, center=(0.0, 0.0, 1.0), width=0.005, T_peak=1900.0,
@@ -118,6 +118,13 @@ def test_joint_problem_and_its_fit(gray_blob):
     noisy = lt.add_noise(lf, relative_std=0.01, seed=3)
     ms = [lt.Measurement.from_lightfield(noisy, data="subaperture", channel=c) for c in range(2)]
     seg = lt.ray_segments(cam, grid, rays_per_pixel=8, seed=2, progress=False)
+    return grid, ms, seg
+
+
+def test_joint_problem_and_its_fit(two_colour_blob):
+    """A two-wavelength problem: its unknowns count T and σₐ per ring cell; it has no linear problem; fitting
+    it is fitting its data."""
+    grid, ms, seg = two_colour_blob
     p = lt.Problem.from_data(ms, seg, unknowns="T+sigma_a", symmetry="axisymmetric")
     assert p.n_unknowns == 2 * p.parameterization.n_params and p.n_data == sum(m.size for m in ms)
     with pytest.raises(ValueError, match="linear_problem\\(\\) is the T-only fit's"):
@@ -129,3 +136,33 @@ def test_joint_problem_and_its_fit(gray_blob):
     by_problem = lt.reconstruct(p, **kw)
     np.testing.assert_array_equal(by_problem.T, by_data.T)
     np.testing.assert_array_equal(by_problem.sigma_a, by_data.sigma_a)
+
+
+def test_a_large_joint_fit_starts_from_the_same_fit_on_a_coarser_grid(two_colour_blob, monkeypatch):
+    """Above COARSE_START_MIN_VOXELS a joint fit with λ by its rule is the fit started from the same fit on
+    the grid half as fine (same data, the fine table as its quadrature); start="two-colour" is the fit
+    without it; a given λ or start skips it."""
+    import lftomo.inverse.reconstruct as rc
+
+    grid, ms, seg = two_colour_blob
+    kw = dict(solver=lt.DenseLM(max_steps=4), bounds=(500.0, 2500.0), unknowns="T+sigma_a",
+              symmetry="axisymmetric")
+    plain = lt.reconstruct(ms, seg, **kw)                      # 64 voxels: no coarse start by default
+    assert "coarse_start" not in plain.metadata
+    monkeypatch.setattr(rc, "COARSE_START_MIN_VOXELS", 8)
+    coarse = rc.coarse_grid(grid)
+    assert coarse.shape == (2, 2, 2) and coarse.lower == grid.lower and coarse.upper == grid.upper
+    auto = lt.reconstruct(ms, seg, **kw)
+    first = lt.reconstruct(ms, seg, grid=coarse, **{**kw, "symmetry": lt.ring_grid(coarse)})
+    by_hand = lt.reconstruct(ms, seg, start=first, **kw)
+    np.testing.assert_array_equal(auto.T, by_hand.T)
+    np.testing.assert_array_equal(auto.sigma_a, by_hand.sigma_a)
+    info = auto.metadata["coarse_start"]
+    assert info["grid"] == [2, 2, 2] and info["lambda"] == first.regularization > 0
+    assert auto.timing["coarse_start"] > 0 and "(2, 2, 2)" in auto.details["start"]
+    two_colour = lt.reconstruct(ms, seg, start="two-colour", **kw)
+    np.testing.assert_array_equal(two_colour.T, plain.T)
+    fixed = lt.reconstruct(ms, seg, **{**kw, "rule": lt.Fixed(10.0)})
+    assert "coarse_start" not in fixed.metadata
+    with pytest.raises(ValueError, match="start='two-colour' is for unknowns='T\\+sigma_a'"):
+        lt.reconstruct(ms[0], seg.weights(np.full(grid.shape, 10.0)), start="two-colour")
