@@ -95,6 +95,7 @@ import math
 import os
 import time
 import types
+import dataclasses
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -1664,6 +1665,48 @@ class RaySegments:
         per_ray = np.where(np.diff(self.ray_ptr) > 0, per_ray, 0.0)
         return np.bincount(self.ray_row, weights=self.ray_weight * per_ray / self.rays_per_pixel,
                            minlength=self.n_rows)
+
+    def coarsened(self, factor: int = 2) -> "RaySegments":
+        """The same rays on the grid ``factor`` times coarser per axis (same box).
+
+        A straight ray crosses a coarse voxel in one piece, so its consecutive
+        segments in the same coarse voxel merge into one of their summed length;
+        for fields constant per coarse voxel every matrix of the result equals
+        that of this table, and the result equals the table traced on the coarse
+        grid with the same rays (up to rounding of the lengths).
+
+        Parameters
+        ----------
+        factor : int
+            Coarsening per axis, ≥ 1; it must divide every axis of the grid.
+
+        Returns
+        -------
+        RaySegments
+            ``metadata["grid"]`` the coarse grid; rays, rows and views unchanged.
+
+        Raises
+        ------
+        ValueError
+            For a factor that is not a whole number ≥ 1 or does not divide the grid's shape.
+        """
+        from .grid import Grid
+
+        f = require_int("factor", factor, minimum=1)
+        grid = Grid.from_dict(self.metadata["grid"])
+        if any(n % f for n in grid.shape):
+            raise ValueError(f"factor={factor!r} must divide every axis of the table's grid {tuple(grid.shape)}")
+        coarse = Grid(shape=tuple(n // f for n in grid.shape), lower=grid.lower, upper=grid.upper)
+        ix, iy, iz = np.unravel_index(self.voxel, grid.shape)
+        parent = np.ravel_multi_index((ix // f, iy // f, iz // f), coarse.shape).astype(np.int32)
+        first = np.ones(self.n_segments, bool)  # where a run of one ray in one coarse voxel begins
+        first[1:] = parent[1:] != parent[:-1]
+        first[self.ray_ptr[:-1][np.diff(self.ray_ptr) > 0]] = True
+        starts = np.flatnonzero(first)
+        length = np.add.reduceat(self.length, starts) if starts.size else self.length[:0].copy()
+        return dataclasses.replace(self, voxel=parent[starts], length=length, n_voxels=coarse.n_voxels,
+                                   ray_ptr=np.searchsorted(starts, self.ray_ptr).astype(np.int64),
+                                   metadata={**self.metadata, "grid": coarse.to_dict()})
 
     @property
     def _grid_like(self):

@@ -421,6 +421,32 @@ def test_segments_rebuild_weights_exactly(cam, grid, blob, segments):
     np.testing.assert_allclose(S.chord_lengths(), (w * L).sum(axis=1) / NRAYS, rtol=1e-12, atol=1e-20)
 
 
+def test_coarsened_segments_are_the_coarse_grid_traced_with_the_same_rays(cam, grid, blob, segments):
+    """coarsened(2) of a 6³ table is the 3³ table traced with the same rays (voxels exactly, lengths to
+    rounding), and its weight matrix equals the fine table's with σₐ constant per coarse voxel, summed over
+    each coarse voxel's children."""
+    S, surfs = segments
+    coarse = box_grid(n=3)
+    C = S.coarsened(2)
+    direct = ray_segments(cam, coarse, rays_per_pixel=NRAYS, seed=3, surfaces=surfs)
+    assert C.metadata["grid"] == direct.metadata["grid"] and C.n_voxels == 27 < S.n_segments
+    np.testing.assert_array_equal(C.ray_ptr, direct.ray_ptr)
+    np.testing.assert_array_equal(C.voxel, direct.voxel)
+    np.testing.assert_allclose(C.length, direct.length, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(C.ray_row, direct.ray_row)
+    sa_c = np.random.default_rng(1).uniform(0.0, 60.0, coarse.shape)
+    sa_f = np.repeat(np.repeat(np.repeat(sa_c, 2, 0), 2, 1), 2, 2)
+    fine = np.arange(grid.n_voxels)
+    parent = np.ravel_multi_index(tuple(i // 2 for i in np.unravel_index(fine, grid.shape)), coarse.shape)
+    children = sp.csr_matrix((np.ones(fine.size), (fine, parent)), shape=(grid.n_voxels, coarse.n_voxels))
+    Wc = C.weights(sa_c)
+    np.testing.assert_allclose(Wc.matrix.toarray(), (S.weights(sa_f).matrix @ children).toarray(), rtol=1e-10,
+                               atol=1e-12 * abs(Wc.matrix).max())
+    np.testing.assert_allclose(Wc.background, S.weights(sa_f).background, rtol=1e-10, atol=1e-30)
+    with pytest.raises(ValueError, match="factor=4 must divide every axis"):
+        S.coarsened(4)
+
+
 def test_segments_derivative_matches_finite_differences(grid, blob, segments):
     S, _ = segments
     sa = blob.sigma_a_at(WL).ravel()

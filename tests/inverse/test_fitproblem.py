@@ -140,7 +140,7 @@ def test_joint_problem_and_its_fit(two_colour_blob):
 
 def test_a_large_joint_fit_starts_from_the_same_fit_on_a_coarser_grid(two_colour_blob, monkeypatch):
     """Above COARSE_START_MIN_VOXELS a joint fit with λ by its rule is the fit started from the same fit on
-    the grid half as fine (same data, the fine table as its quadrature); start="two-colour" is the fit
+    the grid half as fine (same data, the same rays: the table coarsened); start="two-colour" is the fit
     without it; a given λ or start skips it."""
     import lftomo.inverse.reconstruct as rc
 
@@ -153,7 +153,7 @@ def test_a_large_joint_fit_starts_from_the_same_fit_on_a_coarser_grid(two_colour
     coarse = rc.coarse_grid(grid)
     assert coarse.shape == (2, 2, 2) and coarse.lower == grid.lower and coarse.upper == grid.upper
     auto = lt.reconstruct(ms, seg, **kw)
-    first = lt.reconstruct(ms, seg, grid=coarse, **{**kw, "symmetry": lt.ring_grid(coarse)})
+    first = lt.reconstruct(ms, seg.coarsened(2), **{**kw, "symmetry": lt.ring_grid(coarse)})  # the same rays
     by_hand = lt.reconstruct(ms, seg, start=first, **kw)
     np.testing.assert_array_equal(auto.T, by_hand.T)
     np.testing.assert_array_equal(auto.sigma_a, by_hand.sigma_a)
