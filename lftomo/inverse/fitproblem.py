@@ -268,6 +268,13 @@ class Problem:
         p = self.linear_problem()
         return p if self.parameterization is None else self.parameterization.apply(p)
 
+    def fit_start(self, T0: Any) -> Any:
+        """``T0`` in the fitted unknowns: a Reconstruction's temperature interpolated to :attr:`grid`
+        (:func:`temperature_start`), a field on the voxels projected onto the parameterisation; scalars,
+        strings and None as they are."""
+        T0 = temperature_start(T0, self.grid)
+        return T0 if self.parameterization is None else self.parameterization.start(T0)
+
     @functools.cached_property
     def _linear_problem(self) -> LinearProblem:
         parts = [problem_on_grid(m, w, self.grid)[0] for m, w in zip(self.measurements, self.forward)]

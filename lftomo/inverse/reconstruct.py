@@ -38,9 +38,7 @@ def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds,
     t0 = time.perf_counter()
     ring, grid = problem.parameterization, problem.grid
     linear = problem.fitted_problem()
-    T0 = temperature_start(options.pop("T0", None), grid)
-    if ring is not None:
-        T0 = ring.start(T0)
+    T0 = problem.fit_start(options.pop("T0", None))
     t_setup = t_assemble + time.perf_counter() - t0
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         sol = temperature_fit(linear, bounds=bounds, T0=T0, method=method,
@@ -73,9 +71,9 @@ def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds,
 
 
 #: ``unknowns="T+sigma_a"`` with λ chosen by its rule on a grid of more voxels than this, and no start given:
-#: the fit first runs on a grid half as fine per axis (:func:`coarse_grid`; the same box, channels and forward
-#: model, which serves it as sub-voxel quadrature) and starts from that fit's fields and λ (coarse-to-fine;
-#: docs/accuracy.md, *The joint fit's coarse-to-fine start as a default*).
+#: the fit first runs on a grid half as fine per axis (:func:`coarse_grid`; the same box and channels, the
+#: segment tables coarsened with it where their grids allow) and starts from that fit's fields and λ
+#: (coarse-to-fine; docs/accuracy.md, *The joint fit's coarse-to-fine start as a default*).
 COARSE_START_MIN_VOXELS = 4096
 
 #: ``start`` value that asks a joint fit for tomographic two-colour pyrometry on its own grid, no coarse fit.

@@ -918,16 +918,14 @@ def solve_temperature(
 def _fitted(problem: Any, T0: Any) -> tuple[Any, Parameterization | None, Any]:
     """A :class:`~lftomo.Problem`'s fitted linear problem, its parameterisation (None on voxels) and
     ``T0`` in its unknowns; a LinearProblem (or anything else: :func:`temperature_fit` checks it) as it is."""
-    from .fitproblem import Problem, temperature_start
+    from .fitproblem import Problem
 
     if not isinstance(problem, Problem):
         return problem, None, T0
     if problem.unknowns.name != "T":
         raise ValueError(f"solve_temperature fits T only; this Problem's unknowns are {problem.unknowns!r}: "
                          "use lftomo.reconstruct(problem)")
-    par = problem.parameterization
-    T0 = temperature_start(T0, problem.grid)
-    return problem.fitted_problem(), par, (T0 if par is None else par.start(T0))
+    return problem.fitted_problem(), problem.parameterization, problem.fit_start(T0)
 
 
 def temperature_fit(
