@@ -300,6 +300,54 @@ def _pick(cdf, u):
     return lo
 
 
+@njit(cache=True)
+def _flight_to_collision(state, px, py, pz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, sigma_s, ch,
+                         majorant, bxs, bys, bzs, surf, tex, Lbuf):
+    """Delta tracking from ``p`` along ``d`` against the macro-cell majorant (blocks of ``bxs × bys × bzs``
+    voxels) to the first real collision of channel ``ch``.
+
+    Returns ``(state, event, qx, qy, qz, v)``: ``event`` 0 when the path leaves the box or meets a surface
+    first (``q = p``), 1 absorbed and 2 scattered at ``q`` in voxel ``v`` (flat C order)."""
+    mx, my, mz = majorant.shape
+    tin, tout = ray_box(px, py, pz, dx, dy, dz, x0, y0, z0, x0 + nx * hx, y0 + ny * hy, z0 + nz * hz)
+    if tout <= max(tin, 0.0):
+        return state, 0, px, py, pz, -1
+    t = max(tin, 0.0)
+    t_surf = surfaces_hit(px, py, pz, dx, dy, dz, math.inf, surf, tex, Lbuf)
+    while True:
+        qx = px + (t + 1e-12) * dx
+        qy = py + (t + 1e-12) * dy
+        qz = pz + (t + 1e-12) * dz
+        cx = min(max(int((qx - x0) / hx) // bxs, 0), mx - 1)
+        cy = min(max(int((qy - y0) / hy) // bys, 0), my - 1)
+        cz_ = min(max(int((qz - z0) / hz) // bzs, 0), mz - 1)
+        mu = majorant[cx, cy, cz_]
+        t_cell = _cell_exit(qx, qy, qz, dx, dy, dz, x0 + cx * bxs * hx, y0 + cy * bys * hy,
+                            z0 + cz_ * bzs * hz, bxs * hx, bys * hy, bzs * hz) + t + 1e-12
+        t_lim = min(t_cell, tout, t_surf)
+        t_next = t_lim
+        if mu > 0.0:
+            state, tau = sample_free_path(state)
+            t_next = min(t + tau / mu, t_lim)
+        t = t_next
+        if t < t_lim:  # tentative collision
+            qx = px + t * dx
+            qy = py + t * dy
+            qz = pz + t * dz
+            jx = min(max(int((qx - x0) / hx), 0), nx - 1)
+            jy = min(max(int((qy - y0) / hy), 0), ny - 1)
+            jz = min(max(int((qz - z0) / hz), 0), nz - 1)
+            vv = (jx * ny + jy) * nz + jz
+            state, ue = rng_uniform(state)
+            if ue * mu < sigma_a[ch, vv]:
+                return state, 1, qx, qy, qz, vv
+            if ue * mu < sigma_a[ch, vv] + sigma_s[ch, vv]:
+                return state, 2, qx, qy, qz, vv
+            continue  # null collision
+        if t >= t_surf or t >= tout:
+            return state, 0, px, py, pz, -1
+
+
 @njit(cache=True, parallel=True)
 def _forward_kernel(n_chunks, n_bundles, W, states, optics, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, sigma_s, g, majorant, scattering, vox_cdf, surf, tex, surf_cdf, p_volume,
@@ -399,49 +447,9 @@ def _forward_kernel(n_chunks, n_bundles, W, states, optics, x0, y0, z0, hx, hy, 
             # majorant); only scattering vertices score further (next events)
             w = W if u < p_volume else W_walk
             while True:
-                tin, tout = ray_box(px, py, pz, dx, dy, dz, x0, y0, z0, x0 + nx * hx, y0 + ny * hy, z0 + nz * hz)
-                if tout <= max(tin, 0.0):
-                    break
-                t = max(tin, 0.0)
-                t_surf = surfaces_hit(px, py, pz, dx, dy, dz, math.inf, surf, tex, Lbuf)
-                event = 0  # 0: left the box or hit a surface, 1: absorbed, 2: scattered
-                while True:
-                    qx = px + (t + 1e-12) * dx
-                    qy = py + (t + 1e-12) * dy
-                    qz = pz + (t + 1e-12) * dz
-                    cx = min(max(int((qx - x0) / hx) // bxs, 0), mx - 1)
-                    cy = min(max(int((qy - y0) / hy) // bys, 0), my - 1)
-                    cz_ = min(max(int((qz - z0) / hz) // bzs, 0), mz - 1)
-                    mu = majorant[cx, cy, cz_]
-                    t_cell = _cell_exit(qx, qy, qz, dx, dy, dz, x0 + cx * bxs * hx, y0 + cy * bys * hy,
-                                        z0 + cz_ * bzs * hz, bxs * hx, bys * hy, bzs * hz) + t + 1e-12
-                    t_lim = min(t_cell, tout, t_surf)
-                    t_next = t_lim
-                    if mu > 0.0:
-                        state, tau = sample_free_path(state)
-                        t_next = min(t + tau / mu, t_lim)
-                    t = t_next
-                    if t < t_lim:  # tentative collision
-                        qx = px + t * dx
-                        qy = py + t * dy
-                        qz = pz + t * dz
-                        jx = min(max(int((qx - x0) / hx), 0), nx - 1)
-                        jy = min(max(int((qy - y0) / hy), 0), ny - 1)
-                        jz = min(max(int((qz - z0) / hz), 0), nz - 1)
-                        vv = (jx * ny + jy) * nz + jz
-                        state, ue = rng_uniform(state)
-                        if ue * mu < sigma_a[ch, vv]:
-                            event = 1
-                            break
-                        if ue * mu < sigma_a[ch, vv] + sigma_s[ch, vv]:
-                            px = qx
-                            py = qy
-                            pz = qz
-                            event = 2
-                            break
-                        continue  # null collision
-                    if t >= t_surf or t >= tout:
-                        break
+                state, event, px, py, pz, vv = _flight_to_collision(
+                    state, px, py, pz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, sigma_s, ch,
+                    majorant, bxs, bys, bzs, surf, tex, Lbuf)
                 if event != 2:
                     break
                 # scattering vertex: next-event connection with the HG phase function

@@ -389,6 +389,29 @@ def _voxel_in_cell(x, lo, h, n, b, icell):
 
 
 @njit(cache=True)
+def _russian_roulette(state, w, n_scatter, max_bounces):
+    """Russian roulette after the ``n_scatter``-th real scattering event (from :data:`RR_DEPTH` on): the path
+    survives with probability ``q = min(max_c w_c, 1)``, at most 0.5 beyond ``max_bounces`` events, and its
+    weights ``w`` (shape (n_ch,)) are divided by ``q`` in place (unbiased).  Returns ``(state, alive)``."""
+    if n_scatter < RR_DEPTH:
+        return state, True
+    q = 0.0
+    for c in range(w.shape[0]):
+        if w[c] > q:
+            q = w[c]
+    if q > 1.0:
+        q = 1.0
+    if n_scatter > max_bounces and q > 0.5:
+        q = 0.5
+    state, u = rng_uniform(state)
+    if u >= q:
+        return state, False
+    for c in range(w.shape[0]):
+        w[c] /= q
+    return state, True
+
+
+@njit(cache=True)
 def trace_radiance(
     ox, oy, oz, dx, dy, dz,
     x0, y0, z0, hx, hy, hz, nx, ny, nz,
@@ -510,21 +533,12 @@ def trace_radiance(
                 elif (x < s_a + s_s or s_n <= 0.0) and s_s > 0.0:
                     # real scattering
                     f = total / (mu * s_s)
-                    wmax = 0.0
                     for c in range(n_ch):
                         w[c] *= sigma_s[c, v] * f
-                        if w[c] > wmax:
-                            wmax = w[c]
                     n_scatter += 1
-                    if n_scatter >= RR_DEPTH:
-                        q = wmax if wmax < 1.0 else 1.0
-                        if n_scatter > max_bounces and q > 0.5:
-                            q = 0.5
-                        state, u = rng_uniform(state)
-                        if u >= q:
-                            return state
-                        for c in range(n_ch):
-                            w[c] /= q
+                    state, alive = _russian_roulette(state, w, n_scatter, max_bounces)
+                    if not alive:
+                        return state
                     state, u1 = rng_uniform(state)
                     state, u2 = rng_uniform(state)
                     dx, dy, dz = sample_hg_direction(dx, dy, dz, g[v], u1, u2)
