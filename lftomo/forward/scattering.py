@@ -389,6 +389,18 @@ def _voxel_in_cell(x, lo, h, n, b, icell):
 
 
 @njit(cache=True)
+def roulette_survival(q, n_scatter, max_bounces):
+    """Russian roulette's survival probability for a path of relative weight ``q`` after ``n_scatter`` real
+    scattering events: ``min(q, 1)``, at most 0.5 beyond ``max_bounces`` events (the path's expected length stays
+    finite where the albedo is near 1; unbiased with the survivor's weight divided by it)."""
+    if q > 1.0:
+        q = 1.0
+    if n_scatter > max_bounces and q > 0.5:
+        q = 0.5
+    return q
+
+
+@njit(cache=True)
 def _russian_roulette(state, w, n_scatter, max_bounces):
     """Russian roulette after the ``n_scatter``-th real scattering event (from :data:`RR_DEPTH` on): the path
     survives with probability ``q = min(max_c w_c, 1)``, at most 0.5 beyond ``max_bounces`` events, and its
@@ -399,10 +411,7 @@ def _russian_roulette(state, w, n_scatter, max_bounces):
     for c in range(w.shape[0]):
         if w[c] > q:
             q = w[c]
-    if q > 1.0:
-        q = 1.0
-    if n_scatter > max_bounces and q > 0.5:
-        q = 0.5
+    q = roulette_survival(q, n_scatter, max_bounces)
     state, u = rng_uniform(state)
     if u >= q:
         return state, False

@@ -115,7 +115,7 @@ from .sampler import DEFAULT_SAMPLER
 from .segmentrows import linearized_rows, row_pattern
 from .dda import max_segments, ray_box, traverse
 from .rng import rng_init, rng_uniform, rng_uniform_open
-from .scattering import RR_DEPTH, sample_hg_direction
+from .scattering import RR_DEPTH, roulette_survival, sample_hg_direction
 from .surfaces import SURF_NCOL, surfaces_hit
 
 __all__ = [
@@ -355,11 +355,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
                     break
                 n_scatter += 1
                 if n_scatter >= RR_DEPTH:
-                    qs = wp / w0
-                    if qs > 1.0:
-                        qs = 1.0
-                    if n_scatter > max_bounces and qs > 0.5:
-                        qs = 0.5
+                    qs = roulette_survival(wp / w0, n_scatter, max_bounces)
                     tstate, uq = rng_uniform(tstate)
                     if uq >= qs:
                         break
