@@ -202,6 +202,12 @@ LAMBDA_SETTLED = 0.02
 #: this fraction (the estimated target's own tolerance, √(2ν)/(m − ν), is 1e-4 to 1e-3 for 10⁴–10⁵ data).
 JOINT_SEARCH_RTOL = 1e-4
 
+#: The joint fit's first solve, whose χ² gives the estimated noise scale ``s²``, stops when 10 steps together
+#: change the objective by less than this fraction: ``s²`` is then within 2e-5 of the converged solve's, far
+#: inside the target's own tolerance (``√(2/m)`` ≥ 1e-3), in 18 steps instead of 25 at 24³ (docs/accuracy.md,
+#: *The noise-scale solve to the precision it needs*).
+JOINT_SCALE_RTOL = 1e-3
+
 #: The joint fit's projected search treats λ as settled within this fraction: 10^(1/8) − 1, half the last
 #: bisection step (a factor 10^(1/4)) of its ladder search, whose resolution it thus matches or betters.
 #: (χ²/m is nearly flat in λ there: 0.2 % over a factor 4 at 12³; a target within the rule's √(2/m) then
@@ -897,7 +903,7 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
         return min((x for x in path.evals[n_before:] if x.steps > 0), key=lambda x: x.chi2)
 
     if estimate_scale:
-        first = path.solve(lam_start, theta0, objective_rtol=search_rtol)
+        first = path.solve(lam_start, theta0, objective_rtol=max(search_rtol, JOINT_SCALE_RTOL))
         target, tol, _, scale_info = estimated_target(path, first, 0.0, tol)
         start = first.theta
     for k in range(max_rounds):
