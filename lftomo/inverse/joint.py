@@ -160,6 +160,7 @@ grid : Grid, optional
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import math
@@ -179,6 +180,7 @@ import optimistix as optx
 import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import expit
+from threadpoolctl import threadpool_limits
 
 from .._validate import require_choice, require_steps
 from ..forward.grid import Grid
@@ -1126,7 +1128,8 @@ def solve_temperature_absorption(
         lam_start = max(lam_start * START_LAMBDA_FACTOR, _LAMBDA_MIN)
     t_lambda = time.perf_counter()
     try:
-        with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
+        # Ctrl-C: between two steps (lftomo.interrupt); the dense solver's BLAS on one thread (DENSE_BLAS_THREADS)
+        with stop_between_steps("the reconstruction"), _blas_threads(method):
             chosen = _choose_lambda(path, p, regularization=regularization, rule=rule_obj, lam_start=lam_start,
                                     lam_max=lam_max, polish_steps=polish_steps)
     finally:
@@ -1134,6 +1137,20 @@ def solve_temperature_absorption(
     rule_name = rule_obj.name if regularization == "auto" else "fixed"
     return _result(model, path, chosen, alpha=alpha, start_label=start_label, T_init=T_init, s_init=s_init,
                    t_start=t_start, method=method, rule_name=rule_name, t_lambda=t_lambda)
+
+
+#: BLAS threads of the dense joint solver.  Its small factorisations alternate with numba's parallel kernels (the
+#: normal equations, the table's walk), and OpenBLAS's threads, which keep spinning after each call, take the cores
+#: from numba's: with one BLAS thread the benchmark's 12³ coarse fit took 132–138 s, with two 185–192 s
+#: (docs/accuracy.md, *BLAS on one thread in the dense joint fit*).
+DENSE_BLAS_THREADS = 1
+
+
+def _blas_threads(method: str):
+    """The BLAS thread limit of ``method``'s λ path: :data:`DENSE_BLAS_THREADS` for the dense solver, else none."""
+    if method != "dense-lm":
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=DENSE_BLAS_THREADS, user_api="blas")
 
 
 def _solver_path(model: JointModel, method: str, max_steps: int, progress: bool | None, **linear) -> _JointPath:

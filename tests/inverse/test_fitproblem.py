@@ -166,3 +166,29 @@ def test_a_large_joint_fit_starts_from_the_same_fit_on_a_coarser_grid(two_colour
     assert "coarse_start" not in fixed.metadata
     with pytest.raises(ValueError, match="start='two-colour' is for unknowns='T\\+sigma_a'"):
         lt.reconstruct(ms[0], seg.weights(np.full(grid.shape, 10.0)), start="two-colour")
+
+
+def test_the_dense_joint_fit_runs_its_blas_on_one_thread(two_colour_blob, monkeypatch):
+    """Every step of the dense joint fit sees DENSE_BLAS_THREADS BLAS threads (OpenBLAS's spinning threads would
+    take the cores from numba's kernels between the factorisations); the limit is lifted after the fit."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import lftomo.inverse.joint as joint
+
+    def blas_threads():
+        return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+    seen, solve = [], joint.levenberg_marquardt_dense
+
+    def recording(*a, **k):
+        seen.append(blas_threads())
+        return solve(*a, **k)
+
+    monkeypatch.setattr(joint, "levenberg_marquardt_dense", recording)
+    grid, ms, seg = two_colour_blob
+    with threadpool_limits(limits=2, user_api="blas"):  # two outside the fit, whatever the environment says
+        assert blas_threads() == [2]
+        lt.reconstruct(ms, seg, unknowns="T+sigma_a", symmetry="axisymmetric", rule=lt.Fixed(10.0),
+                       solver=lt.DenseLM(max_steps=3), bounds=(500.0, 2500.0))
+        assert blas_threads() == [2]
+    assert seen and all(s == [joint.DENSE_BLAS_THREADS] for s in seen), seen
