@@ -1139,10 +1139,9 @@ def solve_temperature_absorption(
                    t_start=t_start, method=method, rule_name=rule_name, t_lambda=t_lambda)
 
 
-#: BLAS threads of the dense joint solver.  Its small factorisations alternate with numba's parallel kernels (the
-#: normal equations, the table's walk), and OpenBLAS's threads, which keep spinning after each call, take the cores
-#: from numba's: with one BLAS thread the benchmark's 12³ coarse fit took 132–138 s, with two 185–192 s
-#: (docs/accuracy.md, *BLAS on one thread in the dense joint fit*).
+#: BLAS threads of the dense joint solver's λ path.  Its factorisations alternate with numba's parallel kernels
+#: (the normal equations, the table's walk), whose cores OpenBLAS's threads, spinning after each call, would take
+#: (measured: docs/accuracy.md, *BLAS on one thread in the dense joint fit*).
 DENSE_BLAS_THREADS = 1
 
 

@@ -203,9 +203,8 @@ LAMBDA_SETTLED = 0.02
 JOINT_SEARCH_RTOL = 1e-4
 
 #: The joint fit's first solve, whose χ² gives the estimated noise scale ``s²``, stops when 10 steps together
-#: change the objective by less than this fraction: ``s²`` is then within 2e-5 of the converged solve's, far
-#: inside the target's own tolerance (``√(2/m)`` ≥ 1e-3), in 18 steps instead of 25 at 24³ (docs/accuracy.md,
-#: *The noise-scale solve to the precision it needs*).
+#: change the objective by less than this fraction: ``s²`` needs χ² only well inside the target's own tolerance
+#: (``√(2/m)``, at least 1e-3; measured: docs/accuracy.md, *The noise-scale solve to the precision it needs*).
 JOINT_SCALE_RTOL = 1e-3
 
 #: The joint fit's projected search treats λ as settled within this fraction: 10^(1/8) − 1, half the last
