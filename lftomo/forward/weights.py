@@ -506,6 +506,40 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
         out_sig[k] = sig
 
 
+@njit(cache=True)
+def _coarse_parent(v, ny, nz, f, cy, cz):
+    """The coarse voxel (flat, C order) of fine voxel ``v`` of an ``(·, ny, nz)`` grid, ``f`` times coarser."""
+    ix = v // (ny * nz)
+    iy = (v // nz) % ny
+    iz = v % nz
+    return ((ix // f) * cy + iy // f) * cz + iz // f
+
+
+@njit(cache=True, parallel=True)
+def _coarsen_runs(voxel, length, ray_ptr, ny, nz, f, cy, cz, counts_only, new_ptr, out_voxel, out_length):
+    """Merge each ray's consecutive segments in one coarse voxel (a straight ray crosses it in one piece).
+
+    With ``counts_only`` it writes ray ``r``'s number of runs to ``new_ptr[r + 1]``; else it writes the runs
+    from ``new_ptr[r]``: ``out_voxel`` the coarse voxel and ``out_length`` the lengths summed in order.
+    """
+    for r in prange(ray_ptr.shape[0] - 1):
+        o = 0 if counts_only else new_ptr[r]
+        n = 0
+        prev = -1
+        for q in range(ray_ptr[r], ray_ptr[r + 1]):
+            c = _coarse_parent(voxel[q], ny, nz, f, cy, cz)
+            if c != prev:
+                if not counts_only:
+                    out_voxel[o + n] = c
+                    out_length[o + n] = length[q]
+                n += 1
+                prev = c
+            elif not counts_only:
+                out_length[o + n - 1] += length[q]
+        if counts_only:
+            new_ptr[r + 1] = n
+
+
 @njit(cache=True, parallel=True)
 def _rows_mean_variance(gs, sq, n_rays, sampler, out):
     """``out[k]`` = :func:`lftomo.forward.sampler.mean_variance` of row ``k``'s
@@ -1693,15 +1727,14 @@ class RaySegments:
         if any(n % f for n in grid.shape):
             raise ValueError(f"factor={factor!r} must divide every axis of the table's grid {tuple(grid.shape)}")
         coarse = Grid(shape=tuple(n // f for n in grid.shape), lower=grid.lower, upper=grid.upper)
-        ix, iy, iz = np.unravel_index(self.voxel, grid.shape)
-        parent = np.ravel_multi_index((ix // f, iy // f, iz // f), coarse.shape).astype(np.int32)
-        first = np.ones(self.n_segments, bool)  # where a run of one ray in one coarse voxel begins
-        first[1:] = parent[1:] != parent[:-1]
-        first[self.ray_ptr[:-1][np.diff(self.ray_ptr) > 0]] = True
-        starts = np.flatnonzero(first)
-        length = np.add.reduceat(self.length, starts) if starts.size else self.length[:0].copy()
-        return dataclasses.replace(self, voxel=parent[starts], length=length, n_voxels=coarse.n_voxels,
-                                   ray_ptr=np.searchsorted(starts, self.ray_ptr).astype(np.int64),
+        (_, ny, nz), (_, cy, cz) = grid.shape, coarse.shape
+        ray_ptr = np.zeros(self.n_rays + 1, np.int64)
+        none_i, none_f = np.empty(0, np.int32), np.empty(0)
+        _coarsen_runs(self.voxel, self.length, self.ray_ptr, ny, nz, f, cy, cz, True, ray_ptr, none_i, none_f)
+        np.cumsum(ray_ptr, out=ray_ptr)
+        voxel, length = np.empty(int(ray_ptr[-1]), np.int32), np.empty(int(ray_ptr[-1]), self.length.dtype)
+        _coarsen_runs(self.voxel, self.length, self.ray_ptr, ny, nz, f, cy, cz, False, ray_ptr, voxel, length)
+        return dataclasses.replace(self, voxel=voxel, length=length, n_voxels=coarse.n_voxels, ray_ptr=ray_ptr,
                                    metadata={**self.metadata, "grid": coarse.to_dict()})
 
     @property
