@@ -228,6 +228,11 @@ _LAMBDA_MAX_DEFAULT = 1e6
 #: ``method="auto"`` takes the dense Levenberg–Marquardt solver up to this many unknowns (T and σ
 #: together), optimistix's matrix-free one above.
 DENSE_LM_MAX_UNKNOWNS = 4096
+#: BLAS threads of the dense joint solver's λ path.  Its factorisations alternate with numba's parallel kernels
+#: (the normal equations, the table's walk), whose cores OpenBLAS's threads, spinning after each call, would take
+#: (measured: docs/accuracy.md, *BLAS on one thread in the dense joint fit*).
+DENSE_BLAS_THREADS = 1
+
 #: ``sigma_a_scale``'s default as a multiple of σₐ's span (``sigma_a_max`` in linear space,
 #: ``ln(sigma_a_max / sigma_a_min)`` in log space): σₐ's roughness 100× cheaper than T's.
 SIGMA_A_SCALE_FACTOR = 10.0
@@ -1137,12 +1142,6 @@ def solve_temperature_absorption(
     rule_name = rule_obj.name if regularization == "auto" else "fixed"
     return _result(model, path, chosen, alpha=alpha, start_label=start_label, T_init=T_init, s_init=s_init,
                    t_start=t_start, method=method, rule_name=rule_name, t_lambda=t_lambda)
-
-
-#: BLAS threads of the dense joint solver's λ path.  Its factorisations alternate with numba's parallel kernels
-#: (the normal equations, the table's walk), whose cores OpenBLAS's threads, spinning after each call, would take
-#: (measured: docs/accuracy.md, *BLAS on one thread in the dense joint fit*).
-DENSE_BLAS_THREADS = 1
 
 
 def _blas_threads(method: str):
