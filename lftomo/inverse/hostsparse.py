@@ -38,11 +38,13 @@ import numpy as np
 import scipy.sparse as sp
 from jax.custom_derivatives import linear_call
 from numba import get_num_threads, njit, prange
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
 
-__all__ = ["HostCSR", "host_csr", "projected_normal_equations", "channels_normal_equations", "SCIPY_LOCK"]
+__all__ = ["HostCSR", "host_csr", "projected_normal_equations", "channels_normal_equations", "bandwidth_order",
+           "SCIPY_LOCK"]
 
 _STORE = ContentRegistry()  # handle -> (A, Aᵀ) as CSR
 _REGISTRY = _STORE.values
@@ -297,7 +299,7 @@ def _scale_vector(name: str, value, n: int) -> np.ndarray:
 def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix | None, M: sp.csr_matrix | None,
                                res: np.ndarray, *, rows: np.ndarray | None = None,
                                row_weight: np.ndarray | None = None, column_scale: tuple = (None, None),
-                               ) -> tuple[np.ndarray, np.ndarray]:
+                               order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``G = JᵀJ`` (dense) and ``g = Jᵀ res`` of ``J = diag(w) [A[rows] diag(a) M, B[rows] diag(b) M]``,
     without forming ``J``; with ``B`` None, of the one block ``J = diag(w) A[rows] diag(a) M``.
 
@@ -325,17 +327,19 @@ def projected_normal_equations(A: sp.csr_matrix, B: sp.csr_matrix | None, M: sp.
         ``w``; default 1.  Rows of weight 0 contribute nothing.
     column_scale : (a, b)
         Each None (1), a number, or an array of shape (n_q,).
+    order : ndarray of int, shape (n_u,), optional
+        As for :func:`channels_normal_equations`.
 
     Returns
     -------
     G : ndarray, shape (2 n_u, 2 n_u) (``B`` None: (n_u, n_u)), symmetric
     g : ndarray, shape (2 n_u,) (``B`` None: (n_u,))
     """
-    return channels_normal_equations([(A, B, res, row_weight, column_scale)], M, rows=rows)
+    return channels_normal_equations([(A, B, res, row_weight, column_scale)], M, rows=rows, order=order)
 
 
-def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *,
-                              rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *, rows: np.ndarray | None = None,
+                              order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``Σ_c J_cᵀJ_c`` and ``Σ_c J_cᵀ res_c`` of channels whose blocks share one sparsity pattern.
 
     Each channel is ``(A_c, B_c, res_c, row_weight_c, column_scale_c)`` as for
@@ -345,6 +349,12 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *,
     One pass over the rows for all channels: each entry of ``G`` a row touches
     is updated once, with the sum of the channels' products.  ``B_c`` None in
     every channel: the ``A`` block alone.
+
+    ``order`` (shape (n_u,), a permutation: the position of each unknown) sets
+    the order in which the kernel lays out ``G``; the result comes back in the
+    unknowns' own order, bit for bit the same.  With a bandwidth-reducing order
+    (:func:`bandwidth_order`) the unknowns a row touches sit in long runs of
+    ``G``'s rows, which the kernel then updates with fewer cache lines.
 
     Returns
     -------
@@ -367,6 +377,12 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *,
     M = sp.csr_matrix(M, dtype=np.float64)
     if M.shape[0] != n_q:
         raise ValueError(f"M has {M.shape[0]} rows, A and B {n_q} columns")
+    n_u = M.shape[1]
+    if order is not None:
+        order = np.asarray(order)
+        if order.shape != (n_u,) or not np.array_equal(np.sort(order), np.arange(n_u)):
+            raise ValueError(f"order must be a permutation of the {n_u} unknowns (shape ({n_u},)), got an array of "
+                             f"shape {order.shape}" + ("" if order.shape != (n_u,) else " that is not one"))
     ad, bd, res_all, w_all, a_all, b_all = [], [], [], [], [], []
     for A, B, res, row_weight, column_scale in channels:
         A, B = sp.csr_matrix(A, dtype=np.float64), sp.csr_matrix(B, dtype=np.float64)
@@ -383,17 +399,64 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *,
         w_all.append(_scale_vector("row_weight", row_weight, rows.size))
         a_all.append(_scale_vector("column_scale[0]", column_scale[0], n_q))
         b_all.append(_scale_vector("column_scale[1]", column_scale[1], n_q))
-    n_u = M.shape[1]
     n = n_u if one_block else 2 * n_u
+    # the kernel works on M's columns relabelled by `order` (the same entries in the same order per row)
+    m_indices = M.indices if order is None else order[M.indices].astype(M.indices.dtype)
     n_parts = max(1, min(get_num_threads(), rows.size))
     G_parts = np.zeros((n_parts, n, n))
     g_parts = np.zeros((n_parts, n))
     with SCIPY_LOCK:
         # the data arrays go as tuples: stacking them would copy 2 K nnz doubles a call
         _normal_equations_kernel(A0.indptr, A0.indices, _one_type(ad), B0.indptr, B0.indices, _one_type(bd), M.indptr,
-                                 M.indices, M.data, np.stack(res_all), rows, np.stack(w_all), np.stack(a_all),
+                                 m_indices, M.data, np.stack(res_all), rows, np.stack(w_all), np.stack(a_all),
                                  np.stack(b_all), n_u, G_parts, g_parts)
-    return _symmetric_sum(G_parts), g_parts.sum(axis=0)
+    G, g = _symmetric_sum(G_parts), g_parts.sum(axis=0)
+    if order is None:
+        return G, g
+    pos = order if one_block else np.concatenate([order, order + n_u])  # each unknown's row in the kernel's G
+    return _gathered(G, pos), g[pos]
+
+
+@njit(cache=True, parallel=True)
+def _gathered(G, pos):
+    """``G[pos][:, pos]`` (rows in parallel; each row of ``G`` read whole, in cache)."""
+    n = pos.shape[0]
+    out = np.empty((n, n))
+    for i in prange(n):
+        row = G[pos[i]]
+        o = out[i]
+        for j in range(n):
+            o[j] = row[pos[j]]
+    return out
+
+
+def bandwidth_order(G: np.ndarray, n_u: int) -> np.ndarray:
+    """A bandwidth-reducing order of ``n_u`` unknowns from the pattern of a normal matrix ``G`` of them.
+
+    ``G`` (shape (k n_u, k n_u), ``k`` blocks of the same unknowns, as
+    :func:`channels_normal_equations` returns) couples two unknowns where any
+    of its blocks has a non-zero entry between them; the reverse
+    Cuthill–McKee order of that graph (George & Liu 1981, *Computer Solution
+    of Large Sparse Positive Definite Systems*, §4.3; scipy's
+    ``reverse_cuthill_mckee``) numbers coupled unknowns close together.
+
+    Returns
+    -------
+    order : ndarray of int, shape (n_u,)
+        The position of each unknown, for ``channels_normal_equations(..., order=order)``.
+    """
+    k = G.shape[0] // n_u
+    if G.shape != (k * n_u, k * n_u) or k < 1:
+        raise ValueError(f"G must be square with a multiple of n_u = {n_u} rows, got shape {G.shape}")
+    coupled = np.zeros((n_u, n_u), np.bool_)
+    for a in range(k):
+        for b in range(k):
+            coupled |= G[a * n_u:(a + 1) * n_u, b * n_u:(b + 1) * n_u] != 0.0
+    coupled |= coupled.T
+    new_to_old = reverse_cuthill_mckee(sp.csr_matrix(coupled), symmetric_mode=True)
+    order = np.empty(n_u, np.int64)
+    order[new_to_old] = np.arange(n_u)
+    return order
 
 
 def _one_type(arrays: list) -> tuple:

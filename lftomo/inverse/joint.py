@@ -189,7 +189,7 @@ from ..interrupt import stop_between_steps
 from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense
-from .hostsparse import buffer_key, channels_normal_equations
+from .hostsparse import bandwidth_order, buffer_key, channels_normal_equations
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
@@ -721,6 +721,7 @@ class DenseLMPath(_JointPath):
         self.jac_cache = None  # (key of x, (χ², G_d, g_d)): the last Gauss–Newton matrices formed
         self.to_seg_csr = None if model.to_seg is None else sp.csr_matrix(model.to_seg)
         self._prior_gram = None
+        self.unknown_order = None  # the normal equations' layout: bandwidth_order of the first G formed
 
     def _signal(self, c, Ib, sa_c):
         """The channel's signal, ``∂F/∂σ`` and ``W(σ)`` at ``(I_b, σ)`` from one walk of the segment table
@@ -791,7 +792,9 @@ class DenseLMPath(_JointPath):
 
     def _normal_equations(self, channels) -> tuple[np.ndarray, np.ndarray]:
         """``Σ_c J_cᵀJ_c``, ``Σ_c J_cᵀ r_c`` of the channels: in one pass over the rows where they share the
-        rows and the table (the wavelengths of one camera), else one pass per group of channels that do."""
+        rows and the table (the wavelengths of one camera), else one pass per group of channels that do.
+        From the second call on, the kernel lays ``G`` out in the bandwidth-reducing order of the first one's
+        pattern (the same result; docs/accuracy.md, *The normal equations in a bandwidth-reducing order*)."""
         md = self.model
         groups: dict = {}
         for c, ch in enumerate(channels):  # (the matrices' pattern: the memory of their index arrays)
@@ -800,8 +803,10 @@ class DenseLMPath(_JointPath):
             groups.setdefault(key, (md.rows_np[c], []))[1].append(ch)
         G = g = None
         for rows, chans in groups.values():
-            Gk, gk = channels_normal_equations(chans, self.to_seg_csr, rows=rows)
+            Gk, gk = channels_normal_equations(chans, self.to_seg_csr, rows=rows, order=self.unknown_order)
             G, g = (Gk, gk) if G is None else (G + Gk, g + gk)
+        if self.unknown_order is None:
+            self.unknown_order = bandwidth_order(G, md.n_u)
         return G, g
 
     def prior_terms(self, x) -> tuple[float, np.ndarray]:

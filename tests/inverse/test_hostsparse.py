@@ -158,6 +158,54 @@ def test_channels_in_one_pass_equal_the_sum_of_each_channel():
         channels_normal_equations([chans[0], (other, chans[1][1], *chans[1][2:])], M, rows=rows)
 
 
+def test_normal_equations_in_another_order_are_the_same_bit_for_bit():
+    """``order`` only lays G out differently inside the kernel: with a random permutation, and with
+    :func:`bandwidth_order` of the first G, G and g come back equal to the unordered ones, exactly (one
+    and two blocks, two channels); a non-permutation is refused."""
+    from lftomo.inverse.hostsparse import bandwidth_order, channels_normal_equations
+
+    rng = np.random.default_rng(5)
+    A = sp.random(300, 60, density=0.08, random_state=11, format="csr")
+    B = sp.random(300, 60, density=0.08, random_state=12, format="csr")
+    M = sp.random(60, 17, density=0.2, random_state=13, format="csr")
+    chans = [(A, B, rng.standard_normal(300), rng.uniform(0.5, 2.0, 300), (rng.uniform(0.1, 3.0, 60), 2.0)),
+             (A * 1.5, B * 0.5, rng.standard_normal(300), None, (None, 1.0))]
+    for chs in (chans, [(a, None, *rest) for a, _, *rest in chans]):
+        G, g = channels_normal_equations(chs, M)
+        for order in (rng.permutation(17), bandwidth_order(G, 17)):
+            G2, g2 = channels_normal_equations(chs, M, order=order)
+            np.testing.assert_array_equal(G2, G)
+            np.testing.assert_array_equal(g2, g)
+    with pytest.raises(ValueError, match="permutation of the 17 unknowns"):
+        channels_normal_equations(chans, M, order=np.zeros(17, int))
+    with pytest.raises(ValueError, match="permutation of the 17 unknowns"):
+        channels_normal_equations(chans, M, order=np.arange(16))
+
+
+def test_bandwidth_order_numbers_a_scrambled_band_as_a_band():
+    """A chain of 40 unknowns (each coupled to the next), numbered at random, in a two-block G: the
+    order found puts every coupled pair next to each other (bandwidth 1, against ~20 for the scrambled
+    numbering), and is a permutation."""
+    from lftomo.inverse.hostsparse import bandwidth_order
+
+    n = 40
+    label = np.random.default_rng(1).permutation(n)  # chain position -> unknown
+    C = np.zeros((n, n))
+    for k in range(n - 1):
+        C[label[k], label[k + 1]] = C[label[k + 1], label[k]] = 1.0
+    C[np.diag_indices(n)] = 2.0
+    G = np.zeros((2 * n, 2 * n))
+    G[:n, :n] = C
+    G[n:, n:] = 3.0 * np.eye(n)  # (the σ block alone couples nothing)
+    order = bandwidth_order(G, n)
+    np.testing.assert_array_equal(np.sort(order), np.arange(n))
+    i, j = np.nonzero(C)
+    assert np.max(np.abs(order[i] - order[j])) == 1
+    assert np.max(np.abs(i - j)) > 5
+    with pytest.raises(ValueError, match="multiple of n_u"):
+        bandwidth_order(G[:-1, :-1], n)
+
+
 def test_equal_matrices_share_a_handle_and_the_registry_entry_lives_with_them():
     """host_csr keys its handle on the content: an equal matrix reuses the handle (and so the compiled
     functions); another matrix gets its own; the entry goes with the last object of its handle."""
