@@ -22,7 +22,7 @@ minimises it in the log-odds of ``x``, the matrix-free fit's unknowns
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -31,7 +31,7 @@ from scipy.special import expit
 
 from ..radiation import blackbody, dblackbody_dT
 from .denselm import DenseLMResult, levenberg_marquardt_dense
-from .hostsparse import projected_normal_equations
+from .hostsparse import bandwidth_order, projected_normal_equations
 
 __all__ = ["DenseTemperatureFit", "DENSE_TEMPERATURE_FTOL"]
 
@@ -63,6 +63,10 @@ class DenseTemperatureFit:
         temperature scale of the temperature prior (K).
     penalize : {"temperature", "intensity"}
         What the prior acts on.
+    layout : dict
+        Filled by the first :meth:`evaluate` with a Jacobian: ``"order"``, the
+        :func:`~lftomo.inverse.hostsparse.bandwidth_order` of that ``G``'s pattern, in
+        which the later normal equations are formed (the same result, faster).
     """
 
     A: sp.csr_matrix
@@ -76,6 +80,7 @@ class DenseTemperatureFit:
     I_reg: float
     T_scale: float
     penalize: str
+    layout: dict = field(default_factory=dict, repr=False)
 
     def _prior_values(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``u`` and ``du/dx`` of the penalised quantity."""
@@ -108,7 +113,10 @@ class DenseTemperatureFit:
             return F, data_sq
         # the data block J = A diag(dI) E, in one parallel pass over A's rows without forming J
         dI = dblackbody_dT(Tq, self.wavelength) * ((self.tmax - self.tmin) / self.I_scale)
-        G, g = projected_normal_equations(self.A, None, self.E, rd, column_scale=(dI, None))
+        order = self.layout.get("order")
+        G, g = projected_normal_equations(self.A, None, self.E, rd, column_scale=(dI, None), order=order)
+        if order is None:
+            self.layout["order"] = bandwidth_order(G, G.shape[0])
         Jr = (self.L @ sp.diags(du)).tocsr()
         G += lam * (Jr.T @ Jr).toarray()
         g += lam * (Jr.T @ rr)
