@@ -353,8 +353,8 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *, rows: 
     ``order`` (shape (n_u,), a permutation: the position of each unknown) sets
     the order in which the kernel lays out ``G``; the result comes back in the
     unknowns' own order, bit for bit the same.  With a bandwidth-reducing order
-    (:func:`bandwidth_order`) the unknowns a row touches sit in long runs of
-    ``G``'s rows, which the kernel then updates with fewer cache lines.
+    (:func:`bandwidth_order`) the entries of ``G`` that a row updates lie in a
+    narrow band about the diagonal, a smaller part of ``G`` to keep in cache.
 
     Returns
     -------
