@@ -45,8 +45,8 @@ def absorptance(t):
     §4.6.4: three dependent multiply–adds deep instead of Horner's eight): the
     first omitted term, ``t⁹/9! ≤ 5.4e-20``, is below half an ulp of ``ε ≈ t``
     there, so the value agrees with ``expm1`` to rounding (within 2 ulp) with
-    no library call (timings: docs/accuracy.md, *The normal equations in a
-    bandwidth-reducing order, and a cheaper 1 − e^{−t}*).
+    no library call (timings: docs/accuracy.md, *The walk in Estrin's scheme*
+    and *The normal equations in a bandwidth-reducing order*).
     """
     if t < TAYLOR_MAX_DEPTH:
         t2 = t * t
