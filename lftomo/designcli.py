@@ -19,6 +19,8 @@ __all__ = ["add_design_parser", "run_design"]
 
 def add_design_parser(sub: Any, *, positive_int, positive_float, add_allow_outside) -> None:
     """The ``design`` sub-command on an argparse sub-parser collection."""
+    from .inverse.design import DESIGN_QUADRATURE
+
     d = sub.add_parser("design", help="experiment design: predicted posterior std, resolution and Cramér–Rao bound "
                                       "of the scene's camera(s) on its flame; --compare for a table of rigs")
     d.add_argument("scene", metavar="SCENE.toml", help="scene file with [camera] (or [[camera]] tables) and [medium]")
@@ -31,8 +33,9 @@ def add_design_parser(sub: Any, *, positive_int, positive_float, add_allow_outsi
     d.add_argument("--compare", action="store_true",
                    help="also design the standard configurations (1, 2 at 90°, 3 at 60° cameras; stop; focus; "
                         "900 nm; pixels per microlens) around the first camera and write a comparison table")
-    d.add_argument("--quadrature", type=positive_int, default=1,
-                   help="sub-voxel emission: weights on the grid refined by this factor per axis (default 1)")
+    d.add_argument("--quadrature", type=positive_int, default=DESIGN_QUADRATURE,
+                   help="sub-voxel emission: weights on the grid refined by this factor per axis "
+                        f"(default {DESIGN_QUADRATURE}; 1: uniform emission per voxel)")
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     add_allow_outside(d)
     d.set_defaults(func=run_design)

@@ -33,7 +33,8 @@ from scipy.stats import spearmanr
 
 import lftomo as lt
 from lftomo.forward.sampler import DEFAULT_SAMPLER
-from lftomo.inverse.design import compare_designs, design_configurations, design_table, standard_configurations
+from lftomo.inverse.design import (DESIGN_QUADRATURE, compare_designs, design_configurations, design_table,
+                                   standard_configurations)
 
 
 def main() -> None:
@@ -50,7 +51,7 @@ def main() -> None:
                     choices=["stratified", "independent"], help="pixel sampler of the renders and the weights")
     ap.add_argument("--noise-scale", default="default", choices=["default", "given", "estimated"],
                     help="the discrepancy rule's noise scale (lt.Discrepancy); default: the library's rule")
-    ap.add_argument("--quadrature", type=int, default=1,
+    ap.add_argument("--quadrature", type=int, default=DESIGN_QUADRATURE,
                     help="sub-voxel emission: the weights on the grid refined by this factor (lt.design(quadrature=))")
     ap.add_argument("--first-draw", type=int, default=0, help="draw k uses design seed 1000 (first_draw + k)")
     ap.add_argument("--json", default="")

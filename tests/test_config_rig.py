@@ -140,3 +140,22 @@ def test_cli_camera_reports_every_camera_of_a_rig(tmp_path, capsys):
     assert main(["camera", str(scene)]) == 0
     text = capsys.readouterr().out
     assert "camera 'front' of" in text and "camera 'side' of" in text
+
+
+def test_cli_design_of_a_rig_writes_its_summary_with_sub_voxel_emission(tmp_path, capsys):
+    """``lftomo design`` on a two-camera scene: design.json names both cameras' data and the default sub-voxel
+    emission (quadrature 2), the figures exist, and the printed line is the summary's."""
+    import json
+
+    from lftomo.cli import main
+    from lftomo.inverse.design import DESIGN_QUADRATURE
+
+    scene = tmp_path / "rig.toml"
+    scene.write_text(_rig())
+    out = tmp_path / "design"
+    assert main(["design", str(scene), "--n", "3", "--rays", "4", "-o", str(out), "--quiet"]) == 0
+    rec = json.loads((out / "design.json").read_text())
+    assert DESIGN_QUADRATURE == 2 and rec["quadrature"] == 2 and rec["summary"]["quadrature"] == 2
+    assert rec["summary"]["n_cameras"] == 2 and rec["grid_shape"] == [3, 3, 3]
+    assert all(p.stat().st_size > 0 for p in out.glob("*.png")) and len(list(out.glob("*.png"))) >= 1
+    assert f"{rec['summary']['n_data']} data" in capsys.readouterr().out

@@ -29,12 +29,16 @@ or given.  The data of each camera are its lit sub-aperture pixels (étendue
 above 0.2 of the peak) of a render of the flame itself, with noise
 ``σ = noise × max(signal, 10⁻³ × peak)`` (:func:`lftomo.add_noise`) and the
 Monte Carlo error of the render and of the weights added to σ
-(:func:`lftomo.inverse.compare.with_monte_carlo_noise`, floor ``"prior"``, the less pessimistic one):
-the prediction is that of lftomo's own synthetic pipeline at these rays,
-conservative for a real camera's images, which have no Monte Carlo error.
-Model error of a coarse grid (flame detail below the voxel size) is not part
-of the prediction; the dense algebra limits the grid to ``dense_max`` voxels (16³ = 4096 by
-default).
+(:func:`lftomo.inverse.compare.with_monte_carlo_noise`, floor :data:`DESIGN_FLOOR`:
+the ``"prior"`` floor's shape scaled so that its total is the render's own
+Σ se², a σ right in total): the prediction is that of lftomo's own synthetic
+pipeline at these rays, conservative for a real camera's images, which have
+no Monte Carlo error.  By default the emission inside a voxel follows the
+temperature interpolated between voxel centres (sub-voxel emission,
+``quadrature=2``), as in the reconstructions that reach lftomo's accuracy
+targets.  Model error of a coarse grid (flame detail below the voxel size) is
+not part of the prediction; the dense algebra limits the grid to
+``dense_max`` voxels (16³ = 4096 by default).
 
 References
 ----------
@@ -67,6 +71,10 @@ __all__ = ["Design", "design", "SimulatedCamera", "simulate_camera", "psf_widths
 
 #: Largest number of voxels :func:`design` handles (dense n × n algebra: ~6 n² doubles, 0.8 GB at 16³).
 DESIGN_DENSE_MAX = 4096
+#: Monte Carlo floor of the simulated data's σ (:func:`lftomo.inverse.compare.monte_carlo_std`).
+DESIGN_FLOOR = "calibrated"
+#: Sub-voxel emission of :func:`design` by default (weights on the grid refined by this factor).
+DESIGN_QUADRATURE = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -326,13 +334,13 @@ def simulate_camera(camera, flame, *, wavelength: float, noise: float, rays_per_
 def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar,
                   sampler):
     """Per camera (seeds ``seed + 3 k``): the simulated measurement and its weights on ``grid``
-    (:func:`simulate_camera`, floor ``"prior"``)."""
+    (:func:`simulate_camera`, floor :data:`DESIGN_FLOOR`)."""
     ms, Ws = [], []
     for k, cam in enumerate(cams):
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render and weights")
         sim = simulate_camera(cam, flame, wavelength=wavelength, noise=noise, rays_per_pixel=rays_per_pixel,
                               data_rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k, sampler=sampler,
-                              floor="prior", weights_grid=grid, sigma_a=sa)
+                              floor=DESIGN_FLOOR, weights_grid=grid, sigma_a=sa)
         bar.update(2)
         ms.append(sim.measurement)
         Ws.append(sim.weights)
@@ -470,7 +478,7 @@ def design(
     sampler: str = DEFAULT_SAMPLER,
     progress: bool | None = None,
     dense_max: int = DESIGN_DENSE_MAX,
-    quadrature: int = 1,
+    quadrature: int = DESIGN_QUADRATURE,
 ) -> Design:
     """Predict what a rig of plenoptic cameras resolves in a flame (module docstring).
 
@@ -522,7 +530,8 @@ def design(
         weights are built on ``grid`` refined by this factor per axis, for
         ``sigma_a`` interpolated to it, and the temperature of ``grid`` is
         interpolated there before Planck's law, in the reconstruction and in
-        the linearised predictions.  Default 1: uniform emission per voxel.
+        the linearised predictions.  Default :data:`DESIGN_QUADRATURE` (2);
+        1: uniform emission per voxel.
 
     Returns
     -------
