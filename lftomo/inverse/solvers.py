@@ -1080,6 +1080,11 @@ def temperature_fit(
     return _solve_checked(problem, regularization=regularization, t_start=t_start, **options)
 
 
+#: The surrogate's λ search is skipped when its least χ²/m exceeds the discrepancy target by more than this
+#: fraction (:func:`_surrogate_misses_target`).
+SURROGATE_FLOOR_MARGIN = 0.02
+
+
 def resolve_method(method: str, problem: LinearProblem, prior: Any) -> str:
     """``method``, with ``"auto"`` replaced by the solver for ``problem``: ``"dense-lm"`` when it has at most
     :data:`DENSE_T_MAX_UNKNOWNS` unknowns (voxels, ring cells or coarse voxels of sub-voxel emission) and
@@ -1277,10 +1282,37 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
     )
 
 
+def _surrogate_misses_target(surrogate: LinearProblem, options: dict) -> float | None:
+    """χ²/m the surrogate cannot go below (:meth:`LinearProblem.least_chi2`) where it lies above the discrepancy
+    rule's given target (1 + ``discrepancy_safety``) by more than :data:`SURROGATE_FLOOR_MARGIN`, else None.
+
+    Checked only where it is cheap and decides the question: the dense solver (at most
+    :data:`DENSE_T_MAX_UNKNOWNS` unknowns) and the discrepancy rule with the noise scale given."""
+    if (options.get("rule") != "discrepancy" or options.get("noise_scale") != "given"
+            or options.get("method") != "dense-lm" or surrogate.grid.n_voxels > DENSE_T_MAX_UNKNOWNS):
+        return None
+    floor = surrogate.least_chi2()
+    target = 1.0 + float(options.get("discrepancy_safety") or 0.0)
+    return floor if floor > target * (1.0 + SURROGATE_FLOOR_MARGIN) else None
+
+
 def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: Any) -> TemperatureSolution:
     """λ by the rule on the surrogate ``A E`` (I_b interpolated linearly), then one sub-voxel solve at that λ."""
     t0 = time.perf_counter()
     surrogate = problem.surrogate()
+    floor = _surrogate_misses_target(surrogate, options)
+    if floor is not None:
+        # The surrogate cannot meet the target at any λ: its least χ²/m, unbounded and unregularised, is above
+        # it.  Its λ search would only find that out (measured: 28-33 min of a 16³ rig design, then 2 min on the
+        # sub-voxel model; docs/accuracy.md, *The surrogate's least χ²*), so the rule runs on the sub-voxel
+        # model at once.
+        sol = temperature_fit(problem, regularization="auto", T0=T0, subvoxel_search="full", **options)
+        note = (f"{sol.lambda_choice.note}; the rule ran on the sub-voxel model because the surrogate A E cannot "
+                f"meet its target (its least χ²/m {floor:.4g}, unbounded and unregularised)")
+        timing = {"surrogate": time.perf_counter() - t0 - sol.timing["total"], "subvoxel": sol.timing["total"],
+                  "total": time.perf_counter() - t0, "T0": sol.timing.get("T0")}
+        return dataclasses.replace(sol, lambda_choice=dataclasses.replace(sol.lambda_choice, note=note),
+                                   timing=timing)
     sur = temperature_fit(surrogate, regularization="auto", T0=T0, **options)
     ch = sur.lambda_choice
     if ch.rule == "discrepancy" and not ch.target_met:

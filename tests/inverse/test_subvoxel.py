@@ -196,11 +196,15 @@ def test_joint_subvoxel_noise_free_recovers_T_and_sigma_a(symmetry, method):
 
 
 
-def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_misfits(subvoxel_blob):
+@pytest.mark.parametrize("solver", ["matrix-free", "dense"])
+def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_misfits(subvoxel_blob, solver):
     """With 0.01 % noise the surrogate A E (I_b interpolated linearly) misfits by its own model
     error: χ²/m above the target at every λ, so its discrepancy λ (the L-curve corner of its path)
     says nothing about the noise.  The rule then runs on the sub-voxel model, which fits these data
-    exactly: the λ is the full search's, and χ²/m reaches the target."""
+    exactly: the λ is the full search's, and χ²/m reaches the target.  The matrix-free solver finds
+    that out by running the surrogate's search; the dense one from the surrogate's least χ²/m
+    (unbounded, unregularised; above the target), without the search, and then fits exactly what
+    ``subvoxel_search="full"`` fits."""
     cam, grid, quad, flame, m, W_q = subvoxel_blob
     problem, _ = problem_on_grid(m, W_q, grid)
     rng = np.random.default_rng(6)
@@ -209,8 +213,17 @@ def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_mi
     surrogate = lt.LinearProblem(A=problem.linear_operator(), y=noisy.y, sigma=sigma, grid=grid, wavelength=None)
     sur = lt.solve_temperature(surrogate, bounds=(500.0, 2500.0), prior="gradient")
     assert sur.chi2 > 1.1 and "stays above the target" in sur.lambda_choice.note, (sur.chi2, sur.lambda_choice.note)
-    sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient")
-    assert "did not meet its target on the surrogate A E" in sol.lambda_choice.note, sol.lambda_choice.note
+    method = {"matrix-free": lt.LevenbergMarquardt(), "dense": lt.DenseLM()}[solver]
+    sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient", solver=method)
+    floor = surrogate.least_chi2()
+    assert sur.chi2 >= floor * (1 - 1e-6) and floor > 1.02, (floor, sur.chi2)
+    if solver == "dense":
+        assert "the surrogate A E cannot meet its target" in sol.lambda_choice.note, sol.lambda_choice.note
+        full = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient", solver=method,
+                                    rule=lt.Discrepancy(subvoxel_search="full"))
+        assert sol.regularization == full.regularization and np.array_equal(sol.T, full.T)
+    else:
+        assert "did not meet its target on the surrogate A E" in sol.lambda_choice.note, sol.lambda_choice.note
     assert abs(sol.chi2 - 1.0) < 0.05, (sol.chi2, sol.regularization)
     assert abs(math.log(sol.regularization / sur.regularization)) > math.log(2.0), (sol.regularization,
                                                                                  sur.regularization)
@@ -267,3 +280,21 @@ def test_basis_posterior_statistics_are_those_of_uniform_emission_per_voxel(subv
         Ib = lt.gray_intensity(flame.T.ravel() * rng.uniform(0.9, 1.1, grid.n_voxels))
         chi2 = np.sum(((problem.A @ Ib[parent] - problem.y) / problem.sigma) ** 2)
         assert stats.chi2(Ib) == pytest.approx(chi2, rel=1e-9)
+
+
+def test_least_chi2_is_the_unbounded_least_squares_misfit():
+    """LinearProblem.least_chi2 against numpy's lstsq on a small dense problem with a background (rank
+    deficient: two equal columns), and it refuses a sub-voxel problem (not linear in the voxels' I_b)."""
+    rng = np.random.default_rng(3)
+    grid = lt.Grid(shape=(2, 2, 2), lower=(0.0, 0.0, 0.0), upper=(1.0, 1.0, 1.0))
+    A = rng.random((40, 8))
+    A[:, 7] = A[:, 6]
+    y, sigma, bg = rng.random(40), 0.1 + rng.random(40), 0.2 * rng.random(40)
+    p = lt.LinearProblem(A=sp.csr_matrix(A), y=y, sigma=sigma, grid=grid, wavelength=None, background=bg)
+    x = np.linalg.lstsq(A / sigma[:, None], (y - bg) / sigma, rcond=None)[0]
+    want = float(np.sum(((A @ x + bg - y) / sigma) ** 2)) / 40
+    assert p.least_chi2() == pytest.approx(want, rel=1e-7)
+    q = lt.LinearProblem(A=sp.csr_matrix(A), y=y, sigma=sigma, grid=lt.Grid(shape=(1, 1, 1), lower=(0, 0, 0),
+                         upper=(1, 1, 1)), wavelength=None, interpolation=sp.csr_matrix(np.ones((8, 1))))
+    with pytest.raises(ValueError, match="surrogate"):
+        q.least_chi2()
