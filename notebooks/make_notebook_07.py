@@ -87,8 +87,8 @@ NB07 = [
     them).  What is compared is the predicted error against the error of the design's reconstruction.
     On the standard flame the second camera is predicted to cut the error to less than half, and the
     reconstructions confirm the order: over five simulated experiments (design seeds 0–4, the table in
-    `docs/experiment_design.md`) one camera reconstructed with 6.1–7.4 % and two cameras with
-    4.5–4.6 % mean error above 800 K (0.62–0.74×), against 14.4–15.6 % and 6.4–6.9 % predicted.
+    `docs/experiment_design.md`) one camera reconstructed with 6.0–7.4 % and two cameras with
+    4.5–4.6 % mean error above 800 K (0.61–0.75×), against 14.5–15.6 % and 6.4–6.9 % predicted.
     The design fits with sub-voxel emission (`quadrature=2`, the default): the weights are built on the
     16³ grid of the truth and the 8³ temperature is interpolated there before Planck's law, so the
     coarse grid's model error no longer dominates the reconstructions (with uniform emission per voxel
@@ -110,7 +110,7 @@ NB07 = [
     s1, s2 = rows[0][1], rows[0][2]  # standard flame: the second camera is predicted to about halve the error
     assert s2["predicted_mean_rel"] < 0.6 * s1["predicted_mean_rel"]  # 0.43-0.46x over the five seeds
     assert s2["posterior_std_mean_rel"] < s1["posterior_std_mean_rel"]
-    # the reconstructions of the standard flame confirm the order (0.62-0.74x over the five design seeds),
+    # the reconstructions of the standard flame confirm the order (0.61-0.75x over the five design seeds),
     # and none stopped in a poor local minimum (4.5-7.4 % over those seeds)
     assert s2["reconstruction_mean_rel"] < s1["reconstruction_mean_rel"] < 0.1
     print(f"notebook ran in {time.perf_counter() - T_START:.0f} s")
