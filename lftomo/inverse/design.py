@@ -67,7 +67,7 @@ from ..forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 
 __all__ = ["Design", "design", "SimulatedCamera", "simulate_camera", "psf_widths", "rig_around", "compare_designs", "design_table",
            "standard_configurations", "design_configurations", "cramer_rao_bound",
-           "DESIGN_DENSE_MAX"]
+           "DESIGN_DENSE_MAX", "DESIGN_FLOOR", "DESIGN_QUADRATURE"]
 
 #: Largest number of voxels :func:`design` handles (dense n × n algebra: ~6 n² doubles, 0.8 GB at 16³).
 DESIGN_DENSE_MAX = 4096
