@@ -1291,7 +1291,10 @@ def _surrogate_misses_target(surrogate: LinearProblem, options: dict) -> float |
     if (options.get("rule") != "discrepancy" or options.get("noise_scale") != "given"
             or options.get("method") != "dense-lm" or surrogate.grid.n_voxels > DENSE_T_MAX_UNKNOWNS):
         return None
-    floor = surrogate.least_chi2()
+    try:
+        floor = surrogate.least_chi2()
+    except np.linalg.LinAlgError:  # not positive definite even with the ridge: leave it to the search
+        return None
     target = 1.0 + float(options.get("discrepancy_safety") or 0.0)
     return floor if floor > target * (1.0 + SURROGATE_FLOOR_MARGIN) else None
 
@@ -1302,10 +1305,9 @@ def _solve_subvoxel_by_surrogate(problem: LinearProblem, *, T0: Any, **options: 
     surrogate = problem.surrogate()
     floor = _surrogate_misses_target(surrogate, options)
     if floor is not None:
-        # The surrogate cannot meet the target at any λ: its least χ²/m, unbounded and unregularised, is above
-        # it.  Its λ search would only find that out (measured: 28-33 min of a 16³ rig design, then 2 min on the
-        # sub-voxel model; docs/accuracy.md, *The surrogate's least χ²*), so the rule runs on the sub-voxel
-        # model at once.
+        # The surrogate cannot meet the target at any λ (its least χ²/m is above it): its λ search would only
+        # find that out, at length (docs/accuracy.md, *The surrogate's least χ²*), so the rule runs on the
+        # sub-voxel model at once.
         sol = temperature_fit(problem, regularization="auto", T0=T0, subvoxel_search="full", **options)
         note = (f"{sol.lambda_choice.note}; the rule ran on the sub-voxel model because the surrogate A E cannot "
                 f"meet its target (its least χ²/m {floor:.4g}, unbounded and unregularised)")
