@@ -601,6 +601,8 @@ def _check_rebuild_memory(est: int, limit: int) -> None:
 def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> np.ndarray:
     """Scalar, ``grid.shape`` or ``(n_vox,)`` -> contiguous float64 (n_vox,)."""
     n = grid.n_voxels
+    if value is None:
+        raise LftomoError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), got None")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):

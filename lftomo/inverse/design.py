@@ -304,6 +304,9 @@ def simulate_camera(camera, flame, *, wavelength: float, noise: float, rays_per_
         Monte Carlo floor (:func:`lftomo.inverse.compare.monte_carlo_std`).
     weights_grid : Grid, optional
     sigma_a : ndarray, shape ``weights_grid.shape``, optional
+        Absorption of the weights (1/m).  Default: the flame's σₐ at
+        ``wavelength`` averaged over each voxel of ``weights_grid`` (the same
+        box, each of the flame's grid dimensions a multiple of its own).
     min_etendue_fraction : float
         View pixels below this fraction of the peak étendue are not data.
 
@@ -314,10 +317,16 @@ def simulate_camera(camera, flame, *, wavelength: float, noise: float, rays_per_
     from ..forward.render import render
     from ..forward.scene import Scene
     from ..forward.weights import weights
-    from .compare import with_monte_carlo_noise
+    from .compare import resample_mean, with_monte_carlo_noise
     from .measurement import add_noise
 
     data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
+    if weights_grid is not None and sigma_a is None:
+        try:
+            sigma_a = resample_mean(flame.sigma_a_at(wavelength), flame.grid, weights_grid)
+        except ValueError as e:
+            raise LftomoError(f"simulate_camera: give sigma_a for weights_grid {tuple(weights_grid.shape)}: the "
+                              f"flame's σₐ on {tuple(flame.grid.shape)} cannot be averaged onto it ({e})") from None
     lf = render(Scene(medium=flame), camera, rays_per_pixel=data_rays, seed=seed, wavelengths=(wavelength,),
                 sampler=sampler, progress=False)
     lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))

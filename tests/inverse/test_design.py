@@ -222,3 +222,19 @@ def test_simulate_camera_is_render_noise_and_weights_with_its_seeds(blob_design)
     assert (sim.weights.matrix != W.matrix).nnz == 0
     assert sim.measurement.y.size == lt.Measurement.from_lightfield(sim.data).y.size
     assert lt.simulate_camera(cam, flame, wavelength=WL, noise=0.02, rays_per_pixel=4).weights is None
+
+
+def test_simulate_camera_weights_default_to_the_flames_absorption_averaged_onto_their_grid(blob_design):
+    """Without ``sigma_a`` the weights take the flame's σₐ (10³) averaged over each voxel of their 5³ grid; a grid
+    the flame's cannot be averaged onto, and ``sigma_a=None`` given to the weights, are refused by name."""
+    cam, grid, flame, _ = blob_design
+    sim = lt.simulate_camera(cam, flame, wavelength=WL, noise=0.02, rays_per_pixel=4, seed=3, weights_grid=grid)
+    sa = flame.sigma_a_at(WL).reshape(5, 2, 5, 2, 5, 2).mean(axis=(1, 3, 5))
+    W = lt.weights(cam, grid, sigma_a=sa, wavelength=WL, rays_per_pixel=4, seed=4, lightfield=sim.data,
+                   progress=False)
+    assert (sim.weights.matrix != W.matrix).nnz == 0
+    odd = lt.Grid(shape=(3, 3, 3), lower=grid.lower, upper=grid.upper)
+    with pytest.raises(lt.LftomoError, match="give sigma_a for weights_grid"):
+        lt.simulate_camera(cam, flame, wavelength=WL, noise=0.02, rays_per_pixel=4, weights_grid=odd)
+    with pytest.raises(lt.LftomoError, match="sigma_a must be a number or an array.*got None"):
+        lt.weights(cam, grid, sigma_a=None, wavelength=WL, rays_per_pixel=4, seed=0, progress=False)
