@@ -1083,6 +1083,9 @@ def temperature_fit(
 #: The surrogate's λ search is skipped when its least χ²/m exceeds the discrepancy target by more than this
 #: fraction (:func:`_surrogate_misses_target`).
 SURROGATE_FLOOR_MARGIN = 0.02
+#: The surrogate's least χ²/m is computed (dense normal equations, n² doubles: 2.1 GB at this size) for at
+#: most this many unknowns, with either solver.
+LEAST_CHI2_MAX_UNKNOWNS = 16384
 
 
 def resolve_method(method: str, problem: LinearProblem, prior: Any) -> str:
@@ -1286,10 +1289,11 @@ def _surrogate_misses_target(surrogate: LinearProblem, options: dict) -> float |
     """χ²/m the surrogate cannot go below (:meth:`LinearProblem.least_chi2`) where it lies above the discrepancy
     rule's given target (1 + ``discrepancy_safety``) by more than :data:`SURROGATE_FLOOR_MARGIN`, else None.
 
-    Checked only where it is cheap and decides the question: the dense solver (at most
-    :data:`DENSE_T_MAX_UNKNOWNS` unknowns) and the discrepancy rule with the noise scale given."""
+    Checked only where it decides the question, the discrepancy rule with the noise scale given, and
+    where the dense normal equations fit in memory: at most :data:`LEAST_CHI2_MAX_UNKNOWNS` unknowns,
+    with the dense or the matrix-free solver."""
     if (options.get("rule") != "discrepancy" or options.get("noise_scale") != "given"
-            or options.get("method") != "dense-lm" or surrogate.grid.n_voxels > DENSE_T_MAX_UNKNOWNS):
+            or surrogate.A.shape[1] > LEAST_CHI2_MAX_UNKNOWNS):
         return None
     try:
         floor = surrogate.least_chi2()

@@ -8,6 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 import lftomo as lt
+import lftomo.inverse.solvers as S
 from lftomo.inverse.fieldposterior import _whitened_jacobian
 from lftomo.inverse.reconstruct import problem_on_grid
 from lftomo.inverse.subvoxel import interpolation_matrix
@@ -196,15 +197,17 @@ def test_joint_subvoxel_noise_free_recovers_T_and_sigma_a(symmetry, method):
 
 
 
-@pytest.mark.parametrize("solver", ["matrix-free", "dense"])
-def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_misfits(subvoxel_blob, solver):
+@pytest.mark.parametrize("solver", ["matrix-free", "dense", "matrix-free, no least chi2"])
+def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_misfits(subvoxel_blob, solver,
+                                                                                      monkeypatch):
     """With 0.01 % noise the surrogate A E (I_b interpolated linearly) misfits by its own model
     error: χ²/m above the target at every λ, so its discrepancy λ (the L-curve corner of its path)
     says nothing about the noise.  The rule then runs on the sub-voxel model, which fits these data
-    exactly: the λ is the full search's, and χ²/m reaches the target.  The matrix-free solver finds
-    that out by running the surrogate's search; the dense one from the surrogate's least χ²/m
-    (unbounded, unregularised; above the target), without the search, and then fits exactly what
-    ``subvoxel_search="full"`` fits."""
+    exactly: the λ is the full search's, and χ²/m reaches the target.  Both solvers find that out
+    from the surrogate's least χ²/m (unbounded, unregularised; above the target), without the
+    surrogate's search, and then fit exactly what ``subvoxel_search="full"`` fits.  Where the least
+    χ²/m is not computed (more unknowns than ``LEAST_CHI2_MAX_UNKNOWNS``, lowered here to 0) the
+    surrogate's search runs, misses its target, and the rule runs on the sub-voxel model from there."""
     cam, grid, quad, flame, m, W_q = subvoxel_blob
     problem, _ = problem_on_grid(m, W_q, grid)
     rng = np.random.default_rng(6)
@@ -213,17 +216,19 @@ def test_subvoxel_auto_lambda_falls_back_to_the_full_model_when_the_surrogate_mi
     surrogate = lt.LinearProblem(A=problem.linear_operator(), y=noisy.y, sigma=sigma, grid=grid, wavelength=None)
     sur = lt.solve_temperature(surrogate, bounds=(500.0, 2500.0), prior="gradient")
     assert sur.chi2 > 1.1 and "stays above the target" in sur.lambda_choice.note, (sur.chi2, sur.lambda_choice.note)
-    method = {"matrix-free": lt.LevenbergMarquardt(), "dense": lt.DenseLM()}[solver]
+    method = lt.DenseLM() if solver == "dense" else lt.LevenbergMarquardt()
+    if solver.endswith("no least chi2"):
+        monkeypatch.setattr(S, "LEAST_CHI2_MAX_UNKNOWNS", 0)
     sol = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient", solver=method)
     floor = surrogate.least_chi2()
     assert sur.chi2 >= floor * (1 - 1e-6) and floor > 1.02, (floor, sur.chi2)
-    if solver == "dense":
+    if solver.endswith("no least chi2"):
+        assert "did not meet its target on the surrogate A E" in sol.lambda_choice.note, sol.lambda_choice.note
+    else:
         assert "the surrogate A E cannot meet its target" in sol.lambda_choice.note, sol.lambda_choice.note
         full = lt.solve_temperature(noisy, bounds=(500.0, 2500.0), prior="gradient", solver=method,
                                     rule=lt.Discrepancy(subvoxel_search="full"))
         assert sol.regularization == full.regularization and np.array_equal(sol.T, full.T)
-    else:
-        assert "did not meet its target on the surrogate A E" in sol.lambda_choice.note, sol.lambda_choice.note
     assert abs(sol.chi2 - 1.0) < 0.05, (sol.chi2, sol.regularization)
     assert abs(math.log(sol.regularization / sur.regularization)) > math.log(2.0), (sol.regularization,
                                                                                  sur.regularization)
