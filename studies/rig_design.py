@@ -19,14 +19,21 @@ Usage::
     python studies/rig_design.py [--n 16] [--rays 64] [--configs "one camera,two cameras at 90°"] [--json out.json]
         [--sampler stratified] [--noise-scale given|estimated] [--quadrature 2]
 
-Prints one Markdown table (ranked by predicted error) and the ratio of the
-two-camera to the one-camera achieved error.
+Prints each configuration's row as it completes (and rewrites ``--json``
+atomically after each), then one Markdown table ranked by predicted error, the
+ratio of the two-camera to the one-camera achieved error and the Spearman rank
+correlation of predicted and achieved errors.  ``--resume F.json`` (repeatable)
+takes the rows of earlier runs with the same settings and computes only the
+configurations they lack: a stopped run continues where it stopped, and
+configurations run in separate processes are ranked together.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import spearmanr
@@ -35,6 +42,50 @@ import lftomo as lt
 from lftomo.forward.sampler import DEFAULT_SAMPLER
 from lftomo.inverse.design import (DESIGN_QUADRATURE, compare_designs, design_configurations, design_table,
                                    standard_configurations)
+from lftomo.io import atomic_write_text
+
+#: the arguments two runs must share for their rows to be ranked together
+SAME_SETTINGS = ("n", "rays", "noise", "flame", "hot", "draws", "sampler", "noise_scale", "quadrature", "first_draw")
+
+
+def resumed_rows(paths: list[str], args: dict) -> dict[str, dict]:
+    """Rows of earlier runs' ``--json`` files, by configuration name (checked before any work)."""
+    rows: dict[str, dict] = {}
+    for p in paths:
+        try:
+            doc = json.loads(Path(p).read_text(encoding="utf-8"))
+        except (OSError, ValueError) as err:
+            raise SystemExit(f"--resume {p!r}: cannot read it as JSON ({err})") from None
+        if not (isinstance(doc, dict) and isinstance(doc.get("args"), dict) and isinstance(doc.get("rows"), list)):
+            raise SystemExit(f"--resume {p!r}: not a rig_design.py --json file (needs 'args' and 'rows')")
+        differ = [f"{k}={doc['args'].get(k)!r} (now {args[k]!r})" for k in SAME_SETTINGS
+                  if doc["args"].get(k) != args[k]]
+        if differ:
+            raise SystemExit(f"--resume {p!r}: made with other settings: {', '.join(differ)}")
+        for r in doc["rows"]:
+            ok = (isinstance(r, dict) and isinstance(r.get("name"), str)
+                  and all(isinstance(r.get(k), (int, float)) and math.isfinite(r[k])
+                          for k in ("predicted_mean_rel", "reconstruction_mean_rel")))
+            if not ok:
+                raise SystemExit(f"--resume {p!r}: a row lacks a name or finite predicted/achieved errors: {r!r:.200}")
+            rows[r["name"]] = r
+    return rows
+
+
+def config_row(name: str, cfg: dict, grid, flame, a) -> dict:
+    """One configuration's summary row, the achieved error averaged over ``a.draws`` noise draws."""
+    draws = []
+    rule = None if a.noise_scale == "default" else lt.Discrepancy(noise_scale=a.noise_scale)
+    for draw in range(a.draws):
+        designs = design_configurations({name: cfg}, grid, flame, rays_per_pixel=a.rays, noise=a.noise, hot=a.hot,
+                                        seed=1000 * (a.first_draw + draw), sampler=a.sampler, quadrature=a.quadrature,
+                                        rule=rule, progress=True)
+        draws.append(compare_designs(designs)[0])
+    # the predictions barely depend on the draw (λ does): the first draw's, with the mean achieved error
+    row = draws[0]
+    row["reconstruction_draws"] = [q["reconstruction_mean_rel"] for q in draws]
+    row["reconstruction_mean_rel"] = float(np.mean(row["reconstruction_draws"]))
+    return row
 
 
 def main() -> None:
@@ -54,7 +105,9 @@ def main() -> None:
     ap.add_argument("--quadrature", type=int, default=DESIGN_QUADRATURE,
                     help="sub-voxel emission: the weights on the grid refined by this factor (lt.design(quadrature=))")
     ap.add_argument("--first-draw", type=int, default=0, help="draw k uses design seed 1000 (first_draw + k)")
-    ap.add_argument("--json", default="")
+    ap.add_argument("--json", default="", help="write the rows here (rewritten after each configuration)")
+    ap.add_argument("--resume", action="append", default=[], metavar="JSON",
+                    help="rows of an earlier --json run with the same settings: those configurations are not redone")
     a = ap.parse_args()
     t0 = time.perf_counter()
     grid = lt.phantoms.default_flame_grid((a.n,) * 3)
@@ -67,19 +120,18 @@ def main() -> None:
         if unknown:
             raise SystemExit(f"--configs: unknown {unknown}; known: {sorted(configs)}")
         configs = {k: configs[k] for k in names}
-    rows_by_draw = []
-    for draw in range(a.draws):
-        designs = design_configurations(configs, grid, flame, rays_per_pixel=a.rays, noise=a.noise, hot=a.hot,
-                                        seed=1000 * (a.first_draw + draw), sampler=a.sampler, quadrature=a.quadrature,
-                                        rule=None if a.noise_scale == "default" else lt.Discrepancy(noise_scale=a.noise_scale),
-                                        progress=True)
-        rows_by_draw.append(compare_designs(designs))
-    # mean over draws of the achieved error; the predictions barely depend on the draw (λ does)
-    rows = rows_by_draw[0]
-    for r in rows:
-        same = [next(q for q in rd if q["name"] == r["name"]) for rd in rows_by_draw]
-        r["reconstruction_mean_rel"] = float(np.mean([q["reconstruction_mean_rel"] for q in same]))
-        r["reconstruction_draws"] = [q["reconstruction_mean_rel"] for q in same]
+    done = resumed_rows(a.resume, vars(a))
+    rows = []
+    for name, cfg in configs.items():
+        if name in done:
+            rows.append(done[name])
+            continue
+        t1 = time.perf_counter()
+        rows.append(config_row(name, cfg, grid, flame, a))
+        print(f"{name} ({time.perf_counter() - t1:.0f} s):\n{design_table(rows[-1:])}", end="", flush=True)
+        if a.json:
+            atomic_write_text(a.json, json.dumps({"args": vars(a), "rows": rows, "complete": False}, indent=1))
+    rows.sort(key=lambda r: r["predicted_mean_rel"])
     print(design_table(rows), end="")
     by = {r["name"]: r for r in rows}
     if "one camera" in by and "two cameras at 90°" in by:
@@ -98,8 +150,8 @@ def main() -> None:
             print(f"  {r['name']}: achieved {100 * d.mean():.2f} ± {100 * d.std(ddof=1) / np.sqrt(d.size):.2f} % "
                   f"(mean ± standard error over {d.size} draws), predicted {100 * r['predicted_mean_rel']:.2f} %")
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"args": vars(a), "rows": rows, "same_order": pred_order == real_order}, f, indent=1)
+        atomic_write_text(a.json, json.dumps({"args": vars(a), "rows": rows, "complete": True,
+                                              "same_order": pred_order == real_order, "spearman_rho": rho}, indent=1))
 
 
 if __name__ == "__main__":
