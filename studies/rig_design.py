@@ -42,7 +42,7 @@ import lftomo as lt
 from lftomo.forward.sampler import DEFAULT_SAMPLER
 from lftomo.inverse.design import (DESIGN_QUADRATURE, compare_designs, design_configurations, design_table,
                                    standard_configurations)
-from lftomo.io import atomic_write_text
+from lftomo.io import atomic_write_text, check_output_file
 
 #: the arguments two runs must share for their rows to be ranked together
 SAME_SETTINGS = ("n", "rays", "noise", "flame", "hot", "draws", "sampler", "noise_scale", "quadrature", "first_draw")
@@ -70,6 +70,12 @@ def resumed_rows(paths: list[str], args: dict) -> dict[str, dict]:
                 raise SystemExit(f"--resume {p!r}: a row lacks a name or finite predicted/achieved errors: {r!r:.200}")
             rows[r["name"]] = r
     return rows
+
+
+def save_rows(path: str, args: dict, rows: list, **summary) -> None:
+    """Write the run's settings and rows to ``path`` atomically (NaN, e.g. ρ of one row, as null: strict JSON)."""
+    clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
+    atomic_write_text(path, json.dumps({"args": args, "rows": rows, **clean}, indent=1, allow_nan=False))
 
 
 def config_row(name: str, cfg: dict, grid, flame, a) -> dict:
@@ -109,6 +115,11 @@ def main() -> None:
     ap.add_argument("--resume", action="append", default=[], metavar="JSON",
                     help="rows of an earlier --json run with the same settings: those configurations are not redone")
     a = ap.parse_args()
+    if a.json:
+        try:  # before hours of work, not after the first configuration
+            check_output_file(a.json, what="--json")
+        except lt.LftomoError as err:
+            raise SystemExit(str(err)) from None
     t0 = time.perf_counter()
     grid = lt.phantoms.default_flame_grid((a.n,) * 3)
     fine = lt.phantoms.default_flame_grid((2 * a.n,) * 3)
@@ -130,7 +141,7 @@ def main() -> None:
         rows.append(config_row(name, cfg, grid, flame, a))
         print(f"{name} ({time.perf_counter() - t1:.0f} s):\n{design_table(rows[-1:])}", end="", flush=True)
         if a.json:
-            atomic_write_text(a.json, json.dumps({"args": vars(a), "rows": rows, "complete": False}, indent=1))
+            save_rows(a.json, vars(a), rows, complete=False)
     rows.sort(key=lambda r: r["predicted_mean_rel"])
     print(design_table(rows), end="")
     by = {r["name"]: r for r in rows}
@@ -150,8 +161,7 @@ def main() -> None:
             print(f"  {r['name']}: achieved {100 * d.mean():.2f} ± {100 * d.std(ddof=1) / np.sqrt(d.size):.2f} % "
                   f"(mean ± standard error over {d.size} draws), predicted {100 * r['predicted_mean_rel']:.2f} %")
     if a.json:
-        atomic_write_text(a.json, json.dumps({"args": vars(a), "rows": rows, "complete": True,
-                                              "same_order": pred_order == real_order, "spearman_rho": rho}, indent=1))
+        save_rows(a.json, vars(a), rows, complete=True, same_order=pred_order == real_order, spearman_rho=float(rho))
 
 
 if __name__ == "__main__":
