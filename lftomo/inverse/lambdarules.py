@@ -218,6 +218,11 @@ JOINT_LAMBDA_SETTLED = 10.0 ** 0.125 - 1.0
 #: 900 nm: nine steps left ‖R‖ at 2.5 where the solve at the same λ reached 1.2; docs/accuracy.md).
 JOINT_INNER_STEPS = 10
 
+#: The T-only projected search's projected Gauss–Newton steps give way to inexact solves of at most this many
+#: steps where one of them fails to descend (as :data:`JOINT_INNER_STEPS`; docs/accuracy.md, *When the projected
+#: step does not descend*).
+FALLBACK_INNER_STEPS = 10
+
 #: With the noise scale estimated and its reference solve unconverged, the joint search checks ``s²`` on a
 #: solve at this fraction of the λ it found (:func:`projected_bracket_search`).
 SCALE_PROBE = 1e-2
@@ -457,7 +462,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
                                  *, max_gauss_newton: int = 10, max_solves: int = 2,
                                  lam_range: tuple[float, float] | None = None,
                                  require_converged: bool = True, lam_settled: float = LAMBDA_SETTLED,
-                                 inner_steps: int = 0) -> tuple[Eval, str] | None:
+                                 inner_steps: int = 0, fallback_steps: int = 0) -> tuple[Eval, str] | None:
     """Morozov's discrepancy principle without a converged solve per candidate λ.
 
     1. Gauss–Newton steps from ``theta0``, each with its own λ: the fit is
@@ -478,7 +483,9 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
        linearisation's misfit stays above the target at every λ (far from
        the fit) the next one keeps its λ, where it stays below it at every λ
        (an iterate whose fit still descends along a poorly observed
-       direction) the next one is a decade higher.
+       direction) the next one is a decade higher.  With ``fallback_steps``,
+       the projected steps give way to inexact solves of that many steps as
+       soon as one of them fails to descend (even shortened 64-fold).
     2. A solve at that λ to ``search_rtol`` (``run.solve``).  It ends the search
        when ``|χ²/m / target − 1| ≤ tol`` or when λ chosen again on the
        linearisation at its solution moves by less than ``lam_settled``;
@@ -525,6 +532,24 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
             # an iterate stopped short of its fit cannot raise the projected misfit (the fit still descends
             # along a poorly observed direction that more λ would smooth away): solve on a decade higher
             lam_new = lam if side < 0 else min(10.0 * lam, lam_hi)
+        fresh = False
+        if not inner_steps:
+            theta_next, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
+            if decrease == 0.0 and fallback_steps:
+                # not even a 64th of the projected step descends: the linearisation holds only far closer to
+                # its iterate (log-odds of voxels the data barely see, steps of hundreds; measured at 900 nm,
+                # docs/accuracy.md).  λ chosen on it again from the same iterate would drift and pass for
+                # settled; the fit's own damped steps (inexact solves) go on from here instead (the move to
+                # this λ was no inexact solve's: the next one reversing it is no overshoot to halve)
+                inner_steps, fresh = fallback_steps, True
+            else:
+                theta = theta_next
+                bar = getattr(run, "bar", None)
+                if bar is not None:
+                    bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step "
+                                        f"{k + 1})")
+                run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP, search_iterate=True))
+                moved = decrease > search_rtol
         if inner_steps:
             move = math.log(lam_new / lam)
             if move * last_move < 0.0:
@@ -532,7 +557,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
                 # way; half the step in log λ (the geometric mean) ends the two-cycle
                 move *= 0.5
                 lam_new = lam * math.exp(move)
-            last_move = move
+            last_move = 0.0 if fresh else move
             # an inexact solve instead of the projected step: a few of the fit's own steps at λ
             e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
             e.search_iterate = True
@@ -541,13 +566,6 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
             # λ (χ²/m is nearly flat in λ there: settling λ as well cost three or four more inexact solves;
             # an unconverged one is no evidence: its χ²/m moved by more than the tolerance as it went on)
             met = e.converged and abs(e.chi2 / target - 1.0) <= tol
-        else:
-            theta, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
-            bar = getattr(run, "bar", None)
-            if bar is not None:
-                bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
-            run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP, search_iterate=True))
-            moved = decrease > search_rtol
         done = k > 0 and settled(lam_new, lam) and not moved
         lam = lam_new
         if done or (inner_steps and met):
@@ -1068,7 +1086,8 @@ class Discrepancy(LambdaRule):
                 first = path.solve(lam_ref * 1e-2, theta0, self.search_steps, objective_rtol=self.search_rtol)
                 n_before += 1
                 target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
-            found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8)
+            found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8,
+                                                 fallback_steps=FALLBACK_INNER_STEPS)
             if found is not None:
                 return found[0], discrepancy_choice(path, found[0], target, lam_ref, scale_note + found[1]), "projected"
             # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only

@@ -7,6 +7,7 @@ says it should."""
 
 import math
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -204,6 +205,62 @@ def test_inexact_projected_search_halves_a_reversing_lambda_step(monkeypatch):
     e, note = found
     assert e.lam == pytest.approx(path.lam_star, rel=1e-12), note
     assert [x.lam for x in path.evals] == pytest.approx([4000.0, 1000.0], rel=1e-12)
+
+
+class StallingPath(OvershootingPath):
+    """An :class:`OvershootingPath` whose objective rises along any move from the starting iterate
+    ``theta0 = [-50]`` (so no projected step descends, even shortened 64-fold), as at 900 nm from the
+    linear baseline."""
+
+    start = -50.0
+
+    def linearization(self, theta, lam):
+        return SimpleNamespace(scale=np.ones(1), theta=float(theta[0]))
+
+    def terms(self, theta, lam):
+        return 2.0 + 1e6 * abs(float(theta[0]) - self.start), 1.0
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        e = super().solve(lam, start, max_steps, objective_rtol)
+        e.chi2 = (lam / self.lam_star) ** 0.01  # (χ²/m 0.96 at λ*/40: the target not met there)
+        return e
+
+
+class StallingProjection:
+    """At the unsolved start the linearisation asks for a tenth of the λ it is given (λ drifts down while
+    the iterate stays put); at an iterate solved at any λ it asks for λ*."""
+
+    def __init__(self, lin):
+        self.lin, self.k = lin, 1
+
+    def discrepancy_lambda(self, target, lam_lo, lam_hi, lam_start):
+        return (lam_start / 10.0 if self.lin.theta == StallingPath.start else OvershootingPath.lam_star), 0
+
+    def step(self, lam):
+        return np.array([5.0])
+
+
+def test_projected_search_gives_way_to_inexact_solves_when_its_step_does_not_descend(monkeypatch):
+    """The T-only rule's projected search: when the first projected Gauss–Newton step does not descend,
+    the iterate stays put and the λ chosen again on it would drift a decade per step (each counted as a
+    step of the search, ten of them to λ_ref·1e-10).  Instead it goes on with inexact solves of
+    FALLBACK_INNER_STEPS steps: the first at the λ of that step (λ_ref/10), the next at λ* chosen on its
+    solution, which meets the target and ends the search there."""
+    import lftomo.inverse.projected as projected
+    from lftomo.inverse.lambdarules import FALLBACK_INNER_STEPS, PROJECTED_STEP
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", StallingProjection)
+    path = StallingPath()
+    e, ch, search = Discrepancy().choose(path, np.array([StallingPath.start]), lam_ref=250.0)
+    assert search == "projected" and "inexact solves" in ch.note, ch.note
+    assert e.lam == pytest.approx(OvershootingPath.lam_star, rel=1e-12)
+    assert [x.lam for x in path.evals] == pytest.approx([25.0, OvershootingPath.lam_star], rel=1e-12)
+    assert [x.steps for x in path.evals] == [FALLBACK_INNER_STEPS] * 2
+    # without the fallback the stalled iterate's λ drifts and the first solve is at λ_ref·1e-10
+    path = StallingPath()
+    projected_discrepancy_search(path, np.array([StallingPath.start]), 250.0, 1.0, 1e-3, 1e-3, max_solves=1)
+    assert [x.message for x in path.evals[:10]] == [PROJECTED_STEP] * 10
+    assert path.evals[10].lam == pytest.approx(250.0e-10, rel=1e-9)
 
 
 class ClimbingProjection:
