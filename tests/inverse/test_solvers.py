@@ -398,6 +398,39 @@ def test_discrepancy_rejects_a_target_met_only_by_a_local_minimum():
     assert same[0] is e
 
 
+def test_a_projected_search_that_handed_over_to_inexact_solves_is_checked_from_the_initial_guess(
+        gray_noisy, discrepancy_true_sigma, monkeypatch):
+    """Where the projected search went on with inexact solves (its projected steps did not descend), its
+    result is compared with a solve at the same λ from the initial guess, as the root search's is: a
+    stand-in search that returns a poor, unconverged solve gets the check's lower objective instead.
+    A search whose Gauss–Newton steps ran throughout keeps its own result."""
+    from lftomo.inverse import lambdarules
+
+    lam = discrepancy_true_sigma.regularization
+    calls = []
+
+    def fake_choose(self, run, theta0, lam_ref, first=None):
+        calls.append(len(run.evals))
+        if handed_over:
+            e = run.solve(lam / 100.0, theta0, 10)
+            e.search_iterate = True
+        start = theta0 + np.random.default_rng(0).normal(size=theta0.size)
+        poor = run.solve(lam, start, 3)
+        choice = lambdarules.discrepancy_choice(run, poor, 1.0, lam_ref, "stand-in")
+        return poor, choice, "projected"
+
+    monkeypatch.setattr(lambdarules.Discrepancy, "choose", fake_choose)
+    fits = {}
+    for handed_over in (True, False):
+        fits[handed_over] = solve_temperature(gray_noisy[0], prior="gradient", rule="discrepancy")
+    checked, kept = fits[True], fits[False]
+    assert kept.iterations == 3 and not kept.converged
+    assert checked.converged and checked.regularization == lam
+    obj = {k: f.residual_norm**2 + lam * f.regularization_norm**2 for k, f in fits.items()}
+    assert obj[True] < obj[False]
+    assert checked.chi2 == pytest.approx(discrepancy_true_sigma.chi2, rel=1e-2)
+
+
 class _FlatBelowTargetRunner(_BranchRunner):
     """χ²/m below the target at every λ, and beyond λ = 1e3 a flat branch whose
     ‖R‖ keeps falling tenfold per decade (the quick demo's path).  As many
