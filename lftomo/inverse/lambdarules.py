@@ -543,13 +543,8 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
                 # this λ was no inexact solve's: the next one reversing it is no overshoot to halve)
                 inner_steps, fresh = fallback_steps, True
             else:
-                theta = theta_next
-                bar = getattr(run, "bar", None)
-                if bar is not None:
-                    bar.set_postfix_str(f"λ={lam_new:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step "
-                                        f"{k + 1})")
-                run.evals.append(Eval(lam_new, theta, chi2, reg, 0, False, PROJECTED_STEP, search_iterate=True))
-                moved = decrease > search_rtol
+                theta, moved = theta_next, decrease > search_rtol
+                _record_projected_step(run, lam_new, theta, chi2, reg, k)
         if inner_steps:
             move = math.log(lam_new / lam)
             if move * last_move < 0.0:
@@ -686,6 +681,14 @@ def bracketed_root(solve: Any, g: Any, lo: Eval, hi: Eval, *, tol: float, x_tol:
         brentq(f, bracket[0], bracket[1], xtol=x_tol, maxiter=max_solves + 2, full_output=True, disp=False)
     tried = [e for e in made if counts(e)] + [lo, hi]
     return min(tried, key=lambda e: abs(g(e))), bracket[0], bracket[1], len(made)
+
+
+def _record_projected_step(run: Any, lam: float, theta: np.ndarray, chi2: float, reg: float, k: int) -> None:
+    """Show the projected search's Gauss–Newton step ``k`` on the run's bar and add it to ``run.evals``."""
+    bar = getattr(run, "bar", None)
+    if bar is not None:
+        bar.set_postfix_str(f"λ={lam:.3g} χ²/m={chi2:.4g} (projected search, Gauss–Newton step {k + 1})")
+    run.evals.append(Eval(lam, theta, chi2, reg, 0, False, PROJECTED_STEP, search_iterate=True))
 
 
 def _descent(run: Any, theta: np.ndarray, step: np.ndarray, lam: float,
