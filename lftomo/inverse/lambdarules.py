@@ -462,7 +462,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
                                  *, max_gauss_newton: int = 10, max_solves: int = 2,
                                  lam_range: tuple[float, float] | None = None,
                                  require_converged: bool = True, lam_settled: float = LAMBDA_SETTLED,
-                                 inner_steps: int = 0, fallback_steps: int = 0) -> tuple[Eval, str] | None:
+                                 inner_steps: int = 0, fallback_steps: int = 0) -> tuple[Eval, str, bool] | None:
     """Morozov's discrepancy principle without a converged solve per candidate λ.
 
     1. Gauss–Newton steps from ``theta0``, each with its own λ: the fit is
@@ -496,7 +496,8 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
        (χ²/m jumps across the target there).
 
     λ is searched in ``lam_range`` (default ``λ_ref · [1e-10, 1e4]``).
-    Returns ``(eval, note)``, or None when the fit offers no linearisation,
+    Returns ``(eval, note, inexact)`` (``inexact``: λ was found by inexact solves,
+    from the start or after the hand-over), or None when the fit offers no linearisation,
     the projected misfit cannot attain the target in that range, or the
     solves end more than :data:`DISCREPANCY_JUMP` from it or (with
     ``require_converged``) unconverged; the caller then runs its search over
@@ -611,7 +612,7 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     note = (f"projected discrepancy search: {n_gn} {steps} with λ on each projected linearisation, "
             f"{solves} solve(s) (subspace dimensions {', '.join(map(str, dims))}), "
             f"|chi²/m/target − 1| = {miss:.2e}")
-    return e, note
+    return e, note, bool(inner_steps)
 
 
 def _nearest_sides(sides: dict, e: Eval, target: float) -> None:
@@ -1073,8 +1074,9 @@ class Discrepancy(LambdaRule):
                first: Eval | None = None) -> tuple[Eval, LambdaChoice, str]:
         """``(eval, choice, search)``: the solve chosen, its :class:`LambdaChoice` (the target ``χ²/m``,
         what the search did, every λ solved, and ``target_met``: False where the root search met no
-        target and took an L-curve corner or an end of its λ range) and which search chose it
-        (``"projected"`` or ``"root"``)."""
+        target and took an L-curve corner or an end of its λ range) and which search chose it:
+        ``"projected"``, ``"projected, inexact"`` (the projected search handed over to inexact solves)
+        or ``"root"``."""
         estimate = self.noise_scale == "estimated"
         # (a fit whose linearization() is None makes the projected search give way at once)
         projected = (self.search == "projected" and first is None and hasattr(path, "linearization")
@@ -1092,7 +1094,8 @@ class Discrepancy(LambdaRule):
             found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8,
                                                  fallback_steps=FALLBACK_INNER_STEPS)
             if found is not None:
-                return found[0], discrepancy_choice(path, found[0], target, lam_ref, scale_note + found[1]), "projected"
+                choice = discrepancy_choice(path, found[0], target, lam_ref, scale_note + found[1])
+                return found[0], choice, "projected, inexact" if found[2] else "projected"
             # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only
             del path.evals[n_before:]
         e, target, note, met = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,

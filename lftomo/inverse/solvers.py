@@ -1243,8 +1243,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
     # began at a small λ and their warm starts can end far from the chosen λ's minimum: measured at 900 nm,
     # objective 1.459e5 and 11.9 % above 800 K against 1.297e5 and 10.9 % from the initial guess,
     # docs/accuracy.md, *When the projected step does not descend*.)
-    handed_over = searched == "projected" and any(x.search_iterate and x.steps > 0 for x in run.evals)
-    if lam_fixed is None and (searched != "projected" or handed_over):
+    if lam_fixed is None and searched != "projected":
         # The λ search warm-starts each solve from the nearest λ solved; the
         # problem is non-convex in θ (sigmoid bounds, Planck), and a warm start
         # from a much smoother solution can stop in a worse minimum (measured:

@@ -202,8 +202,8 @@ def test_inexact_projected_search_halves_a_reversing_lambda_step(monkeypatch):
                                          lam_range=(1e-3, 1e6), require_converged=False,
                                          lam_settled=JOINT_LAMBDA_SETTLED, inner_steps=10)
     assert found is not None
-    e, note = found
-    assert e.lam == pytest.approx(path.lam_star, rel=1e-12), note
+    e, note, inexact = found
+    assert inexact and e.lam == pytest.approx(path.lam_star, rel=1e-12), note
     assert [x.lam for x in path.evals] == pytest.approx([4000.0, 1000.0], rel=1e-12)
 
 
@@ -252,7 +252,7 @@ def test_projected_search_gives_way_to_inexact_solves_when_its_step_does_not_des
     monkeypatch.setattr(projected, "ProjectedTikhonov", StallingProjection)
     path = StallingPath()
     e, ch, search = Discrepancy().choose(path, np.array([StallingPath.start]), lam_ref=250.0)
-    assert search == "projected" and "inexact solves" in ch.note, ch.note
+    assert search == "projected, inexact" and "inexact solves" in ch.note, ch.note
     assert e.lam == pytest.approx(OvershootingPath.lam_star, rel=1e-12)
     assert [x.lam for x in path.evals] == pytest.approx([25.0, OvershootingPath.lam_star], rel=1e-12)
     assert [x.steps for x in path.evals] == [FALLBACK_INNER_STEPS] * 2
@@ -385,7 +385,8 @@ def test_projected_search_solves_between_bracketing_solves_from_the_side_below(m
     found = projected_discrepancy_search(path, np.array([math.log(250.0)]), 250.0, 1.0, 1e-4, 1e-4,
                                          lam_range=(1e-3, 1e6), max_gauss_newton=0, max_solves=5)
     assert found is not None
-    e, note = found
+    e, note, inexact = found
+    assert not inexact
     assert [x.lam for x in path.evals] == pytest.approx([250.0, 4000.0, 1000.0], rel=1e-12), note
     assert path.starts == pytest.approx([250.0, 250.0, 250.0], rel=1e-12)
     assert e.lam == pytest.approx(path.lam_star, rel=1e-12) and abs(e.chi2 - 1.0) < 1e-12
