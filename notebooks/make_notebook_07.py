@@ -23,10 +23,11 @@ NB07 = [
     Before a rig is built, the question is what it will resolve.  `lt.design(rig, grid, flame)` answers it
     for an expected flame: it simulates each camera's measurement with lftomo's own pipeline (render,
     1 % noise, the Monte Carlo error of render and weights in σ), lets the default reconstruction choose λ
-    on one draw, and linearises the regularised problem at the true field.  Per voxel it returns the
-    **posterior standard deviation**, the **spread** and **bias** of the reconstruction (together the
-    **predicted error**), the **point-spread function** (a column of the resolution matrix) and the
-    **Cramér–Rao bound** without a prior.  Its one reconstruction is the check of the prediction.
+    on one draw, reconstructs the same data without the noise at that λ (the **bias**: what the prior,
+    Planck's law and the grid do to the field) and linearises the regularised problem at the true field
+    for the rest.  Per voxel it returns the **posterior standard deviation**, the **spread** over noise
+    draws and the bias (together the **predicted error**), the **point-spread function** (a column of
+    the resolution matrix) and the **Cramér–Rao bound** without a prior.
 
     This notebook compares one camera with two cameras at 90° (same total rays per pixel) on the standard
     axisymmetric flame and on the off-axis two-lobed flame.  To run in CI it uses a reduced camera
@@ -60,8 +61,8 @@ NB07 = [
         print(lt.design_table(lt.compare_designs(ds)))
     """),
     md("""
-    Read the table per flame: *predicted mean error* is the linearised RMS error over the voxels above
-    800 K, *one draw* the error of the reconstruction the design ran.  The Cramér–Rao bound of a single
+    Read the table per flame: *predicted mean error* is the RMS of bias and spread over the voxels above
+    800 K, *one draw* the error of the reconstruction the design ran on the noisy data.  The Cramér–Rao bound of a single
     camera is large (often infinite at double precision): without a prior the depth of a voxel is
     nearly unobserved through a ±3° cone.  The second camera observes that depth from the side.
     """),
@@ -85,19 +86,22 @@ NB07 = [
     Each configuration chooses its own λ (the default rule on its own data), so the posterior standard
     deviations of two designs are not comparable voxel by voxel (at one λ a second camera can only lower
     them).  What is compared is the predicted error against the error of the design's reconstruction.
-    On the standard flame the second camera is predicted to cut the error to less than half, and the
-    reconstructions confirm the order: over five simulated experiments (design seeds 0–4, the table in
+    On the standard flame the second camera is predicted to cut the error by about a quarter, and the
+    reconstructions confirm it: over five simulated experiments (design seeds 0–4, the table in
     `docs/experiment_design.md`) one camera reconstructed with 6.0–7.4 % and two cameras with
-    4.5–4.6 % mean error above 800 K (0.61–0.75×), against 14.5–15.6 % and 6.4–6.9 % predicted.
-    The design fits with sub-voxel emission (`quadrature=2`, the default): the weights are built on the
+    4.5–4.6 % mean error above 800 K (0.61–0.75×).  Linearised at the truth, the bias would have been
+    14.5–15.6 % and 6.4–6.9 %: far from the fields the fits reach, the linearisation overstates the
+    prior's pull; the noise-free fit does not.  The design fits with sub-voxel emission (`quadrature=2`, the default): the weights are built on the
     16³ grid of the truth and the 8³ temperature is interpolated there before Planck's law, so the
     coarse grid's model error no longer dominates the reconstructions (with uniform emission per voxel
-    it did, and the second camera appeared not to help).  The prediction, linearised at the truth,
-    overstates both errors, the single camera's about twice, so read it as a ranking and a bound rather
-    than a forecast.  On the two-lobed flame at 8³ the lobes are 1–2 voxels wide; the
-    single camera's predicted error and posterior std are of order 100 %: the curvature prior leaves
-    linear trends free, and one camera does not fix them along its line of sight (its Cramér–Rao bound
-    is of the same order).  The 16³ numbers on the full seed camera are in `docs/experiment_design.md`.
+    it did, and the second camera appeared not to help).  On the two-lobed flame at 8³ the lobes are
+    1–2 voxels wide and the rule's λ falls to 0.3 (one camera) and 0.03 (two): the curvature prior
+    leaves linear trends free, one camera does not fix them along its line of sight (its Cramér–Rao
+    bound is of order 100 %), and the spread linearised at the truth (60 % and 87 %, design seed 0)
+    means little where the bounded fit holds a fifth of the voxels at 300 K.  The noise-free fit's bias
+    still orders them (40 % and 34 %, the draws 39 % and 26 %); the predicted error, which adds that
+    spread, does not.  Read a design at such a λ by its bias.  The 16³ numbers on the full seed camera
+    are in `docs/experiment_design.md`.
     """),
     code("""
     rows = []
@@ -107,8 +111,10 @@ NB07 = [
         print(f"{name:10s} predicted {100 * s1['predicted_mean_rel']:.1f} % -> {100 * s2['predicted_mean_rel']:.1f} %, "
               f"posterior std {100 * s1['posterior_std_mean_rel']:.1f} % -> {100 * s2['posterior_std_mean_rel']:.1f} %, "
               f"one draw {100 * s1['reconstruction_mean_rel']:.1f} % -> {100 * s2['reconstruction_mean_rel']:.1f} %")
-    s1, s2 = rows[0][1], rows[0][2]  # standard flame: the second camera is predicted to about halve the error
-    assert s2["predicted_mean_rel"] < 0.6 * s1["predicted_mean_rel"]  # 0.43-0.46x over the five seeds
+    s1, s2 = rows[0][1], rows[0][2]  # standard flame: the second camera is predicted to cut the error
+    assert s2["predicted_mean_rel"] < 0.85 * s1["predicted_mean_rel"]  # 0.73x (design seed 0)
+    # the noise-free fit's bias is the error of the noisy draw's fit to within its spread (6.05 / 6.04 %)
+    assert abs(s1["bias_mean_rel"] - s1["reconstruction_mean_rel"]) < s1["spread_mean_rel"]
     assert s2["posterior_std_mean_rel"] < s1["posterior_std_mean_rel"]
     # the reconstructions of the standard flame confirm the order (0.61-0.75x over the five design seeds),
     # and none stopped in a poor local minimum (4.5-7.4 % over those seeds)

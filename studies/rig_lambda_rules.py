@@ -87,7 +87,7 @@ def main() -> None:
     cfg = standard_configurations(lt.Camera.seed(1.0), grid)[a.config]
     t0 = time.perf_counter()
     d = lt.design(cfg["rig"], grid, flame, rays_per_pixel=max(1, a.rays // cfg["ray_share"]), regularization=a.lam,
-                  quadrature=a.quadrature, sampler="stratified", seed=a.seed, progress=False)
+                  quadrature=a.quadrature, sampler="stratified", seed=a.seed, bias="linear", progress=False)
     ms, Ws = list(d.measurements), list(d.weights)
     fit = lt.reconstruct(ms if len(ms) > 1 else ms[0], Ws if len(Ws) > 1 else Ws[0], grid=grid,
                          rule=lt.Fixed(a.lam), progress=False)

@@ -17,8 +17,16 @@ prior factor ``L_s = L / (T_max − T_min)`` and the regularisation λ:
   point-spread function), summarised by its RMS widths along x, y, z;
 * ``T̂ − T = H⁻¹ (Jᵀ e − λ L_sᵀ L_s T)`` for a noise draw ``e ~ N(0, I)``:
   the **spread** of the reconstruction over noise draws is
-  ``sqrt(diag(H⁻¹ JᵀJ H⁻¹))`` and its **bias** ``−λ H⁻¹ L_sᵀ L_s T``; the
-  **predicted error** is ``sqrt(bias² + spread²)``;
+  ``sqrt(diag(H⁻¹ JᵀJ H⁻¹))`` and its linearised **bias**
+  ``−λ H⁻¹ L_sᵀ L_s T``;
+* the **bias** by default (``bias="nonlinear"``) is that of the
+  reconstruction itself: the fit at λ of the noise-free simulated data (the
+  same renders, the same σ, no noise added) minus ``T``.  It holds what the
+  linearisation leaves out (Planck's law, the bounds, the prior's pull far
+  from ``T``) and the coarse grid's model error;
+* the **predicted error** is ``sqrt(bias² + spread²)`` (RMS) and the
+  expected absolute error ``E|bias + spread · Z|`` (folded normal), which
+  the summaries compare with a reconstruction's mean ``|ΔT|``;
 * the **Cramér–Rao bound** without a prior: ``sqrt(diag F⁻¹)`` with
   ``F = JᵀJ`` restricted to the voxels hotter than ``hot`` (the cooler ones
   told exactly: a bound that can only be optimistic; Kay 1993, ch. 3).
@@ -37,7 +45,7 @@ no Monte Carlo error.  By default the emission inside a voxel follows the
 temperature interpolated between voxel centres (sub-voxel emission,
 ``quadrature=2``), as in the reconstructions that reach lftomo's accuracy
 targets.  Model error of a coarse grid (flame detail below the voxel size) is
-not part of the prediction; the dense algebra limits the grid to
+part of the nonlinear bias only; the dense algebra limits the grid to
 ``dense_max`` voxels (16³ = 4096 by default).
 
 References
@@ -94,7 +102,9 @@ class Design:
     T_spread : ndarray
         Standard deviation of the reconstruction over noise draws.
     T_bias : ndarray
-        Linearised bias of the reconstruction (the prior's pull).
+        Bias of the reconstruction: the noise-free reconstruction at λ minus
+        ``T_true`` (``bias_model="nonlinear"``), or its Gauss–Newton
+        linearisation at ``T_true``, ``−λ H⁻¹ L_sᵀ L_s T`` (``"linear"``).
     crb : ndarray
         Cramér–Rao bound (no prior), hot voxels only.
     probes : tuple of (i, j, k)
@@ -130,6 +140,10 @@ class Design:
     quadrature : int
         Sub-voxel emission: the weights' grid refines ``grid`` by this factor
         per axis (1: uniform emission per voxel).
+    bias_model : {"nonlinear", "linear"}
+        How ``T_bias`` was computed.
+    T_bias_linear : ndarray or None
+        The linearised bias ``−λ H⁻¹ L_sᵀ L_s T`` (K), whichever ``bias_model``.
     """
 
     grid: Grid
@@ -155,11 +169,29 @@ class Design:
     weights: tuple = ()
     timing: dict = field(default_factory=dict)
     quadrature: int = 1
+    bias_model: str = "linear"
+    T_bias_linear: np.ndarray | None = None
 
     @property
     def predicted_error(self) -> np.ndarray:
         """RMS error of the reconstruction per voxel, ``sqrt(bias² + spread²)`` (K)."""
         return np.sqrt(self.T_bias**2 + self.T_spread**2)
+
+    @property
+    def expected_abs_error(self) -> np.ndarray:
+        """Expected absolute error per voxel, ``E|b + s Z|`` for ``Z ~ N(0, 1)`` (K).
+
+        The mean of the folded normal distribution (Leone, Nelson & Nottingham
+        1961): ``s √(2/π) exp(−b²/2s²) + b (1 − 2 Φ(−b/s))`` with ``b`` the
+        bias and ``s`` the spread; the quantity a mean ``|ΔT|`` estimates.
+        Where ``|b| ≫ s`` it is ``|b|``, where ``b = 0`` it is ``s √(2/π)``.
+        """
+        from scipy.special import ndtr
+
+        b = np.abs(self.T_bias)
+        s = np.maximum(self.T_spread, 1e-300)
+        r = b / s
+        return s * math.sqrt(2.0 / math.pi) * np.exp(-0.5 * r**2) + b * (1.0 - 2.0 * ndtr(-r))
 
     def summary(self) -> dict[str, Any]:
         """Means over the voxels hotter than ``hot``, relative to the true T.
@@ -167,9 +199,12 @@ class Design:
         Returns
         -------
         dict
-            ``predicted_mean_rel`` (mean predicted |error|/T, using the RMS
-            error), ``posterior_std_mean_rel``, ``spread_mean_rel``,
-            ``bias_mean_rel``, ``crb_median_rel``, ``crb_below_1pct``
+            ``predicted_mean_rel`` (mean expected |error|/T,
+            :attr:`expected_abs_error`: the prediction of a reconstruction's
+            mean |ΔT|/T), ``predicted_rms_mean_rel`` (mean RMS error/T,
+            :attr:`predicted_error`), ``posterior_std_mean_rel``, ``spread_mean_rel``,
+            ``bias_mean_rel`` (with ``bias_model``; ``bias_linear_mean_rel``, the
+            linearised bias's), ``crb_median_rel``, ``crb_below_1pct``
             (fraction of hot voxels), ``psf_width_mean_m`` (x, y, z),
             ``regularization``, ``n_data``, ``n_cameras``, ``quadrature``, and, when a
             reconstruction chose λ, ``reconstruction_mean_rel`` (its achieved
@@ -182,14 +217,18 @@ class Design:
             "n_cameras": len(self.cameras), "n_data": int(self.n_data), "hot_voxels": int(hot.sum()),
             "quadrature": int(self.quadrature),
             "regularization": float(self.regularization),
-            "predicted_mean_rel": float(np.mean(self.predicted_error[hot] / T)),
+            "predicted_mean_rel": float(np.mean(self.expected_abs_error[hot] / T)),
+            "predicted_rms_mean_rel": float(np.mean(self.predicted_error[hot] / T)),
             "posterior_std_mean_rel": float(np.mean(self.T_std[hot] / T)),
             "spread_mean_rel": float(np.mean(self.T_spread[hot] / T)),
             "bias_mean_rel": float(np.mean(np.abs(self.T_bias[hot]) / T)),
+            "bias_model": self.bias_model,
             "crb_median_rel": float(np.median(crb)),
             "crb_below_1pct": float(np.mean(crb < 0.01)),
             "psf_width_mean_m": [float(v) for v in np.nanmean(self.psf_widths, axis=0)],
         }
+        if self.T_bias_linear is not None:
+            out["bias_linear_mean_rel"] = float(np.mean(np.abs(self.T_bias_linear[hot]) / T))
         if self.reconstruction is not None:
             rec_T = np.asarray(self.reconstruction.T)
             out["reconstruction_mean_rel"] = float(np.mean(np.abs(rec_T[hot] - T) / T))
@@ -341,9 +380,12 @@ def simulate_camera(camera, flame, *, wavelength: float, noise: float, rays_per_
 
 
 def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_rays_per_pixel, seed, sa, bar,
-                  sampler):
+                  sampler, noise_free=None):
     """Per camera (seeds ``seed + 3 k``): the simulated measurement and its weights on ``grid``
-    (:func:`simulate_camera`, floor :data:`DESIGN_FLOOR`)."""
+    (:func:`simulate_camera`, floor :data:`DESIGN_FLOOR`); with a list ``noise_free``, each camera's
+    measurement without the noise draw (the same render and σ) is appended to it."""
+    from .measurement import Measurement
+
     ms, Ws = [], []
     for k, cam in enumerate(cams):
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render and weights")
@@ -351,6 +393,8 @@ def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_
                               data_rays_per_pixel=data_rays_per_pixel, seed=seed + 3 * k, sampler=sampler,
                               floor=DESIGN_FLOOR, weights_grid=grid, sigma_a=sa)
         bar.update(2)
+        if noise_free is not None:
+            noise_free.append(Measurement.from_lightfield(dataclasses.replace(sim.data, raw=sim.data.signal)))
         ms.append(sim.measurement)
         Ws.append(sim.weights)
     return ms, Ws
@@ -374,6 +418,31 @@ def _linear_predictions(J, Ls, lam: float, T: np.ndarray):
     spread2 = np.maximum(np.einsum("ij,ij->i", R, C), 0.0)
     bias = -lam * (C @ MT)
     return G, C, R, spread2, bias
+
+
+def _linear_stage(ms, Ws, grid, T, lam, *, prior, bounds, hot, probes):
+    """The Gauss–Newton predictions at the truth ``T``: ``(n_data, C, spread², bias, crb, psf, psf widths)``."""
+    from .fieldposterior import precision_factors
+    from .problem import stack_problems
+    from .reconstruct import problem_on_grid
+
+    problem = stack_problems([problem_on_grid(m, W, grid)[0] for m, W in zip(ms, Ws)])
+    J, Ls = precision_factors(problem, T, prior=prior, bounds=bounds)
+    G, C, R, spread2, bias = _linear_predictions(J, Ls, lam, T.ravel())
+    crb = cramer_rao_bound(G, T.ravel() > hot)
+    flat = [np.ravel_multi_index(p, grid.shape) for p in probes]
+    psf = np.stack([R[:, j].reshape(grid.shape) for j in flat])
+    widths = np.stack([psf_widths(p, grid, v) for p, v in zip(psf, probes)])
+    return int(problem.y.size), C, spread2, bias, crb, psf, widths
+
+
+def _noise_free_fit(clean, Ws, grid, lam, *, prior, bounds, start):
+    """The reconstruction at λ of the noise-free measurements (the nonlinear bias's fit), from ``start``."""
+    from .lambdarules import Fixed
+    from .reconstruct import reconstruct
+
+    one = (lambda x: x[0]) if len(Ws) == 1 else (lambda x: list(x))
+    return reconstruct(one(clean), one(Ws), prior=prior, bounds=bounds, rule=Fixed(lam), grid=grid, start=start)
 
 
 def cramer_rao_bound(G: np.ndarray, hot: np.ndarray) -> np.ndarray:
@@ -488,6 +557,7 @@ def design(
     progress: bool | None = None,
     dense_max: int = DESIGN_DENSE_MAX,
     quadrature: int = DESIGN_QUADRATURE,
+    bias: str = "nonlinear",
 ) -> Design:
     """Predict what a rig of plenoptic cameras resolves in a flame (module docstring).
 
@@ -541,6 +611,11 @@ def design(
         interpolated there before Planck's law, in the reconstruction and in
         the linearised predictions.  Default :data:`DESIGN_QUADRATURE` (2);
         1: uniform emission per voxel.
+    bias : {"nonlinear", "linear"}
+        ``"nonlinear"``: the bias is that of the reconstruction at λ of the
+        noise-free simulated data (one more fit, started from the noisy
+        draw's reconstruction); ``"linear"``: its linearisation at the truth
+        (no fit beyond λ's).  The spread is the linearised one either way.
 
     Returns
     -------
@@ -551,9 +626,7 @@ def design(
     from .._validate import require_int
     from ..progress import progress_bar
     from .compare import effective_truth
-    from .fieldposterior import precision_factors
-    from .problem import stack_problems
-    from .reconstruct import DEFAULT_PRIOR, problem_on_grid, reconstruct
+    from .reconstruct import DEFAULT_PRIOR, reconstruct
     from .regularizers import resolve_prior
     from .subvoxel import interpolate_field
 
@@ -562,6 +635,8 @@ def design(
     data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
     _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max)
     quadrature = require_int("quadrature", quadrature, minimum=1)
+    if bias not in ("nonlinear", "linear"):
+        raise LftomoError(f"bias must be 'nonlinear' or 'linear', got {bias!r}")
     if sampler not in SAMPLERS:
         raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
     prior_name = resolve_prior(DEFAULT_PRIOR if prior is None else prior, quadratic_only=True,
@@ -571,13 +646,14 @@ def design(
     sa_w = sa if quadrature == 1 else interpolate_field(sa, grid, wgrid)
     probes = _default_probes(T, hot) if probes is None else _check_probes(probes, grid.shape)
     show = sys.stderr.isatty() if progress is None else bool(progress)
-    bar = progress_bar(2 * len(cams) + 2, show, "design", unit="step")
+    bar = progress_bar(2 * len(cams) + 2 + (bias == "nonlinear"), show, "design", unit="step")
+    clean = [] if bias == "nonlinear" else None
     clock: dict[str, float] = {}
     try:
         t0 = time.perf_counter()
         ms, Ws = _measurements(cams, wgrid, flame, noise=noise, wavelength=float(wavelength),
                                rays_per_pixel=rays_per_pixel, data_rays_per_pixel=data_rays, seed=seed, sa=sa_w,
-                               bar=bar, sampler=sampler)
+                               bar=bar, sampler=sampler, noise_free=clean)
         clock["render_and_weights"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         rec = None
@@ -592,25 +668,29 @@ def design(
         clock["regularization"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         bar.set_postfix_str("linear algebra")
-        problem = stack_problems([problem_on_grid(m, W, grid)[0] for m, W in zip(ms, Ws)])
-        J, Ls = precision_factors(problem, T, prior=prior_name, bounds=bounds)
-        G, C, R, spread2, bias = _linear_predictions(J, Ls, lam, T.ravel())
-        crb = cramer_rao_bound(G, T.ravel() > hot)
-        flat = [np.ravel_multi_index(p, grid.shape) for p in probes]
-        psf = np.stack([R[:, j].reshape(grid.shape) for j in flat])
-        widths = np.stack([psf_widths(p, grid, v) for p, v in zip(psf, probes)])
+        n_data, C, spread2, bias_flat, crb, psf, widths = _linear_stage(ms, Ws, grid, T, lam, prior=prior_name,
+                                                                        bounds=bounds, hot=hot, probes=probes)
         bar.update(1)
         clock["linear_algebra"] = time.perf_counter() - t0
+        bias_linear = bias_flat.reshape(grid.shape)
+        T_bias = bias_linear
+        if clean is not None:
+            t0 = time.perf_counter()
+            bar.set_postfix_str("noise-free fit (bias)")
+            T_bias = _noise_free_fit(clean, Ws, grid, lam, prior=prior_name, bounds=bounds,
+                                     start=None if rec is None else rec.T).T - T
+            bar.update(1)
+            clock["noise_free_fit"] = time.perf_counter() - t0
     finally:
         bar.close()
     shape = grid.shape
     return Design(grid=grid, T_true=T, T_std=np.sqrt(np.diag(C)).reshape(shape),
-                  T_spread=np.sqrt(spread2).reshape(shape), T_bias=bias.reshape(shape), crb=crb.reshape(shape),
+                  T_spread=np.sqrt(spread2).reshape(shape), T_bias=T_bias, crb=crb.reshape(shape),
                   probes=probes, psf=psf, psf_widths=widths, regularization=lam,
                   lambda_rule="fixed" if rec is None else rec.lambda_rule, prior=prior_name, hot=float(hot),
-                  n_data=int(problem.y.size), cameras=cams, wavelength=float(wavelength), noise=float(noise),
+                  n_data=n_data, cameras=cams, wavelength=float(wavelength), noise=float(noise),
                   rays_per_pixel=int(rays_per_pixel), reconstruction=rec, measurements=tuple(ms), weights=tuple(Ws),
-                  timing=clock, quadrature=quadrature)
+                  timing=clock, quadrature=quadrature, bias_model=bias, T_bias_linear=bias_linear)
 
 
 def _cos_sin_degrees(a: float) -> tuple[float, float]:

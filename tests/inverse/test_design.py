@@ -78,6 +78,42 @@ def test_point_spread_function_is_the_reconstruction_of_a_point_change(blob_desi
     assert np.allclose(psf_widths(kernel, grid, probe), d.psf_widths[0], atol=0.1 * float(grid.spacing.min()))
 
 
+def _noise_free_measurement(d, flame, cam):
+    """The design's measurement of camera 0 with the render's own values (an independent render with the
+    design's seed 0) instead of the noisy ones; the same σ."""
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=64, seed=0, wavelengths=(WL,), progress=False)
+    m = d.measurements[0]
+    return dataclasses.replace(m, y=lf.raw.reshape(-1)[m.raw_index])
+
+
+def test_nonlinear_bias_is_the_noise_free_reconstructions(blob_design):
+    """The default bias (``bias="nonlinear"``) is the reconstruction at λ of the noise-free data minus the truth:
+    the same field as a fit of an independent render's values with the design's σ (to the solver's
+    tolerance, 0.5 K), and not the noisy draw's fit (which differs by the noise's spread)."""
+    cam, grid, flame, d = blob_design
+    assert d.bias_model == "nonlinear" and d.summary()["bias_model"] == "nonlinear"
+    clean = _noise_free_measurement(d, flame, cam)
+    fit = reconstruct(clean, d.weights[0], rule=lt.Fixed(d.regularization))
+    hot = d.T_true > 800.0
+    np.testing.assert_allclose((d.T_true + d.T_bias)[hot], fit.T[hot], atol=0.5)
+    noisy = reconstruct(d.measurements[0], d.weights[0], rule=lt.Fixed(d.regularization))
+    assert np.max(np.abs(noisy.T - fit.T)[hot]) > 5.0
+    assert d.summary()["bias_linear_mean_rel"] > 0
+
+
+def test_expected_absolute_error_is_the_folded_normal_mean(blob_design):
+    """``expected_abs_error`` against the mean |b + s Z| of 200 000 normal draws per voxel (standard error
+    ≤ s/450, tolerance 5 standard errors) and its limits: s √(2/π) where b = 0, |b| where |b| ≫ s."""
+    d = blob_design[3]
+    b, s = np.array([0.0, 3.0, -3.0, 10.0, 200.0]), np.array([2.0, 2.0, 2.0, 5.0, 1.0])
+    e = dataclasses.replace(d, T_bias=b, T_spread=s).expected_abs_error
+    z = np.random.default_rng(3).standard_normal((200_000, 1))
+    mc = np.abs(b + s * z).mean(axis=0)
+    assert np.all(np.abs(e - mc) <= 5 * s / np.sqrt(200_000)), (e, mc)
+    assert e[0] == pytest.approx(2.0 * np.sqrt(2 / np.pi), rel=1e-12) and e[4] == pytest.approx(200.0, rel=1e-12)
+    assert e[1] == e[2] and np.all(e <= np.sqrt(b**2 + s**2))
+
+
 def test_cramer_rao_bound_is_the_inverse_fisher_diagonal():
     """On a well-posed random Fisher matrix the bound is sqrt(diag F⁻¹) of the hot block; a direction the data
     do not see makes the voxels on it unbounded."""
@@ -123,6 +159,8 @@ def test_design_refuses_bad_input(blob_design):
         design(cam, grid, flame, prior="tv")
     with pytest.raises(lt.LftomoError, match="probe"):
         design(cam, grid, flame, probes=[(5, 0, 0)])
+    with pytest.raises(lt.LftomoError, match="bias must be 'nonlinear' or 'linear', got 'quadratic'"):
+        design(cam, grid, flame, bias="quadratic")
 
 
 def test_a_second_camera_can_only_shrink_the_posterior(blob_design):
@@ -151,8 +189,10 @@ def test_design_uses_the_sampler_it_is_given_for_images_and_weights(blob_design)
     with pytest.raises(ValueError, match="sampler must be one of"):
         design(cam, grid, flame, sampler="sobol")
     ds = design(cam, grid, flame, noise=0.01, rays_per_pixel=16, regularization=100.0, sampler="independent",
-                progress=False)
+                bias="linear", progress=False)
     assert ds.weights[0].metadata["sampler"] == "independent"
+    # (bias="linear": no noise-free fit, the linearised bias is the design's)
+    assert ds.bias_model == "linear" and ds.T_bias is ds.T_bias_linear and "noise_free_fit" not in ds.timing
 
 
 def test_design_with_sub_voxel_emission_linearises_the_sub_voxel_model(blob_design):
