@@ -6,9 +6,10 @@ same box (no inverse crime).  For each configuration of
 :func:`lftomo.inverse.design.standard_configurations` (``--configs``), at the
 same total rays per pixel (a rig of k cameras traces ``--rays / k`` per camera):
 
-* :func:`lftomo.design` predicts the mean error above ``--hot`` (linearised
-  at the truth: bias of the prior + noise spread), the posterior std and the
-  Cramér–Rao bound;
+* :func:`lftomo.design` predicts the mean error above ``--hot`` (the bias of a
+  noise-free fit at the design's λ with the noise spread linearised at the
+  truth, as the folded normal's mean), the posterior std and the Cramér–Rao
+  bound;
 * the default reconstruction of ``--draws`` simulated measurements (a render
   with 4× the rays standing in for the camera's images, ``--noise`` relative
   noise, the weights' Monte Carlo error in σ) gives the achieved mean
