@@ -186,12 +186,11 @@ class Design:
         bias and ``s`` the spread; the quantity a mean ``|ΔT|`` estimates.
         Where ``|b| ≫ s`` it is ``|b|``, where ``b = 0`` it is ``s √(2/π)``.
         """
-        from scipy.special import ndtr
+        from scipy.stats import foldnorm
 
         b = np.abs(self.T_bias)
-        s = np.maximum(self.T_spread, 1e-300)
-        r = b / s
-        return s * math.sqrt(2.0 / math.pi) * np.exp(-0.5 * r**2) + b * (1.0 - 2.0 * ndtr(-r))
+        s = np.maximum(self.T_spread, 1e-12 * (b + 1.0))  # (b/s finite: s = 0 gives |b|)
+        return foldnorm.mean(b / s, scale=s)
 
     def summary(self) -> dict[str, Any]:
         """Means over the voxels hotter than ``hot``, relative to the true T.
@@ -257,7 +256,8 @@ def _cameras(rig: Any) -> tuple:
     return cams
 
 
-def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max):
+def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max,
+                     bias, sampler):
     from .._validate import require_int, require_positive
     from ..forward.medium import Medium
 
@@ -278,6 +278,10 @@ def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, 
         raise LftomoError(
             f"grid has {grid.n_voxels} voxels {tuple(grid.shape)}; design forms dense {grid.n_voxels}² matrices "
             f"and handles at most dense_max={dense_max} (16³): use a coarser reconstruction grid")
+    if bias not in ("nonlinear", "linear"):
+        raise LftomoError(f"bias must be 'nonlinear' or 'linear', got {bias!r}")
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -310,6 +314,13 @@ class SimulatedCamera:
         from .measurement import Measurement
 
         return Measurement.from_lightfield(self.data)
+
+    @property
+    def noise_free_measurement(self):
+        """:attr:`measurement` with the render's values instead of the noisy ones (the same pixels and σ)."""
+        from .measurement import Measurement
+
+        return Measurement.from_lightfield(dataclasses.replace(self.data, raw=self.data.signal))
 
 
 def simulate_camera(camera, flame, *, wavelength: float, noise: float, rays_per_pixel: int,
@@ -384,8 +395,6 @@ def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_
     """Per camera (seeds ``seed + 3 k``): the simulated measurement and its weights on ``grid``
     (:func:`simulate_camera`, floor :data:`DESIGN_FLOOR`); with a list ``noise_free``, each camera's
     measurement without the noise draw (the same render and σ) is appended to it."""
-    from .measurement import Measurement
-
     ms, Ws = [], []
     for k, cam in enumerate(cams):
         bar.set_postfix_str(f"camera {k + 1}/{len(cams)}: render and weights")
@@ -394,7 +403,7 @@ def _measurements(cams, grid, flame, *, noise, wavelength, rays_per_pixel, data_
                               floor=DESIGN_FLOOR, weights_grid=grid, sigma_a=sa)
         bar.update(2)
         if noise_free is not None:
-            noise_free.append(Measurement.from_lightfield(dataclasses.replace(sim.data, raw=sim.data.signal)))
+            noise_free.append(sim.noise_free_measurement)
         ms.append(sim.measurement)
         Ws.append(sim.weights)
     return ms, Ws
@@ -436,13 +445,18 @@ def _linear_stage(ms, Ws, grid, T, lam, *, prior, bounds, hot, probes):
     return int(problem.y.size), C, spread2, bias, crb, psf, widths
 
 
+def _single_or_list(items):
+    """``items[0]`` for one camera, else the list (the forms :func:`lftomo.reconstruct` takes)."""
+    return items[0] if len(items) == 1 else list(items)
+
+
 def _noise_free_fit(clean, Ws, grid, lam, *, prior, bounds, start):
     """The reconstruction at λ of the noise-free measurements (the nonlinear bias's fit), from ``start``."""
     from .lambdarules import Fixed
     from .reconstruct import reconstruct
 
-    one = (lambda x: x[0]) if len(Ws) == 1 else (lambda x: list(x))
-    return reconstruct(one(clean), one(Ws), prior=prior, bounds=bounds, rule=Fixed(lam), grid=grid, start=start)
+    return reconstruct(_single_or_list(clean), _single_or_list(Ws), prior=prior, bounds=bounds, rule=Fixed(lam),
+                       grid=grid, start=start)
 
 
 def cramer_rao_bound(G: np.ndarray, hot: np.ndarray) -> np.ndarray:
@@ -633,12 +647,9 @@ def design(
     cams = _cameras(rig)
     rays_per_pixel = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
     data_rays = rays_per_pixel if data_rays_per_pixel is None else data_rays_per_pixel
-    _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max)
+    _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, regularization, hot, dense_max,
+                     bias, sampler)
     quadrature = require_int("quadrature", quadrature, minimum=1)
-    if bias not in ("nonlinear", "linear"):
-        raise LftomoError(f"bias must be 'nonlinear' or 'linear', got {bias!r}")
-    if sampler not in SAMPLERS:
-        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
     prior_name = resolve_prior(DEFAULT_PRIOR if prior is None else prior, quadratic_only=True,
                                where="design (a Gaussian prior)").name
     sa, T = effective_truth(flame, grid, float(wavelength))
@@ -659,8 +670,8 @@ def design(
         rec = None
         if regularization == "auto":
             bar.set_postfix_str("reconstruct one draw (λ)")
-            rec = reconstruct(ms if len(ms) > 1 else ms[0], Ws if len(Ws) > 1 else Ws[0], prior=prior_name,
-                              bounds=bounds, rule=rule, grid=grid)
+            rec = reconstruct(_single_or_list(ms), _single_or_list(Ws), prior=prior_name, bounds=bounds, rule=rule,
+                              grid=grid)
             lam = float(rec.regularization)
         else:
             lam = float(regularization)
