@@ -683,8 +683,7 @@ def design(
                                                                         bounds=bounds, hot=hot, probes=probes)
         bar.update(1)
         clock["linear_algebra"] = time.perf_counter() - t0
-        bias_linear = bias_flat.reshape(grid.shape)
-        T_bias = bias_linear
+        T_bias = bias_linear = bias_flat.reshape(grid.shape)
         if clean is not None:
             t0 = time.perf_counter()
             bar.set_postfix_str("noise-free fit (bias)")

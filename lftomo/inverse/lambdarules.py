@@ -503,116 +503,155 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     ``require_converged``) unconverged; the caller then runs its search over
     converged solves (:func:`discrepancy_search`, :func:`bracket_search`).
     """
-    from .projected import ProjectedTikhonov
+    lam_range = (lam_ref * 1e-10, lam_ref * 1e4) if lam_range is None else lam_range
+    search = _ProjectedSearch(run, target, tol, search_rtol, lam_range, lam_settled)
+    walked = search.walk(np.asarray(theta0, dtype=np.float64), lam_ref, max_gauss_newton, inner_steps,
+                         fallback_steps)
+    if walked is None:
+        return None
+    return search.finish(*walked, max_solves=max_solves, require_converged=require_converged)
 
-    lam_lo, lam_hi = (lam_ref * 1e-10, lam_ref * 1e4) if lam_range is None else lam_range
-    dims: list[int] = []
 
-    def choose(theta, lam):
-        lin = run.linearization(theta, lam)
+class _ProjectedSearch:
+    """The two phases of :func:`projected_discrepancy_search` on one solve path ``run``.
+
+    ``walk`` takes the Gauss–Newton steps (or inexact solves) that settle λ,
+    ``finish`` the solves at that λ (and Brent's method once they bracket the
+    target).  ``dims`` collects the projected subspaces' dimensions.
+    """
+
+    def __init__(self, run: Any, target: float, tol: float, search_rtol: float, lam_range: tuple[float, float],
+                 lam_settled: float):
+        self.run, self.target, self.tol, self.search_rtol = run, target, tol, search_rtol
+        self.lam_lo, self.lam_hi = lam_range
+        self.lam_settled = lam_settled
+        self.dims: list[int] = []
+
+    def choose(self, theta, lam):
+        """λ chosen on the linearisation at ``theta``: ``(λ, linearisation, projection, side)`` or None."""
+        from .projected import ProjectedTikhonov
+
+        lin = self.run.linearization(theta, lam)
         if lin is None:
             return None
         proj = ProjectedTikhonov(lin)
-        lam_new, side = proj.discrepancy_lambda(target, lam_lo, lam_hi, lam)
-        dims.append(proj.k)
+        lam_new, side = proj.discrepancy_lambda(self.target, self.lam_lo, self.lam_hi, lam)
+        self.dims.append(proj.k)
         return lam_new, lin, proj, side
 
-    def settled(lam_a, lam_b):
-        return abs(math.log(lam_a / lam_b)) <= math.log1p(lam_settled)
+    def settled(self, lam_a: float, lam_b: float) -> bool:
+        return abs(math.log(lam_a / lam_b)) <= math.log1p(self.lam_settled)
 
-    theta, lam, done, last_move, met = np.asarray(theta0, dtype=np.float64), lam_ref, False, 0.0, False
-    for k in range(max_gauss_newton):
-        found = choose(theta, lam)
-        if found is None:
-            return None
-        lam_new, lin, proj, side = found
-        if side != 0:
-            if not inner_steps or (side > 0 and lam >= lam_hi):
+    def walk(self, theta: np.ndarray, lam: float, max_gauss_newton: int, inner_steps: int, fallback_steps: int):
+        """Phase 1: ``(theta, λ, inner_steps, done, met)`` where λ settled (or the steps ran out), or None."""
+        run, search_rtol = self.run, self.search_rtol
+        done, last_move, met = False, 0.0, False
+        for k in range(max_gauss_newton):
+            found = self.choose(theta, lam)
+            if found is None:
                 return None
-            # χ²/m above the target at every λ: far from the fit yet, solve on at this λ.  Below it at every λ:
-            # an iterate stopped short of its fit cannot raise the projected misfit (the fit still descends
-            # along a poorly observed direction that more λ would smooth away): solve on a decade higher
-            lam_new = lam if side < 0 else min(10.0 * lam, lam_hi)
-        fresh = False
-        if not inner_steps:
-            theta_next, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
-            if decrease == 0.0 and fallback_steps:
-                # not even a 64th of the projected step descends: the linearisation holds only far closer to
-                # its iterate (log-odds of voxels the data barely see, steps of hundreds; measured at 900 nm,
-                # docs/accuracy.md).  λ chosen on it again from the same iterate would drift and pass for
-                # settled; the fit's own damped steps (inexact solves) go on from here instead (the move to
-                # this λ was no inexact solve's: the next one reversing it is no overshoot to halve)
-                inner_steps, fresh = fallback_steps, True
-            else:
-                theta, moved = theta_next, decrease > search_rtol
-                _record_projected_step(run, lam_new, theta, chi2, reg, k)
-        if inner_steps:
-            move = math.log(lam_new / lam)
-            if move * last_move < 0.0:
-                # a reversal: the inexact solves lag their λ, so each linearisation overshoots the other
-                # way; half the step in log λ (the geometric mean) ends the two-cycle
-                move *= 0.5
-                lam_new = lam * math.exp(move)
-            last_move = 0.0 if fresh else move
-            # an inexact solve instead of the projected step: a few of the fit's own steps at λ
-            e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
-            e.search_iterate = True
-            theta, moved = e.theta, not e.converged
-            # a converged inexact solve that meets the target to the rule's tolerance ends the search at its
-            # λ (χ²/m is nearly flat in λ there: settling λ as well cost three or four more inexact solves;
-            # an unconverged one is no evidence: its χ²/m moved by more than the tolerance as it went on)
-            met = e.converged and abs(e.chi2 / target - 1.0) <= tol
-        done = k > 0 and settled(lam_new, lam) and not moved
-        lam = lam_new
-        if done or (inner_steps and met):
-            break
-    n_gn, solves, sides = len(dims), 0, {}
-    # an inexact solve that converged at the settled λ (or at the target) is that λ's solve (to the same
-    # search_rtol)
-    reuse = run.evals[-1] if inner_steps and (done or met) else None
-    while True:
-        if reuse is not None:
-            e, reuse = reuse, None
-            e.search_iterate = False
-        else:
-            e = run.solve(lam, theta, objective_rtol=search_rtol)
-        solves += 1
-        miss = abs(e.chi2 / target - 1.0)
-        done = e.converged or not require_converged
-        if (done and miss <= tol) or solves >= max_solves:
-            break
-        if done:
-            _nearest_sides(sides, e, target)
-        if len(sides) == 2 and sides[-1].lam < sides[1].lam:
-            # bracketed by two converged solves: the linearisations' λ has overshot (χ²/m is far from
-            # linear in λ there); Brent's method in log λ instead
-            # a solve started from the over-smoothed side can stop in a poor local minimum that also meets
-            # the target: start each from the nearest converged one below it
-            def solve_from_below(lam_try):
-                e = run.solve(lam_try, sides[-1].theta, objective_rtol=search_rtol)
-                if e.converged:
-                    _nearest_sides(sides, e, target)
-                return e
+            lam_new, lin, proj, side = found
+            if side != 0:
+                if not inner_steps or (side > 0 and lam >= self.lam_hi):
+                    return None
+                # χ²/m above the target at every λ: far from the fit yet, solve on at this λ.  Below it at every
+                # λ: an iterate stopped short of its fit cannot raise the projected misfit (the fit still
+                # descends along a poorly observed direction that more λ would smooth away): solve on a decade
+                # higher
+                lam_new = lam if side < 0 else min(10.0 * lam, self.lam_hi)
+            fresh = False
+            if not inner_steps:
+                theta_next, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
+                if decrease == 0.0 and fallback_steps:
+                    # not even a 64th of the projected step descends: the linearisation holds only far closer to
+                    # its iterate (log-odds of voxels the data barely see, steps of hundreds; measured at 900 nm,
+                    # docs/accuracy.md).  λ chosen on it again from the same iterate would drift and pass for
+                    # settled; the fit's own damped steps (inexact solves) go on from here instead (the move to
+                    # this λ was no inexact solve's: the next one reversing it is no overshoot to halve)
+                    inner_steps, fresh = fallback_steps, True
+                else:
+                    theta, moved = theta_next, decrease > search_rtol
+                    _record_projected_step(run, lam_new, theta, chi2, reg, k)
+            if inner_steps:
+                move = math.log(lam_new / lam)
+                if move * last_move < 0.0:
+                    # a reversal: the inexact solves lag their λ, so each linearisation overshoots the other
+                    # way; half the step in log λ (the geometric mean) ends the two-cycle
+                    move *= 0.5
+                    lam_new = lam * math.exp(move)
+                last_move = 0.0 if fresh else move
+                # an inexact solve instead of the projected step: a few of the fit's own steps at λ
+                e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
+                e.search_iterate = True
+                theta, moved = e.theta, not e.converged
+                # a converged inexact solve that meets the target to the rule's tolerance ends the search at its
+                # λ (χ²/m is nearly flat in λ there: settling λ as well cost three or four more inexact solves;
+                # an unconverged one is no evidence: its χ²/m moved by more than the tolerance as it went on)
+                met = e.converged and abs(e.chi2 / self.target - 1.0) <= self.tol
+            done = k > 0 and self.settled(lam_new, lam) and not moved
+            lam = lam_new
+            if done or (inner_steps and met):
+                break
+        return theta, lam, inner_steps, done, met
 
-            e, _, _, n = bracketed_root(solve_from_below, lambda x: math.log(max(x.chi2, 1e-300) / target),
-                                        sides[-1], sides[1], tol=tol, x_tol=math.log1p(lam_settled),
-                                        max_solves=max_solves - solves, counts=lambda x: x.converged)
-            solves += n
-            miss, done = abs(e.chi2 / target - 1.0), e.converged or not require_converged
-            break
-        found = choose(e.theta, lam)
-        if found is None or found[3] != 0:
+    def finish(self, theta: np.ndarray, lam: float, inner_steps: int, done: bool, met: bool, *, max_solves: int,
+               require_converged: bool) -> tuple[Eval, str, bool] | None:
+        """Phase 2: the solves at the walk's λ; ``(eval, note, inexact)``, or None."""
+        run, target, tol, search_rtol = self.run, self.target, self.tol, self.search_rtol
+        n_gn, solves, sides = len(self.dims), 0, {}
+        # an inexact solve that converged at the settled λ (or at the target) is that λ's solve (to the same
+        # search_rtol)
+        reuse = run.evals[-1] if inner_steps and (done or met) else None
+        while True:
+            if reuse is not None:
+                e, reuse = reuse, None
+                e.search_iterate = False
+            else:
+                e = run.solve(lam, theta, objective_rtol=search_rtol)
+            solves += 1
+            miss = abs(e.chi2 / target - 1.0)
+            done = e.converged or not require_converged
+            if (done and miss <= tol) or solves >= max_solves:
+                break
+            if done:
+                _nearest_sides(sides, e, target)
+            if len(sides) == 2 and sides[-1].lam < sides[1].lam:
+                # bracketed by two converged solves: the linearisations' λ has overshot (χ²/m is far from
+                # linear in λ there); Brent's method in log λ instead
+                e, n = self._bracketed(sides, max_solves - solves)
+                solves += n
+                miss, done = abs(e.chi2 / target - 1.0), e.converged or not require_converged
+                break
+            found = self.choose(e.theta, lam)
+            if found is None or found[3] != 0:
+                return None
+            if self.settled(found[0], lam) and done:
+                break
+            lam, theta = found[0], e.theta
+        if not done or miss > DISCREPANCY_JUMP:  # (done: the last solve converged, or need not have)
             return None
-        if settled(found[0], lam) and done:
-            break
-        lam, theta = found[0], e.theta
-    if not done or miss > DISCREPANCY_JUMP:  # (done: the last solve converged, or need not have)
-        return None
-    steps = f"inexact solves (≤ {inner_steps} steps)" if inner_steps else "Gauss–Newton steps"
-    note = (f"projected discrepancy search: {n_gn} {steps} with λ on each projected linearisation, "
-            f"{solves} solve(s) (subspace dimensions {', '.join(map(str, dims))}), "
-            f"|chi²/m/target − 1| = {miss:.2e}")
-    return e, note, bool(inner_steps)
+        steps = f"inexact solves (≤ {inner_steps} steps)" if inner_steps else "Gauss–Newton steps"
+        note = (f"projected discrepancy search: {n_gn} {steps} with λ on each projected linearisation, "
+                f"{solves} solve(s) (subspace dimensions {', '.join(map(str, self.dims))}), "
+                f"|chi²/m/target − 1| = {miss:.2e}")
+        return e, note, bool(inner_steps)
+
+    def _bracketed(self, sides: dict, max_solves: int) -> tuple[Eval, int]:
+        """Brent's method in log λ between the nearest converged solves below and above the target."""
+        run, target = self.run, self.target
+
+        # a solve started from the over-smoothed side can stop in a poor local minimum that also meets the
+        # target: start each from the nearest converged one below it
+        def solve_from_below(lam_try):
+            e = run.solve(lam_try, sides[-1].theta, objective_rtol=self.search_rtol)
+            if e.converged:
+                _nearest_sides(sides, e, target)
+            return e
+
+        e, _, _, n = bracketed_root(solve_from_below, lambda x: math.log(max(x.chi2, 1e-300) / target),
+                                    sides[-1], sides[1], tol=self.tol, x_tol=math.log1p(self.lam_settled),
+                                    max_solves=max_solves, counts=lambda x: x.converged)
+        return e, n
 
 
 def _nearest_sides(sides: dict, e: Eval, target: float) -> None:
