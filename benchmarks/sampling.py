@@ -16,7 +16,9 @@ largest) it prints
 Cases: the standard axisymmetric flame on a 32³ grid (seed camera focused at
 1 m), a white Lambertian plane filling the field, a checkerboard target, the
 scattering reference medium.  ``--weights`` adds the rows of the weight
-matrix of the flame (the relative spread of ``W @ I_b`` per row).
+matrix of the flame: the relative spread of ``W @ I_b`` per row and of the
+row sums ``W @ 1``; "claimed" is the matrix's own ``W.model_std(x)``, from its
+``row_std_error`` (for the row sums, ``row_std_error`` itself).
 
 Usage::
 
@@ -85,20 +87,30 @@ def run_case(name, cam, rays, seeds):
 
 
 def run_weights(cam, rays, seeds):
+    """W's rows for the flame's I_b and for a uniform I_b = 1: spread over builds against the claimed error.
+
+    "claimed" is ``W.model_std(x)`` (``row_std_error`` carried to ``x`` by the relative rule); for
+    ``x = 1`` that is ``row_std_error`` itself, the error of the row sum the build estimates.
+    """
     grid = phantoms.default_flame_grid((32, 32, 32))
     med = phantoms.axisymmetric_flame(grid)
     sa = med.sigma_a_at(650e-9)
-    ib = lt.planck(650e-9, med.T).ravel()
-    out = {}
+    fields = {"flame W rows": lt.planck(med.T, 650e-9).ravel(), "W row sums": np.ones(grid.n_voxels)}
+    out = {name: {} for name in fields}
     for smp in ("stratified", "independent"):
-        sig, times = [], []
+        sig = {name: [] for name in fields}
+        claims = {name: [] for name in fields}
+        times = []
         for s in range(seeds):
             t0 = time.perf_counter()
             W = lt.weights(cam, grid, sigma_a=sa, rays_per_pixel=rays, seed=200 + s, sampler=smp, progress=False)
             times.append(time.perf_counter() - t0)
-            sig.append(W.signal(ib))
-        out[smp] = measure(sig, [np.zeros_like(sig[0])] * seeds, times[1:] or times)
-    return out
+            for name, x in fields.items():
+                sig[name].append(W @ x)
+                claims[name].append(W.model_std(x))
+        for name in fields:
+            out[name][smp] = measure(sig[name], claims[name], times[1:] or times)
+    return list(out.items())
 
 
 def main():
@@ -111,7 +123,7 @@ def main():
     cam = lt.Camera.seed(1.0)
     rows = [(c, run_case(c, cam, args.rays, args.seeds)) for c in args.cases.split(",") if c]
     if args.weights:
-        rows.append(("flame W rows", run_weights(cam, args.rays, args.seeds)))
+        rows += run_weights(cam, args.rays, args.seeds)
     print(f"\n{args.rays} rays/pixel, {args.seeds} seeds per sampler; bright pixels > 5 % of the maximum")
     print(f"{'case':14s} {'sampler':12s} {'px':>6s} {'median':>8s} {'p90':>8s} {'claimed':>8s} "
           f"{'cl/spr':>7s} {'time s':>7s}")
