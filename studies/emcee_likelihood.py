@@ -23,8 +23,7 @@ import warnings
 import numpy as np
 
 import lftomo as lt
-from lftomo.demo import _noise_with_mc_error
-from lftomo.inverse.compare import effective_truth
+from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
 
 WL = 650e-9
 
@@ -47,7 +46,8 @@ def main():
     lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=64, seed=0, wavelengths=(WL,), progress=False)
     sa_c, T_eff = effective_truth(flame, coarse, WL)
     W = lt.weights(cam, coarse, sigma_a=sa_c, wavelength=WL, rays_per_pixel=64, seed=1, progress=False)
-    noisy, _ = _noise_with_mc_error(lt.add_noise(lf, relative_std=0.01, seed=2), lf, 64, 64, 0.2)
+    noisy = with_monte_carlo_noise(lt.add_noise(lf, relative_std=0.01, seed=2), lf, rays_per_pixel=64,
+                                   weights_rays_per_pixel=64, min_etendue_fraction=0.2)
     problem = lt.Measurement.from_lightfield(noisy, data="subaperture").problem(W, coarse)
     print(f"setup {time.perf_counter() - t:.1f} s; W {W.shape}, {W.nnz} nnz", flush=True)
     basis = lt.DCTBasis(coarse, n_coeffs=(args.modes,) * 3)

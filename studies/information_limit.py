@@ -109,7 +109,7 @@ def main():
         n_views = len(lf.lit_views)
     else:
         # the joint solver's setting (studies/accuracy_joint.py): the best-lit views, both channels
-        from lftomo.inverse.joint import _rows_for
+        from lftomo.inverse.rigsegments import rows_of_pixels
 
         wls = [float(v) for v in a.wavelengths.split(",")]
         et = lf.etendue / lf.etendue.max()
@@ -118,7 +118,7 @@ def main():
         n_views = len(views)
         seg = lt.ray_segments(cam, grid, rays_per_pixel=a.rays, seed=12, views=views, progress=False)
         m = lt.Measurement.from_lightfield(noisy, data="subaperture", views=views)
-        rows = _rows_for(m, seg)
+        rows = rows_of_pixels(m, seg)
         rows = rows[rows >= 0]
         S = P.T @ sa.ravel() / np.asarray(P.sum(axis=0)).ravel()  # σ_a of the unknowns (m⁻¹, first channel)
         s_scale = np.maximum(S[idx], 1e-3 * S.max())  # σ_a in units of itself (floored: the bound on T
