@@ -318,5 +318,8 @@ def test_cli_series_of_raw_frames_equals_the_per_frame_raw_path(frames, tmp_path
     for k, i in enumerate((0, 2, 3)):
         T = np.load(out / f"frame_{i:04d}.npz")["T"]
         print(f"frame {i}: max |T_series - T_reconstruct| = {np.max(np.abs(T - ref[k])):.3g} K")
-        np.testing.assert_allclose(T, ref[k], rtol=1e-12, atol=0)
+        # the same arithmetic up to the order of parallel sums (the worker runs its own thread count):
+        # 20 LM steps carry that rounding to ~1e-12 relative (measured up to 1.27e-12); another noise
+        # draw differs by more than 1e-6 (below)
+        np.testing.assert_allclose(T, ref[k], rtol=1e-9, atol=0)
     assert not np.allclose(ref[0], ref[1], rtol=1e-6)  # the frames differ (other noise draws)
