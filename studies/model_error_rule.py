@@ -16,7 +16,8 @@ reconstruction, in the setting of a camera (standard axisymmetric flame,
 * ``W`` on the reconstruction grid with sub-voxel emission (quadrature 2),
   σₐ known (the block mean of the truth), 64 rays per pixel;
 * three models of ``W``'s error, each followed by ``lt.reconstruct(m, W,
-  symmetry="axisymmetric", grid=grid)`` with the library's defaults:
+  symmetry="axisymmetric", grid=grid)`` with the library's defaults (with
+  ``--free``: free voxels, no symmetry):
 
   ``relative``
       the library's rule (:func:`lftomo.rawdata.with_model_error`);
@@ -35,7 +36,7 @@ oracle's.
 
 Usage::
 
-    python studies/model_error_rule.py [--n 16] [--draws 2] [--rays-data 1024]
+    python studies/model_error_rule.py [--n 16] [--draws 2] [--rays-data 1024] [--free]
 """
 
 from __future__ import annotations
@@ -65,13 +66,14 @@ def with_relative(noisy, r):
     return dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + (r * noisy.raw) ** 2))
 
 
-def fit(noisy, W, grid, T_eff):
-    """Defaults, axisymmetric; (reconstruction, seconds, errors above 800 and 1200 K)."""
+def fit(noisy, W, grid, T_eff, symmetry):
+    """Defaults; (reconstruction, seconds, errors above 800 and 1200 K)."""
     m = lt.Measurement.from_lightfield(noisy, data="subaperture")
     t = time.perf_counter()
-    rec = lt.reconstruct(m, W, symmetry="axisymmetric", grid=grid, progress=False)
+    rec = lt.reconstruct(m, W, symmetry=symmetry, grid=grid, progress=False)
     sec = time.perf_counter() - t
     e = np.abs(rec.T / T_eff - 1.0)
+    print(f"    λ rule: {rec.lambda_note}", flush=True)
     return rec, sec, e[T_eff > 800.0].mean(), e[T_eff > 1200.0].mean()
 
 
@@ -80,7 +82,9 @@ def main():
     ap.add_argument("--n", type=int, default=16, help="reconstruction voxels per axis")
     ap.add_argument("--draws", type=int, default=2, help="noise draws")
     ap.add_argument("--rays-data", type=int, default=1024, help="rays per pixel of the camera's image")
+    ap.add_argument("--free", action="store_true", help="free voxels (no symmetry) instead of ring cells")
     a = ap.parse_args()
+    symmetry = None if a.free else "axisymmetric"
     cam = lt.Camera.seed(1.0)
     grid = lt.phantoms.default_flame_grid((a.n,) * 3)
     fine = lt.phantoms.default_flame_grid((2 * a.n,) * 3)
@@ -102,13 +106,13 @@ def main():
         rel = with_model_error(noisy, W)
         r_rel = np.sqrt(np.maximum(rel.noise_std**2 - noisy.noise_std**2, 0)) / np.maximum(np.abs(noisy.raw), 1e-300)
         sel = bright & (r_oracle > 0) & (r_rel > 0)
-        rec1, *res = fit(rel, W, grid, T_eff)
+        rec1, *res = fit(rel, W, grid, T_eff, symmetry)
         rows["relative"].append((*res, rec1.regularization, rec1.chi2, np.median(r_rel[sel] / r_oracle[sel])))
-        rec, *res = fit(with_relative(noisy, r_oracle), W, grid, T_eff)
+        rec, *res = fit(with_relative(noisy, r_oracle), W, grid, T_eff, symmetry)
         rows["oracle"].append((*res, rec.regularization, rec.chi2, 1.0))
         med = lt.Medium(grid, sigma_a=sa_c, T=rec1.T)
         r_two = relative_error(lt.render(lt.Scene(medium=med), cam, rays_per_pixel=RAYS_W, seed=17, progress=False))
-        rec, *res = fit(with_relative(noisy, r_two), W, grid, T_eff)
+        rec, *res = fit(with_relative(noisy, r_two), W, grid, T_eff, symmetry)
         sel2 = sel & (r_two > 0)
         rows["two-pass"].append((*res, rec.regularization, rec.chi2, np.median(r_two[sel2] / r_oracle[sel2])))
         for k, v in rows.items():
