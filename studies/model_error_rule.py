@@ -98,11 +98,11 @@ def main():
     r_oracle = relative_error(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=RAYS_W, seed=13, progress=False))
     print(f"setup {time.perf_counter() - t:.1f} s; W {W.shape}, data render's median relative MC error "
           f"{np.median(relative_error(lf)[lf.raw > 0.05 * lf.raw.max()]):.2%}", flush=True)
+    bright = lf.raw > 0.05 * lf.raw.max()
     rows = {k: [] for k in ("relative", "oracle", "two-pass")}
     for draw in range(a.draws):
         noisy = lt.add_noise(lf, relative_std=0.01, seed=100 + draw)
         noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + lf.std_error**2))
-        bright = lf.raw > 0.05 * lf.raw.max()
         rel = with_model_error(noisy, W)
         r_rel = np.sqrt(np.maximum(rel.noise_std**2 - noisy.noise_std**2, 0)) / np.maximum(np.abs(noisy.raw), 1e-300)
         sel = bright & (r_oracle > 0) & (r_rel > 0)
