@@ -53,6 +53,7 @@ from lftomo.rawdata import with_model_error
 
 WAVELENGTH = 650e-9
 RAYS_W = 64
+MODELS = ("relative", "oracle", "two-pass")
 
 
 def relative_error(lf):
@@ -83,7 +84,12 @@ def main():
     ap.add_argument("--draws", type=int, default=2, help="noise draws")
     ap.add_argument("--rays-data", type=int, default=1024, help="rays per pixel of the camera's image")
     ap.add_argument("--free", action="store_true", help="free voxels (no symmetry) instead of ring cells")
+    ap.add_argument("--models", default="relative,oracle,two-pass",
+                    help="W's error models to fit, comma-separated (two-pass needs relative)")
     a = ap.parse_args()
+    models = a.models.split(",")
+    if not models or not set(models) <= set(MODELS) or ("two-pass" in models and "relative" not in models):
+        ap.error(f"--models must name some of {', '.join(MODELS)} (two-pass with relative), got {a.models!r}")
     symmetry = None if a.free else "axisymmetric"
     cam = lt.Camera.seed(1.0)
     grid = lt.phantoms.default_flame_grid((a.n,) * 3)
@@ -99,22 +105,26 @@ def main():
     print(f"setup {time.perf_counter() - t:.1f} s; W {W.shape}, data render's median relative MC error "
           f"{np.median(relative_error(lf)[lf.raw > 0.05 * lf.raw.max()]):.2%}", flush=True)
     bright = lf.raw > 0.05 * lf.raw.max()
-    rows = {k: [] for k in ("relative", "oracle", "two-pass")}
+    rows = {k: [] for k in MODELS if k in models}
     for draw in range(a.draws):
         noisy = lt.add_noise(lf, relative_std=0.01, seed=100 + draw)
         noisy = dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + lf.std_error**2))
         rel = with_model_error(noisy, W)
         r_rel = np.sqrt(np.maximum(rel.noise_std**2 - noisy.noise_std**2, 0)) / np.maximum(np.abs(noisy.raw), 1e-300)
         sel = bright & (r_oracle > 0) & (r_rel > 0)
-        rec1, *res = fit(rel, W, grid, T_eff, symmetry)
-        rows["relative"].append((*res, rec1.regularization, rec1.chi2, np.median(r_rel[sel] / r_oracle[sel])))
-        rec, *res = fit(with_relative(noisy, r_oracle), W, grid, T_eff, symmetry)
-        rows["oracle"].append((*res, rec.regularization, rec.chi2, 1.0))
-        med = lt.Medium(grid, sigma_a=sa_c, T=rec1.T)
-        r_two = relative_error(lt.render(lt.Scene(medium=med), cam, rays_per_pixel=RAYS_W, seed=17, progress=False))
-        rec, *res = fit(with_relative(noisy, r_two), W, grid, T_eff, symmetry)
-        sel2 = sel & (r_two > 0)
-        rows["two-pass"].append((*res, rec.regularization, rec.chi2, np.median(r_two[sel2] / r_oracle[sel2])))
+        if "relative" in rows:
+            rec1, *res = fit(rel, W, grid, T_eff, symmetry)
+            rows["relative"].append((*res, rec1.regularization, rec1.chi2, np.median(r_rel[sel] / r_oracle[sel])))
+        if "oracle" in rows:
+            rec, *res = fit(with_relative(noisy, r_oracle), W, grid, T_eff, symmetry)
+            rows["oracle"].append((*res, rec.regularization, rec.chi2, 1.0))
+        if "two-pass" in rows:
+            med = lt.Medium(grid, sigma_a=sa_c, T=rec1.T)
+            r_two = relative_error(lt.render(lt.Scene(medium=med), cam, rays_per_pixel=RAYS_W, seed=17,
+                                             progress=False))
+            rec, *res = fit(with_relative(noisy, r_two), W, grid, T_eff, symmetry)
+            sel2 = sel & (r_two > 0)
+            rows["two-pass"].append((*res, rec.regularization, rec.chi2, np.median(r_two[sel2] / r_oracle[sel2])))
         for k, v in rows.items():
             s, e8, e12, lam, chi2, ratio = v[-1]
             print(f"draw {draw} {k:9s}: {s:6.1f} s, above 800 K {e8:.2%}, above 1200 K {e12:.2%}, λ {lam:.3g}, "

@@ -22,8 +22,8 @@ from .unknowns import Unknowns
 #: condition at the box faces (docs/accuracy.md, "Defaults").
 DEFAULT_PRIOR = "curvature"
 #: The T-only discrepancy rule's noise scale when none is given, on voxels: σ as given, estimated only
-#: where the given σ is too large for any λ to meet the target (the measurements behind the choice:
-#: docs/accuracy.md, "Defaults").
+#: where the given σ is too large or too small for any λ to meet the target (the measurements behind the
+#: choice: docs/accuracy.md, "Defaults" and "W's Monte Carlo error in a camera's noise model").
 DEFAULT_NOISE_SCALE = "given"
 #: The same on axisymmetric ring cells (``symmetry="axisymmetric"``): σ trusted up to a common factor,
 #: estimated from the least-regularized fit.  Ring cells are far fewer than the data and leave no depth

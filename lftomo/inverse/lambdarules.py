@@ -16,8 +16,9 @@ Rules (:data:`RULE_CLASSES`; the string names select them):
   each Gauss–Newton iterate (:func:`projected_discrepancy_search`), then one
   solve; else (or where that does not apply) a root search over converged
   solves (factor-10 bracket, then Brent's method in log λ).  With the noise scale
-  given and χ²/m below the target at every λ (σ overestimated), the root
-  search is redone with the scale estimated.  The T-only fit's rule.
+  given and χ²/m below the target at every λ (σ overestimated) or above it
+  (σ underestimated, or a model error), the root search is redone with the
+  scale estimated.  The T-only fit's rule.
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
   as "the largest λ with ``χ²/m ≤ target``", given or estimated noise scale:
   by default the same projected search (:func:`projected_bracket_search`),
@@ -122,9 +123,10 @@ class LambdaChoice:
     note : str
         Human-readable summary (bracketing, end reached, passes...).
     target_met : bool or None
-        Discrepancy rules: whether χ²/m meets the target at λ (False where λ is one of the rule's
-        fallbacks: no λ attains the target, e.g. a model error above the noise).  None for other
-        rules.
+        Discrepancy rules: whether χ²/m meets the target asked for at λ (False where λ is one of
+        the rule's fallbacks: no λ attains that target, e.g. a model error above the noise; then
+        ``target`` is the fallback's, the estimated noise scale's, where it has one).  None for
+        other rules.
     """
 
     rule: str
@@ -315,10 +317,11 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     then Brent's method on ``log(χ²/m / target)`` against ``log λ`` (:func:`bracketed_root`); the
     L-curve corner of the structured branch (:func:`branch_corner`) when no λ
     attains the target.  When χ²/m stays below ``1 + safety`` at every λ (σ
-    overestimated) and there are more data than unknowns, the search is redone
-    with ``estimate_scale``.  ``estimate_scale``: the target is ``(1 + safety) s²``,
-    ``s² = χ²/(m − ν)`` of the first, least-regularized fit (``ν =
-    run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2`` from ``theta0``,
+    overestimated) or above it (σ underestimated, or a model error) and there
+    are more data than unknowns, the search is redone with ``estimate_scale``
+    (``met`` then True below, False above: the target asked for was not met).
+    ``estimate_scale``: the target is ``(1 + safety) s²``, ``s² = χ²/(m − ν)``
+    of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2`` from ``theta0``,
     when already done; ``climbed``: the solves of an earlier pass's factor-10
     ladder up from it, by λ (the same solves from the same starts, reused).  ``run`` is a
     :class:`SolvePath`.  Returns ``(eval, target, note, met)``, ``met`` False where the λ is one of the
@@ -403,10 +406,22 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             hi = e
         if lo is None:
             # χ² above the target everywhere: σ underestimated or a model error
-            # (a coarse grid, Monte Carlo data without their error in σ).  The
-            # smallest λ would give an unregularized field at the bounds
-            # (measured: 4³ from an 8³ flame, 74.7 % gray, 33.5 % at 650 nm);
-            # take the L-curve corner of the solutions computed on the way down.
+            # (a coarse grid, Monte Carlo data or W with their error understated
+            # in σ).  The smallest λ would give an unregularized field at the
+            # bounds (measured: 4³ from an 8³ flame, 74.7 % gray, 33.5 % at
+            # 650 nm).  As when σ proves too large, treat it as known up to a
+            # factor and search again with that factor estimated (measured,
+            # free voxels 12³ with W's error from the relative rule:
+            # docs/accuracy.md, *W's Monte Carlo error in a camera's noise
+            # model*).  The target asked for was not met: ``met`` stays False,
+            # which sends a sub-voxel fit's surrogate on to the full model.
+            # With too few data for the estimate, take the L-curve corner of
+            # the solutions computed on the way down.
+            if not estimate_scale and m > run.n_unknowns:
+                e, target, note, _ = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
+                                                        estimate_scale=True, first=first)
+                return e, target, (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, "
+                                   f"or a model error): {note}"), False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
@@ -1064,8 +1079,10 @@ class Fixed(LambdaRule):
 class Discrepancy(LambdaRule):
     """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
     (``"estimated"``): :func:`discrepancy_search`.  A given σ that proves too large
-    (χ²/m below the target at every λ) is treated as known up to a factor: the
-    search is redone with the scale estimated.
+    or too small (χ²/m below, or above, the target at every λ) is treated as
+    known up to a factor: the search is redone with the scale estimated (where
+    it was too small, the choice's ``target_met`` is False: the target asked
+    for was not met).
 
     Parameters
     ----------

@@ -248,8 +248,8 @@ def reconstruct(
         parameters, e.g. ``Discrepancy(noise_scale="estimated")``,
         ``GCV(n_lambda=9)``; ``Fixed(λ)`` fixes λ.  Default each fit's own: for
         ``"T"`` the discrepancy rule with σ as given on voxels
-        (:data:`DEFAULT_NOISE_SCALE`; a given σ too large for any λ to meet
-        the target is treated as known up to a factor) and with the noise
+        (:data:`DEFAULT_NOISE_SCALE`; a given σ too large or too small for
+        any λ to meet the target is treated as known up to a factor) and with the noise
         scale estimated on ring cells or another ``symmetry``
         (:data:`DEFAULT_NOISE_SCALE_RINGS`: a reduced field has model error), for
         ``"T+sigma_a"`` the bracketing discrepancy search with the noise scale

@@ -514,16 +514,24 @@ class ModelErrorPath(LinearPath):
 
 
 def test_a_root_search_that_meets_no_target_says_so():
-    """χ²/m above the target at every λ, the smallest 1.5 % above it: the rule's λ is a fallback (an
-    L-curve corner or its smallest λ) and it says so (``target_met`` False), although
+    """χ²/m above the target at every λ, the smallest 1.5 % above it: the rule's λ is a fallback (the
+    search redone with the noise scale estimated) and it says so (``target_met`` False), although
     its χ²/m may lie within the jump margin; a sub-voxel fit then runs the rule on the full model (the
-    three-camera rig's λ collapsed to 0.46 when this was judged by the margin alone).  The same search
-    on the problem without the model error meets the target."""
+    three-camera rig's λ collapsed to 0.46 when this was judged by the margin alone).  The fallback is
+    exactly the estimated-scale search run alone (same target, same λ).  The same search on the problem
+    without the model error meets the target."""
     path = ModelErrorPath()
     e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
     target, note = ch.target, ch.note
     assert search == "root" and not ch.target_met and "stays above the target" in note, (search, note)
-    assert min(x.chi2 for x in path.evals) > target
+    assert "noise scale estimated" in note, note
+    assert min(x.chi2 for x in path.evals) > 1.0  # the given target: met nowhere
+    alone = ModelErrorPath()
+    e_alone, ch_alone, _ = Discrepancy(noise_scale="estimated", search="root").choose(
+        alone, np.zeros(alone.n_unknowns), lam_ref=1.0)
+    assert ch_alone.target_met and target == pytest.approx(ch_alone.target, rel=1e-12)
+    assert e.lam == pytest.approx(e_alone.lam, rel=1e-12)
+    assert abs(e.chi2 / target - 1.0) < 1e-2, (e.chi2, target)
     path = LinearPath()
     e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
     assert search == "root" and ch.target_met and ch.target == 1.0

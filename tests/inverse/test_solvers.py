@@ -219,8 +219,9 @@ def test_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale(gray
     Morozov's λ of the true σ (λ·factor² is the same objective), which the test above holds
     within a factor 3 of the error-optimal λ.  The estimate s² of the noise scale has the
     relative spread of a χ² with m − ν degrees of freedom, √(2/(m − ν)) = 4.4 % here
-    (measured: s² 1.047, λ 1.13× Morozov's); the given-σ rule cannot do this (measured: λ·f²
-    0.53× for f = 3, 5e-4× for f = 0.5)."""
+    (measured: s² 1.047, λ 1.13× Morozov's); the given-σ rule's own search cannot (measured:
+    λ·f² 0.53× for f = 3, 5e-4× for f = 0.5), which is why it falls back on this one (the
+    next test)."""
     problem, T = gray_noisy
     scaled = LinearProblem(problem.A, problem.y, problem.sigma * factor, problem.grid, problem.wavelength)
     sol = solve_temperature(scaled, prior="gradient", rule=lt.Discrepancy(noise_scale="estimated"))
@@ -236,6 +237,25 @@ def test_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scale(gray
         temperature_fit(scaled, rule="lcurve", noise_scale="estimated")  # the engine's own check
     with pytest.raises(ValueError, match="noise_scale"):
         solve_temperature(scaled, prior="gradient", rule=lt.Discrepancy(noise_scale="guess"))
+
+
+def test_given_sigma_too_small_falls_back_on_the_estimated_scale(gray_noisy, discrepancy_true_sigma):
+    """σ stated half the truth with the noise scale *given*: χ²/m stays above the target at every λ, and
+    the rule redoes its search with the scale estimated, so that λ·f² is again Morozov's λ of the true σ
+    (within the 1.5 of the test above; before this fallback existed: 5e-4×, an L-curve corner).
+    ``target_met`` is False: the target asked for (χ²/m = 1) is met nowhere.  (σ stated 3× the truth
+    needs no fallback here: χ²/m = 1 is reached at a large λ, 0.53× Morozov's.)"""
+    problem, T = gray_noisy
+    factor = 0.5
+    scaled = LinearProblem(problem.A, problem.y, problem.sigma * factor, problem.grid, problem.wavelength)
+    sol = solve_temperature(scaled, prior="gradient", rule=lt.Discrepancy(noise_scale="given"))
+    ch = sol.lambda_choice
+    assert "stays above the target" in ch.note and "noise scale estimated" in ch.note, ch.note
+    assert ch.target_met is False, ch.target_met
+    m, n = problem.A.shape
+    assert abs(ch.target * factor**2 - 1.0) <= 3 * np.sqrt(2.0 / (m - n)), ch.target
+    ratio = sol.regularization * factor**2 / discrepancy_true_sigma.regularization
+    assert 1 / 1.5 <= ratio <= 1.5, ratio
 
 
 def test_discrepancy_candidates_report_converged_chi2(gray_noisy):
@@ -330,7 +350,11 @@ def test_discrepancy_takes_lcurve_corner_when_chi2_jumps_across_target():
 
 
 class _AboveRunner(_BranchRunner):
-    """χ²/m above the target at every λ (σ underestimated 2×): the same L-shaped branch, χ² × 4."""
+    """χ²/m above the target at every λ (σ underestimated 2×): the same L-shaped branch, χ² × 4; as many
+    unknowns as data, so that the noise scale cannot be estimated (with more data, the search is redone
+    with it estimated: test_lambdarules.py, test_a_root_search_that_meets_no_target_says_so)."""
+
+    n_unknowns = _BranchRunner.m_total
 
     def solve(self, lam, start, max_steps=None, objective_rtol=None):
         e = super().solve(lam, start, max_steps, objective_rtol)
@@ -340,8 +364,8 @@ class _AboveRunner(_BranchRunner):
 
 
 def test_discrepancy_takes_lcurve_corner_when_chi2_stays_above_target():
-    """No λ reaches the target from above: the smallest λ (an unregularized field) is not the answer;
-    the corner of the path computed on the way down is."""
+    """No λ reaches the target from above and no noise scale can be estimated: the smallest λ (an
+    unregularized field) is not the answer; the corner of the path computed on the way down is."""
     from lftomo.inverse.lambdarules import discrepancy_search as _rule_discrepancy
 
     run = _AboveRunner()
