@@ -321,8 +321,8 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     are more data than unknowns, the search is redone with ``estimate_scale``
     (``met`` then True below, False above: the target asked for was not met).
     ``estimate_scale``: the target is ``(1 + safety) s²``, ``s² = χ²/(m − ν)``
-    of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2`` from ``theta0``,
-    when already done; ``climbed``: the solves of an earlier pass's factor-10
+    of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``:
+    the solve at ``λ_ref · 1e-2`` from ``theta0``, when already done; ``climbed``: the solves of an earlier pass's factor-10
     ladder up from it, by λ (the same solves from the same starts, reused).  ``run`` is a
     :class:`SolvePath`.  Returns ``(eval, target, note, met)``, ``met`` False where the λ is one of the
     fallbacks (a corner, the smallest or largest λ: no λ attains the target).  (The algorithm is
