@@ -126,7 +126,7 @@ start : Reconstruction, optional
     cheaper segment table).  ``T0`` and ``sigma_a0`` are its fields
     interpolated trilinearly to ``grid`` (:func:`lftomo.interpolate_field`),
     and the discrepancy search starts at its λ instead of 1e-2 (one solve
-    when that λ is the cap, as when σ is overestimated).  The fine fit's
+    when that λ is the cap and the target is met there).  The fine fit's
     two-colour start is far from the solution and its λ path is slow to
     converge.  ``rule="lcurve"`` keeps its fixed path.
 rule : {"discrepancy-bracket", "lcurve"}
@@ -135,9 +135,11 @@ rule : {"discrepancy-bracket", "lcurve"}
     :class:`~lftomo.inverse.lambdarules.LCurveDecades`).  ``"discrepancy"``,
     this search's old name, still selects it with a DeprecationWarning: it is
     not :func:`~lftomo.inverse.solvers.solve_temperature`'s discrepancy rule
-    (a root search for χ²/m = target).  When the
-    noise σ is overestimated, χ²/m stays below 1 at every λ and the
-    discrepancy rule takes its largest λ, ``lambda_max``; ``Reconstruction.lambda_note`` says so.
+    (a root search for χ²/m = target).  When the given
+    noise σ is misestimated, χ²/m stays below 1 up to ``lambda_max`` (or above it down to the
+    smallest λ); with more data than unknowns the rule then searches again with the noise scale
+    estimated, as the T-only rule does, else takes that end of its range;
+    ``Reconstruction.lambda_note`` says so.
 noise_scale : {"given", "estimated"}, optional
     ``"given"``: the discrepancy target is χ²/m = 1 (σ calibrated).
     ``"estimated"`` (the default with ``regularization="auto"`` and the
@@ -147,7 +149,8 @@ noise_scale : {"given", "estimated"}, optional
     ``s2``, ``dof`` (ν), ``dof_se``, ``dof_lambda``, ``chi2_ref`` and
     ``lambda_ref``, ``details["chi2_target"]`` the target used and
     ``details["target_met"]`` whether a solve met it (False where the rule
-    fell back to its largest or smallest λ; None for the L-curve and a given λ).
+    fell back on the estimated scale or on its largest or smallest λ; None
+    for the L-curve and a given λ).
 grid : Grid, optional
     Reconstruction grid; default the segment table's.  A coarser grid
     (same box) turns on **sub-voxel emission**, as in :func:`lftomo.reconstruct`:

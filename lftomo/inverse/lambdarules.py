@@ -22,7 +22,8 @@ Rules (:data:`RULE_CLASSES`; the string names select them):
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
   as "the largest λ with ``χ²/m ≤ target``", given or estimated noise scale:
   by default the same projected search (:func:`projected_bracket_search`),
-  else a factor-10 ladder of solves refined by two bisections in log λ.  The
+  else a factor-10 ladder of solves refined by two bisections in log λ; with
+  the noise scale given and no λ meeting the target, again with it estimated.  The
   joint fit's rule, which used to be called ``"discrepancy"`` too (that name
   still selects it there, with a DeprecationWarning).
 * :class:`GCV` (``"gcv"``): generalised cross-validation of the linearised problem.
@@ -873,7 +874,7 @@ def lcurve_search(run: Any, theta0, lam_ref, lambda_range, n_lambda):
 def _ladder_solve(path: Any, theta0: Any, lam: float, target_state: dict, estimate_scale: bool) -> bool:
     """Solve at ``lam`` warm-started from the nearest λ solved; whether its χ²/m meets the target.
 
-    With ``estimate_scale`` the target is re-estimated first: ``s² = χ²/(m − ν)`` of the solve of least
+    With ``estimate_scale`` the target is re-estimated first: ``s² = χ²/(m − ν)`` of the search's solve of least
     χ² so far (the first, least-regularized one is often not converged within its step budget), ``ν``
     the residual degrees of freedom of the first solve (``path.fit_dof``; ν falls with λ).
     """
@@ -884,7 +885,7 @@ def _ladder_solve(path: Any, theta0: Any, lam: float, target_state: dict, estima
         if info is None:
             dof, dof_se = path.fit_dof(e)
             info = target_state["scale_info"] = {"dof": dof, "dof_se": dof_se, "dof_lambda": e.lam}
-        ref = min(path.evals, key=lambda x: x.chi2)
+        ref = min(path.evals[target_state["n_before"]:], key=lambda x: x.chi2)  # this search's solves
         s2 = ref.chi2 * path.m_total / (path.m_total - info["dof"])
         info.update(s2=s2, chi2_ref=ref.chi2, lambda_ref=ref.lam)
         target_state["target"] = s2
@@ -907,9 +908,11 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     log λ of the bracket ``[largest λ meeting the target, next λ above]``.  Target 1, or the
     estimated ``s²`` (:func:`_ladder_solve`).  Returns ``(eval, note, target, scale_info, target_met)``:
     ``target_met`` False where no solve brackets the target (χ²/m below it up to ``lam_max``: the cap
-    is taken; or above it down to ``lam_min``: the smallest λ).
+    is taken; or above it down to ``lam_min``: the smallest λ).  Only this search's own solves count
+    (``path.evals`` may hold earlier ones, e.g. of a search against another target).
     """
-    state = {"target": 1.0, "scale_info": None}
+    n_before = len(path.evals)
+    state = {"target": 1.0, "scale_info": None, "n_before": n_before}
 
     def at(lam: float) -> bool:
         return _ladder_solve(path, theta0, lam, state, estimate_scale)
@@ -921,7 +924,7 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     else:
         while lam > lam_min and not at(max(lam / 10.0, lam_min)):
             lam = max(lam / 10.0, lam_min)
-    evals = path.evals
+    evals = path.evals[n_before:]
     ok = sorted(e.lam for e in evals if e.chi2 <= state["target"])
     bad = sorted(e.lam for e in evals if e.chi2 > state["target"])
     goal = "chi²/m ≤ 1" if state["scale_info"] is None else "chi²/m ≤ s²"
@@ -947,7 +950,7 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
         note = f"discrepancy: chi²/m > {state['target']:.5g} down to the smallest λ tried"
     if state["scale_info"] is not None:
         note = _scale_note(state["scale_info"], path.m_total, path.n_unknowns) + note
-    best = next(e for e in evals if e.lam == lam)
+    best = next(e for e in path.evals[n_before:] if e.lam == lam)  # (the bisections' solves included)
     return best, note, state["target"], state["scale_info"], met
 
 
@@ -1176,6 +1179,15 @@ class DiscrepancyBracket(LambdaRule):
         linearisation or the search does not meet the target, the bracket
         search follows.  ``"bracket"``: a factor-10 ladder of solves and two
         bisections (:func:`bracket_search`).
+
+    Notes
+    -----
+    With the noise scale given and χ²/m on one side of the target at every λ
+    tried (σ misestimated, or a model error), σ is trusted up to a common
+    factor as by :class:`Discrepancy`: where there are more data than
+    unknowns the search runs again with the scale estimated, and the choice
+    reports ``target_met`` False.  With fewer data it takes the end of its λ
+    range.
     """
 
     name = "discrepancy-bracket"
@@ -1193,13 +1205,27 @@ class DiscrepancyBracket(LambdaRule):
 
     def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
         estimate = self.noise_scale == "estimated"
+        found = self._search(path, theta0, estimate, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max)
+        e, _, target, _, met = found
+        if met or estimate or path.m_total <= path.n_unknowns:
+            return found
+        # No λ brackets the given target: σ is trusted up to a common factor, as by
+        # :class:`Discrepancy`, and the search runs again with that factor estimated.
+        # ``target_met`` stays False: the target asked for was not met.
+        if e.chi2 <= target:
+            why = f"below the target up to λ = {e.lam:.3g} (noise σ overestimated)"
+        else:
+            why = f"above the target down to λ = {e.lam:.3g} (noise σ underestimated, or a model error)"
+        e, note, target, info, _ = self._search(path, theta0, True, lam_start=lam_start, lam_min=lam_min,
+                                                lam_max=lam_max)
+        return e, f"chi²/m stays {why}: {note}", target, info, False
+
+    def _search(self, path: Any, theta0: Any, estimate: bool, **lams: float):
         if self.search == "projected" and hasattr(path, "linearization"):
-            found = projected_bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
-                                             estimate_scale=estimate)
+            found = projected_bracket_search(path, theta0, estimate_scale=estimate, **lams)
             if found is not None:
                 return found
-        return bracket_search(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max,
-                              estimate_scale=estimate)
+        return bracket_search(path, theta0, estimate_scale=estimate, **lams)
 
 
 class GCV(LambdaRule):

@@ -537,16 +537,43 @@ def test_a_root_search_that_meets_no_target_says_so():
     assert search == "root" and ch.target_met and ch.target == 1.0
 
 
-@pytest.mark.parametrize("make, says", [
-    (lambda: _scaled(LinearPath(), 0.1), "up to the largest λ tried"),  # σ overestimated: the cap is taken
-    (lambda: ModelErrorPath(), "down to the smallest λ tried"),  # χ²/m above 1 at every λ: the smallest λ
-])
-def test_discrepancy_bracket_says_when_no_solve_brackets_the_target(make, says):
-    """The joint fit's bracketing rule reports ``target_met`` False where it falls back to an end of its λ
-    range (the joint Reconstruction's ``details["target_met"]``); it is True where it brackets the target
-    (the test above)."""
+def _few_data(path):
+    path.n_unknowns = path.m_total  # as many unknowns as data: no noise scale can be estimated
+    return path
+
+
+NO_BRACKET = [
+    (lambda: _scaled(LinearPath(), 0.1), "below", "up to the largest λ tried"),  # σ overestimated
+    (lambda: ModelErrorPath(), "above", "down to the smallest λ tried"),  # χ²/m above 1 at every λ
+]
+
+
+@pytest.mark.parametrize("make, side, says", NO_BRACKET)
+def test_discrepancy_bracket_estimates_the_scale_when_no_solve_brackets_the_given_target(make, side, says):
+    """The joint fit's bracketing rule, σ given, where no solve brackets the target: with more data than
+    unknowns σ is trusted up to a common factor, as by the T-only rule, and the search runs again with the
+    noise scale estimated.  Its result is exactly the estimated-scale search run alone (same λ and target),
+    reported with ``target_met`` False (the joint Reconstruction's ``details["target_met"]``)."""
+    kw = {"lam_start": 1e-2, "lam_min": 1e-4, "lam_max": 1e4}
     path = make()
     e, note, target, info, met = DiscrepancyBracket("given", search="bracket").choose(
-        path, np.zeros(path.n_unknowns), lam_start=1e-2, lam_min=1e-4, lam_max=1e4)
-    assert says in note and met is False, note
+        path, np.zeros(path.n_unknowns), **kw)
+    assert f"stays {side} the target" in note and "noise scale estimated" in note and met is False, note
+    assert all(x.chi2 > 1.0 for x in path.evals) or all(x.chi2 <= 1.0 for x in path.evals)  # the given target
+    alone = make()
+    e1, _, target1, info1, met1 = DiscrepancyBracket("estimated", search="bracket").choose(
+        alone, np.zeros(alone.n_unknowns), **kw)
+    assert met1 and target == pytest.approx(target1, rel=1e-12) and info["dof"] == pytest.approx(info1["dof"])
+    assert e.lam == pytest.approx(e1.lam, rel=1e-12) and e.lam not in (kw["lam_min"], kw["lam_max"])
+
+
+@pytest.mark.parametrize("make, side, says", NO_BRACKET)
+def test_discrepancy_bracket_with_too_few_data_says_when_no_solve_brackets_the_target(make, side, says):
+    """With as many unknowns as data no noise scale can be estimated: the rule falls back to an end of
+    its λ range and reports ``target_met`` False; it is True where it brackets the target (the tests
+    above)."""
+    path = _few_data(make())
+    e, note, target, info, met = DiscrepancyBracket("given", search="bracket").choose(
+        path, np.zeros(20), lam_start=1e-2, lam_min=1e-4, lam_max=1e4)
+    assert says in note and met is False and info is None, note
     assert all((x.chi2 <= target) == (e.chi2 <= target) for x in path.evals)  # every solve on one side

@@ -255,8 +255,9 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     target is s² = χ²/(m − ν) of its least-regularized solve.  The fit at (σ·f, λ) is the fit at
     (σ, λ·f²), so s²·f² and λ·f² must not depend on f: s²·f² to the path's own convergence (1e-3),
     λ·f² to the search's resolution (two bisections of a factor 10: 10^0.25 = 1.78).  (Measured:
-    s²·f² 1.2575 for both, λ·f² 285 and 418; the given-σ rule takes the cap 1e4 for f = 3, λ·f²
-    9e4, the test below.)  With a coarse-to-fine start the search begins a decade below its λ."""
+    s²·f² 1.2575 for both, λ·f² 285 and 418; the given-σ rule, at the cap 1e4 for f = 3 without the
+    target met, falls back on this rule: the test below.)  With a coarse-to-fine start the search
+    begins a decade below its λ."""
     out = {}
     for f in (3.0, 1.15):
         flame, ms, seg, kw = _blob_two_colour_dense(f)
@@ -376,16 +377,22 @@ def test_joint_linearization_is_the_derivative_of_the_objective(solver):
 
 def test_joint_lambda_rules_when_sigma_is_overestimated():
     """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ.  The discrepancy
-    rule then stops at its largest λ, 1e4 (the most smoothed field), and says so; rule="lcurve" takes
-    the corner of the L-curve of its path, a smaller λ with a smaller T error here.  The path
-    records (λ, χ²/m, ‖R‖) and the fields of every solve."""
+    rule with σ given climbs its ladder to its largest λ, 1e4 (the most smoothed field), without meeting
+    the target; it then trusts σ up to a common factor, as the T-only rule does, and searches again with
+    the noise scale estimated, and says so: the λ and target of the estimated-scale rule run alone, with
+    ``target_met`` False.  rule="lcurve" takes the corner of the L-curve of its path.  The path records
+    (λ, χ²/m, ‖R‖) and the fields of every solve."""
     flame, ms, seg, kw = _blob_two_colour_dense(3.0)
     hot = flame.T > 800.0
     rec = reconstruct(ms, seg, **kw, **GIVEN)
     path = rec.details["lambda_path"]
-    assert np.allclose([p[0] for p in path], [10.0 ** k for k in range(-2, 5)], rtol=1e-12, atol=0), path
+    assert np.allclose([p[0] for p in path[:7]], [10.0 ** k for k in range(-2, 5)], rtol=1e-12, atol=0), path
     assert all(c < 0.5 for _, c, _ in path), path
-    assert rec.regularization == 1e4 and "σ overestimated" in rec.lambda_note
+    assert "stays below the target up to λ = 1e+04 (noise σ overestimated)" in rec.lambda_note, rec.lambda_note
+    alone = reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated", lambda_max=1e4), **kw)
+    assert rec.details["target_met"] is False and alone.details["target_met"] is True
+    assert rec.details["chi2_target"] == pytest.approx(alone.details["chi2_target"], rel=1e-9)
+    assert rec.regularization == pytest.approx(alone.regularization, rel=1e-6) and rec.regularization < 1e3
     np.testing.assert_allclose(rec.details["lambda_path_T"][-1], rec.T)
     # ‖R‖ is the norm λ weighs, T and σ_a terms (here on the ring cells), as in the path
     L = prior_operator(rec.symmetry, "curvature")
@@ -410,22 +417,23 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
         reconstruct(ms, seg, rule="gcv", **kw)
     # coarse-to-fine: a fit on 2³ (its own segment table, fixed λ 3e3) starts the 4³ search at its λ,
     # warm from the interpolated fields; the factor-10 step stops at the cap, and the cap's solve
-    # reaches the full path's minimum
+    # reaches the full path's minimum (then the estimated-scale search follows, as above)
     grid = lt.Grid.from_dict(seg.metadata["grid"])
     coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
     seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
     rec_c = reconstruct(ms, seg_c, rule=lt.Fixed(3e3), **kw)
     rec_s = reconstruct(ms, seg, start=rec_c, **kw, **GIVEN)
-    assert [p[0] for p in rec_s.details["lambda_path"]] == [3e3, 1e4] and rec_s.regularization == 1e4
+    path_s = rec_s.details["lambda_path"]
+    assert [p[0] for p in path_s[:2]] == [3e3, 1e4] and "up to λ = 1e+04" in rec_s.lambda_note
     assert rec_s.details["start"].startswith("interpolated from a fit on (2, 2, 2) (λ 3e+03)"), rec_s.details["start"]
     np.testing.assert_allclose(rec_s.details["T_start"], lt.interpolate_field(rec_c.T, coarse, grid))
-    objective = [r.chi2 * sum(m.size for m in ms) + 1e4 * r.regularization_norm ** 2 for r in (rec_s, rec)]
+    objective = [c * sum(m.size for m in ms) + 1e4 * r ** 2 for _, c, r in (path_s[1], path[6])]
     assert objective[0] == pytest.approx(objective[1], rel=1e-3), objective
     # a higher cap (lambda_max) lets the factor-10 steps go on past 1e4, and the rule names it
     rec_m = reconstruct(ms, seg, start=rec_c, rule=lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e5),
                         **kw)
-    assert np.allclose([p[0] for p in rec_m.details["lambda_path"]], [3e3, 3e4, 1e5], rtol=1e-12, atol=0)
-    assert rec_m.regularization == 1e5 and "largest λ tried, 1e+05" in rec_m.lambda_note, rec_m.lambda_note
+    assert np.allclose([p[0] for p in rec_m.details["lambda_path"][:3]], [3e3, 3e4, 1e5], rtol=1e-12, atol=0)
+    assert "stays below the target up to λ = 1e+05" in rec_m.lambda_note, rec_m.lambda_note
     for bad in (0.0, 1e-3, math.inf, math.nan):
         # refused by the rule object (not a number > 0) or by the joint fit (below its first λ, 1e-2)
         with pytest.raises(ValueError, match="lambda_max must be a finite number (> 0|>= 0.01)"):
