@@ -309,6 +309,14 @@ def lcurve_curvature(evals: list) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- the T-only fit's searches
+def sigma_misestimated(below: bool, lam: float) -> str:
+    """The discrepancy rules' note where a given σ meets the target at no λ: χ²/m ``below`` it up to
+    ``lam`` (σ overestimated), or above it down to ``lam`` (σ underestimated, or a model error)."""
+    if below:
+        return f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated)"
+    return f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a model error)"
+
+
 def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
                        search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None,
                        climbed: dict[float, Eval] | None = None):
@@ -387,8 +395,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                 e, target, note, met = discrepancy_search(run, theta0, lam_ref, safety, search_steps,
                                                           search_rtol, estimate_scale=True, first=first,
                                                           climbed=ladder)
-                return e, target, (f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated): "
-                                   f"{note}"), met
+                return e, target, f"{sigma_misestimated(True, lam)}: {note}", met
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
@@ -421,8 +428,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             if not estimate_scale and m > run.n_unknowns:
                 e, target, note, _ = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
                                                         estimate_scale=True, first=first)
-                return e, target, (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, "
-                                   f"or a model error): {note}"), False
+                return e, target, f"{sigma_misestimated(False, lam)}: {note}", False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
@@ -924,7 +930,7 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     else:
         while lam > lam_min and not at(max(lam / 10.0, lam_min)):
             lam = max(lam / 10.0, lam_min)
-    evals = path.evals[n_before:]
+    evals = path.evals[n_before:]  # (a copy: the bisections below add to path.evals)
     ok = sorted(e.lam for e in evals if e.chi2 <= state["target"])
     bad = sorted(e.lam for e in evals if e.chi2 > state["target"])
     goal = "chi²/m ≤ 1" if state["scale_info"] is None else "chi²/m ≤ s²"
@@ -1212,13 +1218,10 @@ class DiscrepancyBracket(LambdaRule):
         # No λ brackets the given target: σ is trusted up to a common factor, as by
         # :class:`Discrepancy`, and the search runs again with that factor estimated.
         # ``target_met`` stays False: the target asked for was not met.
-        if e.chi2 <= target:
-            why = f"below the target up to λ = {e.lam:.3g} (noise σ overestimated)"
-        else:
-            why = f"above the target down to λ = {e.lam:.3g} (noise σ underestimated, or a model error)"
+        why = sigma_misestimated(e.chi2 <= target, e.lam)
         e, note, target, info, _ = self._search(path, theta0, True, lam_start=lam_start, lam_min=lam_min,
                                                 lam_max=lam_max)
-        return e, f"chi²/m stays {why}: {note}", target, info, False
+        return e, f"{why}: {note}", target, info, False
 
     def _search(self, path: Any, theta0: Any, estimate: bool, **lams: float):
         if self.search == "projected" and hasattr(path, "linearization"):
