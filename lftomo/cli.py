@@ -338,7 +338,7 @@ def _series_forward(args, frames, out):
 def _series_raw_check(args) -> None:
     """``lftomo series`` raw-frame options: refused in a bad combination (before any work)."""
     if args.calibration is None:
-        given = [f"--{k.replace('_', '-')}" for k in ("dark", "dark_frames", "camera", "recon_shape")
+        given = [f"--{k.replace('_', '-')}" for k in ("dark", "dark_frames", "camera", "recon_shape", "rays_per_pixel")
                  if getattr(args, k) is not None]
         if given:
             raise LftomoError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to raw frames, "
@@ -362,7 +362,9 @@ def _series_raw_forward(args, out):
                                       allow_outside=args.allow_outside_paths)
     print(f"lftomo series: raw frames calibrated by {args.calibration} at {conv.wavelength * 1e9:.1f} nm; weight "
           f"matrix of {cfg.source} on {'x'.join(map(str, grid.shape))} voxels", file=sys.stderr)
-    W, _, _ = raw_scene_weights(cfg, grid, conv.wavelength, progress=not args.quiet)
+    W, _, info = raw_scene_weights(cfg, grid, conv.wavelength, rays_per_pixel=args.rays_per_pixel,
+                                   progress=not args.quiet)
+    print(f"lftomo series: weight matrix at {info['rays_per_pixel_weights']} rays/pixel", file=sys.stderr)
     W.save(out / "weights.npz")
     return W, {"calibration": conv}
 
@@ -530,6 +532,8 @@ def _add_sampler(p: argparse.ArgumentParser, what: str) -> None:
 
 def _add_series_parser(sub) -> None:
     """The ``series`` sub-command (its options mirror ``reconstruct``'s)."""
+    from .rawdata import RAW_WEIGHT_RAYS
+
     sr = sub.add_parser("series", help="reconstruct a time-resolved series of light fields, one Dask task per "
                                        "frame (resumable; a summary figure)")
     sr.add_argument("frames", nargs="+", metavar="FRAMES",
@@ -566,12 +570,17 @@ def _add_series_parser(sub) -> None:
                                                    "if the calibration did not record them")
     sr.add_argument("--recon-shape", type=_shape3, default=None,
                     help="with --calibration: reconstruction grid nx,ny,nz (default half the [medium] shape)")
+    sr.add_argument("--rays-per-pixel", type=_rays, default=None,
+                    help="with --calibration: rays per pixel of the weight matrix (default the larger of the "
+                         f"SCENE's render.rays_per_pixel and {RAW_WEIGHT_RAYS})")
     sr.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(sr)
     sr.set_defaults(func=cmd_series)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .rawdata import RAW_WEIGHT_RAYS
+
     p = argparse.ArgumentParser(prog="lftomo", description="Plenoptic camera simulation and flame tomography.")
     sub = p.add_subparsers(dest="command", required=True)
     c = sub.add_parser("camera", help="print the camera design report of a scene file, one per camera of a rig "
@@ -653,7 +662,9 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,
                     help="scene mode: reconstruction grid nx,ny,nz dividing the [medium] shape (default half)")
-    rc.add_argument("--rays-per-pixel", type=_rays, default=None, help="scene mode: override render.rays_per_pixel")
+    rc.add_argument("--rays-per-pixel", type=_rays, default=None,
+                    help="scene mode: override render.rays_per_pixel; with --raw: the weight matrix's (default "
+                         f"the larger of render.rays_per_pixel and {RAW_WEIGHT_RAYS})")
     rc.add_argument("--seed", type=_seed, default=None,
                     help="seed s: scene mode renders with s, noise s+1, weights s+2 (default render.seed); "
                          "file mode: noise s+1")

@@ -1200,7 +1200,9 @@ def raw_scene_weights(cfg, grid, wavelength: float, *, seed=None, rays_per_pixel
                       progress: bool = True, sampler=None) -> tuple:
     """The weight matrix of a raw-frame reconstruction: the scene's camera on ``grid`` at ``wavelength``
     for the known absorption (:func:`lftomo.effective_truth` of the scene's ``[medium]``), seed
-    ``seed`` (default ``[render] seed``) + 2, ``rays_per_pixel`` (default the scene's).
+    ``seed`` (default ``[render] seed``) + 2, ``rays_per_pixel`` (default the larger of the scene's
+    ``[render] rays_per_pixel`` and :data:`lftomo.rawdata.RAW_WEIGHT_RAYS`: the frame has no Monte
+    Carlo error, W's is the model's).
 
     Returns
     -------
@@ -1208,9 +1210,10 @@ def raw_scene_weights(cfg, grid, wavelength: float, *, seed=None, rays_per_pixel
         ``info``: ``rays_per_pixel_weights``, ``sampler``, ``seeds``.
     """
     from .inverse.compare import effective_truth
+    from .rawdata import RAW_WEIGHT_RAYS
 
     s0 = cfg.seed if seed is None else int(seed)
-    n_w = int(rays_per_pixel or cfg.rays_per_pixel)
+    n_w = int(rays_per_pixel) if rays_per_pixel else max(int(cfg.rays_per_pixel), RAW_WEIGHT_RAYS)
     smp = cfg.sampler if sampler is None else sampler
     sa, _ = effective_truth(cfg.scene.medium, grid, wavelength)  # the known absorption; the scene's T is not used
     W = _scene_weights(cfg, grid, sa, wavelength, quadrature=quadrature, rays_per_pixel=n_w, seed=s0 + 2,

@@ -46,7 +46,7 @@ from .errors import LftomoError
 from .lightfield import LightField, geometric_centers
 from .rawio import RawFrame, subtract_dark
 
-__all__ = ["GRID_RMS_TOL", "GRID_MAX_TOL", "ETENDUE_RAYS", "model_lattice", "check_grid_matches_camera", "RawFrameConverter",
+__all__ = ["GRID_RMS_TOL", "GRID_MAX_TOL", "ETENDUE_RAYS", "RAW_WEIGHT_RAYS", "model_lattice", "check_grid_matches_camera", "RawFrameConverter",
            "model_etendue", "lightfield_from_raw", "with_model_error", "sensor_settings"]
 
 #: Largest RMS distance (px) between calibrated and model microlens-image centres.
@@ -56,6 +56,11 @@ GRID_MAX_TOL = 0.2
 #: Rays per pixel (and seed) of the model étendue that turns radiance factors into signal factors.
 ETENDUE_RAYS = 1024
 ETENDUE_SEED = 2024
+#: Least rays per pixel of a raw frame's weight matrix (``lftomo reconstruct --raw``, ``lftomo series
+#: --calibration``): a camera's image has no Monte Carlo error, so W's is the model's only simulation
+#: error, and at 1024 stratified rays it is about the size of a percent-level measurement noise
+#: (docs/accuracy.md, *How many rays for a camera's weight matrix*).
+RAW_WEIGHT_RAYS = 1024
 
 
 def model_lattice(centers: Any) -> dict:

@@ -84,6 +84,7 @@ def main():
     ap.add_argument("--draws", type=int, default=2, help="noise draws")
     ap.add_argument("--rays-data", type=int, default=1024, help="rays per pixel of the camera's image")
     ap.add_argument("--free", action="store_true", help="free voxels (no symmetry) instead of ring cells")
+    ap.add_argument("--rays-w", type=int, default=RAYS_W, help="rays per pixel of W (and of the oracle's render)")
     ap.add_argument("--models", default="relative,oracle,two-pass",
                     help="W's error models to fit, comma-separated (two-pass needs relative)")
     a = ap.parse_args()
@@ -99,10 +100,11 @@ def main():
     quad = grid.refined(2)
     t = time.perf_counter()
     W = lt.weights(cam, quad, sigma_a=lt.interpolate_field(sa_c, grid, quad), wavelength=WAVELENGTH,
-                   rays_per_pixel=RAYS_W, seed=2, progress=False)
+                   rays_per_pixel=a.rays_w, seed=2, progress=False)
+    t_w = time.perf_counter() - t
     lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays_data, seed=11, progress=False)
-    r_oracle = relative_error(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=RAYS_W, seed=13, progress=False))
-    print(f"setup {time.perf_counter() - t:.1f} s; W {W.shape}, data render's median relative MC error "
+    r_oracle = relative_error(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays_w, seed=13, progress=False))
+    print(f"setup {time.perf_counter() - t:.1f} s (W {t_w:.1f} s, {W.nnz} non-zeros); W {W.shape}, data render's median relative MC error "
           f"{np.median(relative_error(lf)[lf.raw > 0.05 * lf.raw.max()]):.2%}", flush=True)
     bright = lf.raw > 0.05 * lf.raw.max()
     rows = {k: [] for k in MODELS if k in models}
@@ -120,7 +122,7 @@ def main():
             rows["oracle"].append((*res, rec.regularization, rec.chi2, 1.0))
         if "two-pass" in rows:
             med = lt.Medium(grid, sigma_a=sa_c, T=rec1.T)
-            r_two = relative_error(lt.render(lt.Scene(medium=med), cam, rays_per_pixel=RAYS_W, seed=17,
+            r_two = relative_error(lt.render(lt.Scene(medium=med), cam, rays_per_pixel=a.rays_w, seed=17,
                                              progress=False))
             rec, *res = fit(with_relative(noisy, r_two), W, grid, T_eff, symmetry)
             sel2 = sel & (r_two > 0)
@@ -129,7 +131,7 @@ def main():
             s, e8, e12, lam, chi2, ratio = v[-1]
             print(f"draw {draw} {k:9s}: {s:6.1f} s, above 800 K {e8:.2%}, above 1200 K {e12:.2%}, λ {lam:.3g}, "
                   f"chi2/m {chi2:.3f}, median σ_W / oracle {ratio:.2f}", flush=True)
-    print(f"\nmean over {a.draws} draws (n = {a.n}, data {a.rays_data} rays, W {RAYS_W} rays):")
+    print(f"\nmean over {a.draws} draws (n = {a.n}, data {a.rays_data} rays, W {a.rays_w} rays):")
     for k, v in rows.items():
         v = np.array(v)
         sd = v.std(axis=0, ddof=1) / np.sqrt(len(v)) if len(v) > 1 else np.zeros(v.shape[1])

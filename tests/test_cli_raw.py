@@ -3,6 +3,7 @@ reconstructed through the CLI and compared with the in-memory path on the same c
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -12,7 +13,7 @@ import pytest
 import lftomo as lt
 from lftomo.cli import main
 from lftomo.config import load_scene_file
-from lftomo.rawdata import lightfield_from_raw, model_etendue, with_model_error
+from lftomo.rawdata import RAW_WEIGHT_RAYS, lightfield_from_raw, model_etendue, with_model_error
 
 from conftest import white_plane
 from reliability_helpers import BLOB_SCENE
@@ -34,7 +35,8 @@ wavelength_nm = 650
 focal_length_mm = 100
 f_number = 4.0
 """
-FAST = ["--quiet", "--max-steps", "50", "--recon-shape", "6,6,6"]
+# W at the scene's 16 rays (the raw path's default is at least RAW_WEIGHT_RAYS): the in-memory path below uses 16
+FAST = ["--quiet", "--max-steps", "50", "--recon-shape", "6,6,6", "--rays-per-pixel", "16"]
 HOT_K = 1400.0  # voxels the data constrain: >= 8 % of the peak intensity at 650 nm
 
 
@@ -196,6 +198,7 @@ def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(lattice, request,
     assert m["reconstruction"]["scale_uncertainty"]["T_std_K_at_max_T"] == pytest.approx(rel / dlog(T_raw.max()),
                                                                                           rel=1e-6)
     assert m["measurement"]["noise"]["model"] == "raw frame"
+    assert inp["rays_per_pixel_weights"] == 16
 
     grid = lt.Grid((6, 6, 6), (-0.006, -0.006, 0.994), (0.006, 0.006, 1.006))
     medium = frames.cfg.scene.medium
@@ -213,6 +216,25 @@ def test_cli_raw_reconstruction_agrees_with_the_in_memory_path(lattice, request,
           f"raw vs effective truth {rms(T_raw - T_eff):.1f} K RMS")
     assert spread > 0
     assert diff < spread
+
+
+@pytest.mark.parametrize("scene_rays, given, used", [(16, None, RAW_WEIGHT_RAYS), (2048, None, 2048), (16, 8, 8)])
+def test_raw_weight_matrix_rays_default_to_at_least_raw_weight_rays(frames, monkeypatch, scene_rays, given, used):
+    """The raw path's W: the larger of the scene's rays and RAW_WEIGHT_RAYS, or exactly the rays asked for."""
+    import lftomo.demo as demo
+
+    built = {}
+
+    def record(cfg, grid, sa, wl, **kw):
+        built.update(kw)
+        return "W"
+
+    monkeypatch.setattr(demo, "_scene_weights", record)
+    cfg = frames.cfg if scene_rays == 16 else dataclasses.replace(frames.cfg, rays_per_pixel=scene_rays)
+    assert frames.cfg.rays_per_pixel == 16
+    grid = lt.Grid((6, 6, 6), (-0.006, -0.006, 0.994), (0.006, 0.006, 1.006))
+    W, _, info = demo.raw_scene_weights(cfg, grid, WL, rays_per_pixel=given, progress=False)
+    assert W == "W" and built["rays_per_pixel"] == used and info["rays_per_pixel_weights"] == used
 
 
 @pytest.fixture
@@ -302,7 +324,7 @@ def test_cli_series_of_raw_frames_equals_the_per_frame_raw_path(frames, tmp_path
     lt.write_raw(tmp_path / "crop.tif", frames.counts[:100], bit_depth=BITS)
     # a fixed λ and 20 steps: the data path is under test here, not the λ search (which both paths share)
     common = ["--calibration", str(frames.cal), "--dark", str(frames.d / "dark.tif"), "--quiet", "--max-steps", "20",
-              "--recon-shape", "6,6,6", "--regularization", "0.01"]
+              "--recon-shape", "6,6,6", "--regularization", "0.01", "--rays-per-pixel", "16"]
     ref = []
     for k, p in enumerate(paths):
         assert main(["reconstruct", str(frames.d / "scene.toml"), "--raw", p, "-o", str(tmp_path / f"r{k}"),
