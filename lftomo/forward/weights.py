@@ -1505,7 +1505,9 @@ def weights(
         Wavelength (m) of the matrix (one matrix per wavelength); used for the
         surface radiance and recorded in the metadata.
     rays_per_pixel : int
-        Backward rays per pixel (>= 1), as in :func:`lftomo.render`.
+        Backward rays per pixel (>= 1), as in :func:`lftomo.render`.  For a
+        real camera's frame, which has no Monte Carlo error of its own, the
+        raw-frame path uses at least :data:`lftomo.rawdata.RAW_WEIGHT_RAYS`.
     seed : int
         Random seed (>= 0); the rays are those of ``render(..., seed=seed)``.
     views : None, list of (v, u), or bool ndarray (n_v, n_u, n_y, n_x)
