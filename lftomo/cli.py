@@ -649,10 +649,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="axisymmetric: fit one temperature per ring of voxels about the grid's vertical axis "
                          "(lftomo.ring_grid; for axisymmetric flames: removes the depth ambiguity of one camera); "
                          "applies to the reconstruction and to --posterior-basis field")
-    rc.add_argument("--quadrature", type=_pos_int, default=1,
+    rc.add_argument("--quadrature", type=_pos_int, default=None,
                     help="sub-voxel emission: the weights live on a grid this many times finer than the "
-                         "reconstruction grid and T is interpolated to it before Planck's law (scene mode builds "
-                         "them so; file mode reconstructs on the --weights grid coarsened this many times)")
+                         "reconstruction grid and T is interpolated to it before Planck's law (scene and raw mode "
+                         "build them so, default 2; file mode reconstructs on the --weights grid coarsened this "
+                         "many times, default 1)")
     rc.add_argument("--posterior", action="store_true",
                     help="also compute a posterior (see --posterior-basis)")
     rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default=None,

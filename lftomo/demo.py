@@ -89,6 +89,9 @@ DEMO_SETTINGS = {
 
 WAVELENGTH = 650e-9
 NOISE = 0.01
+#: ``lftomo reconstruct``'s sub-voxel quadrature where it builds the weights (scene and raw mode): W on
+#: the grid twice as fine (docs/accuracy.md, *How many rays for a camera's weight matrix*).
+BUILD_QUADRATURE = 2
 HOT = 800.0          # K: errors are quoted where the true T exceeds this
 HOT_CORE = 1400.0    # K: the part of the flame that dominates the 650 nm signal
 BOUNDS = (300.0, 3000.0)
@@ -1449,7 +1452,7 @@ def run_reconstruct(
     sampler: str | None = None,
     min_etendue_fraction: float = MIN_ETENDUE_FRACTION,
     symmetry: str | None = None,
-    quadrature: int = 1,
+    quadrature: int | None = None,
     progress: bool = True,
     allow_outside: bool = False,
     raw: str | Path | None = None,
@@ -1475,10 +1478,10 @@ def run_reconstruct(
     (reconstruction and field posterior).  ``sampler`` (scene mode) is the
     pixel sampler of the render and the weights (default the scene's
     ``[render] sampler``).  ``quadrature`` K > 1 turns on
-    sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene mode builds the
+    sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene and raw mode build the
     weights on a grid K× finer than the reconstruction grid (for the known
-    ``sigma_a`` interpolated to it); file mode reconstructs on the weights'
-    grid coarsened K×.  ``raw`` (with ``scene`` and ``calibration``, a file of
+    ``sigma_a`` interpolated to it; default :data:`BUILD_QUADRATURE`); file mode
+    reconstructs on the weights' grid coarsened K× (default 1).  ``raw`` (with ``scene`` and ``calibration``, a file of
     :func:`lftomo.save_calibration` with radiometry) reconstructs a raw frame
     of the scene's camera (:mod:`lftomo.rawdata`): ``dark`` (the mean of
     ``dark_frames`` frames) is subtracted, the calibrated microlens grid must be
@@ -1491,6 +1494,8 @@ def run_reconstruct(
     from .io import check_output_dir, staged_directory
 
     t_start = time.perf_counter()
+    if quadrature is None:
+        quadrature = 1 if weights is not None else BUILD_QUADRATURE
     _check_raw_options(scene, lightfield, weights, noise, raw, calibration,
                        {"--dark": dark, "--dark-frames": dark_frames, "--camera": camera})
     _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,

@@ -13,7 +13,7 @@ reconstruction, in the setting of a camera (standard axisymmetric flame,
 * the camera's image: a render of the flame on a grid twice as fine as the
   reconstruction grid at ``--rays-data`` rays per pixel (its own Monte Carlo
   error, small, is added to the noise), 1 % noise, ``--draws`` noise draws;
-* ``W`` on the reconstruction grid with sub-voxel emission (quadrature 2),
+* ``W`` on the reconstruction grid with sub-voxel emission (``--quadrature``, default 2),
   σₐ known (the block mean of the truth), 64 rays per pixel;
 * three models of ``W``'s error, each followed by ``lt.reconstruct(m, W,
   symmetry="axisymmetric", grid=grid)`` with the library's defaults (with
@@ -85,6 +85,8 @@ def main():
     ap.add_argument("--rays-data", type=int, default=1024, help="rays per pixel of the camera's image")
     ap.add_argument("--free", action="store_true", help="free voxels (no symmetry) instead of ring cells")
     ap.add_argument("--rays-w", type=int, default=RAYS_W, help="rays per pixel of W (and of the oracle's render)")
+    ap.add_argument("--quadrature", type=int, default=2, help="W on the grid this many times finer (1: no "
+                                                               "sub-voxel emission, the CLI's default)")
     ap.add_argument("--models", default="relative,oracle,two-pass",
                     help="W's error models to fit, comma-separated (two-pass needs relative)")
     a = ap.parse_args()
@@ -97,7 +99,7 @@ def main():
     fine = lt.phantoms.default_flame_grid((2 * a.n,) * 3)
     flame = lt.phantoms.axisymmetric_flame(fine, width_base=0.012)
     sa_c, T_eff = effective_truth(flame, grid, WAVELENGTH)
-    quad = grid.refined(2)
+    quad = grid.refined(a.quadrature) if a.quadrature > 1 else grid
     t = time.perf_counter()
     W = lt.weights(cam, quad, sigma_a=lt.interpolate_field(sa_c, grid, quad), wavelength=WAVELENGTH,
                    rays_per_pixel=a.rays_w, seed=2, progress=False)
