@@ -1481,7 +1481,8 @@ def run_reconstruct(
     sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene and raw mode build the
     weights on a grid K× finer than the reconstruction grid (for the known
     ``sigma_a`` interpolated to it; default :data:`BUILD_QUADRATURE`); file mode
-    reconstructs on the weights' grid coarsened K× (default 1).  ``raw`` (with ``scene`` and ``calibration``, a file of
+    reconstructs on the weights' grid coarsened K× (default 1).  ``raw`` (with
+    ``scene`` and ``calibration``, a file of
     :func:`lftomo.save_calibration` with radiometry) reconstructs a raw frame
     of the scene's camera (:mod:`lftomo.rawdata`): ``dark`` (the mean of
     ``dark_frames`` frames) is subtracted, the calibrated microlens grid must be

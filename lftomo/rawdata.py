@@ -46,7 +46,8 @@ from .errors import LftomoError
 from .lightfield import LightField, geometric_centers
 from .rawio import RawFrame, subtract_dark
 
-__all__ = ["GRID_RMS_TOL", "GRID_MAX_TOL", "ETENDUE_RAYS", "RAW_WEIGHT_RAYS", "model_lattice", "check_grid_matches_camera", "RawFrameConverter",
+__all__ = ["GRID_RMS_TOL", "GRID_MAX_TOL", "ETENDUE_RAYS", "RAW_WEIGHT_RAYS", "model_lattice",
+           "check_grid_matches_camera", "RawFrameConverter",
            "model_etendue", "lightfield_from_raw", "with_model_error", "sensor_settings"]
 
 #: Largest RMS distance (px) between calibrated and model microlens-image centres.

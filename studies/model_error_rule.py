@@ -106,7 +106,8 @@ def main():
     t_w = time.perf_counter() - t
     lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays_data, seed=11, progress=False)
     r_oracle = relative_error(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays_w, seed=13, progress=False))
-    print(f"setup {time.perf_counter() - t:.1f} s (W {t_w:.1f} s, {W.nnz} non-zeros); W {W.shape}, data render's median relative MC error "
+    print(f"setup {time.perf_counter() - t:.1f} s (W {t_w:.1f} s, {W.nnz} non-zeros); W {W.shape}, "
+          f"data render's median relative MC error "
           f"{np.median(relative_error(lf)[lf.raw > 0.05 * lf.raw.max()]):.2%}", flush=True)
     bright = lf.raw > 0.05 * lf.raw.max()
     rows = {k: [] for k in MODELS if k in models}
