@@ -338,8 +338,8 @@ def _series_forward(args, frames, out):
 def _series_raw_check(args) -> None:
     """``lftomo series`` raw-frame options: refused in a bad combination (before any work)."""
     if args.calibration is None:
-        given = [f"--{k.replace('_', '-')}" for k in ("dark", "dark_frames", "camera", "recon_shape", "rays_per_pixel")
-                 if getattr(args, k) is not None]
+        raw_only = ("dark", "dark_frames", "camera", "recon_shape", "rays_per_pixel")
+        given = [f"--{k.replace('_', '-')}" for k in raw_only if getattr(args, k) is not None]
         if given:
             raise LftomoError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to raw frames, "
                               "with --calibration cal.npz")
