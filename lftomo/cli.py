@@ -338,7 +338,7 @@ def _series_forward(args, frames, out):
 def _series_raw_check(args) -> None:
     """``lftomo series`` raw-frame options: refused in a bad combination (before any work)."""
     if args.calibration is None:
-        raw_only = ("dark", "dark_frames", "camera", "recon_shape", "rays_per_pixel")
+        raw_only = ("dark", "dark_frames", "camera", "recon_shape", "rays_per_pixel", "quadrature")
         given = [f"--{k.replace('_', '-')}" for k in raw_only if getattr(args, k) is not None]
         if given:
             raise LftomoError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to raw frames, "
@@ -355,18 +355,21 @@ def _series_raw_check(args) -> None:
 def _series_raw_forward(args, out):
     """Raw frames: the calibration, dark and sensor settings checked once, then the weight matrix as
     ``lftomo reconstruct --raw`` builds it (kept as DIR/weights.npz); returns ``(W, raw options)``."""
-    from .demo import raw_scene_model, raw_scene_weights
+    from .demo import BUILD_QUADRATURE, raw_scene_model, raw_scene_weights
 
     cfg, grid, conv = raw_scene_model(args.scene, args.calibration, dark=args.dark, dark_frames=args.dark_frames or 1,
                                       camera_file=args.camera, recon_shape=args.recon_shape,
                                       allow_outside=args.allow_outside_paths)
     print(f"lftomo series: raw frames calibrated by {args.calibration} at {conv.wavelength * 1e9:.1f} nm; weight "
           f"matrix of {cfg.source} on {'x'.join(map(str, grid.shape))} voxels", file=sys.stderr)
+    quadrature = BUILD_QUADRATURE if args.quadrature is None else args.quadrature
     W, _, info = raw_scene_weights(cfg, grid, conv.wavelength, rays_per_pixel=args.rays_per_pixel,
-                                   progress=not args.quiet)
-    print(f"lftomo series: weight matrix at {info['rays_per_pixel_weights']} rays/pixel", file=sys.stderr)
+                                   quadrature=quadrature, progress=not args.quiet)
+    print(f"lftomo series: weight matrix at {info['rays_per_pixel_weights']} rays/pixel on the "
+          f"{'x'.join(map(str, W.metadata['grid']['shape']))} grid", file=sys.stderr)
     W.save(out / "weights.npz")
-    return W, {"calibration": conv}
+    # sub-voxel emission: T on the reconstruction grid, interpolated to W's finer grid
+    return W, {"calibration": conv, **({"grid": grid} if quadrature > 1 else {})}
 
 
 def cmd_series(args) -> int:
@@ -573,6 +576,9 @@ def _add_series_parser(sub) -> None:
     sr.add_argument("--rays-per-pixel", type=_rays, default=None,
                     help="with --calibration: rays per pixel of the weight matrix (default the larger of the "
                          f"SCENE's render.rays_per_pixel and {RAW_WEIGHT_RAYS})")
+    sr.add_argument("--quadrature", type=_pos_int, default=None,
+                    help="with --calibration: sub-voxel emission, the weight matrix on a K-fold finer grid "
+                         "(default 2, as lftomo reconstruct --raw; 1: on the reconstruction grid)")
     sr.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(sr)
     sr.set_defaults(func=cmd_series)

@@ -313,6 +313,40 @@ def test_wrong_frame_shape_and_options_are_refused(frames, tmp_path, capsys, no_
 
 
 # 290 s on 2 cores at load average 11 (4 reconstructions, a local cluster's start and its worker's compilation)
+def man_grid_shape(out):
+    return json.loads((out / "manifest.json").read_text())["forward_model"]["grid"]["shape"]
+
+
+@pytest.mark.parametrize("quadrature", [None, 1, 3])
+def test_cli_series_of_raw_frames_builds_weights_with_sub_voxel_emission(frames, tmp_path, capsys, monkeypatch,
+                                                                         quadrature):
+    """``lftomo series --calibration`` builds W as ``lftomo reconstruct --raw`` does: by default on the
+    ``BUILD_QUADRATURE``-fold finer grid, with the reconstruction grid handed to every frame's fit
+    (``--quadrature 1``: W on the reconstruction grid, no grid option)."""
+    import lftomo.series
+    from lftomo.demo import BUILD_QUADRATURE
+
+    seen = {}
+
+    def stop(frames_, forward, **kw):
+        seen.update(kw, W=forward)
+        raise lt.LftomoError("stopped before the fits")
+
+    monkeypatch.setattr(lftomo.series, "reconstruct_series", stop)
+    extra = [] if quadrature is None else ["--quadrature", str(quadrature)]
+    rc = main(["series", str(frames.d / "flame.tif"), str(frames.d / "scene.toml"), "--calibration",
+               str(frames.cal), "--dark", str(frames.d / "dark.tif"), "--quiet", "--recon-shape", "6,6,6",
+               "--rays-per-pixel", "4", "-o", str(tmp_path / "s"), *extra])
+    assert rc == 2 and "stopped before the fits" in capsys.readouterr().err
+    k = BUILD_QUADRATURE if quadrature is None else quadrature
+    assert list(seen["W"].metadata["grid"]["shape"]) == [6 * k] * 3
+    if k == 1:
+        assert "grid" not in seen
+    else:
+        assert seen["grid"].shape == (6, 6, 6)
+        assert seen["grid"].refined(k).to_dict() == seen["W"].metadata["grid"]
+
+
 @pytest.mark.heavy
 def test_cli_series_of_raw_frames_equals_the_per_frame_raw_path(frames, tmp_path, capsys):
     """3 raw TIFF frames (other noise draws of the flame) through ``lftomo series --calibration --dark``
@@ -327,9 +361,9 @@ def test_cli_series_of_raw_frames_equals_the_per_frame_raw_path(frames, tmp_path
     common = ["--calibration", str(frames.cal), "--dark", str(frames.d / "dark.tif"), "--quiet", "--max-steps", "20",
               "--recon-shape", "6,6,6", "--regularization", "0.01", "--rays-per-pixel", "16"]
     ref = []
-    for k, p in enumerate(paths):
+    for k, p in enumerate(paths):  # both with their default sub-voxel emission (W on the 12³ grid)
         assert main(["reconstruct", str(frames.d / "scene.toml"), "--raw", p, "-o", str(tmp_path / f"r{k}"),
-                     *common, "--quadrature", "1"]) == 0  # (the series builds W on the reconstruction grid)
+                     *common]) == 0
         ref.append(np.load(tmp_path / f"r{k}" / "fields.npz")["T"])
     capsys.readouterr()
     out = tmp_path / "series"
@@ -338,6 +372,7 @@ def test_cli_series_of_raw_frames_equals_the_per_frame_raw_path(frames, tmp_path
     text = capsys.readouterr().out
     assert rc == 1, text  # the cropped frame failed
     assert "3 of 4 frames reconstructed on 6x6x6 voxels" in text
+    assert man_grid_shape(out) == [12, 12, 12]  # the forward model on the quadrature grid
     assert "FAILED frame 1: raw frame" in text and "crop.tif" in text and "(100, 120)" in text, text
     man = json.loads((out / "manifest.json").read_text())
     assert [f["status"] for f in man["frames"]] == ["done", "failed", "done", "done"]

@@ -39,6 +39,7 @@ def test_series_from_saved_frames_and_weights(tmp_path, capsys):
     (["a.tif", "--weights", "W.npz", "--calibration", "c.npz"], "raw frames (--calibration) need a SCENE.toml"),
     (["a.npz", "--weights", "W.npz", "--dark", "d.tif"], "--dark only applies to raw frames"),
     (["a.npz", "--weights", "W.npz", "--rays-per-pixel", "64"], "--rays-per-pixel only applies to raw frames"),
+    (["a.npz", "--weights", "W.npz", "--quadrature", "2"], "--quadrature only applies to raw frames"),
     (["a.tif", "s.toml", "--calibration", "c.npz", "--noise", "0.01"], "leave --noise out"),
 ])
 def test_series_bad_arguments(argv, match, tmp_path, capsys):
