@@ -398,8 +398,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                 return e, target, f"{sigma_misestimated(True, lam)}: {note}", met
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
-                note = f"chi²/m stays below the target up to λ = {lam:.3g} (noise σ overestimated?): {found[1]}"
-                return found[0], target, scale_note + note, False
+                return found[0], target, f"{scale_note}{sigma_misestimated(True, lam)}: {found[1]}", False
             note = f"chi²/m stays below the target up to λ = {lam:.3g}: largest λ used"
             return lo, target, scale_note + note, False
     else:
@@ -431,9 +430,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                 return e, target, f"{sigma_misestimated(False, lam)}: {note}", False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
-                note = (f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a "
-                        f"model error?): {found[1]}")
-                return found[0], target, scale_note + note, False
+                return found[0], target, f"{scale_note}{sigma_misestimated(False, lam)}: {found[1]}", False
             note = f"chi²/m stays above the target down to λ = {lam:.3g}: smallest λ used"
             return hi, target, scale_note + note, False
     # the bracket closes (a jump of χ²/m across the target) within LAMBDA_SETTLED, as in the projected search:
