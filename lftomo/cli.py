@@ -562,7 +562,8 @@ def _add_series_parser(sub) -> None:
     sr.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
                     help="discrepancy rule: trust sigma (given, the default) or estimate its scale")
     sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
-    sr.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
+    sr.add_argument("--max-steps", type=_pos_int, default=None,
+                    help="nonlinear steps per solve (default the library's: 200 for T)")
     sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")
     sr.add_argument("--frame-rate", type=_pos_float, default=None, help="frames per second, for the figure's time axis")
     sr.add_argument("--calibration", default=None, help="raw frames (PNG, TIFF, .npy) of the SCENE's camera: the "
@@ -650,7 +651,9 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--min-etendue-fraction", type=_fraction, default=0.2,
                     help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "
                          "images, default 0.2)")
-    rc.add_argument("--max-steps", type=_pos_int, default=50, help="nonlinear steps per solve (default 50)")
+    rc.add_argument("--max-steps", type=_pos_int, default=None,
+                    help="nonlinear steps per solve (default the library's: 200 for T; fewer steps leave the "
+                         "λ search's χ² unconverged)")
     rc.add_argument("--symmetry", choices=("none", "axisymmetric"), default="none",
                     help="axisymmetric: fit one temperature per ring of voxels about the grid's vertical axis "
                          "(lftomo.ring_grid; for axisymmetric flames: removes the depth ambiguity of one camera); "

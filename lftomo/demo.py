@@ -1448,7 +1448,7 @@ def run_reconstruct(
     rays_per_pixel: int | None = None,
     seed: int | None = None,
     channel: int | None = None,
-    max_steps: int = 50,
+    max_steps: int | None = None,
     sampler: str | None = None,
     min_etendue_fraction: float = MIN_ETENDUE_FRACTION,
     symmetry: str | None = None,
