@@ -178,3 +178,22 @@ def test_sampler_option_and_scene_key(tmp_path, capsys):
     # file-mode reconstruct: the rays are the files', --sampler is refused
     assert main(["reconstruct", "--lightfield", "a.npz", "--weights", "b.npz", "--sampler", "stratified"]) == 2
     assert "--sampler only appl" in capsys.readouterr().err
+
+
+def test_cli_step_cap_defaults_to_the_librarys():
+    """``--max-steps`` of ``reconstruct`` and ``series`` leaves the cap to the fit (200 for T): a
+    CLI-only 50 stopped the λ search's solves short (docs/accuracy.md, *The CLI's step cap*)."""
+    import inspect
+
+    import lftomo as lt
+    from lftomo.cli import build_parser
+    from lftomo.demo import run_reconstruct
+    from lftomo.inverse.solvers import temperature_fit
+
+    p = build_parser()
+    assert p.parse_args(["reconstruct", "s.toml"]).max_steps is None
+    assert p.parse_args(["series", "a.npz", "--weights", "W.npz"]).max_steps is None
+    assert p.parse_args(["reconstruct", "s.toml", "--max-steps", "7"]).max_steps == 7
+    assert inspect.signature(run_reconstruct).parameters["max_steps"].default is None
+    assert lt.AutoSolver().keywords().get("max_steps") is None  # None: the fit's own default
+    assert inspect.signature(temperature_fit).parameters["max_steps"].default == 200
