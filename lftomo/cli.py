@@ -355,21 +355,20 @@ def _series_raw_check(args) -> None:
 def _series_raw_forward(args, out):
     """Raw frames: the calibration, dark and sensor settings checked once, then the weight matrix as
     ``lftomo reconstruct --raw`` builds it (kept as DIR/weights.npz); returns ``(W, raw options)``."""
-    from .demo import BUILD_QUADRATURE, raw_scene_model, raw_scene_weights
+    from .demo import raw_scene_model, raw_scene_weights
 
     cfg, grid, conv = raw_scene_model(args.scene, args.calibration, dark=args.dark, dark_frames=args.dark_frames or 1,
                                       camera_file=args.camera, recon_shape=args.recon_shape,
                                       allow_outside=args.allow_outside_paths)
     print(f"lftomo series: raw frames calibrated by {args.calibration} at {conv.wavelength * 1e9:.1f} nm; weight "
           f"matrix of {cfg.source} on {'x'.join(map(str, grid.shape))} voxels", file=sys.stderr)
-    quadrature = BUILD_QUADRATURE if args.quadrature is None else args.quadrature
     W, _, info = raw_scene_weights(cfg, grid, conv.wavelength, rays_per_pixel=args.rays_per_pixel,
-                                   quadrature=quadrature, progress=not args.quiet)
+                                   quadrature=args.quadrature, progress=not args.quiet)
     print(f"lftomo series: weight matrix at {info['rays_per_pixel_weights']} rays/pixel on the "
           f"{'x'.join(map(str, W.metadata['grid']['shape']))} grid", file=sys.stderr)
     W.save(out / "weights.npz")
     # sub-voxel emission: T on the reconstruction grid, interpolated to W's finer grid
-    return W, {"calibration": conv, **({"grid": grid} if quadrature > 1 else {})}
+    return W, {"calibration": conv, **({"grid": grid} if info["quadrature"] > 1 else {})}
 
 
 def cmd_series(args) -> int:

@@ -1199,18 +1199,19 @@ def raw_scene_model(scene, calibration, *, dark=None, dark_frames=1, camera_file
     return cfg, grid, conv
 
 
-def raw_scene_weights(cfg, grid, wavelength: float, *, seed=None, rays_per_pixel=None, quadrature: int = 1,
+def raw_scene_weights(cfg, grid, wavelength: float, *, seed=None, rays_per_pixel=None, quadrature=None,
                       progress: bool = True, sampler=None) -> tuple:
     """The weight matrix of a raw-frame reconstruction: the scene's camera on ``grid`` at ``wavelength``
     for the known absorption (:func:`lftomo.effective_truth` of the scene's ``[medium]``), seed
     ``seed`` (default ``[render] seed``) + 2, ``rays_per_pixel`` (default the larger of the scene's
     ``[render] rays_per_pixel`` and :data:`lftomo.rawdata.RAW_WEIGHT_RAYS`: the frame has no Monte
-    Carlo error, W's is the model's).
+    Carlo error, W's is the model's), on ``grid`` refined ``quadrature`` times per axis (sub-voxel
+    emission; default :data:`BUILD_QUADRATURE`).
 
     Returns
     -------
     (W, sigma_a, info)
-        ``info``: ``rays_per_pixel_weights``, ``sampler``, ``seeds``.
+        ``info``: ``rays_per_pixel_weights``, ``quadrature``, ``sampler``, ``seeds``.
     """
     from .inverse.compare import effective_truth
     from .rawdata import RAW_WEIGHT_RAYS
@@ -1218,10 +1219,12 @@ def raw_scene_weights(cfg, grid, wavelength: float, *, seed=None, rays_per_pixel
     s0 = cfg.seed if seed is None else int(seed)
     n_w = int(rays_per_pixel) if rays_per_pixel else max(int(cfg.rays_per_pixel), RAW_WEIGHT_RAYS)
     smp = cfg.sampler if sampler is None else sampler
+    q = BUILD_QUADRATURE if quadrature is None else int(quadrature)
     sa, _ = effective_truth(cfg.scene.medium, grid, wavelength)  # the known absorption; the scene's T is not used
-    W = _scene_weights(cfg, grid, sa, wavelength, quadrature=quadrature, rays_per_pixel=n_w, seed=s0 + 2,
+    W = _scene_weights(cfg, grid, sa, wavelength, quadrature=q, rays_per_pixel=n_w, seed=s0 + 2,
                        progress=progress, sampler=smp)
-    return W, sa, {"rays_per_pixel_weights": n_w, "sampler": smp, "seeds": {"weights": s0 + 2, "posterior": s0 + 3}}
+    return W, sa, {"rays_per_pixel_weights": n_w, "quadrature": q, "sampler": smp,
+                   "seeds": {"weights": s0 + 2, "posterior": s0 + 3}}
 
 
 def _inputs_from_raw(scene, raw, calibration, *, dark, dark_frames, camera_file, recon_shape, channel, seed,
