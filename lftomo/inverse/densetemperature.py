@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import expit
 
@@ -111,16 +112,54 @@ class DenseTemperatureFit:
         F = data_sq + lam * float(rr @ rr)
         if not with_jacobian:
             return F, data_sq
-        # the data block J = A diag(dI) E, in one parallel pass over A's rows without forming J
+        G, g = self._data_normal_equations(Tq, rd)
+        Jr = (self.L @ sp.diags(du)).tocsr()
+        G += lam * (Jr.T @ Jr).toarray()
+        g += lam * (Jr.T @ rr)
+        return F, data_sq, G, g
+
+    def _data_normal_equations(self, Tq: np.ndarray, rd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``JᵀJ`` and ``Jᵀ r_d`` of the data block ``J = A diag(dI) E`` (in ``x``), in one parallel pass
+        over ``A``'s rows without forming ``J``."""
         dI = dblackbody_dT(Tq, self.wavelength) * ((self.tmax - self.tmin) / self.I_scale)
         order = self.layout.get("order")
         G, g = projected_normal_equations(self.A, None, self.E, rd, column_scale=(dI, None), order=order)
         if order is None:
             self.layout["order"] = bandwidth_order(G, G.shape[0])
+        return G, g
+
+    def residual_dof(self, theta: np.ndarray, lam: float) -> float:
+        """The residual degrees of freedom ``ν = tr(2H − H²)`` at the log-odds ``theta``, exactly.
+
+        ``H = J (JᵀJ + λ J_rᵀJ_r)⁻¹ Jᵀ`` is the influence matrix of the data rows of the problem
+        linearised at ``theta`` (``J`` the data block, ``J_r`` the prior's), so that a linear
+        smoother's residual has ``E‖r‖² = σ² (m − ν) + bias²``.  With ``K = (JᵀJ + λ J_rᵀJ_r)⁻¹ JᵀJ``,
+        ``tr H = tr K`` and ``tr H² = tr K²`` (n × n, one Cholesky factorisation).  Unknowns within
+        10⁻⁹ of a bound of the box are left out, as the log-odds leave them out of every step.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n,)
+            Log-odds of the unit-box temperatures.
+        lam : float
+            Regularisation weight λ.
+
+        Returns
+        -------
+        float
+            ``ν``, between 0 and the number of unknowns.
+        """
+        x = expit(np.asarray(theta, dtype=np.float64))
+        Tq, rd, _, du = self._terms(x)
+        G_d = self._data_normal_equations(Tq, rd)[0]
+        free = (x > 1e-9) & (x < 1.0 - 1e-9)
+        if not free.any():
+            return 0.0
         Jr = (self.L @ sp.diags(du)).tocsr()
-        G += lam * (Jr.T @ Jr).toarray()
-        g += lam * (Jr.T @ rr)
-        return F, data_sq, G, g
+        C = (G_d + lam * (Jr.T @ Jr).toarray())[np.ix_(free, free)]
+        C[np.diag_indices_from(C)] += 1e-12 * max(float(np.diag(C).max()), 1e-300)
+        K = sla.cho_solve(sla.cho_factor(C, check_finite=False), G_d[np.ix_(free, free)], check_finite=False)
+        return float(min(max(2.0 * np.trace(K) - np.sum(K * K.T), 0.0), x.size))
 
     def evaluate_log_odds(self, theta: np.ndarray, lam: float, with_jacobian: bool) -> tuple:
         """:meth:`evaluate` in the log-odds ``θ`` of ``x`` (``x = 1 / (1 + e^{−θ})``, the matrix-free fit's

@@ -14,6 +14,7 @@ import dataclasses
 import warnings
 
 import numpy as np
+import scipy.sparse as sp
 import pytest
 
 import lftomo as lt
@@ -719,6 +720,49 @@ def test_fit_dof_matches_the_dense_trace():
         H = J @ np.linalg.solve(J.T @ J + e.lam * R.T @ R, J.T)
         exact = float(np.trace(2 * H - H @ H))
         assert 0 < se < 0.1 * exact
+        assert abs(est - exact) <= 3 * se, (f, est, se, exact)
+
+
+@pytest.mark.parametrize("subvoxel", [False, True])
+def test_dense_fit_dof_is_the_exact_trace(subvoxel):
+    """With the dense solver ν = tr(2H − H²) is computed exactly: equal to the trace of the influence
+    matrix written out (the data block with sub-voxel emission A diag(dI) E), and within the Hutchinson
+    estimate's standard error of the matrix-free estimate at the same fit."""
+    from lftomo.inverse import solvers as S
+
+    problem, T = make_problem(6, rel_noise=0.02, rows_per_voxel=4)
+    if subvoxel:  # rows through the 2× finer grid, the 6³ temperatures interpolated onto it
+        from lftomo.inverse.subvoxel import interpolation_matrix
+
+        fine = problem.grid.refined(2)
+        E = interpolation_matrix(problem.grid, fine)
+        A = line_operator(fine, 4 * problem.grid.n_voxels, seed=0)
+        y0 = A @ lt.gray_intensity(E @ T.ravel())
+        sigma = np.full(y0.size, 0.02 * np.abs(y0).mean())
+        y = y0 + np.random.default_rng(1).normal(size=y0.size) * sigma
+        problem = LinearProblem(A, y, sigma, problem.grid, None, interpolation=E)
+    s = S._make_setup(problem, bounds=(300.0, 3000.0), prior="curvature", penalize="temperature", tv_eps=1e-3,
+                      T_ref=None)
+    dense = S._Runner(s, method="dense-lm", rtol=1e-6, atol=1e-6, max_steps=200, linear_rtol=1e-6,
+                      linear_max_steps=100)
+    free = S._Runner(s, method="levenberg-marquardt", rtol=1e-6, atol=1e-6, max_steps=200, linear_rtol=1e-6,
+                     linear_max_steps=100)
+    theta0 = S._theta_of_T(S._initial_from_baseline(s), 300.0, 3000.0)
+    lam_ref = S._balanced_lambda(s, dense.T_of(theta0))
+    for f in (1e-2, 1.0):
+        e = dense.solve(lam_ref * f, theta0)
+        exact, se0 = S._fit_dof(dense, e)
+        x = 1.0 / (1.0 + np.exp(-e.theta))
+        Tq = s.tmin + (s.tmax - s.tmin) * x
+        E = sp.identity(x.size, format="csr") if s.E is None else s.E
+        Tq = E @ Tq
+        dI = lt.radiation.dblackbody_dT(Tq, None) * (s.tmax - s.tmin) / s.I_scale
+        J = (dense.dense.A.toarray() * dI[None, :]) @ E.toarray()
+        R = s.L.toarray() * ((s.tmax - s.tmin) / s.T_scale)
+        H = J @ np.linalg.solve(J.T @ J + e.lam * R.T @ R, J.T)
+        assert se0 == 0.0
+        assert exact == pytest.approx(float(np.trace(2 * H - H @ H)), rel=1e-8)
+        est, se = S._fit_dof(free, e, n_probes=32)
         assert abs(est - exact) <= 3 * se, (f, est, se, exact)
 
 
