@@ -698,17 +698,24 @@ def test_problem_chi2_of_a_temperature_field(gray_noisy):
     assert abs(problem.chi2(T) - 1.0) < 5 * np.sqrt(2.0 / m)
 
 
+def _runners(problem, prior, *methods):
+    """The fit's setup, a runner per method, its log-odds start and balanced λ (solvers' internals)."""
+    from lftomo.inverse import solvers as S
+
+    s = S._make_setup(problem, bounds=(300.0, 3000.0), prior=prior, penalize="temperature", tv_eps=1e-3,
+                      T_ref=None)
+    runs = [S._Runner(s, method=m, rtol=1e-6, atol=1e-6, max_steps=200, linear_rtol=1e-6, linear_max_steps=100)
+            for m in methods]
+    theta0 = S._theta_of_T(S._initial_from_baseline(s), 300.0, 3000.0)
+    return s, runs, theta0, S._balanced_lambda(s, runs[0].T_of(theta0))
+
+
 def test_fit_dof_matches_the_dense_trace():
     """Hutchinson's tr(2H − H²) of a fit against the dense influence matrix, within 3 standard errors."""
     from lftomo.inverse import solvers as S
 
     problem, T = make_problem(6, rel_noise=0.02, rows_per_voxel=4)
-    s = S._make_setup(problem, bounds=(300.0, 3000.0), prior="gradient", penalize="temperature", tv_eps=1e-3,
-                      T_ref=None)
-    run = S._Runner(s, method="levenberg-marquardt", rtol=1e-6, atol=1e-6, max_steps=200, linear_rtol=1e-6,
-                    linear_max_steps=100)
-    theta0 = S._theta_of_T(S._initial_from_baseline(s), 300.0, 3000.0)
-    lam_ref = S._balanced_lambda(s, run.T_of(theta0))
+    s, (run,), theta0, lam_ref = _runners(problem, "gradient", "levenberg-marquardt")
     for f in (1e-2, 1.0):
         e = run.solve(lam_ref * f, theta0)
         est, se = S._fit_dof(run, e, n_probes=32)
@@ -741,14 +748,7 @@ def test_dense_fit_dof_is_the_exact_trace(subvoxel):
         sigma = np.full(y0.size, 0.02 * np.abs(y0).mean())
         y = y0 + np.random.default_rng(1).normal(size=y0.size) * sigma
         problem = LinearProblem(A, y, sigma, problem.grid, None, interpolation=E)
-    s = S._make_setup(problem, bounds=(300.0, 3000.0), prior="curvature", penalize="temperature", tv_eps=1e-3,
-                      T_ref=None)
-    dense = S._Runner(s, method="dense-lm", rtol=1e-6, atol=1e-6, max_steps=200, linear_rtol=1e-6,
-                      linear_max_steps=100)
-    free = S._Runner(s, method="levenberg-marquardt", rtol=1e-6, atol=1e-6, max_steps=200, linear_rtol=1e-6,
-                     linear_max_steps=100)
-    theta0 = S._theta_of_T(S._initial_from_baseline(s), 300.0, 3000.0)
-    lam_ref = S._balanced_lambda(s, dense.T_of(theta0))
+    s, (dense, free), theta0, lam_ref = _runners(problem, "curvature", "dense-lm", "levenberg-marquardt")
     for f in (1e-2, 1.0):
         e = dense.solve(lam_ref * f, theta0)
         exact, se0 = S._fit_dof(dense, e)
