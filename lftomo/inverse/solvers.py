@@ -113,8 +113,8 @@ Candidate λ are multiples of it.
   1e-2``: ``s² = χ²(λ_s) / (m − ν)``, ``ν = tr(2H − H²)`` the degrees of
   freedom the fit takes from the residual (``H`` its influence matrix,
   problem linearised at the solution; ``E‖r‖² = σ²(m − ν) + bias²`` for a
-  linear smoother), exactly from the dense Gauss–Newton matrices with the
-  dense solver, else by Hutchinson's estimator with 8 Rademacher probes (one
+  linear smoother), exactly from the dense Gauss–Newton matrices up to
+  4096 unknowns with a quadratic prior, else by Hutchinson's estimator with 8 Rademacher probes (one
   LSMR solve each, Jacobi-scaled); the target is ``χ²/m = (1 + safety) s²``,
   the misfit the true field would have, and ``tol = √(2ν)/(m − ν)``, the
   spread of the rise of χ² above the least-regularized fit (residual degrees
@@ -780,18 +780,24 @@ def _dof_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = 
     return dof
 
 
-def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
+def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0, exact: bool | None = None) -> tuple[float, float]:
     """Degrees of freedom of the residual of the fit ``e``: ``tr(2H − H²)``, ``H``
     the influence matrix of the problem linearised at its solution, so that
     ``E‖r‖² = σ² (m − tr(2H − H²)) + bias²`` (a linear smoother's residual).
-    With the dense solver (``method="dense-lm"``) the trace is exact
-    (:meth:`~lftomo.inverse.densetemperature.DenseTemperatureFit.residual_dof`,
+    With a quadratic prior and at most :data:`DENSE_T_MAX_UNKNOWNS` unknowns
+    (whichever solver ran), the trace is exact from the dense Gauss–Newton
+    matrices (:meth:`~lftomo.inverse.densetemperature.DenseTemperatureFit.residual_dof`,
     standard error 0); otherwise Hutchinson's estimator with ``n_probes``
-    Rademacher vectors (the same seed, the same vectors).  Returns
+    Rademacher vectors (the same seed, the same vectors).  ``exact`` True or
+    False forces either (None: as just said).  Returns
     ``(estimate, its standard error)``."""
-    if run.dense is not None:  # the dense fit has the Gauss–Newton matrices: the trace exactly
-        return run.dense.residual_dof(np.asarray(e.theta), e.lam), 0.0
     s = run.s
+    dense = None if exact is False else run.dense
+    if dense is None and exact is not False and (exact or (s.A_s.shape[1] <= DENSE_T_MAX_UNKNOWNS
+                                                          and s.prior_model.quadratic)):
+        dense = _dense_fit(s)  # few unknowns: the Gauss–Newton matrices are cheaper than 8 LSMR solves
+    if dense is not None:  # the trace exactly
+        return dense.residual_dof(np.asarray(e.theta), e.lam), 0.0
     probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
     fn = _dof_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
     scale = jnp.asarray(run.column_scale(np.asarray(e.theta), e.lam))
@@ -1052,8 +1058,8 @@ def temperature_fit(
         factor is estimated from the residual of the least-regularized fit of
         the search (``λ_ref · 1e-2``), as in regression: ``s² = χ²_s / (m − ν)``
         (``χ²_s`` the total at that λ, ``ν = tr(2H − H²)`` its residual
-        degrees of freedom: exact with the dense solver, else by Hutchinson's
-        estimator, 8 more linear solves);
+        degrees of freedom: exact up to 4096 unknowns with a quadratic prior,
+        else by Hutchinson's estimator, 8 more linear solves);
         target ``χ²/m = (1 + discrepancy_safety) · s²``.  See the module
         docstring.
     progress : bool, optional, keyword-only
