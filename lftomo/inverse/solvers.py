@@ -525,6 +525,7 @@ class _Runner:
         self.colsq_L = np.asarray(s.L.multiply(s.L).sum(axis=0)).ravel()
         self.colsq_L = self.colsq_L / s.prior_model.curvature_divisor
         self.dense = _dense_fit(s) if method == "dense-lm" else None
+        self.dof_fit: DenseTemperatureFit | None = None  # the dense matrices for ν of a matrix-free fit (_fit_dof)
         self.solver = None if self.dense else nonlinear_solver(method, rtol, atol, linear_rtol, linear_max_steps)
         self.rtol, self.atol, self.max_steps = rtol, atol, max_steps
         self.evals: list[Eval] = []
@@ -795,9 +796,14 @@ def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0, exact: boo
     dense = None if exact is False else run.dense
     if dense is None and exact is not False and (exact or (s.A_s.shape[1] <= DENSE_T_MAX_UNKNOWNS
                                                           and s.prior_model.quadratic)):
-        dense = _dense_fit(s)  # few unknowns: the Gauss–Newton matrices are cheaper than 8 LSMR solves
+        # few unknowns: the Gauss–Newton matrices cost less than 8 LSMR solves (kept for the next call)
+        dense = run.dof_fit = run.dof_fit or _dense_fit(s)
     if dense is not None:  # the trace exactly
-        return dense.residual_dof(np.asarray(e.theta), e.lam), 0.0
+        try:
+            return dense.residual_dof(np.asarray(e.theta), e.lam), 0.0
+        except np.linalg.LinAlgError:  # not positive definite in floating point: estimate it instead
+            if exact:
+                raise
     probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
     fn = _dof_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
     scale = jnp.asarray(run.column_scale(np.asarray(e.theta), e.lam))

@@ -767,6 +767,28 @@ def test_dense_fit_dof_is_the_exact_trace(subvoxel):
         assert abs(est - exact) <= 3 * se, (f, est, se, exact)
 
 
+def test_fit_dof_falls_back_on_the_estimate_when_the_dense_trace_fails(monkeypatch):
+    """A damped matrix that is not positive definite in floating point: ν from Hutchinson's probes instead
+    (exact=True still raises)."""
+    from lftomo.inverse import solvers as S
+    from lftomo.inverse.densetemperature import DenseTemperatureFit
+
+    problem, _ = make_problem(6, rel_noise=0.02, rows_per_voxel=4)
+    s, (run,), theta0, lam_ref = _runners(problem, "curvature", "levenberg-marquardt")
+    e = run.solve(lam_ref, theta0)
+    exact = S._fit_dof(run, e)
+    assert exact[1] == 0.0 and run.dof_fit is not None
+
+    def not_positive_definite(self, theta, lam):
+        raise np.linalg.LinAlgError("not positive definite")
+
+    monkeypatch.setattr(DenseTemperatureFit, "residual_dof", not_positive_definite)
+    est, se = S._fit_dof(run, e, n_probes=32)
+    assert se > 0 and abs(est - exact[0]) <= 3 * se
+    with pytest.raises(np.linalg.LinAlgError):
+        S._fit_dof(run, e, exact=True)
+
+
 def test_influence_probes_are_exact_and_report_progress():
     """zᵀHz and ‖Hz‖² of each probe against the dense H = J (JᵀJ + RᵀR)⁻¹ Jᵀ, and one
     progress call per probe, in order, with the number of probes done."""
