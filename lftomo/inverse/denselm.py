@@ -33,7 +33,7 @@ import scipy.linalg as sla
 
 from ..interrupt import check_interrupt
 
-__all__ = ["DenseLMResult", "levenberg_marquardt_dense"]
+__all__ = ["DenseLMResult", "levenberg_marquardt_dense", "residual_dof"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,42 @@ class DenseLMResult:
     converged: bool
     mu: float
     message: str
+
+
+def residual_dof(G_data: np.ndarray, G_prior: np.ndarray, lam: float, free: np.ndarray) -> float:
+    """``ν = tr(2H − H²)``, ``H = J (JᵀJ + λ J_rᵀJ_r)⁻¹ Jᵀ``, from the Gauss–Newton matrices.
+
+    With ``K = (JᵀJ + λ J_rᵀJ_r)⁻¹ JᵀJ``, ``tr H = tr K`` and ``tr H² = tr K²`` (one Cholesky
+    factorisation of the n × n damped matrix, a 10⁻¹² relative ridge on its diagonal).  ``ν`` is the
+    degrees of freedom a linear smoother takes from its residual: ``E‖r‖² = σ² (m − ν) + bias²``
+    (Hastie & Tibshirani 1990, *Generalized Additive Models*, §3.5).
+
+    Parameters
+    ----------
+    G_data, G_prior : ndarray, shape (n, n)
+        ``JᵀJ`` of the data block and ``J_rᵀJ_r`` of the prior per unit λ.
+    lam : float
+        Regularisation weight λ.
+    free : ndarray of bool, shape (n,)
+        The unknowns counted (those held at a bound left out).
+
+    Returns
+    -------
+    float
+        ``ν`` (0 when no unknown is free).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        Where the damped matrix is not positive definite in floating point.
+    """
+    if not np.any(free):
+        return 0.0
+    sub = np.ix_(free, free)
+    C = G_data[sub] + lam * G_prior[sub]
+    C[np.diag_indices_from(C)] += 1e-12 * max(float(np.diag(C).max()), 1e-300)
+    K = sla.cho_solve(sla.cho_factor(C, check_finite=False), G_data[sub], check_finite=False)
+    return float(2.0 * np.trace(K) - np.sum(K * K.T))
 
 
 class _DampedSystem:

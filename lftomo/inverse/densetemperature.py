@@ -26,12 +26,11 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import expit
 
 from ..radiation import blackbody, dblackbody_dT
-from .denselm import DenseLMResult, levenberg_marquardt_dense
+from .denselm import DenseLMResult, levenberg_marquardt_dense, residual_dof
 from .hostsparse import bandwidth_order, projected_normal_equations
 
 __all__ = ["DenseTemperatureFit", "DENSE_TEMPERATURE_FTOL"]
@@ -113,10 +112,14 @@ class DenseTemperatureFit:
         if not with_jacobian:
             return F, data_sq
         G, g = self._data_normal_equations(Tq, rd)
-        Jr = (self.L @ sp.diags(du)).tocsr()
+        Jr = self._prior_jacobian(du)
         G += lam * (Jr.T @ Jr).toarray()
         g += lam * (Jr.T @ rr)
         return F, data_sq, G, g
+
+    def _prior_jacobian(self, du: np.ndarray) -> sp.csr_matrix:
+        """``J_r = L diag(du/dx)``, the prior residual's Jacobian in ``x``."""
+        return (self.L @ sp.diags(du)).tocsr()
 
     def _data_normal_equations(self, Tq: np.ndarray, rd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``JᵀJ`` and ``Jᵀ r_d`` of the data block ``J = A diag(dI) E`` (in ``x``), in one parallel pass
@@ -133,9 +136,9 @@ class DenseTemperatureFit:
 
         ``H = J (JᵀJ + λ J_rᵀJ_r)⁻¹ Jᵀ`` is the influence matrix of the data rows of the problem
         linearised at ``theta`` (``J`` the data block, ``J_r`` the prior's), so that a linear
-        smoother's residual has ``E‖r‖² = σ² (m − ν) + bias²``.  With ``K = (JᵀJ + λ J_rᵀJ_r)⁻¹ JᵀJ``,
-        ``tr H = tr K`` and ``tr H² = tr K²`` (n × n, one Cholesky factorisation).  Unknowns within
-        10⁻⁹ of a bound of the box are left out, as the log-odds leave them out of every step.
+        smoother's residual has ``E‖r‖² = σ² (m − ν) + bias²``
+        (:func:`~lftomo.inverse.denselm.residual_dof`).  Unknowns within 10⁻⁹ of a bound of the box are
+        left out, as the log-odds leave them out of every step.
 
         Parameters
         ----------
@@ -151,15 +154,10 @@ class DenseTemperatureFit:
         """
         x = expit(np.asarray(theta, dtype=np.float64))
         Tq, rd, _, du = self._terms(x)
-        G_d = self._data_normal_equations(Tq, rd)[0]
-        free = (x > 1e-9) & (x < 1.0 - 1e-9)
-        if not free.any():
-            return 0.0
-        Jr = (self.L @ sp.diags(du)).tocsr()
-        C = (G_d + lam * (Jr.T @ Jr).toarray())[np.ix_(free, free)]
-        C[np.diag_indices_from(C)] += 1e-12 * max(float(np.diag(C).max()), 1e-300)
-        K = sla.cho_solve(sla.cho_factor(C, check_finite=False), G_d[np.ix_(free, free)], check_finite=False)
-        return float(min(max(2.0 * np.trace(K) - np.sum(K * K.T), 0.0), x.size))
+        Jr = self._prior_jacobian(du)
+        nu = residual_dof(self._data_normal_equations(Tq, rd)[0], (Jr.T @ Jr).toarray(), lam,
+                          (x > 1e-9) & (x < 1.0 - 1e-9))
+        return float(min(max(nu, 0.0), x.size))
 
     def evaluate_log_odds(self, theta: np.ndarray, lam: float, with_jacobian: bool) -> tuple:
         """:meth:`evaluate` in the log-odds ``θ`` of ``x`` (``x = 1 / (1 + e^{−θ})``, the matrix-free fit's

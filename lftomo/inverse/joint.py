@@ -180,7 +180,6 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
-import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import expit
 from threadpoolctl import threadpool_limits
@@ -191,7 +190,7 @@ from ..forward.weights import RaySegments
 from ..interrupt import stop_between_steps
 from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
-from .denselm import levenberg_marquardt_dense
+from .denselm import levenberg_marquardt_dense, residual_dof
 from .hostsparse import bandwidth_order, buffer_key, channels_normal_equations
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
@@ -857,11 +856,7 @@ class DenseLMPath(_JointPath):
         matrices (unknowns held at a bound excluded, as the log-odds of the other methods exclude them)."""
         x = expit(np.asarray(e.theta, np.float64))
         G_d = self.data_terms(x, True)[1]
-        free = (x > 1e-9) & (x < 1.0 - 1e-9)
-        C = (G_d + e.lam * self.prior_gram())[np.ix_(free, free)]
-        C[np.diag_indices_from(C)] += 1e-12 * max(float(np.diag(C).max()), 1e-300)
-        M = sla.cho_solve(sla.cho_factor(C, check_finite=False), G_d[np.ix_(free, free)], check_finite=False)
-        return float(2.0 * np.trace(M) - np.sum(M * M.T)), 0.0
+        return residual_dof(G_d, self.prior_gram(), e.lam, (x > 1e-9) & (x < 1.0 - 1e-9)), 0.0
 
     def run(self, p0, lam, steps_max=None, objective_rtol=None) -> Eval:
         """One solve at ``λ`` from ``p0`` in the unit box of ``(T, σ_ref)``; the result is returned in the

@@ -793,16 +793,15 @@ def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0, exact: boo
     False forces either (None: as just said).  Returns
     ``(estimate, its standard error)``."""
     s = run.s
-    dense = None if exact is False else run.dense
-    if dense is None and exact is not False and (exact or (s.A_s.shape[1] <= DENSE_T_MAX_UNKNOWNS
-                                                          and s.prior_model.quadratic)):
-        # few unknowns: the Gauss–Newton matrices cost less than 8 LSMR solves (kept for the next call)
-        dense = run.dof_fit = run.dof_fit or _dense_fit(s)
-    if dense is not None:  # the trace exactly
+    forced = exact is not None
+    if exact is None:  # few unknowns: the Gauss–Newton matrices cost less than 8 LSMR solves
+        exact = run.dense is not None or (s.A_s.shape[1] <= DENSE_T_MAX_UNKNOWNS and s.prior_model.quadratic)
+    if exact:
+        run.dof_fit = run.dense or run.dof_fit or _dense_fit(s)  # kept for the fit's next call
         try:
-            return dense.residual_dof(np.asarray(e.theta), e.lam), 0.0
+            return run.dof_fit.residual_dof(np.asarray(e.theta), e.lam), 0.0
         except np.linalg.LinAlgError:  # not positive definite in floating point: estimate it instead
-            if exact:
+            if forced:
                 raise
     probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
     fn = _dof_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
@@ -1064,8 +1063,7 @@ def temperature_fit(
         factor is estimated from the residual of the least-regularized fit of
         the search (``λ_ref · 1e-2``), as in regression: ``s² = χ²_s / (m − ν)``
         (``χ²_s`` the total at that λ, ``ν = tr(2H − H²)`` its residual
-        degrees of freedom: exact up to 4096 unknowns with a quadratic prior,
-        else by Hutchinson's estimator, 8 more linear solves);
+        degrees of freedom: exact up to 4096 unknowns and a quadratic prior, else 8 Hutchinson probes);
         target ``χ²/m = (1 + discrepancy_safety) · s²``.  See the module
         docstring.
     progress : bool, optional, keyword-only
