@@ -75,3 +75,21 @@ def stratified_etendue_check(cam, rows, cols, n_seeds=40):
     se = np.sqrt(runs.var(axis=0, ddof=1) / len(runs) + ref[:, 3] ** 2)
     diff = runs.mean(axis=0) - ref[:, 0]
     return diff[lit] / se[lit], diff[lit], se[lit], lit
+
+
+# The test files that take minutes (kernels that execute the notebooks, the demo run behind a module
+# fixture) go first.  `--dist loadfile` hands whole files to the workers in collection order, which
+# pytest-xdist by default re-sorts by the number of tests per file; these files have few tests, so they
+# were handed out last and one worker ran them alone while the other sat idle.  Longest first keeps the
+# two workers busy to the end.
+SLOW_FIRST = ("test_notebooks.py", "test_demo.py")
+
+
+def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(SLOW_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
