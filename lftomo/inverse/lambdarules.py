@@ -18,7 +18,8 @@ Rules (:data:`RULE_CLASSES`; the string names select them):
   solves (factor-10 bracket, then Brent's method in log λ).  With the noise scale
   given and χ²/m below the target at every λ (σ overestimated) or above it
   (σ underestimated, or a model error), the root search is redone with the
-  scale estimated.  The T-only fit's rule.
+  scale estimated; its descent below the target stops early where χ²/m has
+  stopped closing on it (:func:`out_of_reach`).  The T-only fit's rule.
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
   as "the largest λ with ``χ²/m ≤ target``", given or estimated noise scale:
   by default the same projected search (:func:`projected_bracket_search`),
@@ -76,6 +77,7 @@ __all__ = [
     "lcurve_curvature",
     "objective",
     "discrepancy_search",
+    "out_of_reach",
     "estimated_target",
     "projected_bracket_search",
     "projected_discrepancy_search",
@@ -317,6 +319,25 @@ def sigma_misestimated(below: bool, lam: float) -> str:
     return f"chi²/m stays above the target down to λ = {lam:.3g} (noise σ underestimated, or a model error)"
 
 
+def out_of_reach(gap: float, falls: list[float], decades_left: float, tol: float) -> bool:
+    """Whether a descent in λ by factors of 10 has stopped closing on the discrepancy target.
+
+    ``gap``: ``log(χ²/m / target)`` at the last λ (> 0); ``falls``: the fall of
+    that logarithm over each decade descended so far; ``decades_left``: the
+    decades of λ still to search.  True when the fall has stopped growing
+    (the last decade's no larger than the one before) and, continued at the
+    last decade's rate over every decade left, would still end more than
+    ``tol`` above the target.  χ² of a Tikhonov fit falls with λ as each
+    singular direction of the data leaves the prior's hold; a fall that
+    shrinks from one decade to the next means those directions are used up
+    (a model error or an understated σ holds χ² up).  A heuristic: a second
+    cluster of directions far below would be missed.
+    """
+    if len(falls) < 2 or falls[-1] > falls[-2]:
+        return False
+    return gap > max(falls[-1], 0.0) * decades_left + tol
+
+
 def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
                        search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None,
                        climbed: dict[float, Eval] | None = None):
@@ -328,7 +349,9 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     attains the target.  When χ²/m stays below ``1 + safety`` at every λ (σ
     overestimated) or above it (σ underestimated, or a model error) and there
     are more data than unknowns, the search is redone with ``estimate_scale``
-    (``met`` then True below, False above: the target asked for was not met).
+    (``met`` then True below, False above: the target asked for was not met);
+    the descent then stops as soon as :func:`out_of_reach` says the target
+    is out of its reach.
     ``estimate_scale``: the target is ``(1 + safety) s²``, ``s² = χ²/(m − ν)``
     of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``:
     the solve at ``λ_ref · 1e-2`` from ``theta0``, when already done; ``climbed``: the solves of an earlier pass's factor-10
@@ -404,13 +427,22 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     else:
         hi = e
         lo = None
+        falls: list[float] = []  # the fall of g over each decade descended
+        fallback = not estimate_scale and m > run.n_unknowns
         while lam > lo_lim:
             lam /= 10.0
             e = solve(lam, hi.theta)
             if g(e) < 0:
                 lo = e
                 break
+            falls.append(g(hi) - g(e))
             hi = e
+            if fallback and out_of_reach(g(e), falls, math.log10(lam / lo_lim), tol):
+                # the rest of the descent would only confirm what the redone search below assumes
+                note = (f"chi²/m {hi.chi2:.5g} at λ = {lam:.3g} fell by a factor {math.exp(falls[-1]):.4g} over "
+                        f"the last decade, {math.exp(falls[-2]):.4g} over the one before: at that rate not to the "
+                        f"target within λ_ref·1e-10; ")
+                break
         if lo is None:
             # χ² above the target everywhere: σ underestimated or a model error
             # (a coarse grid, Monte Carlo data or W with their error understated
@@ -424,10 +456,10 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # which sends a sub-voxel fit's surrogate on to the full model.
             # With too few data for the estimate, take the L-curve corner of
             # the solutions computed on the way down.
-            if not estimate_scale and m > run.n_unknowns:
-                e, target, note, _ = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
-                                                        estimate_scale=True, first=first)
-                return e, target, f"{sigma_misestimated(False, lam)}: {note}", False
+            if fallback:
+                stop, (e, target, note_2, _) = note, discrepancy_search(run, theta0, lam_ref, safety, search_steps,
+                                                                        search_rtol, estimate_scale=True, first=first)
+                return e, target, f"{sigma_misestimated(False, lam)}: {stop}{note_2}", False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 return found[0], target, f"{scale_note}{sigma_misestimated(False, lam)}: {found[1]}", False

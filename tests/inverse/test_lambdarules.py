@@ -23,6 +23,7 @@ from lftomo.inverse.lambdarules import (
     LAMBDA_SETTLED,
     LCurveDecades,
     projected_bracket_search,
+    out_of_reach,
     projected_discrepancy_search,
     resolve_rule,
 )
@@ -535,6 +536,66 @@ def test_a_root_search_that_meets_no_target_says_so():
     path = LinearPath()
     e, ch, search = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
     assert search == "root" and ch.target_met and ch.target == 1.0
+
+
+def test_the_descent_stops_once_chi2_has_stopped_closing_on_the_target():
+    """The same model error: χ²/m levels off above the target within a few decades below λ_ref·1e-2, and the
+    given-σ descent stops there instead of solving down to λ_ref·1e-10, saying why; its fallback (the search
+    redone with the noise scale estimated) is unchanged.  Where the noise scale cannot be estimated (as many
+    unknowns as data) the descent goes to its end: its solves are the L-curve the fallback then needs."""
+    path = ModelErrorPath()
+    e, ch, _ = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert "fell by a factor" in ch.note and "noise scale estimated" in ch.note, ch.note
+    descent = [x.lam for x in path.evals if x.lam < 1e-2]
+    assert 2 <= len(descent) <= 4 and min(descent) >= 1e-6, descent
+    alone = ModelErrorPath()
+    e_alone, ch_alone, _ = Discrepancy(noise_scale="estimated", search="root").choose(
+        alone, np.zeros(alone.n_unknowns), lam_ref=1.0)
+    assert e.lam == pytest.approx(e_alone.lam, rel=1e-12) and ch.target == pytest.approx(ch_alone.target, rel=1e-12)
+    full = ModelErrorPath()
+    full.n_unknowns = full.m_total
+    Discrepancy(search="root").choose(full, np.zeros(20), lam_ref=1.0)
+    assert min(x.lam for x in full.evals) < 1e-9
+
+
+class SlowFallPath:
+    """χ²/m falling by the same factor e^0.005 per decade of λ all the way down to the target, which it meets at
+    λ = 1e-8 only (eight decades below the search's first solve at 1e-2, with λ_ref = 1)."""
+
+    m_total, n_unknowns, lam_root = 2_000_000, 10, 1e-8
+
+    def __init__(self):
+        self.evals = []
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        e = Eval(float(lam), np.zeros(1), math.exp(0.005 * math.log10(lam / self.lam_root)), 1.0, 1, True, "")
+        self.evals.append(e)
+        return e
+
+    def nearest(self, lam, default):
+        return default
+
+
+def test_a_steady_fall_of_chi2_is_followed_to_its_root():
+    """A fall of χ²/m that does not shrink from decade to decade keeps the descent going: the root eight decades
+    down is found with the noise scale as given (a stop after two decades would miss it and estimate the scale)."""
+    path = SlowFallPath()
+    e, ch, _ = Discrepancy(search="root").choose(path, np.zeros(1), lam_ref=1.0)
+    assert ch.target_met and ch.target == 1.0 and "noise scale estimated" not in ch.note, ch.note
+    assert e.lam == pytest.approx(SlowFallPath.lam_root, rel=0.05)
+
+
+def test_out_of_reach_extrapolates_the_last_decades_fall():
+    """The rule itself, on the two-lobed flame's numbers (8³, one camera: χ²/m 1.0585, 1.0512, 1.0482 at λ 28.9,
+    2.89, 0.289 against the target 1, tolerance 0.0083, seven decades left): out of reach.  Not where the fall
+    grows, where it is steady enough to close the gap, or after one decade only."""
+    g = [math.log(c) for c in (1.0585, 1.05124, 1.04823)]
+    falls = [g[0] - g[1], g[1] - g[2]]
+    assert out_of_reach(g[2], falls, 7.0, 0.0083)
+    assert not out_of_reach(g[2], falls[::-1], 7.0, 0.0083)  # a growing fall
+    assert not out_of_reach(0.02, [0.005, 0.005], 6.0, 1e-3)  # steady: 6 decades × 0.005 ≥ 0.02
+    assert not out_of_reach(g[2], falls[:1], 8.0, 0.0083)
+    assert not out_of_reach(g[2], falls, 30.0, 0.0083)  # many decades left at that rate
 
 
 def _few_data(path):
