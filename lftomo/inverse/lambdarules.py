@@ -439,9 +439,9 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             hi = e
             if fallback and out_of_reach(g(e), falls, math.log10(lam / lo_lim), tol):
                 # the rest of the descent would only confirm what the redone search below assumes
-                note = (f"chi²/m {hi.chi2:.5g} at λ = {lam:.3g} fell by a factor {math.exp(falls[-1]):.4g} over "
-                        f"the last decade, {math.exp(falls[-2]):.4g} over the one before: at that rate not to the "
-                        f"target within λ_ref·1e-10; ")
+                drop = [100.0 * -math.expm1(-f) for f in falls[-2:]]
+                note = (f"chi²/m {hi.chi2:.5g} at λ = {lam:.3g}, down {drop[1]:.2g} % over the last decade and "
+                        f"{drop[0]:.2g} % over the one before: at that rate not at the target by λ = {lo_lim:.3g}; ")
                 break
         if lo is None:
             # χ² above the target everywhere: σ underestimated or a model error
