@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import time
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -764,5 +766,18 @@ def main(argv=None) -> int:
         return 2
 
 
+def console_main() -> NoReturn:
+    """The ``lftomo`` executable: :func:`main`, then the process's exit with its status.
+
+    Once the command has returned its files are complete or as before, and a
+    Ctrl-C has nothing left to stop; one that arrived while Python shuts down
+    would interrupt a finalizer (numba's and llvmlite's run then) and print
+    its traceback. From then on SIGINT is ignored.
+    """
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise SystemExit(code)
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    console_main()

@@ -407,3 +407,20 @@ def test_ctrl_c_stops_a_direct_solve_temperature_call_between_steps():
     finally:
         timer.cancel()
     assert time.perf_counter() - t0 < 30.0
+
+
+def test_ctrl_c_while_python_shuts_down_after_a_finished_command_is_ignored():
+    """A Ctrl-C that arrives after the command has finished, while Python shuts down (here: from an exit
+    handler, which runs then as numba's and llvmlite's finalizers do), has nothing left to stop: the
+    executable exits with the command's status and prints no traceback (CI once saw one from llvmlite's
+    ``ObjectRef.__del__`` in the test above)."""
+    code = ("import atexit, os, signal, sys, time\n"
+            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.2)))\n"
+            f"sys.argv = ['lftomo', 'camera', {str(ROOT / 'examples' / 'flame.toml')!r}]\n"
+            "from lftomo.cli import console_main\n"
+            "console_main()\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, (proc.returncode, proc.stderr)
+    assert proc.stdout.strip(), proc.stdout  # the command ran: its camera report
