@@ -456,10 +456,10 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # which sends a sub-voxel fit's surrogate on to the full model.
             # With too few data for the estimate, take the L-curve corner of
             # the solutions computed on the way down.
-            if fallback:
-                stop, (e, target, note_2, _) = note, discrepancy_search(run, theta0, lam_ref, safety, search_steps,
-                                                                        search_rtol, estimate_scale=True, first=first)
-                return e, target, f"{sigma_misestimated(False, lam)}: {stop}{note_2}", False
+            if fallback:  # (``note``: where the descent stopped early, if it did)
+                e, target, redone, _ = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
+                                                          estimate_scale=True, first=first)
+                return e, target, f"{sigma_misestimated(False, lam)}: {note}{redone}", False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
                 return found[0], target, f"{scale_note}{sigma_misestimated(False, lam)}: {found[1]}", False

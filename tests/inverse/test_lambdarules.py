@@ -22,8 +22,8 @@ from lftomo.inverse.lambdarules import (
     JOINT_LAMBDA_SETTLED,
     LAMBDA_SETTLED,
     LCurveDecades,
-    projected_bracket_search,
     out_of_reach,
+    projected_bracket_search,
     projected_discrepancy_search,
     resolve_rule,
 )
