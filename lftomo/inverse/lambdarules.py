@@ -549,7 +549,10 @@ def projected_discrepancy_search(run: Any, theta0, lam_ref: float, target: float
     λ is searched in ``lam_range`` (default ``λ_ref · [1e-10, 1e4]``).
     Returns ``(eval, note, inexact)`` (``inexact``: λ was found by inexact solves,
     from the start or after the hand-over), or None when the fit offers no linearisation,
-    the projected misfit cannot attain the target in that range, or the
+    the projected misfit cannot attain the target in that range, a
+    linearisation asks for a λ above that of a converged solve whose ``χ²/m``
+    ended more than :data:`DISCREPANCY_JUMP` above the target (χ²/m grows with
+    λ: the linearisation misleads there), or the
     solves end more than :data:`DISCREPANCY_JUMP` from it or (with
     ``require_converged``) unconverged; the caller then runs its search over
     converged solves (:func:`discrepancy_search`, :func:`bracket_search`).
@@ -577,9 +580,23 @@ class _ProjectedSearch:
         self.lam_lo, self.lam_hi = lam_range
         self.lam_settled = lam_settled
         self.dims: list[int] = []
+        # the least λ of a converged solve whose χ²/m lies clearly above the target: χ²/m grows with λ, so the
+        # target lies below it
+        self.lam_above = math.inf
+
+    def observe(self, e: Eval) -> None:
+        """Note a solve: a converged one clearly above the target (by :data:`DISCREPANCY_JUMP`) bounds λ."""
+        if e.converged and e.chi2 > self.target * (1.0 + DISCREPANCY_JUMP):
+            self.lam_above = min(self.lam_above, e.lam)
 
     def choose(self, theta, lam):
-        """λ chosen on the linearisation at ``theta``: ``(λ, linearisation, projection, side)`` or None."""
+        """λ chosen on the linearisation at ``theta``: ``(λ, linearisation, projection, side)``, or None.
+
+        None also where the linearisation asks for a λ above :attr:`lam_above` (counting the decade
+        climbed where it puts χ²/m below the target at every λ): a converged solve there already ended
+        clearly above the target, so the linearisation misleads (measured where the target is out of
+        reach: docs/accuracy.md, *The projected search gives way where a solve contradicts it*).
+        """
         from .projected import ProjectedTikhonov
 
         lin = self.run.linearization(theta, lam)
@@ -588,6 +605,9 @@ class _ProjectedSearch:
         proj = ProjectedTikhonov(lin)
         lam_new, side = proj.discrepancy_lambda(self.target, self.lam_lo, self.lam_hi, lam)
         self.dims.append(proj.k)
+        asked = 10.0 * lam if side > 0 else (lam if side < 0 else lam_new)
+        if asked > self.lam_above * (1.0 + self.lam_settled):
+            return None
         return lam_new, lin, proj, side
 
     def settled(self, lam_a: float, lam_b: float) -> bool:
@@ -634,6 +654,7 @@ class _ProjectedSearch:
                 # an inexact solve instead of the projected step: a few of the fit's own steps at λ
                 e = run.solve(lam_new, theta, inner_steps, objective_rtol=search_rtol)
                 e.search_iterate = True
+                self.observe(e)
                 theta, moved = e.theta, not e.converged
                 # a converged inexact solve that meets the target to the rule's tolerance ends the search at its
                 # λ (χ²/m is nearly flat in λ there: settling λ as well cost three or four more inexact solves;
@@ -659,6 +680,7 @@ class _ProjectedSearch:
                 e.search_iterate = False
             else:
                 e = run.solve(lam, theta, objective_rtol=search_rtol)
+                self.observe(e)
             solves += 1
             miss = abs(e.chi2 / target - 1.0)
             done = e.converged or not require_converged

@@ -419,6 +419,46 @@ def test_projected_search_gives_way_where_chi2_jumps_across_the_target(monkeypat
     assert len(lams) < 8 and above / below <= 1.0 + LAMBDA_SETTLED, lams
 
 
+class FlooredPath(OvershootingPath):
+    """Converged solves level off 5 % above the target at every λ (a model error that σ leaves out):
+    ``χ²/m = 1.05 (λ/λ*)^0.001``, above 1.035 over the searched range."""
+
+    def solve(self, lam, start, max_steps=None, objective_rtol=None):
+        e = super().solve(lam, start, max_steps, objective_rtol)
+        e.chi2 = 1.05 * (lam / self.lam_star) ** 1e-3
+        return e
+
+
+class UphillProjection:
+    """A linearisation that asks for three times the λ its iterate was solved at (the projected misfit
+    meets the target there), as measured where the target is out of reach (log-odds near the bounds)."""
+
+    def __init__(self, lam_of_iterate):
+        self.lam_of_iterate, self.k = lam_of_iterate, 1
+
+    def discrepancy_lambda(self, target, lam_lo, lam_hi, lam_start):
+        return 3.0 * self.lam_of_iterate, 0
+
+
+@pytest.mark.parametrize("inner_steps", [10, 0])
+def test_projected_search_gives_way_once_a_converged_solve_contradicts_its_linearisation(monkeypatch,
+                                                                                         inner_steps):
+    """χ²/m grows with λ, so a converged solve clearly above the target (by DISCREPANCY_JUMP) puts the
+    target below its λ; a linearisation that then asks for a larger λ misleads, and the search gives
+    way (None) at once instead of following it up the λ range: one solve, with inexact solves (walk)
+    or Gauss–Newton steps (the solves at the walk's λ).  Followed, it would have taken ten inexact
+    solves, or all eight solves."""
+    import lftomo.inverse.projected as projected
+
+    monkeypatch.setattr(projected, "ProjectedTikhonov", UphillProjection)
+    path = FlooredPath()
+    found = projected_discrepancy_search(path, np.array([math.log(10.0)]), 10.0, 1.0, 1e-3, 1e-4,
+                                         lam_range=(1e-3, 1e6), max_gauss_newton=10 if inner_steps else 0,
+                                         max_solves=8, inner_steps=inner_steps)
+    assert found is None
+    assert [x.lam for x in path.evals] == pytest.approx([30.0 if inner_steps else 10.0], rel=1e-12)
+
+
 def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
     """σ overestimated (data ×0.1): no λ attains χ²/m = 1 on the projected problem either; the root
     search takes over (and with it the estimated noise scale)."""
