@@ -27,7 +27,10 @@ unbiased for ``Φ``.  Two samplers:
     mixture (Hesterberg 1995) of probability ``alpha`` draws the sample
     from the whole pixel and the whole clear aperture instead, and every
     sample is weighted by the mixture density, so the estimator stays
-    unbiased even where the lenslet disc or the box would miss light.  Groups are
+    unbiased even where the lenslet disc or the box would miss light.  A pixel
+    that misses the disc altogether (only defensive samples) draws the first
+    point of each group only, weighted by the group's size ``n_g``: each
+    group's mean keeps its expectation at ``1/n_g`` of the cost.  Groups are
     independent unbiased estimates: their spread gives an honest standard
     error (:func:`group_variance`).
 ``"independent"``
@@ -323,6 +326,15 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     k_groups = int(sampler[S_GROUPS])
     g = m % k_groups
     idx = m // k_groups
+    n_rep = 1.0
+    if not has_box:
+        # the pixel misses the microlens image disc, which holds every sensor point a ray through the lenslet
+        # reaches: only defensive samples would be drawn, and none should pass.  The first sample of each
+        # randomization stands for its group's n_g (weight × n_g; its scrambled point is uniform), so the
+        # estimator stays unbiased should light pass after all, at 1/n_g of the cost
+        if idx > 0:
+            return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+        n_rep = float((n_rays - g + k_groups - 1) // k_groups)
     # one well-mixed scrambling seed per (group, dimension): the Laine–Karras
     # hash only scrambles, related seeds would give correlated dimensions
     u1 = scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1))
@@ -374,7 +386,7 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
         ddy = hy - by
         if ddx * ddx + ddy * ddy <= rho * rho:
             dens += (1.0 - alpha) / (a_box * math.pi * rho * rho)
-    dx, dy, dz, w = _o.sample_direction_weight(sx, sy, sz, hx, hy, hz, nx, ny, nz, 1.0 / (dens * psel), optics)
+    dx, dy, dz, w = _o.sample_direction_weight(sx, sy, sz, hx, hy, hz, nx, ny, nz, n_rep / (dens * psel), optics)
     ok, x, y, dx, dy, dz = _o.trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics)
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
