@@ -334,7 +334,7 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
         # estimator stays unbiased should light pass after all, at 1/n_g of the cost
         if idx > 0:
             return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
-        n_rep = float((n_rays - g + k_groups - 1) // k_groups)
+        n_rep = float(group_size(n_rays, g, k_groups))
     # one well-mixed scrambling seed per (group, dimension): the Laine–Karras
     # hash only scrambles, related seeds would give correlated dimensions
     u1 = scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1))
@@ -659,6 +659,12 @@ def microlens_images(optics: np.ndarray, centres: np.ndarray, radius: float, *, 
 
 
 @njit(cache=True, inline="always")
+def group_size(n_rays, g, k_groups):
+    """Number of the ``n_rays`` samples in group ``g`` (sample ``m`` is in group ``m mod k_groups``)."""
+    return (n_rays - g + k_groups - 1) // k_groups
+
+
+@njit(cache=True, inline="always")
 def group_variance(gs, n_rays):
     """Estimated variance of a pixel estimate ``Σ gs / n_rays`` from its
     group sums ``gs`` (K,): sample ``m`` is in group ``m mod K``, the group
@@ -670,8 +676,7 @@ def group_variance(gs, n_rays):
     mean = gs.sum() / n_rays
     acc = 0.0
     for g in range(k):
-        n_g = (n_rays - g + k - 1) // k
-        d = gs[g] - n_g * mean
+        d = gs[g] - group_size(n_rays, g, k) * mean
         acc += d * d
     return acc / (n_rays * n_rays) * k / (k - 1)
 

@@ -605,10 +605,15 @@ class _ProjectedSearch:
         proj = ProjectedTikhonov(lin)
         lam_new, side = proj.discrepancy_lambda(self.target, self.lam_lo, self.lam_hi, lam)
         self.dims.append(proj.k)
-        asked = 10.0 * lam if side > 0 else (lam if side < 0 else lam_new)
-        if asked > self.lam_above * (1.0 + self.lam_settled):
+        if self.next_lambda(lam_new, side, lam) > self.lam_above * (1.0 + self.lam_settled):
             return None
         return lam_new, lin, proj, side
+
+    def next_lambda(self, lam_new: float, side: int, lam: float) -> float:
+        """The λ the walk goes on at from an iterate solved at ``lam``: ``lam_new`` where the linearisation
+        meets the target (``side`` 0), ``lam`` where its misfit stays above it (−1), a decade higher where it
+        stays below it (+1; at most the top of the range)."""
+        return lam_new if side == 0 else (lam if side < 0 else min(10.0 * lam, self.lam_hi))
 
     def settled(self, lam_a: float, lam_b: float) -> bool:
         return abs(math.log(lam_a / lam_b)) <= math.log1p(self.lam_settled)
@@ -629,7 +634,7 @@ class _ProjectedSearch:
                 # λ: an iterate stopped short of its fit cannot raise the projected misfit (the fit still
                 # descends along a poorly observed direction that more λ would smooth away): solve on a decade
                 # higher
-                lam_new = lam if side < 0 else min(10.0 * lam, self.lam_hi)
+                lam_new = self.next_lambda(lam_new, side, lam)
             fresh = False
             if not inner_steps:
                 theta_next, decrease, (chi2, reg) = _descent(run, theta, lin.scale * proj.step(lam_new), lam_new)
