@@ -49,8 +49,9 @@ factor, as in the T-only rule (:func:`lftomo.inverse.solvers.solve_temperature`)
 the target is ``χ²/m = s² = χ²_ref / (m − ν)``, ``χ²_ref`` the least χ²/m of the
 path's solves (in practice one of its first, least-regularized ones: the
 first, at 10⁻², often has not converged within ``max_steps``), ``ν = tr(2H − H²)``
-the residual degrees of freedom of the first solve (Hutchinson, 8 probes, one
-LSMR solve each).  With a coarse-to-fine ``start`` the search then begins a
+the residual degrees of freedom of the first solve (Hutchinson's estimator,
+:func:`~lftomo.inverse.lsq.hutchinson_dof`, one LSMR solve per probe; the exact
+trace with ``method="dense-lm"``).  With a coarse-to-fine ``start`` the search then begins a
 decade below the start's λ (:data:`START_LAMBDA_FACTOR`).
 
 Options
@@ -177,11 +178,11 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 import scipy.sparse as sp
 from scipy.special import expit
+from scipy.sparse.linalg import lsmr
 from threadpoolctl import threadpool_limits
 
 from .._validate import require_choice, require_steps
@@ -197,7 +198,7 @@ from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
 from .lambdarules import (BRACKET_SEARCHES, NOISE_SCALES, DiscrepancyBracket, Eval, LCurveDecades,
                           resolve_rule)
-from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks
+from .lsq import hutchinson_dof, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
 from .rigsegments import SegmentStack, rows_of_pixels
 from .solvers import baseline_start
@@ -677,31 +678,30 @@ class MatrixFreePath(_JointPath):
         return Linearization.from_jacobians(rd=rd, rr=rr, jd=Jd.dot, jd_t=Jd_t.dot, jr=Jr.dot, jr_t=Jr_t.dot,
                                             chi2_offset=0.0, m_total=self.m_total, scale=D)
 
-    def fit_dof(self, e: Eval, n_probes: int = 8, seed: int = 0) -> tuple[float, float]:
-        """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their standard error:
-        Hutchinson's estimator with ``n_probes`` Rademacher vectors, ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` of the
-        problem linearised at ``e`` (one Jacobi-scaled LSMR solve per probe), as the T-only rule's."""
-        model, bar, m_total, n_u = self.model, self.bar, self.m_total, self.model.n_u
-        args = {**model.jax_args(e.lam), "theta_c": jnp.asarray(e.theta),
-                "D": jnp.asarray(model.column_scale(np.asarray(e.theta), e.lam))}
-        psi0 = jnp.zeros(2 * n_u)
-        r0, J = jax.linearize(lambda psi: model.fns["scaled_residual"](psi, args), psi0)
+    def fit_dof(self, e: Eval, n_probes: int | None = None) -> tuple[float, float]:
+        """Residual degrees of freedom ``tr(2H − H²)`` of the fit ``e`` and their standard error, ``H = J (JᵀJ +
+        λRᵀR)⁻¹ Jᵀ`` of the problem linearised at ``e``: Hutchinson's estimator
+        (:func:`~lftomo.inverse.lsq.hutchinson_dof`, ``n_probes`` probes or as many as needed), one LSMR solve
+        (scipy, relative tolerance 1e-6) per probe on the exact sparse Jacobians
+        (:meth:`JointModel.data_jacobian`), Jacobi-scaled columns."""
+        model, bar, m_total = self.model, self.bar, self.m_total
+        pv = np.asarray(e.theta, np.float64)
+        _, Jd = model.data_jacobian(pv)
+        _, Jr = model.prior_jacobian(pv)
+        D = sp.diags(_jacobi_of(Jd, Jr, e.lam))  # tr H does not depend on it; LSMR converges faster
+        Jd = (Jd @ D).tocsr()
+        A = sp.vstack([Jd, math.sqrt(e.lam) * (Jr @ D)]).tocsr()
+        pad = np.zeros(A.shape[0] - m_total)
 
-        def split(r):
-            return r[:m_total], r[m_total:]  # data rows (H acts on them), prior rows
-
-        op = lx.FunctionLinearOperator(lambda v: split(J(v)), jax.ShapeDtypeStruct(psi0.shape, psi0.dtype))
-        ls = lx.LSMR(rtol=1e-6, atol=1e-6, max_steps=500)
-        bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe 1/{n_probes}")
-        probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, m_total)))
+        def quad(z):
+            x = lsmr(A, np.concatenate([z, pad]), atol=1e-6, btol=1e-6, maxiter=500)[0]
+            hz = Jd @ x
+            return 2.0 * float(z @ hz) - float(hz @ hz)  # zᵀ(2H − H²)z
 
         def on_probe(k):
-            if k < n_probes:
-                bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe {k + 1}/{n_probes}")
-        zhz, hz2 = influence_probes(op, lambda x: split(J(x))[0], lambda v: v, jnp.zeros(r0.size - m_total), ls,
-                                    probes, on_probe=on_probe)
-        q = 2.0 * np.asarray(zhz, dtype=float) - np.asarray(hz2, dtype=float)  # zᵀ(2H − H²)z
-        return float(min(max(q.mean(), 0.0), 2 * n_u)), float(q.std(ddof=1) / math.sqrt(n_probes))
+            bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe {k + 1}")
+        on_probe(0)
+        return hutchinson_dof(quad, m_total, 2 * model.n_u, n_probes=n_probes, on_probe=on_probe)
 
 
 class DenseLMPath(_JointPath):

@@ -10,6 +10,8 @@
 * :func:`influence_probes` — Hutchinson samples of ``zᵀHz`` and ``‖Hz‖²`` of
   the influence matrix ``H = J (JᵀJ + λRᵀR)⁻¹ Jᵀ`` (residual degrees of
   freedom, GCV).
+* :func:`hutchinson_dof` — the residual degrees of freedom ``tr(2H − H²)``
+  from as many of those probes as the noise-scale estimate needs.
 
 Used by :func:`lftomo.inverse.solvers.solve_temperature` and
 :func:`lftomo.inverse.joint.solve_temperature_absorption`.  Importing this
@@ -32,10 +34,19 @@ import optimistix as optx  # noqa: E402
 from ..interrupt import check_interrupt  # noqa: E402
 
 __all__ = ["CHUNK", "TruncatedLSMR", "linear_solver", "nonlinear_solver", "jacobi_scale", "scaled_chunks",
-           "influence_probes"]
+           "influence_probes", "hutchinson_dof", "dof_probes_needed"]
 
 #: Optimistix steps per Jacobi-scaled chunk.
 CHUNK = 10
+
+#: Hutchinson probes of the residual degrees of freedom: at least this many (a sample standard
+#: error) and at most :data:`DOF_PROBES_MAX` (:func:`hutchinson_dof`).
+DOF_PROBES_MIN = 2
+DOF_PROBES_MAX = 8
+#: The standard error of ``ν`` that :func:`hutchinson_dof` aims at, as a fraction of the standard
+#: deviation ``√(2(m − ν))`` of the residual's χ² itself: ``s² = χ²/(m − ν)`` then carries ν's error
+#: as at most ``DOF_SE_FRACTION² = 1/16`` of the variance χ²'s noise gives it.
+DOF_SE_FRACTION = 0.25
 
 
 class TruncatedLSMR(lx.AbstractLinearSolver):
@@ -144,3 +155,65 @@ def influence_probes(op, Jd, D, zero, ls, probes, on_probe=None):
         return out
 
     return jax.lax.map(quad, (jnp.arange(probes.shape[0]), probes))  # a loop: HostCSR has no batching rule
+
+
+def dof_probes_needed(nu: float, m: int) -> int:
+    """Rademacher probes that bound the standard error of Hutchinson's ``ν`` by :data:`DOF_SE_FRACTION`
+    ``× √(2(m − ν))``, clipped to [:data:`DOF_PROBES_MIN`, :data:`DOF_PROBES_MAX`].
+
+    For a symmetric ``A`` with eigenvalues in [0, 1] (``A = 2H − H²``, ``H`` an influence matrix)
+    ``Var(zᵀAz) = 2 Σ_{i≠j} A_ij² ≤ 2‖A‖_F² ≤ 2 tr A``, so ``k`` probes give a standard error of at most
+    ``√(2ν/k)`` (Hutchinson 1990; Avron & Toledo 2011, J. ACM 58, 8), at most the aim when
+    ``k ≥ ν / (DOF_SE_FRACTION² (m − ν))``.
+    """
+    nu = max(float(nu), 0.0)
+    if not np.isfinite(nu) or m - nu <= 0:
+        return DOF_PROBES_MAX
+    k = int(np.ceil(nu / (DOF_SE_FRACTION ** 2 * (m - nu))))
+    return min(max(k, DOF_PROBES_MIN), DOF_PROBES_MAX)
+
+
+def hutchinson_dof(quad, m: int, n_unknowns: int, *, n_probes: int | None = None, seed: int = 0,
+                   on_probe=None) -> tuple[float, float]:
+    """Residual degrees of freedom ``ν = tr(2H − H²)`` by Hutchinson's estimator, and its standard error.
+
+    Parameters
+    ----------
+    quad : callable
+        ``quad(z) -> zᵀ(2H − H²)z`` for a Rademacher probe ``z`` of shape (m,).
+    m : int
+        Data (rows of ``H``).
+    n_unknowns : int
+        Unknowns: ``ν`` is clipped to ``[0, n_unknowns]`` (its range for ``H`` of rank ≤ ``n_unknowns``).
+    n_probes : int, optional
+        Exactly this many probes (≥ 2); default: as many as :func:`dof_probes_needed` asks.
+    seed : int
+        The probes are the rows of ``default_rng(seed).choice([-1, 1], (k, m))`` in order,
+        ``k = max(n_probes, DOF_PROBES_MAX)``: the same vectors for the same seed.
+    on_probe : callable, optional
+        Called with the number of probes done after each one (progress).
+
+    Returns
+    -------
+    nu, se : float
+        The mean of ``zᵀ(2H − H²)z`` over the probes (clipped) and its sample standard error.  The
+        number of probes is :func:`dof_probes_needed` of the running estimate (upper end, two standard
+        errors): ``s² = χ²/(m − ν)`` needs ``ν`` only to a fraction of ``m − ν``, so where the data far
+        outnumber the degrees of freedom two probes do.
+    """
+    if n_probes is not None and n_probes < 2:
+        raise ValueError(f"n_probes must be at least 2 (a standard error), got {n_probes}")
+    k_max = DOF_PROBES_MAX if n_probes is None else n_probes
+    probes = np.random.default_rng(seed).choice([-1.0, 1.0], size=(max(k_max, DOF_PROBES_MAX), m))
+    q: list[float] = []
+    while len(q) < k_max:
+        if n_probes is None and len(q) >= DOF_PROBES_MIN:
+            nu, k = float(np.mean(q)), len(q)
+            if k >= dof_probes_needed(nu + 2.0 * np.sqrt(2.0 * max(nu, 0.0) / k), m):
+                break
+        check_interrupt()
+        q.append(float(quad(probes[len(q)])))
+        if on_probe is not None:
+            on_probe(len(q))
+    qa = np.asarray(q)
+    return float(min(max(qa.mean(), 0.0), n_unknowns)), float(qa.std(ddof=1) / np.sqrt(qa.size))

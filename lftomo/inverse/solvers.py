@@ -190,7 +190,7 @@ from .._validate import (  # noqa: E402
 from ..progress import NoBar, progress_bar  # noqa: E402
 from ..interrupt import stop_between_steps  # noqa: E402
 from .hostsparse import csr_product, host_csr  # noqa: E402
-from .lsq import influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks  # noqa: E402
+from .lsq import hutchinson_dof, influence_probes, jacobi_scale, nonlinear_solver, scaled_chunks  # noqa: E402
 from .lambdarules import (  # noqa: E402
     DISCREPANCY_SEARCHES,
     GCV,
@@ -781,20 +781,22 @@ def _dof_function(gray: bool, prior_type: type, penalize: str, subvoxel: bool = 
     return dof
 
 
-def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0, exact: bool | None = None) -> tuple[float, float]:
+def _fit_dof(run: _Runner, e: Eval, n_probes: int | None = None, seed: int = 0,
+             exact: bool | None = None) -> tuple[float, float]:
     """Degrees of freedom of the residual of the fit ``e``: ``tr(2H − H²)``, ``H``
     the influence matrix of the problem linearised at its solution, so that
     ``E‖r‖² = σ² (m − tr(2H − H²)) + bias²`` (a linear smoother's residual).
     With a quadratic prior and at most :data:`DENSE_T_MAX_UNKNOWNS` unknowns
     (whichever solver ran), the trace is exact from the dense Gauss–Newton
     matrices (:meth:`~lftomo.inverse.densetemperature.DenseTemperatureFit.residual_dof`,
-    standard error 0); otherwise Hutchinson's estimator with ``n_probes``
-    Rademacher vectors (the same seed, the same vectors).  ``exact`` True or
-    False forces either (None: as just said).  Returns
-    ``(estimate, its standard error)``."""
+    standard error 0); otherwise Hutchinson's estimator
+    (:func:`~lftomo.inverse.lsq.hutchinson_dof`: ``n_probes`` Rademacher
+    vectors, default as many as the noise-scale estimate needs; the same seed,
+    the same vectors).  ``exact`` True or False forces either (None: as just
+    said).  Returns ``(estimate, its standard error)``."""
     s = run.s
     forced = exact is not None
-    if exact is None:  # few unknowns: the Gauss–Newton matrices cost less than 8 LSMR solves
+    if exact is None:  # few unknowns: the Gauss–Newton matrices cost less than the LSMR solves
         exact = run.dense is not None or (s.A_s.shape[1] <= DENSE_T_MAX_UNKNOWNS and s.prior_model.quadratic)
     if exact:
         run.dof_fit = run.dense or run.dof_fit or _dense_fit(s)  # kept for the fit's next call
@@ -803,13 +805,13 @@ def _fit_dof(run: _Runner, e: Eval, n_probes: int = 8, seed: int = 0, exact: boo
         except np.linalg.LinAlgError:  # not positive definite in floating point: estimate it instead
             if forced:
                 raise
-    probes = jnp.asarray(np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_probes, s.d.size)))
     fn = _dof_function(s.wavelength is None, type(s.prior_model), s.penalize, s.E is not None)
+    theta, args, lam = jnp.asarray(e.theta), run.args(e.lam), jnp.asarray(e.lam)
     scale = jnp.asarray(run.column_scale(np.asarray(e.theta), e.lam))
-    q = np.asarray(fn(jnp.asarray(e.theta), run.args(e.lam), jnp.asarray(e.lam), scale, probes), dtype=float)
-    n = s.A_s.shape[1]
-    est = float(min(max(q.mean(), 0.0), n))
-    return est, float(q.std(ddof=1) / math.sqrt(n_probes)) if n_probes > 1 else math.nan
+
+    def quad(z):  # one probe a call: one compiled shape whatever the number of probes
+        return float(fn(theta, args, lam, scale, jnp.asarray(z)[None, :])[0])
+    return hutchinson_dof(quad, s.d.size, s.A_s.shape[1], n_probes=n_probes, seed=seed)
 
 
 @functools.lru_cache(maxsize=None)

@@ -375,6 +375,37 @@ def test_joint_linearization_is_the_derivative_of_the_objective(solver):
         assert np.linalg.eigvalsh(G).min() >= -1e-10 * np.abs(G).max()
 
 
+def test_joint_matrix_free_dof_estimates_the_dense_trace():
+    """ν = tr(2H − H²) of the matrix-free joint path (Hutchinson, LSMR on the sparse Jacobians) against
+    the dense path's exact trace at the same unknowns (the influence matrix does not depend on the
+    parameterisation): within 3 standard errors with 64 probes; by default as many probes as
+    ``dof_probes_needed`` asks, with a standard error within its bound √(2ν/k)."""
+    from lftomo.inverse.joint import DenseLMPath, JointModel, MatrixFreePath, SigmaSpace, _check_channels
+    from lftomo.inverse.lambdarules import Eval
+    from lftomo.inverse.lsq import dof_probes_needed
+
+    flame, ms, seg, kw = _blob_two_colour(1.15)
+    ms, wls, seg, rows = _check_channels(ms, seg)
+    grid = lt.Grid.from_dict(seg.metadata["grid"])
+    model = JointModel(ms, wls, seg, rows, grid=grid, symmetry="axisymmetric",
+                       prior=lt.inverse.regularizers.resolve_prior("curvature"), bounds=(500.0, 2500.0), alpha=1.38,
+                       space=SigmaSpace("log", 200.0, 1e-4, None), ridge=0.0, engine="host")
+    free = MatrixFreePath(model, 50, method="levenberg-marquardt", rtol=1e-6, atol=1e-6, linear_rtol=1e-6,
+                          linear_max_steps=50)
+    for lam in (0.01, 100.0):
+        e = Eval(lam, np.random.default_rng(1).normal(0.0, 0.5, 2 * model.n_u), 1.0, 1.0, 0, True, "")
+        exact, se0 = DenseLMPath(model, 50).fit_dof(e)
+        assert se0 == 0.0 and 1.0 < exact < 2 * model.n_u
+        est, se = free.fit_dof(e, n_probes=64)
+        assert 0 < se < 0.2 * exact and abs(est - exact) <= 3 * se, (lam, est, se, exact)
+        calls = []
+        free.bar.set_postfix_str = calls.append
+        est, se = free.fit_dof(e)
+        k = len(calls) - 1  # one message before the first probe, one after each
+        assert k == dof_probes_needed(est + 2 * np.sqrt(2 * est / k), free.m_total) or k == 8, (k, est)
+        assert abs(est - exact) <= 3 * np.sqrt(2 * exact / k), (lam, est, exact, k)
+
+
 def test_joint_lambda_rules_when_sigma_is_overestimated():
     """Same-ray data with 1 % noise but σ claimed at 3 %: χ²/m ≈ 0.1 at every λ.  The discrepancy
     rule with σ given climbs its ladder to its largest λ, 1e4 (the most smoothed field), without meeting

@@ -789,6 +789,38 @@ def test_fit_dof_falls_back_on_the_estimate_when_the_dense_trace_fails(monkeypat
         S._fit_dof(run, e, exact=True)
 
 
+def _influence(m, n, lam, seed=0):
+    """``A = 2H − H²`` of ``H = J (JᵀJ + λI)⁻¹ Jᵀ`` for a Gaussian ``J`` (m × n), and its trace."""
+    J = np.random.default_rng(seed).normal(size=(m, n))
+    H = J @ np.linalg.solve(J.T @ J + lam * np.eye(n), J.T)
+    A = 2 * H - H @ H
+    return A, float(np.trace(A))
+
+
+@pytest.mark.parametrize("m, n, lam_per_datum, k_expected", [(4000, 40, 3.0, 2), (60, 50, 0.3, 8)])
+def test_hutchinson_dof_takes_the_probes_the_noise_scale_needs(m, n, lam_per_datum, k_expected):
+    """Two probes where the data far outnumber ν (its error then moves s² = χ²/(m − ν) by far less than χ²'s
+    own noise), the cap of 8 where ν is most of m; ``n_probes`` fixes the count.  The estimate is unbiased
+    and its spread over seeds within the bound √(2ν/k) the count rests on."""
+    from lftomo.inverse.lsq import DOF_SE_FRACTION, hutchinson_dof
+
+    A, nu = _influence(m, n, lam_per_datum * m)  # ν inside [0, n]: the clip to that range stays (almost) idle
+    done = []
+    est, se = hutchinson_dof(lambda z: z @ A @ z, m, n, on_probe=done.append)
+    assert done == list(range(1, k_expected + 1))
+    if k_expected == 2:
+        assert np.sqrt(2 * nu / 2) <= DOF_SE_FRACTION * np.sqrt(2 * (m - nu))
+    done.clear()
+    hutchinson_dof(lambda z: z @ A @ z, m, n, n_probes=5, on_probe=done.append)
+    assert done == [1, 2, 3, 4, 5]
+    draws = np.array([hutchinson_dof(lambda z: z @ A @ z, m, n, n_probes=2, seed=s)[0] for s in range(400)])
+    bound = np.sqrt(2 * nu / 2)
+    assert draws.std(ddof=1) <= 1.15 * bound, (draws.std(ddof=1), bound)
+    assert abs(draws.mean() - nu) <= 4 * draws.std(ddof=1) / np.sqrt(draws.size), (draws.mean(), nu)
+    with pytest.raises(ValueError, match="n_probes must be at least 2"):
+        hutchinson_dof(lambda z: z @ A @ z, m, n, n_probes=1)
+
+
 def test_influence_probes_are_exact_and_report_progress():
     """zᵀHz and ‖Hz‖² of each probe against the dense H = J (JᵀJ + RᵀR)⁻¹ Jᵀ, and one
     progress call per probe, in order, with the number of probes done."""
