@@ -1,8 +1,35 @@
-import numpy as np
-import scipy.sparse as sp
-import pytest
+import hashlib
+import os
+import pathlib
+import tempfile
 
-import lftomo as lt
+
+def _numba_cache_dir() -> str:
+    """A numba cache directory named by a digest of lftomo's modules that use numba.
+
+    numba keys a cached kernel on its own source file only, so a kernel that
+    inlines a function of another module (camera.py's row kernels inline
+    ``sampler.pixel_ray``) would run that function's old code from the cache
+    after only the other module changed: a mutated sampler would pass its
+    tests.  A directory per version of those sources recompiles them instead.
+    """
+    src = pathlib.Path(__file__).resolve().parents[1] / "lftomo"
+    digest = hashlib.sha256()
+    for path in sorted(src.rglob("*.py")):
+        text = path.read_bytes()
+        if b"numba" in text:
+            digest.update(path.relative_to(src).as_posix().encode() + b"\0" + text)
+    return os.path.join(tempfile.gettempdir(), f"lftomo-numba-{digest.hexdigest()[:16]}")
+
+
+# before anything imports numba, which reads it once; a directory the user chose is kept
+os.environ.setdefault("NUMBA_CACHE_DIR", _numba_cache_dir())
+
+import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
+import pytest  # noqa: E402
+
+import lftomo as lt  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -263,3 +263,23 @@ def test_microlens_image_discs_hold_the_whole_penumbra():
         cr, cc, rad = table[i * nx + j]
         far = _farthest_lit(i, j, cr, cc, 16, 800, cam.packed, 3)
         assert cam.microlens_image_radius < far < rad, (i, j, far, rad)
+
+
+def test_the_test_session_compiles_numba_kernels_for_these_sources(small_camera):
+    """numba keys a cached kernel on its own file only; camera.py's kernels inline ``sampler.pixel_ray``.
+    The test session therefore caches its kernels in a directory named by a digest of every numba module
+    (``tests/conftest.py``): a changed sampler is recompiled, not served from a stale cache.  The kernels'
+    caches lie in that directory."""
+    import os
+
+    import numba
+
+    import conftest
+    from lftomo.forward import camera
+
+    assert numba.config.CACHE_DIR == os.environ["NUMBA_CACHE_DIR"]
+    if "lftomo-numba-" in os.environ["NUMBA_CACHE_DIR"]:  # not a directory the user chose
+        assert os.environ["NUMBA_CACHE_DIR"] == conftest._numba_cache_dir()
+    small_camera.pixel_etendue(n_rays=8, seed=1)  # compiles (or loads) camera._pixel_throughput
+    path = camera._pixel_throughput._cache._cache_path
+    assert os.path.commonpath([path, numba.config.CACHE_DIR]) == numba.config.CACHE_DIR, path
