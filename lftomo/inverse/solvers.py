@@ -114,8 +114,8 @@ Candidate λ are multiples of it.
   freedom the fit takes from the residual (``H`` its influence matrix,
   problem linearised at the solution; ``E‖r‖² = σ²(m − ν) + bias²`` for a
   linear smoother), exactly from the dense Gauss–Newton matrices up to
-  4096 unknowns with a quadratic prior, else by Hutchinson's estimator with 8 Rademacher probes (one
-  LSMR solve each, Jacobi-scaled); the target is ``χ²/m = (1 + safety) s²``,
+  4096 unknowns with a quadratic prior, else by Hutchinson's estimator with 2–8 Rademacher probes
+  as ``s²`` needs (:func:`~lftomo.inverse.lsq.hutchinson_dof`; one LSMR solve each, Jacobi-scaled); the target is ``χ²/m = (1 + safety) s²``,
   the misfit the true field would have, and ``tol = √(2ν)/(m − ν)``, the
   spread of the rise of χ² above the least-regularized fit (residual degrees
   of freedom of a linear smoother: Hastie & Tibshirani 1990, *Generalized
