@@ -666,14 +666,20 @@ class MatrixFreePath(_JointPath):
         return Eval(lam, pv, data_sq / model.m_total, model.penalty_norm(pv), steps,
                     bool(result == optx.RESULTS.successful), "")
 
-    def linearization(self, theta, lam) -> Linearization:
-        """The fit linearised at the log-odds ``theta``: the exact sparse Jacobians of data and prior
-        (:meth:`JointModel.data_jacobian`, :meth:`JointModel.prior_jacobian`), Jacobi-scaled at ``lam``."""
+    def scaled_jacobians(self, theta, lam):
+        """``(r_d, r_r, J_d D, J_r D, D)`` at the log-odds ``theta``: the residuals, the exact sparse Jacobians
+        of data and prior (:meth:`JointModel.data_jacobian`, :meth:`JointModel.prior_jacobian`; the prior's
+        without √λ) and their Jacobi column scale ``D`` at ``lam``."""
         pv = np.asarray(theta, np.float64)
         rd, Jd = self.model.data_jacobian(pv)
         rr, Jr = self.model.prior_jacobian(pv)
         D = _jacobi_of(Jd, Jr, lam)
-        Jd, Jr = (Jd @ sp.diags(D)).tocsr(), (Jr @ sp.diags(D)).tocsr()
+        return rd, rr, (Jd @ sp.diags(D)).tocsr(), (Jr @ sp.diags(D)).tocsr(), D
+
+    def linearization(self, theta, lam) -> Linearization:
+        """The fit linearised at the log-odds ``theta``: the exact sparse Jacobians of data and prior
+        (:meth:`JointModel.data_jacobian`, :meth:`JointModel.prior_jacobian`), Jacobi-scaled at ``lam``."""
+        rd, rr, Jd, Jr, D = self.scaled_jacobians(theta, lam)
         Jd_t, Jr_t = Jd.T.tocsr(), Jr.T.tocsr()
         return Linearization.from_jacobians(rd=rd, rr=rr, jd=Jd.dot, jd_t=Jd_t.dot, jr=Jr.dot, jr_t=Jr_t.dot,
                                             chi2_offset=0.0, m_total=self.m_total, scale=D)
@@ -684,13 +690,9 @@ class MatrixFreePath(_JointPath):
         (:func:`~lftomo.inverse.lsq.hutchinson_dof`, ``n_probes`` probes or as many as needed), one LSMR solve
         (scipy, relative tolerance 1e-6) per probe on the exact sparse Jacobians
         (:meth:`JointModel.data_jacobian`), Jacobi-scaled columns."""
-        model, bar, m_total = self.model, self.bar, self.m_total
-        pv = np.asarray(e.theta, np.float64)
-        _, Jd = model.data_jacobian(pv)
-        _, Jr = model.prior_jacobian(pv)
-        D = sp.diags(_jacobi_of(Jd, Jr, e.lam))  # tr H does not depend on it; LSMR converges faster
-        Jd = (Jd @ D).tocsr()
-        A = sp.vstack([Jd, math.sqrt(e.lam) * (Jr @ D)]).tocsr()
+        bar, m_total = self.bar, self.m_total
+        _, _, Jd, Jr, _ = self.scaled_jacobians(e.theta, e.lam)  # tr H does not depend on D; LSMR converges faster
+        A = sp.vstack([Jd, math.sqrt(e.lam) * Jr]).tocsr()
         pad = np.zeros(A.shape[0] - m_total)
 
         def quad(z):
@@ -699,9 +701,9 @@ class MatrixFreePath(_JointPath):
             return 2.0 * float(z @ hz) - float(hz @ hz)  # zᵀ(2H − H²)z
 
         def on_probe(k):
-            bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: probe {k + 1}")
+            bar.set_postfix_str(f"λ={e.lam:.3g} degrees of freedom: {k} probe(s) done")
         on_probe(0)
-        return hutchinson_dof(quad, m_total, 2 * model.n_u, n_probes=n_probes, on_probe=on_probe)
+        return hutchinson_dof(quad, m_total, 2 * self.model.n_u, n_probes=n_probes, on_probe=on_probe)
 
 
 class DenseLMPath(_JointPath):
