@@ -421,6 +421,33 @@ def _check_channels(measurements, segments) -> tuple[list, list[float], Any, lis
     return ms, wls, forward, rows
 
 
+def _channel_tables(segments, rows) -> tuple[list, list[np.ndarray]]:
+    """Each channel's own ray-segment table and its rows (-1: none) in that table.
+
+    One camera: ``segments`` and ``rows`` themselves.  A rig (:class:`~lftomo.inverse.rigsegments.SegmentStack`):
+    the table of the camera whose stacked rows the channel reads, so that the channel's forward model and
+    Jacobians walk that table only, not every camera's."""
+    if not isinstance(segments, SegmentStack):
+        return [segments] * len(rows), list(rows)
+    parts = [segments.table_of_rows(r) for r in rows]
+    return [segments.tables[k] for k, _ in parts], [r for _, r in parts]
+
+
+def _channel_forwards(tables, engine: str) -> tuple:
+    """The channels' forward models ``F(I_b, σ_a)`` in JAX: host sparse Jacobians (``engine="host"``,
+    :func:`~lftomo.inverse.hostsegments.host_forward`) or JAX autodiff (``"jax"``); one per distinct table."""
+    made: dict = {}
+    for t in tables:
+        if id(t) not in made:
+            if engine == "host":
+                from .hostsegments import host_forward
+
+                made[id(t)] = host_forward(t)
+            else:
+                made[id(t)] = t.to_jax()
+    return tuple(made[id(t)] for t in tables)
+
+
 @functools.lru_cache(maxsize=None)
 def _residual_functions(log_space: bool) -> dict:
     """The joint fit's residual functions (cached: the same objects for every fit, so JAX's caches hit).
@@ -439,13 +466,13 @@ def _residual_functions(log_space: bool) -> dict:
         T = lo + (hi - lo) * jax.nn.sigmoid(p[:n_u])
         u = jax.nn.sigmoid(p[n_u:])
         sref = args["sigma_min"] * jnp.exp(args["span"] * u) if log_space else args["span"] * u
-        to_seg, F = args["to_seg"], args["F"]
+        to_seg = args["to_seg"]
         Tv, sv = (T, sref) if to_seg is None else (to_seg @ T, to_seg @ sref)
         out = []
         for c in range(len(args["ys"])):
             Ib = planck_jax(Tv, args["wls"][c])
             sa = sv * args["factors"][c]
-            s = F(Ib, sa)  # HostForward or JaxSegments
+            s = args["F"][c](Ib, sa)  # the channel's own table: HostForward or JaxSegments
             model = jnp.where(args["valid"][c], s[args["rows"][c]], 0.0)
             out.append((model - args["ys"][c]) * args["inv_s"][c])
         q = args["b_prior"] * u  # σ_ref / scale, or ln(σ_ref / σ_min) / scale
@@ -494,30 +521,25 @@ class JointModel:
             to_seg = (E @ ring.expansion).tocsr()
         self.to_seg = to_seg
         self.to_seg_j = None if to_seg is None else to_bcoo(to_seg)
-        self.rows = list(rows)
+        self.rows = list(rows)  # of segments (a rig: the stacked tables)
+        # each channel's own table and its rows there: a rig's channel is walked through its camera's table only
+        self.tables, local_rows = _channel_tables(segments, self.rows)
         self.ys = [jnp.asarray(m.y) for m in ms]
         self.inv_s = [jnp.asarray(1.0 / m.sigma) for m in ms]
-        self.rows_j = [jnp.asarray(np.maximum(r, 0)) for r in self.rows]
-        self.valid = [jnp.asarray(r >= 0) for r in self.rows]
-        self.rows_np = [np.maximum(r, 0) for r in self.rows]
+        self.rows_j = [jnp.asarray(np.maximum(r, 0)) for r in local_rows]
+        self.valid = [jnp.asarray(r >= 0) for r in local_rows]
+        self.rows_np = [np.maximum(r, 0) for r in local_rows]  # of self.tables[c]
         self.factors = [(wls[0] / w) ** alpha for w in wls]
         self.prior = prior
         self.L_sp = prior.operator(self.grid if ring is None else ring)
         self.L = to_bcoo(self.L_sp)
         self.whiten = [sp.diags((r >= 0) / np.asarray(m.sigma, float)) for m, r in zip(ms, self.rows)]
-        if engine == "host":
-            from .hostsegments import host_forward
-
-            self.seg = None
-            self.host_F = segments.host_forward() if isinstance(segments, SegmentStack) else host_forward(segments)
-        else:
-            self.seg, self.host_F = segments.to_jax(), None
         self.m_total = sum(m.y.size for m in ms)
         self.fns = _residual_functions(space.space == "log")
         # every array the residual reads, passed as an argument (never closed over): the cached residual
         # functions are then traced and compiled once per problem shape, not once per fit or per λ
         self._jax_args = {
-            "F": self.host_F if engine == "host" else self.seg,
+            "F": _channel_forwards(self.tables, engine),
             "to_seg": self.to_seg_j, "L": self.L, "ys": self.ys, "inv_s": self.inv_s, "rows": self.rows_j,
             "valid": self.valid, "wls": [jnp.asarray(w) for w in wls],
             "factors": [jnp.asarray(f) for f in self.factors], "lo": jnp.asarray(float(self.lo)),
@@ -573,7 +595,7 @@ class JointModel:
         for c in range(len(self.ms)):
             sa_c = sv * self.factors[c]
             rows, w = self.rows_np[c], self.whiten[c]
-            signal, dF_ds, W = self.segments.linearized(blackbody(Tv, self.wls[c]), sa_c)
+            signal, dF_ds, W = self.tables[c].linearized(blackbody(Tv, self.wls[c]), sa_c)
             W = W[rows]
             model = np.where(self.rows[c] >= 0, signal[rows], 0.0)
             res.append((model - np.asarray(self.ms[c].y, float)) / np.asarray(self.ms[c].sigma, float))
@@ -734,7 +756,7 @@ class DenseLMPath(_JointPath):
         key = hashlib.blake2b(Ib.tobytes() + sa_c.tobytes(), digest_size=16).digest()
         hit = self.sig_cache.get(c)
         if hit is None or hit[0] != key:
-            hit = self.sig_cache[c] = (key, *self.model.segments.linearized(Ib, sa_c))
+            hit = self.sig_cache[c] = (key, *self.model.tables[c].linearized(Ib, sa_c))
         return hit[1:]
 
     def evaluate(self, x, lam, with_jacobian):

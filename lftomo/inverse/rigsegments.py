@@ -6,9 +6,10 @@ absorption needs each camera's exact non-scattering forward model
 puts the tables one after the other: the signal rows of table ``k`` follow
 those of tables ``0 … k − 1``, so the fit's channels (camera × wavelength)
 each select their rows from one signal vector, exactly as they do from a
-single camera's table.  The stack offers the table methods the fit uses
-(``weights``, ``jacobian``, ``to_jax``, the host forward, ``metadata``,
-``n_segments``), each one the tables' results stacked.
+single camera's table.  The stack offers what the fit reads of a table
+(``weights``, ``metadata``, ``n_segments``), the tables' results stacked, and
+:meth:`SegmentStack.table_of_rows`: the fit's forward model and Jacobians
+walk only the table of the camera that took a channel.
 """
 
 from __future__ import annotations
@@ -16,14 +17,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from types import SimpleNamespace
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
 from ..forward.weights import RaySegments
 
-__all__ = ["SegmentStack", "StackedForward", "rows_of_pixels"]
+__all__ = ["SegmentStack", "rows_of_pixels"]
 
 
 def rows_of_pixels(measurement, segments: RaySegments) -> np.ndarray:
@@ -32,25 +31,6 @@ def rows_of_pixels(measurement, segments: RaySegments) -> np.ndarray:
                      int(max(segments.pixel_index.max(), measurement.raw_index.max()) + 1), -1, dtype=np.int64)
     lookup[segments.pixel_index] = np.arange(segments.pixel_index.size)
     return lookup[measurement.raw_index]
-
-
-@jax.tree_util.register_pytree_node_class
-class StackedForward:
-    """``F(I_b, σ_a)`` of several tables, their signals concatenated (a pytree of the tables' forwards)."""
-
-    def __init__(self, parts: tuple) -> None:
-        self.parts = tuple(parts)
-
-    def tree_flatten(self):
-        return self.parts, None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(tuple(children))
-
-    def __call__(self, Ib, sa) -> jax.Array:
-        """The stacked signal (Σ n_rows,) for flat ``Ib`` and ``sa`` (n_vox,)."""
-        return jnp.concatenate([F(Ib, sa) for F in self.parts])
 
 
 class SegmentStack:
@@ -102,27 +82,21 @@ class SegmentStack:
         return SimpleNamespace(matrix=sp.vstack([sp.csr_matrix(w.matrix) for w in parts], format="csr"),
                                background=np.concatenate([np.asarray(w.background, float) for w in parts]))
 
-    def jacobian(self, Ib, sigma_a):
-        """Stacked signal and its Jacobian with respect to ``σ_a`` (as :meth:`RaySegments.jacobian`)."""
-        parts = [t.jacobian(Ib, sigma_a) for t in self.tables]
-        return np.concatenate([p[0] for p in parts]), sp.vstack([p[1] for p in parts], format="csr")
+    def table_of_rows(self, rows: np.ndarray) -> tuple[int, np.ndarray]:
+        """The table that stacked ``rows`` (-1: no row) belong to, and the rows numbered within that table.
 
-    def linearized(self, Ib, sigma_a):
-        """Stacked signal, its Jacobian with respect to ``σ_a`` and ``W(σ_a)`` (as :meth:`RaySegments.linearized`)."""
-        parts = [t.linearized(Ib, sigma_a) for t in self.tables]
-        return (np.concatenate([p[0] for p in parts]), sp.vstack([p[1] for p in parts], format="csr"),
-                sp.vstack([p[2] for p in parts], format="csr"))
-
-    def forward(self, Ib, sigma_a) -> np.ndarray:
-        """Stacked signal (as :meth:`RaySegments.forward`)."""
-        return np.concatenate([t.forward(Ib, sigma_a) for t in self.tables])
-
-    def to_jax(self) -> StackedForward:
-        """The tables' JAX forwards, stacked."""
-        return StackedForward(tuple(t.to_jax() for t in self.tables))
-
-    def host_forward(self) -> StackedForward:
-        """The tables' host forwards (exact host Jacobians, :func:`~lftomo.inverse.hostsegments.host_forward`)."""
-        from .hostsegments import host_forward
-
-        return StackedForward(tuple(host_forward(t) for t in self.tables))
+        Raises
+        ------
+        ValueError
+            No row, or rows of more than one table (a channel is taken by one camera).
+        """
+        rows = np.asarray(rows, dtype=np.int64)
+        valid = rows >= 0
+        if not valid.any():
+            raise ValueError("a channel needs at least one row of the stacked tables, got none")
+        k = int(np.searchsorted(self.row_offset, rows[valid].min(), side="right")) - 1
+        lo, hi = int(self.row_offset[k]), int(self.row_offset[k + 1])
+        if rows[valid].max() >= hi:
+            raise ValueError(f"a channel's rows must all be one camera's: rows {rows[valid].min()}.."
+                             f"{rows[valid].max()} span tables from {k} on (table {k} holds rows {lo}..{hi - 1})")
+        return k, np.where(valid, rows - lo, -1)
