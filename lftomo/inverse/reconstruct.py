@@ -99,7 +99,11 @@ def _coarse_problem(problem: Problem, regularization: Any, options: dict) -> Pro
     coarse = coarse_grid(problem.grid)
     symmetry = None if ring is None else ring_grid(coarse, axis=ring.axis, tolerance=ring.tolerance)
     forward = problem.forward
-    forward = tuple(map(_coarser_table, forward)) if isinstance(forward, tuple) else _coarser_table(forward)
+    if isinstance(forward, tuple):  # a rig: each camera's table coarsened once, shared by its channels as before
+        coarser = {id(t): _coarser_table(t) for t in forward}
+        forward = tuple(coarser[id(t)] for t in forward)
+    else:
+        forward = _coarser_table(forward)
     return Problem.from_data(list(problem.measurements), forward, unknowns=problem.unknowns,
                              symmetry=symmetry, grid=coarse)
 
