@@ -436,15 +436,10 @@ def _channel_tables(segments, rows) -> tuple[list, list[np.ndarray]]:
 def _channel_forwards(tables, engine: str) -> tuple:
     """The channels' forward models ``F(I_b, σ_a)`` in JAX: host sparse Jacobians (``engine="host"``,
     :func:`~lftomo.inverse.hostsegments.host_forward`) or JAX autodiff (``"jax"``); one per distinct table."""
-    made: dict = {}
-    for t in tables:
-        if id(t) not in made:
-            if engine == "host":
-                from .hostsegments import host_forward
+    from .hostsegments import host_forward
 
-                made[id(t)] = host_forward(t)
-            else:
-                made[id(t)] = t.to_jax()
+    distinct = {id(t): t for t in tables}
+    made = {k: host_forward(t) if engine == "host" else t.to_jax() for k, t in distinct.items()}
     return tuple(made[id(t)] for t in tables)
 
 
