@@ -19,6 +19,9 @@ transpose tens of times at the same point (LSMR), so :func:`host_forward`
 computes the two sparse Jacobians once per evaluation point (cached by the
 point's bytes) and applies them in the JVP and its exact transpose
 (``jax.custom_jvp`` with a ``linear_call`` tangent): 30× less work per step.
+``W`` and ``J`` share the table's row pattern, so one pass over it gives
+``W dI_b + J dσ_a`` (:func:`pair_matvec`) and another ``(Wᵀu, Jᵀu)``
+(:func:`pair_rmatvec`, without transposed copies).
 
 As :class:`~lftomo.inverse.hostsparse.HostCSR` does for a matrix, the
 returned :class:`HostForward` is a pytree whose static handle is a hash of the
@@ -40,32 +43,89 @@ import hashlib
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse as sp
 from jax.custom_derivatives import SymbolicZero, linear_call
+from numba import njit, prange
 
 from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
-from .hostsparse import SCIPY_LOCK, csr_product
+from .hostsparse import SCIPY_LOCK
 
 __all__ = ["HostForward", "host_forward"]
 
 _STORE = ContentRegistry()  # handle -> (table, its cache of linearisation points)
 _TABLES = _STORE.values
 _CACHE_POINTS = 6  # two or three channels × (current point, trial point)
+#: Fixed row blocks of the transposed products (:func:`pair_rmatvec`): at least the threads of a workstation, and
+#: the same for any thread count, so that the sums (and a fit's path) do not depend on it.
+TRANSPOSE_BLOCKS = 16
+
+
+@njit(cache=True, parallel=True)
+def pair_matvec(indptr, indices, a, b, x, y, out):
+    """``out = A x + B y`` for two CSR matrices sharing one pattern (``indptr``, ``indices``; values ``a``, ``b``),
+    rows in parallel: one pass over the pattern for both."""
+    for i in prange(out.shape[0]):
+        acc = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            acc += a[k] * x[j] + b[k] * y[j]
+        out[i] = acc
+
+
+@njit(cache=True, parallel=True)
+def pair_rmatvec(indptr, indices, a, b, u, out_a, out_b):
+    """``out_a = Aᵀ u`` and ``out_b = Bᵀ u`` for two CSR matrices sharing one pattern, without transposing them.
+
+    The rows are cut into :data:`TRANSPOSE_BLOCKS` fixed blocks (in parallel), each summing into its own
+    buffer, and the buffers are added in block order: the same sums for any number of threads."""
+    n_rows, n = u.shape[0], out_a.shape[0]
+    acc = np.zeros((TRANSPOSE_BLOCKS, n, 2))
+    for blk in prange(TRANSPOSE_BLOCKS):
+        for i in range(n_rows * blk // TRANSPOSE_BLOCKS, n_rows * (blk + 1) // TRANSPOSE_BLOCKS):
+            ui = u[i]
+            if ui != 0.0:
+                for k in range(indptr[i], indptr[i + 1]):
+                    j = indices[k]
+                    acc[blk, j, 0] += a[k] * ui
+                    acc[blk, j, 1] += b[k] * ui
+    for j in prange(n):
+        sa, sb = 0.0, 0.0
+        for blk in range(TRANSPOSE_BLOCKS):
+            sa += acc[blk, j, 0]
+            sb += acc[blk, j, 1]
+        out_a[j], out_b[j] = sa, sb
 
 
 class _Point:
-    """Signal and exact sparse Jacobians of one table at one ``(I_b, σ_a)``."""
+    """Signal and exact sparse Jacobians ``W = ∂F/∂I_b`` and ``J = ∂F/∂σ_a`` of one table at one ``(I_b, σ_a)``:
+    the values of both on the table's one row pattern (:meth:`lftomo.RaySegments.linearized`)."""
 
-    __slots__ = ("J", "JT", "W", "WT", "signal")
+    __slots__ = ("J", "W", "indices", "indptr", "signal")
 
     def __init__(self, segments, Ib: np.ndarray, sa: np.ndarray):
         signal, J, W = segments.linearized(Ib, sa)
         self.signal = np.asarray(signal, dtype=np.float64)
-        self.W = sp.csr_matrix(W, dtype=np.float64)
-        self.J = sp.csr_matrix(J, dtype=np.float64)
-        self.WT = self.W.T.tocsr()
-        self.JT = self.J.T.tocsr()
+        self.indptr, self.indices = W.indptr, W.indices  # J's too (the table's row pattern)
+        self.W = np.asarray(W.data, dtype=np.float64)
+        self.J = np.asarray(J.data, dtype=np.float64)
+
+    def apply(self, dIb, dsa) -> np.ndarray:
+        """``W dIb + J dsa`` (n_rows,)."""
+        out = np.empty(self.signal.shape[0], dtype=np.float64)
+        with SCIPY_LOCK:
+            pair_matvec(self.indptr, self.indices, self.W, self.J, _vector(dIb), _vector(dsa), out)
+        return out
+
+    def apply_transpose(self, ct, n_vox: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(Wᵀ ct, Jᵀ ct)``, each (n_vox,)."""
+        out_W, out_J = np.empty(n_vox, dtype=np.float64), np.empty(n_vox, dtype=np.float64)
+        with SCIPY_LOCK:
+            pair_rmatvec(self.indptr, self.indices, self.W, self.J, _vector(ct), out_W, out_J)
+        return out_W, out_J
+
+
+def _vector(v) -> np.ndarray:
+    return np.ascontiguousarray(v, dtype=np.float64)
 
 
 def _point(handle: int, Ib, sa) -> _Point:
@@ -113,19 +173,22 @@ def _forward_function(handle: int, n_rows: int, n_vox: int):
     def signal(Ib, sa):
         return jax.pure_callback(lambda a, b: _point(handle, a, b).signal, out_rows, Ib, sa)
 
-    def product(which: str, transpose: bool):
-        def host(a, b, v):
-            p = _point(handle, a, b)
-            return csr_product(getattr(p, which + ("T" if transpose else "")), v)
+    def both(res, lin):  # W dIb + J dsa
+        return jax.pure_callback(lambda a, b, x, y: _point(handle, a, b).apply(x, y), out_rows, *res, *lin)
 
+    def both_t(res, ct):  # (Wᵀ ct, Jᵀ ct)
+        return jax.pure_callback(lambda a, b, u: _point(handle, a, b).apply_transpose(u, n_vox),
+                                 (out_vox, out_vox), *res, ct)
+
+    def only(which: int):  # W dIb (which 0) or J dsa (1): the pair product with the other input zero
         def apply(res, v):
-            Ib, sa = res
-            return jax.pure_callback(host, out_vox if transpose else out_rows, Ib, sa, v)
+            z = jnp.zeros(n_vox, dtype=jnp.float64)
+            return both(res, (v, z) if which == 0 else (z, v))
 
-        return apply
+        def transpose(res, ct):
+            return both_t(res, ct)[which]
 
-    W_fwd, W_bwd = product("W", False), product("W", True)
-    J_fwd, J_bwd = product("J", False), product("J", True)
+        return apply, transpose
 
     @jax.custom_jvp
     def forward(Ib, sa):
@@ -137,12 +200,12 @@ def _forward_function(handle: int, n_rows: int, n_vox: int):
         Ib, sa = primals
         dIb, dsa = tangents
         y = signal(Ib, sa)
-        dy = jnp.zeros(n_rows, dtype=jnp.float64)
-        if not isinstance(dIb, SymbolicZero):
-            dy = dy + linear_call(W_fwd, W_bwd, (Ib, sa), dIb)
-        if not isinstance(dsa, SymbolicZero):
-            dy = dy + linear_call(J_fwd, J_bwd, (Ib, sa), dsa)
-        return y, dy
+        zero_I, zero_s = isinstance(dIb, SymbolicZero), isinstance(dsa, SymbolicZero)
+        if zero_I and zero_s:
+            return y, jnp.zeros(n_rows, dtype=jnp.float64)
+        if zero_I or zero_s:
+            return y, linear_call(*only(1 if zero_I else 0), (Ib, sa), dsa if zero_I else dIb)
+        return y, linear_call(both, both_t, (Ib, sa), (dIb, dsa))  # one pass over the pattern for W and J
 
     forward.defjvp(forward_jvp, symbolic_zeros=True)
     return forward

@@ -65,6 +65,59 @@ def test_host_forward_jvp_vjp_match_jax_autodiff(table):
         assert float(jnp.max(jnp.abs(a - b))) <= 1e-12 * float(jnp.max(jnp.abs(b)))
 
 
+def test_host_forward_one_sided_derivatives_match_jax_autodiff(table):
+    """Derivatives in I_b only or sigma_a only (the other tangent a symbolic zero) take the pair products
+    with a zero input, and their transposes the right half: both against autodiff of the table."""
+    _, grid, seg = table
+    rng = np.random.default_rng(3)
+    n = grid.n_voxels
+    Ib = jnp.asarray(1e3 + 1e3 * rng.random(n))
+    sa = jnp.asarray(10.0 + 40.0 * rng.random(n))
+    v, ct = jnp.asarray(rng.normal(size=n)), jnp.asarray(rng.normal(size=seg.n_rows))
+    F = host_forward(seg)
+    for host, ref, x in ((lambda a: F(a, sa), lambda a: seg.forward_jax(a, sa), Ib),
+                         (lambda b: F(Ib, b), lambda b: seg.forward_jax(Ib, b), sa)):
+        t_h, t_j = jax.jvp(host, (x,), (v,))[1], jax.jvp(ref, (x,), (v,))[1]
+        assert float(jnp.max(jnp.abs(t_h - t_j))) <= 1e-12 * float(jnp.max(jnp.abs(t_j)))
+        b_h, b_j = jax.vjp(host, x)[1](ct)[0], jax.vjp(ref, x)[1](ct)[0]
+        assert float(jnp.max(jnp.abs(b_h - b_j))) <= 1e-12 * float(jnp.max(jnp.abs(b_j)))
+
+
+@pytest.mark.parametrize("n_rows", [5, 16, 203])
+def test_pair_products_match_scipy_for_any_thread_count(n_rows):
+    """One pass over a shared pattern gives A x + B y and (Aᵀu, Bᵀu) as scipy does, and the transposed sums
+    are the same bits for one thread and two (fixed row blocks, fewer rows than blocks included)."""
+    import numba
+    import scipy.sparse as sp
+
+    from lftomo.inverse.hostsegments import pair_matvec, pair_rmatvec
+
+    rng = np.random.default_rng(n_rows)
+    n = 37
+    A = sp.random(n_rows, n, density=0.2, format="csr", random_state=rng)
+    A.data = rng.normal(size=A.nnz)
+    B = sp.csr_matrix((rng.normal(size=A.nnz), A.indices, A.indptr), shape=A.shape)
+    x, y, u = rng.normal(size=n), rng.normal(size=n), rng.normal(size=n_rows)
+    u[::3] = 0.0  # rows the transpose skips
+    out = np.empty(n_rows)
+    pair_matvec(A.indptr, A.indices, A.data, B.data, x, y, out)
+    np.testing.assert_allclose(out, A @ x + B @ y, rtol=1e-12, atol=1e-12)
+    sums = []
+    threads = numba.get_num_threads()
+    try:
+        for k in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(k)
+            oa, ob = np.empty(n), np.empty(n)
+            pair_rmatvec(A.indptr, A.indices, A.data, B.data, u, oa, ob)
+            sums.append((oa, ob))
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_allclose(sums[0][0], A.T @ u, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(sums[0][1], B.T @ u, rtol=1e-12, atol=1e-12)
+    for oa, ob in sums[1:]:
+        assert np.array_equal(oa, sums[0][0]) and np.array_equal(ob, sums[0][1])
+
+
 def test_joint_engines_agree(table):
     """Ten Levenberg–Marquardt steps of the joint fit take the same path with
     host Jacobians and with JAX autodiff of the segment table (to rounding
