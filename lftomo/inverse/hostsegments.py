@@ -48,16 +48,13 @@ from numba import njit, prange
 
 from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
-from .hostsparse import SCIPY_LOCK
+from .hostsparse import ROW_BLOCKS, SCIPY_LOCK
 
 __all__ = ["HostForward", "host_forward"]
 
 _STORE = ContentRegistry()  # handle -> (table, its cache of linearisation points)
 _TABLES = _STORE.values
 _CACHE_POINTS = 6  # two or three channels × (current point, trial point)
-#: Fixed row blocks of the transposed products (:func:`pair_rmatvec`): at least the threads of a workstation, and
-#: the same for any thread count, so that the sums (and a fit's path) do not depend on it.
-TRANSPOSE_BLOCKS = 16
 
 
 @njit(cache=True, parallel=True)
@@ -76,12 +73,12 @@ def pair_matvec(indptr, indices, a, b, x, y, out):
 def pair_rmatvec(indptr, indices, a, b, u, out_a, out_b):
     """``out_a = Aᵀ u`` and ``out_b = Bᵀ u`` for two CSR matrices sharing one pattern, without transposing them.
 
-    The rows are cut into :data:`TRANSPOSE_BLOCKS` fixed blocks (in parallel), each summing into its own
+    The rows are cut into :data:`~lftomo.inverse.hostsparse.ROW_BLOCKS` fixed blocks (in parallel), each summing into its own
     buffer, and the buffers are added in block order: the same sums for any number of threads."""
     n_rows, n = u.shape[0], out_a.shape[0]
-    acc = np.zeros((TRANSPOSE_BLOCKS, n, 2))
-    for blk in prange(TRANSPOSE_BLOCKS):
-        for i in range(n_rows * blk // TRANSPOSE_BLOCKS, n_rows * (blk + 1) // TRANSPOSE_BLOCKS):
+    acc = np.zeros((ROW_BLOCKS, n, 2))
+    for blk in prange(ROW_BLOCKS):
+        for i in range(n_rows * blk // ROW_BLOCKS, n_rows * (blk + 1) // ROW_BLOCKS):
             ui = u[i]
             if ui != 0.0:
                 for k in range(indptr[i], indptr[i + 1]):
@@ -90,7 +87,7 @@ def pair_rmatvec(indptr, indices, a, b, u, out_a, out_b):
                     acc[blk, j, 1] += b[k] * ui
     for j in prange(n):
         sa, sb = 0.0, 0.0
-        for blk in range(TRANSPOSE_BLOCKS):
+        for blk in range(ROW_BLOCKS):
             sa += acc[blk, j, 0]
             sb += acc[blk, j, 1]
         out_a[j], out_b[j] = sa, sb

@@ -44,7 +44,7 @@ from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
 
 __all__ = ["HostCSR", "host_csr", "projected_normal_equations", "channels_normal_equations", "bandwidth_order",
-           "SCIPY_LOCK"]
+           "SCIPY_LOCK", "ROW_BLOCKS", "rows_column_sq_norms"]
 
 _STORE = ContentRegistry()  # handle -> (A, Aᵀ) as CSR
 _REGISTRY = _STORE.values
@@ -76,6 +76,37 @@ def csr_weighted_norms(indptr, indices, data, w, X, out):
                 v += data[k] * x[indices[k]]
             acc += w[i] * v * v
         out[j] = acc
+
+
+#: Fixed row blocks of the kernels that scatter rows into per-column sums (:func:`rows_column_sq_norms`,
+#: :func:`lftomo.inverse.hostsegments.pair_rmatvec`): at least a workstation's threads, and the same for any
+#: thread count, so that the sums (and a fit's path) do not depend on it.
+ROW_BLOCKS = 16
+
+
+@njit(cache=True, parallel=True)
+def rows_column_sq_norms(indptr, indices, a, b, rows, row_w2, out_a, out_b):
+    """``out_a[j] = Σ_k row_w2[k] A[rows[k], j]²`` and ``out_b`` likewise for ``B``: squared column norms of the
+    row-weighted rows ``rows`` of two CSR matrices sharing one pattern (values ``a``, ``b``), in one pass.
+
+    The listed rows are cut into :data:`ROW_BLOCKS` fixed blocks (in parallel) summing into their own
+    buffers, added in block order: the same sums for any number of threads."""
+    n_k, n = rows.shape[0], out_a.shape[0]
+    acc = np.zeros((ROW_BLOCKS, n, 2))
+    for blk in prange(ROW_BLOCKS):
+        for k in range(n_k * blk // ROW_BLOCKS, n_k * (blk + 1) // ROW_BLOCKS):
+            w2, r = row_w2[k], rows[k]
+            if w2 != 0.0:
+                for q in range(indptr[r], indptr[r + 1]):
+                    j = indices[q]
+                    acc[blk, j, 0] += w2 * a[q] * a[q]
+                    acc[blk, j, 1] += w2 * b[q] * b[q]
+    for j in prange(n):
+        sa, sb = 0.0, 0.0
+        for blk in range(ROW_BLOCKS):
+            sa += acc[blk, j, 0]
+            sb += acc[blk, j, 1]
+        out_a[j], out_b[j] = sa, sb
 
 
 def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:

@@ -192,7 +192,7 @@ from ..interrupt import stop_between_steps
 from ..progress import NoBar, progress_bar
 from ..radiation import blackbody, dblackbody_dT, planck_jax
 from .denselm import levenberg_marquardt_dense, residual_dof
-from .hostsparse import bandwidth_order, buffer_key, channels_normal_equations
+from .hostsparse import bandwidth_order, buffer_key, channels_normal_equations, rows_column_sq_norms
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
@@ -577,15 +577,21 @@ class JointModel:
         r = self.fns["residual_jit"](jnp.asarray(pv), self.jax_args(lam))
         return float(jnp.sum(r * r)), float(jnp.sum(r[: self.m_total] ** 2))
 
-    def data_jacobian(self, pv) -> tuple[np.ndarray, sp.csr_matrix]:
-        """The whitened data residual of every channel (m,) and its exact sparse Jacobian in the log-odds
-        ``pv`` (m × 2 n_u): ``∂F/∂T = W(σ) diag(I_b'(T))`` and ``∂F/∂σ`` of the segment table, through ``E P``
-        and the sigmoids."""
+    def _fields_and_slopes(self, pv) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(T, σ_ref)`` on the segment table's voxels at the log-odds ``pv`` and ``(dT/dθ, dσ_ref/dρ)`` per
+        unknown (numpy)."""
         n_u, lo, hi, space = self.n_u, self.lo, self.hi, self.space
         sg, sr = expit(pv[:n_u]), expit(pv[n_u:])
         T, sref = lo + (hi - lo) * sg, space.sigma_of_unit(sr)
         dT, ds = (hi - lo) * sg * (1.0 - sg), space.dsigma_du(sref) * sr * (1.0 - sr)
         Tv, sv = (T, sref) if self.to_seg is None else (self.to_seg @ T, self.to_seg @ sref)
+        return Tv, sv, dT, ds
+
+    def data_jacobian(self, pv) -> tuple[np.ndarray, sp.csr_matrix]:
+        """The whitened data residual of every channel (m,) and its exact sparse Jacobian in the log-odds
+        ``pv`` (m × 2 n_u): ``∂F/∂T = W(σ) diag(I_b'(T))`` and ``∂F/∂σ`` of the segment table, through ``E P``
+        and the sigmoids."""
+        Tv, sv, dT, ds = self._fields_and_slopes(pv)
         res, blocks = [], []
         for c in range(len(self.ms)):
             sa_c = sv * self.factors[c]
@@ -615,8 +621,25 @@ class JointModel:
     def column_scale(self, pv, lam) -> np.ndarray:
         """Jacobi scaling, as in the T-only solver: ``D = 1/‖column of the whitened Jacobian and prior‖`` at
         ``pv`` (exact sparse Jacobians of the segment table).  Without it the Levenberg–Marquardt damping
-        treats log-odds of T and of σ_a alike while their columns differ by orders of magnitude."""
-        return _jacobi_of(self.data_jacobian(pv)[1], self.prior_jacobian(pv)[1], lam)
+        treats log-odds of T and of σ_a alike while their columns differ by orders of magnitude.
+
+        Unknowns that are the table's voxels (no ``E P``): the squared column norms come from one pass over
+        each channel's rows of ``W`` and ``∂F/∂σ`` (:func:`~lftomo.inverse.hostsparse.rows_column_sq_norms`),
+        without assembling the Jacobian."""
+        Jr = self.prior_jacobian(pv)[1]
+        if self.to_seg is not None:
+            return _jacobi_of(self.data_jacobian(pv)[1], Jr, lam)
+        Tv, sv, dT, ds = self._fields_and_slopes(pv)
+        c_T, c_s = np.zeros(self.n_u), np.zeros(self.n_u)
+        for c in range(len(self.ms)):
+            _, dF_ds, W = self.tables[c].linearized(blackbody(Tv, self.wls[c]), sv * self.factors[c])
+            w2 = (self.rows[c] >= 0) / np.asarray(self.ms[c].sigma, float) ** 2
+            a, b = np.empty(self.n_u), np.empty(self.n_u)
+            rows_column_sq_norms(W.indptr, W.indices, W.data, dF_ds.data, self.rows_np[c], w2, a, b)
+            c_T += a * dblackbody_dT(Tv, self.wls[c]) ** 2
+            c_s += b * self.factors[c] ** 2
+        c2 = np.concatenate([c_T * dT ** 2, c_s * ds ** 2])
+        return jacobi_scale(c2 + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel())
 
     def fields(self, theta):
         """``T`` and ``σ_ref`` on ``grid`` from the unknowns ``theta``."""

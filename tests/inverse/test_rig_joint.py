@@ -68,11 +68,13 @@ def test_rig_joint_fit_refuses_mismatched_channels(rig_data):
 def test_rig_channels_read_their_own_camera_table(rig_data):
     """Each channel of a rig is evaluated through its own camera's table only: the joint model's whitened
     data residual (host sparse Jacobians, JAX with host products, JAX autodiff) equals the stacked tables'
-    ``W(σ_a) I_b + background`` read at the channel's stacked rows, and its exact sparse Jacobian equals
-    JAX's forward-mode derivative of the autodiff residual."""
+    ``W(σ_a) I_b + background`` read at the channel's stacked rows, its exact sparse Jacobian equals
+    JAX's forward-mode derivative of the autodiff residual, and its Jacobi column scale the one of that
+    derivative and the prior's."""
     import jax
 
     from lftomo.inverse.joint import JointModel, SigmaSpace, _check_channels
+    from lftomo.inverse.lsq import jacobi_scale
     from lftomo.inverse.regularizers import resolve_prior
     from lftomo.radiation import blackbody
 
@@ -98,6 +100,11 @@ def test_rig_channels_read_their_own_camera_table(rig_data):
         np.testing.assert_allclose(r, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
     J_ad = np.asarray(jax.jacfwd(lambda p: autodiff.residual(p, 1.0)[:m_total])(theta))
     np.testing.assert_allclose(J_host.toarray(), J_ad, rtol=1e-7, atol=1e-9 * np.abs(J_ad).max())
+    # the Jacobi column scale from one pass over each channel's rows = 1/‖column‖ of [J; √λ J_prior]
+    lam = 30.0
+    Jr = host.prior_jacobian(theta)[1].toarray()
+    c2 = (J_ad ** 2).sum(axis=0) + lam * (Jr ** 2).sum(axis=0)
+    np.testing.assert_allclose(host.column_scale(theta, lam), jacobi_scale(c2), rtol=1e-7)
 
 
 def test_a_stack_names_the_table_of_a_channels_rows(rig_data):
