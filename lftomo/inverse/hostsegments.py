@@ -48,7 +48,7 @@ from numba import njit, prange
 
 from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
-from .hostsparse import ROW_BLOCKS, SCIPY_LOCK
+from .hostsparse import ROW_BLOCKS, SCIPY_LOCK, sum_row_blocks
 
 __all__ = ["HostForward", "host_forward"]
 
@@ -73,8 +73,9 @@ def pair_matvec(indptr, indices, a, b, x, y, out):
 def pair_rmatvec(indptr, indices, a, b, u, out_a, out_b):
     """``out_a = Aᵀ u`` and ``out_b = Bᵀ u`` for two CSR matrices sharing one pattern, without transposing them.
 
-    The rows are cut into :data:`~lftomo.inverse.hostsparse.ROW_BLOCKS` fixed blocks (in parallel), each summing into its own
-    buffer, and the buffers are added in block order: the same sums for any number of threads."""
+    The rows are cut into :data:`~lftomo.inverse.hostsparse.ROW_BLOCKS` fixed blocks (in parallel), each
+    summing into its own buffer, and the buffers are added in block order
+    (:func:`~lftomo.inverse.hostsparse.sum_row_blocks`): the same sums for any number of threads."""
     n_rows, n = u.shape[0], out_a.shape[0]
     acc = np.zeros((ROW_BLOCKS, n, 2))
     for blk in prange(ROW_BLOCKS):
@@ -85,12 +86,7 @@ def pair_rmatvec(indptr, indices, a, b, u, out_a, out_b):
                     j = indices[k]
                     acc[blk, j, 0] += a[k] * ui
                     acc[blk, j, 1] += b[k] * ui
-    for j in prange(n):
-        sa, sb = 0.0, 0.0
-        for blk in range(ROW_BLOCKS):
-            sa += acc[blk, j, 0]
-            sb += acc[blk, j, 1]
-        out_a[j], out_b[j] = sa, sb
+    sum_row_blocks(acc, out_a, out_b)
 
 
 class _Point:

@@ -44,7 +44,7 @@ from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
 
 __all__ = ["HostCSR", "host_csr", "projected_normal_equations", "channels_normal_equations", "bandwidth_order",
-           "SCIPY_LOCK", "ROW_BLOCKS", "rows_column_sq_norms"]
+           "SCIPY_LOCK", "ROW_BLOCKS", "rows_column_sq_norms", "sum_row_blocks"]
 
 _STORE = ContentRegistry()  # handle -> (A, Aᵀ) as CSR
 _REGISTRY = _STORE.values
@@ -85,6 +85,18 @@ ROW_BLOCKS = 16
 
 
 @njit(cache=True, parallel=True)
+def sum_row_blocks(acc, out_a, out_b):
+    """``out_a[j] = Σ_blk acc[blk, j, 0]`` and ``out_b[j] = Σ_blk acc[blk, j, 1]``, added in block order: the last
+    step of the kernels that sum :data:`ROW_BLOCKS` fixed row blocks into their own buffers."""
+    for j in prange(out_a.shape[0]):
+        sa, sb = 0.0, 0.0
+        for blk in range(acc.shape[0]):
+            sa += acc[blk, j, 0]
+            sb += acc[blk, j, 1]
+        out_a[j], out_b[j] = sa, sb
+
+
+@njit(cache=True, parallel=True)
 def rows_column_sq_norms(indptr, indices, a, b, rows, row_w2, out_a, out_b):
     """``out_a[j] = Σ_k row_w2[k] A[rows[k], j]²`` and ``out_b`` likewise for ``B``: squared column norms of the
     row-weighted rows ``rows`` of two CSR matrices sharing one pattern (values ``a``, ``b``), in one pass.
@@ -101,12 +113,7 @@ def rows_column_sq_norms(indptr, indices, a, b, rows, row_w2, out_a, out_b):
                     j = indices[q]
                     acc[blk, j, 0] += w2 * a[q] * a[q]
                     acc[blk, j, 1] += w2 * b[q] * b[q]
-    for j in prange(n):
-        sa, sb = 0.0, 0.0
-        for blk in range(ROW_BLOCKS):
-            sa += acc[blk, j, 0]
-            sb += acc[blk, j, 1]
-        out_a[j], out_b[j] = sa, sb
+    sum_row_blocks(acc, out_a, out_b)
 
 
 def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
