@@ -483,10 +483,15 @@ def _residual_functions(log_space: bool) -> dict:
     return {"residual": residual, "scaled_residual": scaled_residual, "residual_jit": jax.jit(residual)}
 
 
-def _jacobi_of(Jd, Jr, lam) -> np.ndarray:
-    """Jacobi scale ``1/‖column‖`` of the stacked sparse Jacobian ``[J_d; √λ J_r]``."""
-    return jacobi_scale(np.asarray(Jd.multiply(Jd).sum(axis=0)).ravel()
-                        + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel())
+def _column_sq_norms(M) -> np.ndarray:
+    """Squared column norms of the sparse matrix ``M``."""
+    return np.asarray(M.multiply(M).sum(axis=0)).ravel()
+
+
+def _jacobi_of(data_c2, Jr, lam) -> np.ndarray:
+    """Jacobi scale ``1/‖column‖`` of the stacked Jacobian ``[J_d; √λ J_r]`` from the squared column norms
+    ``data_c2`` of ``J_d`` and the sparse prior Jacobian ``J_r``."""
+    return jacobi_scale(data_c2 + lam * _column_sq_norms(Jr))
 
 
 class JointModel:
@@ -628,7 +633,7 @@ class JointModel:
         without assembling the Jacobian."""
         Jr = self.prior_jacobian(pv)[1]
         if self.to_seg is not None:
-            return _jacobi_of(self.data_jacobian(pv)[1], Jr, lam)
+            return _jacobi_of(_column_sq_norms(self.data_jacobian(pv)[1]), Jr, lam)
         Tv, sv, dT, ds = self._fields_and_slopes(pv)
         c_T, c_s = np.zeros(self.n_u), np.zeros(self.n_u)
         for c in range(len(self.ms)):
@@ -638,8 +643,7 @@ class JointModel:
             rows_column_sq_norms(W.indptr, W.indices, W.data, dF_ds.data, self.rows_np[c], w2, a, b)
             c_T += a * dblackbody_dT(Tv, self.wls[c]) ** 2
             c_s += b * self.factors[c] ** 2
-        c2 = np.concatenate([c_T * dT ** 2, c_s * ds ** 2])
-        return jacobi_scale(c2 + lam * np.asarray(Jr.multiply(Jr).sum(axis=0)).ravel())
+        return _jacobi_of(np.concatenate([c_T * dT ** 2, c_s * ds ** 2]), Jr, lam)
 
     def fields(self, theta):
         """``T`` and ``σ_ref`` on ``grid`` from the unknowns ``theta``."""
@@ -713,7 +717,7 @@ class MatrixFreePath(_JointPath):
         pv = np.asarray(theta, np.float64)
         rd, Jd = self.model.data_jacobian(pv)
         rr, Jr = self.model.prior_jacobian(pv)
-        D = _jacobi_of(Jd, Jr, lam)
+        D = _jacobi_of(_column_sq_norms(Jd), Jr, lam)
         return rd, rr, (Jd @ sp.diags(D)).tocsr(), (Jr @ sp.diags(D)).tocsr(), D
 
     def linearization(self, theta, lam) -> Linearization:
