@@ -10,15 +10,12 @@ sparsity of ``W``.
 
 Differentiating the JAX version of the table (:meth:`lftomo.RaySegments.forward_jax`,
 a segmented scan over every segment) is exact too, but each Jacobian product
-then walks every segment again: on the seed camera's 16 best-lit views at
-8³ with 16 rays per pixel (3.0 M segments, 434 k non-zeros of ``W``) one
-forward evaluation costs 62 ms, a JVP 95 ms and a VJP 64 ms in XLA on 2 cores,
-while the two sparse Jacobians cost 170 ms once per point and then 0.3 ms
-per product.  A Levenberg–Marquardt step applies the Jacobian and its
-transpose tens of times at the same point (LSMR), so :func:`host_forward`
-computes the two sparse Jacobians once per evaluation point (cached by the
-point's bytes) and applies them in the JVP and its exact transpose
-(``jax.custom_jvp`` with a ``linear_call`` tangent): 30× less work per step.
+then walks every segment again, while a Levenberg–Marquardt step applies the
+Jacobian and its transpose tens of times at the same point (LSMR).  So
+:func:`host_forward` computes the two sparse Jacobians once per evaluation
+point (cached by the point's bytes) and applies them in the JVP and its exact
+transpose (``jax.custom_jvp`` with a ``linear_call`` tangent); the timings of
+both ways are in docs/accuracy.md (*Joint T + σₐ from 650 and 800 nm*).
 ``W`` and ``J`` share the table's row pattern, so one pass over it gives
 ``W dI_b + J dσ_a`` (:func:`pair_matvec`) and another ``(Wᵀu, Jᵀu)``
 (:func:`pair_rmatvec`, without transposed copies).
