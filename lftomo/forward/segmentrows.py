@@ -136,14 +136,6 @@ def row_pattern(row_ray_ptr: np.ndarray, ray_ptr: np.ndarray, voxel: np.ndarray,
     return indptr.astype(index_dtype), indices, slot
 
 
-@njit(cache=True, inline="always", fastmath={"contract"})
-def _back_step(wn, ell, em, Tf, d, Lb):
-    """One segment of a ray walked from the back: its ``W`` entry ``w``, its ``∂signal/∂σ_a`` entry and the
-    radiance behind the segment in front (module docstring; ``Tf``: transmittance to its front face, ``d``:
-    its ``I_b``, ``Lb``: radiance behind it)."""
-    return wn * Tf * em, wn * ell * (Tf - Tf * em) * (d - Lb), Lb + em * (d - Lb)
-
-
 @njit(cache=True, parallel=True, fastmath={"contract"})  # fused multiply–adds only: no reassociation, NaN kept
 def _linearized_kernel(row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, slot, indptr, inv_n, sigma_a, Ib,
                        out_J, out_W, out_sig, scratch):
@@ -169,68 +161,16 @@ def _linearized_kernel(row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, slo
             sig += wn * T * Lb
             for s in range(b - 1, a - 1, -1):
                 j = seg_vox[s]
+                em = buf[s - a, 0]
+                Tf = buf[s - a, 1]
+                w_j = wn * Tf * em
                 d = Ib[j]
-                w_j, dj, Lb_front = _back_step(wn, seg_len[s], buf[s - a, 0], buf[s - a, 1], d, Lb)
                 sig += w_j * d
                 q = base + slot[s]
-                out_J[q] += dj
+                out_J[q] += wn * seg_len[s] * (Tf - Tf * em) * (d - Lb)
                 out_W[q] += w_j
-                Lb = Lb_front
+                Lb += em * (d - Lb)
         out_sig[i] = sig
-
-
-@njit(cache=True, parallel=True, fastmath={"contract"})  # fused multiply–adds only: no reassociation, NaN kept
-def _linearized_pair_kernel(row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, slot, indptr, inv_n, sa0, sa1,
-                            ib0, ib1, J0, J1, W0, W1, out_sig, scratch):
-    """:func:`_linearized_kernel` for two channels (``sa0, ib0`` and ``sa1, ib1``) on the same rays, walked
-    side by side: each segment's voxel, length and slot are read once, and the two channels' running
-    transmittances and radiances, each a chain of dependent multiply–adds, advance together.  Each channel's
-    arithmetic is that of its own walk, to the bit.  ``out_sig``: (2, n_rows); ``scratch``: per thread,
-    (longest ray's segments, 4)."""
-    for i in prange(indptr.shape[0] - 1):
-        buf = scratch[numba.get_thread_id()]
-        base = indptr[i]
-        for q in range(base, indptr[i + 1]):
-            J0[q] = 0.0
-            W0[q] = 0.0
-            J1[q] = 0.0
-            W1[q] = 0.0
-        sig0 = 0.0
-        sig1 = 0.0
-        for ray in range(row_ray_ptr[i], row_ray_ptr[i + 1]):
-            wn = ray_w[ray] * inv_n
-            a, b = ray_ptr[ray], ray_ptr[ray + 1]
-            T0 = 1.0
-            T1 = 1.0
-            for s in range(a, b):
-                j, ell = seg_vox[s], seg_len[s]
-                e0 = absorptance(sa0[j] * ell)
-                e1 = absorptance(sa1[j] * ell)
-                buf[s - a, 0] = e0
-                buf[s - a, 1] = T0
-                buf[s - a, 2] = e1
-                buf[s - a, 3] = T1
-                T0 -= T0 * e0
-                T1 -= T1 * e1
-            L0 = ray_L[ray]
-            L1 = L0
-            sig0 += wn * T0 * L0
-            sig1 += wn * T1 * L1
-            for s in range(b - 1, a - 1, -1):
-                j, ell = seg_vox[s], seg_len[s]
-                q = base + slot[s]
-                d0, d1 = ib0[j], ib1[j]
-                w0, dj0, L0_front = _back_step(wn, ell, buf[s - a, 0], buf[s - a, 1], d0, L0)
-                w1, dj1, L1_front = _back_step(wn, ell, buf[s - a, 2], buf[s - a, 3], d1, L1)
-                sig0 += w0 * d0
-                sig1 += w1 * d1
-                J0[q] += dj0
-                J1[q] += dj1
-                W0[q] += w0
-                W1[q] += w1
-                L0, L1 = L0_front, L1_front
-        out_sig[0, i] = sig0
-        out_sig[1, i] = sig1
 
 
 def linearized_rows(row_ray_ptr: np.ndarray, ray_ptr: np.ndarray, ray_weight: np.ndarray, ray_radiance: np.ndarray,
@@ -252,36 +192,22 @@ def linearized_rows(row_ray_ptr: np.ndarray, ray_ptr: np.ndarray, ray_weight: np
     pattern : tuple
         :func:`row_pattern` of the table.
     rays_per_pixel : int
-    sigma_a, Ib : ndarray, shape (n_voxels,) or (K, n_voxels)
-        Absorption coefficient (m⁻¹) and blackbody radiance (signal units) per voxel; with a leading axis,
-        ``K`` channels (e.g. wavelengths) on the same rays, walked two at a time.
+    sigma_a, Ib : ndarray, shape (n_voxels,)
+        Absorption coefficient (m⁻¹) and blackbody radiance (signal units) per voxel.
 
     Returns
     -------
-    signal : ndarray, shape (n_rows,) or (K, n_rows)
-    J_values, W_values : ndarray, shape (nnz,) or (K, nnz)
-        Values of ``∂signal/∂σ_a`` (signal per m⁻¹) and of ``W`` (m² sr) on the pattern; each channel's
-        are those of its own one-channel call, to the bit.
+    signal : ndarray, shape (n_rows,)
+    J_values, W_values : ndarray, shape (nnz,)
+        Values of ``∂signal/∂σ_a`` (signal per m⁻¹) and of ``W`` (m² sr) on the pattern.
     """
     indptr, indices, slot = pattern
-    sa = np.asarray(sigma_a, np.float64)
-    ib = np.asarray(Ib, np.float64)
-    if sa.shape != ib.shape or sa.ndim not in (1, 2):
-        raise ValueError(f"sigma_a and Ib must have one shape, (n_voxels,) or (K, n_voxels), got {sa.shape} "
-                         f"and {ib.shape}")
-    one = sa.ndim == 1
-    sa, ib = np.atleast_2d(sa), np.atleast_2d(ib)
-    n_ch, n_rows = sa.shape[0], indptr.size - 1
+    n_rows = indptr.size - 1
     longest = int(np.diff(ray_ptr).max()) if ray_ptr.size > 1 else 0
-    scratch = np.empty((numba.get_num_threads(), max(longest, 1), 4 if n_ch > 1 else 2))
-    out_J = np.empty((n_ch, indices.size))
-    out_W = np.empty((n_ch, indices.size))
-    sig = np.empty((n_ch, n_rows))
-    table = (row_ray_ptr, ray_ptr, ray_weight, ray_radiance, voxel, length, slot, indptr, 1.0 / rays_per_pixel)
-    for k in range(0, n_ch - 1, 2):
-        _linearized_pair_kernel(*table, sa[k], sa[k + 1], ib[k], ib[k + 1], out_J[k], out_J[k + 1], out_W[k],
-                                out_W[k + 1], sig[k:k + 2], scratch)
-    if n_ch % 2:
-        one_scratch = scratch if n_ch == 1 else np.empty(scratch.shape[:2] + (2,))
-        _linearized_kernel(*table, sa[-1], ib[-1], out_J[-1], out_W[-1], sig[-1], one_scratch)
-    return (sig[0], out_J[0], out_W[0]) if one else (sig, out_J, out_W)
+    scratch = np.empty((numba.get_num_threads(), max(longest, 1), 2))
+    out_J = np.empty(indices.size)
+    out_W = np.empty(indices.size)
+    sig = np.zeros(n_rows)
+    _linearized_kernel(row_ray_ptr, ray_ptr, ray_weight, ray_radiance, voxel, length, slot, indptr,
+                       1.0 / rays_per_pixel, sigma_a, Ib, out_J, out_W, sig, scratch)
+    return sig, out_J, out_W

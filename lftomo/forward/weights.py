@@ -1907,38 +1907,16 @@ class RaySegments:
             m² sr: the weight matrix's entries (on the pattern of crossed
             voxels; the same values as :meth:`weights`' to rounding).
         """
-        return self.linearized_channels([Ib], [sigma_a], memory_limit=memory_limit)[0]
-
-    def linearized_channels(self, Ibs, sigmas, *, memory_limit: float | None = None) -> list[tuple]:
-        """:meth:`linearized` for several channels on these rays (e.g. the wavelengths of one camera), walked
-        two at a time (:func:`~lftomo.forward.segmentrows.linearized_rows`); each channel's values are
-        those of its own :meth:`linearized` call, to the bit.
-
-        Parameters
-        ----------
-        Ibs, sigmas : sequence of ndarray or float
-            Per channel, ``Ib`` and ``sigma_a`` as for :meth:`linearized`; the same number of each.
-
-        Returns
-        -------
-        list of tuple
-            Per channel, ``(signal, J, W)`` as :meth:`linearized` returns them.
-        """
-        if len(Ibs) != len(sigmas) or not len(Ibs):
-            raise ValueError(f"Ibs and sigmas must name the same number (>= 1) of channels, got {len(Ibs)} "
-                             f"and {len(sigmas)}")
-        ib = np.stack([_field_flat("Ib", x, self._grid_like, minimum=None) for x in Ibs])
-        sa = np.stack([self._sigma(x) for x in sigmas])
-        # slots, pattern and two value arrays per channel, at most
-        _check_rebuild_memory(self.n_segments * (4 + 4) + len(ib) * (self.n_segments * 16 + self.n_rows * 32),
-                              _memory_limit(memory_limit))
+        ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
+        sa = self._sigma(sigma_a)
+        # slots, pattern and two value arrays, at most
+        _check_rebuild_memory(self.n_segments * (4 + 4 + 8 + 8) + self.n_rows * 32, _memory_limit(memory_limit))
         pattern = self._row_pattern
         sig, J, W = linearized_rows(self.row_ray_ptr, self.ray_ptr, self.ray_weight, self.ray_radiance, self.voxel,
                                     self.length, pattern, self.rays_per_pixel, sa, ib)
         indptr, indices = pattern[0], pattern[1]
         shape = (self.n_rows, self.n_voxels)
-        return [(sig[k], sp.csr_matrix((J[k], indices, indptr), shape=shape),
-                 sp.csr_matrix((W[k], indices, indptr), shape=shape)) for k in range(len(ib))]
+        return sig, sp.csr_matrix((J, indices, indptr), shape=shape), sp.csr_matrix((W, indices, indptr), shape=shape)
 
     @cached_property
     def _row_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

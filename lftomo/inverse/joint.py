@@ -592,29 +592,16 @@ class JointModel:
         Tv, sv = (T, sref) if self.to_seg is None else (self.to_seg @ T, self.to_seg @ sref)
         return Tv, sv, dT, ds
 
-    def linearized(self, Tv, sv) -> list[tuple]:
-        """Per channel, its signal, ``∂F/∂σ`` and ``W(σ)`` on its own table at ``T`` and ``σ_ref`` on the
-        table's voxels (:meth:`~lftomo.RaySegments.linearized`): the channels that share a table (one
-        camera's wavelengths) in one walk of it (:meth:`~lftomo.RaySegments.linearized_channels`)."""
-        shared: dict = {}
-        for c, t in enumerate(self.tables):
-            shared.setdefault(id(t), []).append(c)
-        out = [None] * len(self.tables)
-        for cs in shared.values():
-            walked = self.tables[cs[0]].linearized_channels([blackbody(Tv, self.wls[c]) for c in cs],
-                                                             [sv * self.factors[c] for c in cs])
-            for c, lin in zip(cs, walked):
-                out[c] = lin
-        return out
-
     def data_jacobian(self, pv) -> tuple[np.ndarray, sp.csr_matrix]:
         """The whitened data residual of every channel (m,) and its exact sparse Jacobian in the log-odds
         ``pv`` (m × 2 n_u): ``∂F/∂T = W(σ) diag(I_b'(T))`` and ``∂F/∂σ`` of the segment table, through ``E P``
         and the sigmoids."""
         Tv, sv, dT, ds = self._fields_and_slopes(pv)
         res, blocks = [], []
-        for c, (signal, dF_ds, W) in enumerate(self.linearized(Tv, sv)):
+        for c in range(len(self.ms)):
+            sa_c = sv * self.factors[c]
             rows, w = self.rows_np[c], self.whiten[c]
+            signal, dF_ds, W = self.tables[c].linearized(blackbody(Tv, self.wls[c]), sa_c)
             W = W[rows]
             model = np.where(self.rows[c] >= 0, signal[rows], 0.0)
             res.append((model - np.asarray(self.ms[c].y, float)) / np.asarray(self.ms[c].sigma, float))
@@ -649,7 +636,8 @@ class JointModel:
             return _jacobi_of(_column_sq_norms(self.data_jacobian(pv)[1]), Jr, lam)
         Tv, sv, dT, ds = self._fields_and_slopes(pv)
         c_T, c_s = np.zeros(self.n_u), np.zeros(self.n_u)
-        for c, (_, dF_ds, W) in enumerate(self.linearized(Tv, sv)):
+        for c in range(len(self.ms)):
+            _, dF_ds, W = self.tables[c].linearized(blackbody(Tv, self.wls[c]), sv * self.factors[c])
             w2 = (self.rows[c] >= 0) / np.asarray(self.ms[c].sigma, float) ** 2
             a, b = np.empty(self.n_u), np.empty(self.n_u)
             rows_column_sq_norms(W.indptr, W.indices, W.data, dF_ds.data, self.rows_np[c], w2, a, b)
@@ -777,20 +765,21 @@ class DenseLMPath(_JointPath):
         self.data_inv_s = [1.0 / np.asarray(m.sigma, float) for m in model.ms]
         self.valid_np = [r >= 0 for r in model.rows]
         self.row_weight = [w.diagonal() for w in model.whiten]  # valid/σ per datum
-        self.sig_cache = None  # (key of (T, σ_ref), per channel (signal, ∂F/∂σ, W)): the last point evaluated
+        self.sig_cache: dict = {}  # channel -> (key of (Ib, σ), signal, ∂F/∂σ, W): the last point evaluated
         self.jac_cache = None  # (key of x, (χ², G_d, g_d)): the last Gauss–Newton matrices formed
         self.to_seg_csr = None if model.to_seg is None else sp.csr_matrix(model.to_seg)
         self._prior_gram = None
         self.unknown_order = None  # the normal equations' layout: bandwidth_order of the first G formed
 
-    def _signals(self, Tv, sv) -> list[tuple]:
-        """Every channel's signal, ``∂F/∂σ`` and ``W(σ)`` at ``(T, σ_ref)`` on the table's voxels from one walk
-        per table (:meth:`JointModel.linearized`), cached for the last point evaluated: at every trial point,
+    def _signal(self, c, Ib, sa_c):
+        """The channel's signal, ``∂F/∂σ`` and ``W(σ)`` at ``(I_b, σ)`` from one walk of the segment table
+        (:meth:`~lftomo.RaySegments.linearized`), cached for the last point evaluated: at every trial point,
         so that an accepted trial (most are) needs no second walk for its Jacobian."""
-        key = hashlib.blake2b(Tv.tobytes() + sv.tobytes(), digest_size=16).digest()
-        if self.sig_cache is None or self.sig_cache[0] != key:
-            self.sig_cache = (key, self.model.linearized(Tv, sv))
-        return self.sig_cache[1]
+        key = hashlib.blake2b(Ib.tobytes() + sa_c.tobytes(), digest_size=16).digest()
+        hit = self.sig_cache.get(c)
+        if hit is None or hit[0] != key:
+            hit = self.sig_cache[c] = (key, *self.model.tables[c].linearized(Ib, sa_c))
+        return hit[1:]
 
     def evaluate(self, x, lam, with_jacobian):
         """``F``, its data part and, on request, ``G = JᵀJ``, ``g = Jᵀr`` at ``x = [(T − T_min)/(T_max − T_min),
@@ -830,8 +819,9 @@ class DenseLMPath(_JointPath):
         Tv, sv = (T, sref) if md.to_seg is None else (md.to_seg @ T, md.to_seg @ sref)
         data_sq = 0.0
         channels = []
-        for c, (signal, dF_ds, W) in enumerate(self._signals(np.ascontiguousarray(Tv, np.float64),
-                                                              np.ascontiguousarray(sv, np.float64))):
+        for c in range(len(md.ms)):
+            sa_c = sv * md.factors[c]
+            signal, dF_ds, W = self._signal(c, blackbody(Tv, md.wls[c]), sa_c)
             res = (np.where(self.valid_np[c], signal[md.rows_np[c]], 0.0) - self.data_y[c]) * self.data_inv_s[c]
             data_sq += float(res @ res)
             if with_jacobian:

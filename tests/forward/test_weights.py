@@ -483,27 +483,6 @@ def test_segments_derivative_matches_finite_differences(grid, blob, segments):
     np.testing.assert_allclose(S.forward(Ib, sa), sig, rtol=1e-12, atol=1e-14 * sig.max())
 
 
-def test_channels_walked_together_equal_their_own_walks(blob, segments):
-    """Three channels on one table (a camera's wavelengths: σ_a and I_b differ, the rays do not) walked
-    together, the first two side by side and the third alone, give each channel's own walk to the bit;
-    so the pair walk is as right as the one-channel walk checked above against finite differences."""
-    S, _ = segments
-    sa, Ib = blob.sigma_a_at(WL).ravel(), Ib_of(blob).ravel()
-    rng = np.random.default_rng(11)
-    sas = [sa, 0.4 * sa * rng.uniform(0.5, 1.5, sa.size), 2.5 * sa]
-    ibs = [Ib, 3.0 * Ib * rng.uniform(0.5, 1.5, Ib.size), 0.2 * Ib]
-    together = S.linearized_channels(ibs, sas)
-    assert len(together) == 3
-    for k in range(3):
-        alone = S.linearized(ibs[k], sas[k])
-        assert np.array_equal(together[k][0], alone[0])
-        for a, b in zip(together[k][1:], alone[1:]):
-            assert a.shape == b.shape and np.array_equal(a.indptr, b.indptr) and np.array_equal(a.data, b.data)
-    assert not np.array_equal(together[0][0], together[1][0])  # the channels differ
-    with pytest.raises(ValueError, match="same number"):
-        S.linearized_channels(ibs, sas[:2])
-
-
 def test_absorptance_is_expm1_to_rounding():
     """The segment walk's ``1 − e^{−t}``: its Taylor branch (below TAYLOR_MAX_DEPTH) within 2 ulp of
     ``−expm1(−t)`` from 1e-300 up to the switch, ``−expm1(−t)`` itself above it (numba's expm1, which
