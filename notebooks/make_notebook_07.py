@@ -83,22 +83,25 @@ NB07 = [
     md("""
     ## Do the reconstructions confirm the predictions?
 
-    Each configuration chooses its own λ (the default rule on its own data), so the posterior standard
-    deviations of two designs are not comparable voxel by voxel (at one λ a second camera can only lower
-    them).  What is compared is the predicted error against the error of the design's reconstruction.
+    Each configuration chooses its own λ (the default rule on its own data: σ as given for one camera, the
+    noise scale estimated for two or more), so the posterior standard deviations of two designs are not
+    comparable voxel by voxel (at one λ a second camera can only lower them).  What is compared is the predicted error against the error of the design's reconstruction.
     On the standard flame the second camera is predicted to cut the error by about a quarter, and the
-    reconstructions confirm it: over five simulated experiments (design seeds 0–4, the table in
-    `docs/experiment_design.md`) one camera reconstructed with 6.0–7.4 % and two cameras with
-    4.5–4.6 % mean error above 800 K (0.61–0.75×).  Linearised at the truth, the bias would have been
+    reconstructions confirm it: over five simulated experiments (design seeds 0–4, σ as given for both
+    configurations, the table in `docs/experiment_design.md`) one camera reconstructed with 6.0–7.4 % and
+    two cameras with 4.5–4.6 % mean error above 800 K (0.61–0.75×); with the rig's own default (the noise
+    scale estimated) seed 0 gives λ 1.9e3 instead of 1.2e4 and 4.35 % instead of 4.54 %, at a wider
+    posterior (2.5 % instead of 1.5 %).  Linearised at the truth, the bias would have been
     14.5–15.6 % and 6.4–6.9 %: far from the fields the fits reach, the linearisation overstates the
     prior's pull; the noise-free fit does not.  The design fits with sub-voxel emission (`quadrature=2`, the default): the weights are built on the
     16³ grid of the truth and the 8³ temperature is interpolated there before Planck's law, so the
     coarse grid's model error no longer dominates the reconstructions (with uniform emission per voxel
     it did, and the second camera appeared not to help).  On the two-lobed flame at 8³ the lobes are
-    1–2 voxels wide, and the coarse grid's model error keeps χ²/m above the target at every λ: the rule
-    estimates the noise scale instead (its note says so) and takes λ ≈ 120 (one camera) and ≈ 50 (two).
-    The second camera halves everything there: predicted 49 % → 22 %, the noise-free fit's bias 35 % →
-    16 %, the reconstruction of the noisy draw 35 % → 15 % (design seed 0).  The single camera's
+    1–2 voxels wide, and the coarse grid's model error keeps χ²/m above the target at every λ: the single
+    camera's rule estimates the noise scale instead (its note says so) and takes λ ≈ 110; the rig's takes
+    λ ≈ 520.
+    The second camera more than halves the error there: predicted 50 % → 20 %, the reconstruction of the
+    noisy draw 36 % → 15 % (design seed 0).  The single camera's
     Cramér–Rao bound is of order 1000 %: without the prior its depth is not observed at all.  The 16³
     numbers on the full seed camera are in `docs/experiment_design.md`.
     """),
@@ -111,14 +114,15 @@ NB07 = [
               f"posterior std {100 * s1['posterior_std_mean_rel']:.1f} % -> {100 * s2['posterior_std_mean_rel']:.1f} %, "
               f"one draw {100 * s1['reconstruction_mean_rel']:.1f} % -> {100 * s2['reconstruction_mean_rel']:.1f} %")
     s1, s2 = rows[0][1], rows[0][2]  # standard flame: the second camera is predicted to cut the error
-    assert s2["predicted_mean_rel"] < 0.85 * s1["predicted_mean_rel"]  # 0.73x (design seed 0)
+    assert s2["predicted_mean_rel"] < 0.85 * s1["predicted_mean_rel"]  # 0.72x (design seed 0)
     # the noise-free fit's bias is the error of the noisy draw's fit to within its spread (6.05 / 6.04 %)
     assert abs(s1["bias_mean_rel"] - s1["reconstruction_mean_rel"]) < s1["spread_mean_rel"]
-    assert s2["posterior_std_mean_rel"] < s1["posterior_std_mean_rel"]
+    # (no comparison of the posterior std: each configuration has its own λ, and a rig's default rule estimates
+    # the noise scale where one camera's takes σ as given, so a rig's smaller λ may widen its posterior)
     # the reconstructions of the standard flame confirm the order (0.61-0.75x over the five design seeds),
     # and none stopped in a poor local minimum (4.5-7.4 % over those seeds)
     assert s2["reconstruction_mean_rel"] < s1["reconstruction_mean_rel"] < 0.1
-    # the two-lobed flame: the second camera is predicted to halve the error, and it does (0.45x, 0.44x)
+    # the two-lobed flame: the second camera is predicted to halve the error, and it does (0.39x, 0.42x)
     t1, t2 = rows[1][1], rows[1][2]
     assert t2["predicted_mean_rel"] < 0.7 * t1["predicted_mean_rel"]
     assert t2["reconstruction_mean_rel"] < 0.7 * t1["reconstruction_mean_rel"]

@@ -601,7 +601,12 @@ def design(
         A quadratic prior; default :data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`.
     rule : LambdaRule, optional
         How ``regularization="auto"`` chooses λ (e.g.
-        ``lftomo.Discrepancy(noise_scale="estimated")``); default the library's.
+        ``lftomo.Discrepancy(noise_scale="estimated")``); default the library's
+        for this rig (:func:`lftomo.inverse.fitoptions.default_noise_scale`:
+        the noise scale estimated for two or more cameras, σ as given for
+        one), so that each configuration is fitted as its user would fit it.
+        Designs with different λ are compared by their predicted error (bias
+        and spread), not by their posterior standard deviation.
     bounds : (T_min, T_max)
         K, as for :func:`lftomo.reconstruct` (they scale the prior).
     hot : float

@@ -30,6 +30,11 @@ DEFAULT_NOISE_SCALE = "given"
 #: ambiguity for a small λ to fall into (docs/accuracy.md, "The 24³ T-only studies rerun with the
 #: stratified sampler").
 DEFAULT_NOISE_SCALE_RINGS = "estimated"
+#: The same for two or more cameras on voxels (``lt.reconstruct([m1, m2], [W1, W2])``, cameras with different
+#: poses): σ trusted up to a common factor, estimated.  Several viewing directions remove the depth ambiguity
+#: that a small λ falls into with one camera (docs/accuracy.md, "A rig's T-only fit with the noise scale
+#: estimated").
+DEFAULT_NOISE_SCALE_RIG = "estimated"
 
 #: Keywords that :func:`lftomo.reconstruct` took before its options moved onto objects, and where each lives now.
 MOVED_OPTIONS: dict[str, str] = {
@@ -113,15 +118,23 @@ def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tup
     return what, {**options, **what.keywords()}
 
 
+def default_noise_scale(*, reduced: bool = False, cameras: int = 1) -> str:
+    """The T-only discrepancy rule's default noise scale: :data:`DEFAULT_NOISE_SCALE_RINGS` when the unknowns
+    are ring cells or another reduced parameterisation (``reduced``), :data:`DEFAULT_NOISE_SCALE_RIG` for data
+    of two or more ``cameras`` on voxels, else :data:`DEFAULT_NOISE_SCALE`."""
+    if reduced:
+        return DEFAULT_NOISE_SCALE_RINGS
+    return DEFAULT_NOISE_SCALE_RIG if cameras > 1 else DEFAULT_NOISE_SCALE
+
+
 def temperature_defaults(*, regularization: Any, prior: Any, rule: Any, options: dict[str, Any],
-                         reduced: bool = False) -> dict[str, Any]:
+                         reduced: bool = False, cameras: int = 1) -> dict[str, Any]:
     """The T-only fit engine's keywords for ``prior``, ``rule`` and ``options`` (folded by :func:`fit_keywords`)
     with the library's defaults where they are not given: :data:`DEFAULT_PRIOR`, the discrepancy rule and,
-    for it, :data:`DEFAULT_NOISE_SCALE` (:data:`DEFAULT_NOISE_SCALE_RINGS` when the unknowns are ring
-    cells or another reduced parameterisation, ``reduced``)."""
+    for it, :func:`default_noise_scale` of the unknowns (``reduced``) and the number of ``cameras``."""
     kw = dict(options)
     if rule in (None, "discrepancy") and regularization == "auto":
-        kw.setdefault("noise_scale", DEFAULT_NOISE_SCALE_RINGS if reduced else DEFAULT_NOISE_SCALE)
+        kw.setdefault("noise_scale", default_noise_scale(reduced=reduced, cameras=cameras))
     return {**kw, "regularization": regularization, "prior": DEFAULT_PRIOR if prior is None else prior,
             "rule": "discrepancy" if rule is None else rule}
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import os
 import sys
 import warnings
@@ -230,6 +231,11 @@ class Problem:
         problem = cls(measurements=ms, forward=fw, unknowns=what, grid=g, parameterization=ring)
         warn_underdetermined(problem.n_data, problem.n_unknowns)
         return problem
+
+    @property
+    def n_cameras(self) -> int:
+        """Number of distinct cameras (with their poses) that took the measurements."""
+        return len({json.dumps(m.camera.to_dict(), sort_keys=True) for m in self.measurements})
 
     @property
     def n_data(self) -> int:

@@ -43,7 +43,8 @@ def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds,
     with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
         sol = temperature_fit(linear, bounds=bounds, T0=T0, method=method,
                               **temperature_defaults(regularization=regularization, prior=prior, rule=rule,
-                                                     options=options, reduced=ring is not None))
+                                                     options=options, reduced=ring is not None,
+                                                     cameras=problem.n_cameras))
     timing = {"assemble": t_setup, **{f"solve_{k}": v for k, v in sol.timing.items() if isinstance(v, float)},
               "total": t_assemble + time.perf_counter() - t0}
     choice = sol.lambda_choice
@@ -255,8 +256,9 @@ def reconstruct(
         (:data:`DEFAULT_NOISE_SCALE`; a given σ too large or too small for
         any λ to meet the target is treated as known up to a factor) and with the noise
         scale estimated on ring cells or another ``symmetry``
-        (:data:`DEFAULT_NOISE_SCALE_RINGS`: a reduced field has model error), for
-        ``"T+sigma_a"`` the bracketing discrepancy search with the noise scale
+        (:data:`DEFAULT_NOISE_SCALE_RINGS`: a reduced field has model error)
+        or with two or more cameras (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RIG`:
+        no depth ambiguity for a small λ to fall into), for ``"T+sigma_a"`` the bracketing discrepancy search with the noise scale
         estimated.
     solver : Solver, optional
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):

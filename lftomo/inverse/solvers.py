@@ -876,7 +876,9 @@ def solve_temperature(
         the discrepancy rule with σ as given
         (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE`), with the noise scale
         estimated when the problem is on ring cells or another parameterisation
-        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RINGS`).
+        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RINGS`) or is a
+        Problem of two or more cameras
+        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RIG`).
     solver : Solver, optional, keyword-only
         ``LevenbergMarquardt(...)`` (default) or ``GaussNewton(...)`` with
         their step counts and tolerances (:mod:`lftomo.inverse.solverchoice`).
@@ -924,10 +926,12 @@ def solve_temperature(
     regularization, method, rule, options = fit_keywords(
         "T", regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
+    cameras = getattr(problem, "n_cameras", 1)  # a Problem's (a LinearProblem: one camera's or stacked)
     problem, par, T0 = _fitted(problem, T0)
     sol = temperature_fit(problem, bounds=bounds, T0=T0, method=method, progress=progress,
                           **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
-                                                 reduced=isinstance(getattr(problem, "grid", None), Parameterization)))
+                                                 reduced=isinstance(getattr(problem, "grid", None), Parameterization),
+                                                 cameras=cameras))
     if par is None:
         return sol
     T = par.expand(sol.T)

@@ -502,6 +502,33 @@ def test_rig_of_measurements_is_the_stacked_least_squares_problem(setup):
     assert np.isfinite(auto.T).all() and auto.regularization > 0
 
 
+def test_default_noise_scale_is_estimated_for_a_rig(setup, monkeypatch):
+    """With no rule, a T-only fit of two or more cameras on voxels estimates the noise scale
+    (DEFAULT_NOISE_SCALE_RIG); one camera's, or two measurements by the same camera, take σ as given;
+    a rule object overrides it."""
+    import lftomo.inverse.solvers as S
+    from lftomo.inverse.fitoptions import DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RIG
+
+    cam, grid, flame, lf, W = setup
+    m1 = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.02, seed=11), data="subaperture")
+    turned = lt.rig_around(cam, grid.center, (0, 90))[1]
+    m2 = dataclasses.replace(m1, camera=turned)
+    W2 = dataclasses.replace(W, metadata={**W.metadata, "camera": turned.to_dict()})
+    seen = []
+
+    def spy(problem, **kw):
+        seen.append(kw.get("noise_scale"))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(S, "temperature_fit", spy)
+    for ms, ws, rule in (([m1, m2], [W, W2], None), (m1, W, None), ([m1, m1], [W, W], None),
+                         ([m1, m2], [W, W2], lt.Discrepancy(noise_scale="given"))):
+        with pytest.raises(RuntimeError, match="stop"):
+            reconstruct(ms, ws, rule=rule)
+    assert seen == [DEFAULT_NOISE_SCALE_RIG, DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE, "given"]
+    assert (DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RIG) == ("given", "estimated")
+
+
 def test_rig_refuses_mismatched_pairs(setup):
     cam, grid, flame, lf, W = setup
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.02, seed=11), data="subaperture")
