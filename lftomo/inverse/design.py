@@ -601,12 +601,7 @@ def design(
         A quadratic prior; default :data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`.
     rule : LambdaRule, optional
         How ``regularization="auto"`` chooses λ (e.g.
-        ``lftomo.Discrepancy(noise_scale="estimated")``); default the library's
-        for this rig (:func:`lftomo.inverse.fitoptions.default_noise_scale`:
-        the noise scale estimated for two or more cameras, σ as given for
-        one), so that each configuration is fitted as its user would fit it.
-        Designs with different λ are compared by their predicted error (bias
-        and spread), not by their posterior standard deviation.
+        ``lftomo.Discrepancy(noise_scale="estimated")``); default the rig's (``default_noise_scale``).
     bounds : (T_min, T_max)
         K, as for :func:`lftomo.reconstruct` (they scale the prior).
     hot : float
@@ -749,7 +744,11 @@ def rig_around(camera: Any, center: Sequence[float], angles_deg: Sequence[float]
 
 
 def compare_designs(designs: Mapping[str, Design]) -> list[dict[str, Any]]:
-    """One summary row per named design (:meth:`Design.summary` plus ``name``), ranked by predicted error."""
+    """One summary row per named design (:meth:`Design.summary` plus ``name``), ranked by predicted error.
+
+    Each design has its own λ (the library's rule for its rig), so rows are compared by their predicted error
+    (bias and spread), not by their posterior standard deviation.
+    """
     rows = [{"name": str(k), **d.summary()} for k, d in designs.items()]
     return sorted(rows, key=lambda r: r["predicted_mean_rel"])
 

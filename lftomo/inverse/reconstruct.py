@@ -256,10 +256,9 @@ def reconstruct(
         (:data:`DEFAULT_NOISE_SCALE`; a given σ too large or too small for
         any λ to meet the target is treated as known up to a factor) and with the noise
         scale estimated on ring cells or another ``symmetry``
-        (:data:`DEFAULT_NOISE_SCALE_RINGS`: a reduced field has model error)
-        or with two or more cameras (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RIG`:
-        no depth ambiguity for a small λ to fall into), for ``"T+sigma_a"`` the bracketing discrepancy search with the noise scale
-        estimated.
+        (:data:`DEFAULT_NOISE_SCALE_RINGS`) or of two or more cameras
+        (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RIG`); for ``"T+sigma_a"``
+        the bracketing discrepancy search with the noise scale estimated.
     solver : Solver, optional
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
         ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``,
