@@ -17,9 +17,11 @@ Rules (:data:`RULE_CLASSES`; the string names select them):
   solve; else (or where that does not apply) a root search over converged
   solves (factor-10 bracket, then Brent's method in log λ).  With the noise scale
   given and χ²/m below the target at every λ (σ overestimated) or above it
-  (σ underestimated, or a model error), the root search is redone with the
-  scale estimated; its descent below the target stops early where χ²/m has
-  stopped closing on it (:func:`out_of_reach`).  The T-only fit's rule.
+  (σ underestimated, or a model error), the search is redone with the scale
+  estimated, exactly as the rule with ``noise_scale="estimated"`` runs on its
+  own (projected search first, from the same least-regularized fit); the root
+  search's descent below the target stops early where χ²/m has stopped closing
+  on it (:func:`out_of_reach`).  The T-only fit's rule.
 * :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
   as "the largest λ with ``χ²/m ≤ target``", given or estimated noise scale:
   by default the same projected search (:func:`projected_bracket_search`),
@@ -340,7 +342,7 @@ def out_of_reach(gap: float, falls: list[float], decades_left: float, tol: float
 
 def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
                        search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None,
-                       climbed: dict[float, Eval] | None = None):
+                       climbed: dict[float, Eval] | None = None, redo: Any = None):
     """Morozov's discrepancy principle as a root search: the λ with ``χ²/m = target``.
 
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
@@ -355,7 +357,10 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     ``estimate_scale``: the target is ``(1 + safety) s²``, ``s² = χ²/(m − ν)``
     of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``:
     the solve at ``λ_ref · 1e-2`` from ``theta0``, when already done; ``climbed``: the solves of an earlier pass's factor-10
-    ladder up from it, by λ (the same solves from the same starts, reused).  ``run`` is a
+    ladder up from it, by λ (the same solves from the same starts, reused).  ``redo(first, climbed)``:
+    the search with the noise scale estimated where σ as given proves misestimated, returning
+    ``(eval, target, note, met)`` (default: this search again with ``estimate_scale``; a rule passes its
+    own, so that the fallback is the estimated-scale rule run on its own).  ``run`` is a
     :class:`SolvePath`.  Returns ``(eval, target, note, met)``, ``met`` False where the λ is one of the
     fallbacks (a corner, the smallest or largest λ: no λ attains the target).  (The algorithm is
     described in :mod:`lftomo.inverse.solvers`.)
@@ -369,6 +374,12 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
 
     def g(e: Eval) -> float:
         return math.log(max(e.chi2, 1e-300) / target)
+
+    def redo_estimated(first_fit: Eval, ladder_up: dict[float, Eval] | None):
+        if redo is not None:
+            return redo(first_fit, ladder_up)
+        return discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol, estimate_scale=True,
+                                  first=first_fit, climbed=ladder_up)
 
     def solve(lam, start):
         # χ² of a candidate must be converged to the search tolerance: a solve
@@ -415,9 +426,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # L-curve of the structured branch of the solutions already computed
             # (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
             if not estimate_scale and m > run.n_unknowns:
-                e, target, note, met = discrepancy_search(run, theta0, lam_ref, safety, search_steps,
-                                                          search_rtol, estimate_scale=True, first=first,
-                                                          climbed=ladder)
+                e, target, note, met = redo_estimated(first, ladder)
                 return e, target, f"{sigma_misestimated(True, lam)}: {note}", met
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
@@ -457,8 +466,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # With too few data for the estimate, take the L-curve corner of
             # the solutions computed on the way down.
             if fallback:  # (``note``: where the descent stopped early, if it did)
-                e, target, redone, _ = discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol,
-                                                          estimate_scale=True, first=first)
+                e, target, redone, _ = redo_estimated(first, None)
                 return e, target, f"{sigma_misestimated(False, lam)}: {note}{redone}", False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
@@ -1145,9 +1153,10 @@ class Discrepancy(LambdaRule):
     """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
     (``"estimated"``): :func:`discrepancy_search`.  A given σ that proves too large
     or too small (χ²/m below, or above, the target at every λ) is treated as
-    known up to a factor: the search is redone with the scale estimated (where
-    it was too small, the choice's ``target_met`` is False: the target asked
-    for was not met).
+    known up to a factor: the search is redone with the scale estimated, as the
+    rule with ``noise_scale="estimated"`` and the same ``search`` runs on its own
+    from the same least-regularized fit (where σ was too small, the choice's
+    ``target_met`` is False: the target asked for was not met).
 
     Parameters
     ----------
@@ -1200,28 +1209,48 @@ class Discrepancy(LambdaRule):
         or ``"root"``."""
         estimate = self.noise_scale == "estimated"
         # (a fit whose linearization() is None makes the projected search give way at once)
-        projected = (self.search == "projected" and first is None and hasattr(path, "linearization")
-                     and (not estimate or path.m_total > path.n_unknowns))
-        if projected:
-            n_before = len(path.evals)
-            target, scale_note = 1.0 + self.safety, ""
-            tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+        projected = self.search == "projected" and first is None and hasattr(path, "linearization")
+        if projected and (not estimate or path.m_total > path.n_unknowns):
             if estimate:
                 # the least-regularized fit of the root search, which estimates the scale (and which
                 # that search reuses if this one gives way)
                 first = path.solve(lam_ref * 1e-2, theta0, self.search_steps, objective_rtol=self.search_rtol)
-                n_before += 1
-                target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
-            found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8,
-                                                 fallback_steps=FALLBACK_INNER_STEPS)
+            found = self._projected(path, theta0, lam_ref, first)
             if found is not None:
-                choice = discrepancy_choice(path, found[0], target, lam_ref, scale_note + found[1])
-                return found[0], choice, "projected, inexact" if found[2] else "projected"
-            # the root search runs as if alone: its warm starts and L-curve fallbacks see its own solves only
-            del path.evals[n_before:]
+                e, target, note, search = found
+                return e, discrepancy_choice(path, e, target, lam_ref, note), search
+        search = ["root"]
+
+        def redo(first_fit: Eval, climbed: dict[float, Eval] | None):
+            # σ as given proves misestimated: the estimated-scale rule as run on its own, its projected
+            # search from the same least-regularized fit first, then its root search
+            found = self._projected(path, theta0, lam_ref, first_fit)
+            if found is None:
+                return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
+                                          estimate_scale=True, first=first_fit, climbed=climbed)
+            e, target, note, search[0] = found
+            return e, target, note, True
+
         e, target, note, met = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,
-                                                  self.search_rtol, estimate_scale=estimate, first=first)
-        return e, discrepancy_choice(path, e, target, lam_ref, note, target_met=met), "root"
+                                                  self.search_rtol, estimate_scale=estimate, first=first,
+                                                  redo=redo if projected and not estimate else None)
+        return e, discrepancy_choice(path, e, target, lam_ref, note, target_met=met), search[0]
+
+    def _projected(self, path: Any, theta0: Any, lam_ref: float, first: Eval | None):
+        """The projected search against σ as given (``first`` None) or with the noise scale estimated from
+        the least-regularized fit ``first``: ``(eval, target, note, search)``, or None when it gives way
+        (its solves then dropped from ``path.evals``: the root search runs as if alone)."""
+        n_before = len(path.evals)
+        target, scale_note = 1.0 + self.safety, ""
+        tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
+        if first is not None:
+            target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
+        found = projected_discrepancy_search(path, theta0, lam_ref, target, tol, self.search_rtol, max_solves=8,
+                                             fallback_steps=FALLBACK_INNER_STEPS)
+        if found is None:
+            del path.evals[n_before:]
+            return None
+        return found[0], target, scale_note + found[1], "projected, inexact" if found[2] else "projected"
 
 
 class DiscrepancyBracket(LambdaRule):

@@ -94,8 +94,9 @@ Candidate λ are multiples of it.
   even the smallest λ (``λ_ref · 1e-10``) cannot reach the target
   (σ underestimated, or a model error), or the largest (``λ_ref · 1e4``)
   stays below it (σ overestimated), σ is trusted up to a common factor only:
-  the search is redone with ``noise_scale="estimated"`` (below), and the note
-  says so.  With no more data than unknowns to estimate it from, the L-curve
+  the search is redone with ``noise_scale="estimated"`` (below; the projected
+  search first, as that rule runs on its own), and the note says so.  With no
+  more data than unknowns to estimate it from, the L-curve
   corner of the solutions computed on the way (factors of 10) is used instead;
   only the structured branch counts (the solutions before ‖R‖ collapses by a
   factor > 4 to a nearly flat field), and with fewer than 4 such solutions

@@ -459,14 +459,24 @@ def test_projected_search_gives_way_once_a_converged_solve_contradicts_its_linea
     assert [x.lam for x in path.evals] == pytest.approx([30.0 if inner_steps else 10.0], rel=1e-12)
 
 
-def test_projected_search_gives_way_to_the_root_search_when_the_target_is_out_of_reach():
-    """σ overestimated (data ×0.1): no λ attains χ²/m = 1 on the projected problem either; the root
-    search takes over (and with it the estimated noise scale)."""
-    path = _scaled(LinearizedPath(), 0.1)
+@pytest.mark.parametrize("factor, side", [(0.1, "below"), (3.0, "above")])
+def test_a_misestimated_sigma_falls_back_on_the_estimated_scale_rule_as_run_alone(factor, side):
+    """Data ×0.1 (σ overestimated) or ×3 (underestimated): no λ attains χ²/m = 1 on the projected problem
+    either, the root search takes over, finds χ²/m on one side of the target at every λ and redoes the
+    search with the noise scale estimated, exactly as ``Discrepancy(noise_scale="estimated")`` runs on
+    its own: its projected search from the same least-regularized fit (same λ, target and search).  The
+    fallback used to be the root search only, so a one-camera fit got another λ than a rig's default
+    with the same data.  Where σ was too small the target asked for was not met (``target_met`` False)."""
+    path = _scaled(LinearizedPath(), factor)
     e, ch, search = Discrepancy().choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
-    target, note = ch.target, ch.note
-    assert search == "root" and "noise scale estimated" in note, note
-    assert ch.target_met and e.chi2 == pytest.approx(target, rel=0.011)  # the estimated scale's target is met
+    assert f"stays {side} the target" in ch.note and "noise scale estimated" in ch.note, ch.note
+    alone = _scaled(LinearizedPath(), factor)
+    e_alone, ch_alone, search_alone = Discrepancy(noise_scale="estimated").choose(
+        alone, np.zeros(alone.n_unknowns), lam_ref=1.0)
+    assert search == search_alone == "projected", (search, search_alone)
+    assert ch.target == pytest.approx(ch_alone.target, rel=1e-12) and e.lam == pytest.approx(e_alone.lam, rel=1e-12)
+    assert ch.target_met is (side == "below") and ch_alone.target_met
+    assert abs(e.chi2 / ch.target - 1.0) < 1e-2, (e.chi2, ch.target)  # the estimated scale's target is met
 
 
 def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_scale_root():
