@@ -346,22 +346,18 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     """Morozov's discrepancy principle as a root search: the λ with ``χ²/m = target``.
 
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
-    then Brent's method on ``log(χ²/m / target)`` against ``log λ`` (:func:`bracketed_root`); the
-    L-curve corner of the structured branch (:func:`branch_corner`) when no λ
-    attains the target.  When χ²/m stays below ``1 + safety`` at every λ (σ
-    overestimated) or above it (σ underestimated, or a model error) and there
-    are more data than unknowns, the search is redone with ``estimate_scale``
-    (``met`` then True below, False above: the target asked for was not met);
-    the descent then stops as soon as :func:`out_of_reach` says the target
-    is out of its reach.
+    then Brent's method on ``log(χ²/m / target)`` against ``log λ`` (:func:`bracketed_root`); the L-curve
+    corner of the structured branch (:func:`branch_corner`) when no λ attains the target.  When χ²/m stays
+    below ``1 + safety`` at every λ (σ overestimated) or above it (σ underestimated, or a model error) and
+    there are more data than unknowns, the search is redone with ``estimate_scale`` (``met`` then True
+    below, False above: the target asked for was not met); the descent then stops as soon as
+    :func:`out_of_reach` says the target is out of its reach.
     ``estimate_scale``: the target is ``(1 + safety) s²``, ``s² = χ²/(m − ν)``
-    of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``:
-    the solve at ``λ_ref · 1e-2`` from ``theta0``, when already done; ``climbed``: the solves of an earlier pass's factor-10
-    ladder up from it, by λ (the same solves from the same starts, reused).  ``redo(first, climbed)``:
-    the search with the noise scale estimated where σ as given proves misestimated, returning
-    ``(eval, target, note, met)`` (default: this search again with ``estimate_scale``; a rule passes its
-    own, so that the fallback is the estimated-scale rule run on its own).  ``run`` is a
-    :class:`SolvePath`.  Returns ``(eval, target, note, met)``, ``met`` False where the λ is one of the
+    of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2``
+    from ``theta0``, when already done; ``climbed``: the solves of an earlier pass's factor-10 ladder up from
+    it, by λ (the same solves from the same starts, reused).  ``redo(first, climbed)``: the redone search,
+    returning the same tuple (default: this one with ``estimate_scale``; :class:`Discrepancy` passes its own
+    estimated-scale rule).  ``run`` is a :class:`SolvePath`.  Returns ``(eval, target, note, met)``, ``met`` False where the λ is one of the
     fallbacks (a corner, the smallest or largest λ: no λ attains the target).  (The algorithm is
     described in :mod:`lftomo.inverse.solvers`.)
     """
@@ -375,11 +371,10 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     def g(e: Eval) -> float:
         return math.log(max(e.chi2, 1e-300) / target)
 
-    def redo_estimated(first_fit: Eval, ladder_up: dict[float, Eval] | None):
-        if redo is not None:
-            return redo(first_fit, ladder_up)
-        return discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol, estimate_scale=True,
-                                  first=first_fit, climbed=ladder_up)
+    if redo is None:
+        def redo(first_fit: Eval, ladder_up: dict[float, Eval] | None):
+            return discrepancy_search(run, theta0, lam_ref, safety, search_steps, search_rtol, estimate_scale=True,
+                                      first=first_fit, climbed=ladder_up)
 
     def solve(lam, start):
         # χ² of a candidate must be converged to the search tolerance: a solve
@@ -426,7 +421,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # L-curve of the structured branch of the solutions already computed
             # (λ_ref·1e-2 … λ_ref·1e4, factors of 10).
             if not estimate_scale and m > run.n_unknowns:
-                e, target, note, met = redo_estimated(first, ladder)
+                e, target, note, met = redo(first, ladder)
                 return e, target, f"{sigma_misestimated(True, lam)}: {note}", met
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
@@ -466,7 +461,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
             # With too few data for the estimate, take the L-curve corner of
             # the solutions computed on the way down.
             if fallback:  # (``note``: where the descent stopped early, if it did)
-                e, target, redone, _ = redo_estimated(first, None)
+                e, target, redone, _ = redo(first, None)
                 return e, target, f"{sigma_misestimated(False, lam)}: {note}{redone}", False
             found = branch_corner(run.evals, math.inf, target)
             if found is not None:
@@ -1219,22 +1214,23 @@ class Discrepancy(LambdaRule):
             if found is not None:
                 e, target, note, search = found
                 return e, discrepancy_choice(path, e, target, lam_ref, note), search
-        search = ["root"]
+        search = "root"
 
         def redo(first_fit: Eval, climbed: dict[float, Eval] | None):
+            nonlocal search
             # σ as given proves misestimated: the estimated-scale rule as run on its own, its projected
             # search from the same least-regularized fit first, then its root search
             found = self._projected(path, theta0, lam_ref, first_fit)
             if found is None:
                 return discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps, self.search_rtol,
                                           estimate_scale=True, first=first_fit, climbed=climbed)
-            e, target, note, search[0] = found
+            e, target, note, search = found
             return e, target, note, True
 
         e, target, note, met = discrepancy_search(path, theta0, lam_ref, self.safety, self.search_steps,
                                                   self.search_rtol, estimate_scale=estimate, first=first,
                                                   redo=redo if projected and not estimate else None)
-        return e, discrepancy_choice(path, e, target, lam_ref, note, target_met=met), search[0]
+        return e, discrepancy_choice(path, e, target, lam_ref, note, target_met=met), search
 
     def _projected(self, path: Any, theta0: Any, lam_ref: float, first: Eval | None):
         """The projected search against σ as given (``first`` None) or with the noise scale estimated from
