@@ -19,7 +19,7 @@ Timed, in one run:
   fit on an N³ grid with its own segment table, given as ``start=`` (also
   timed), with ``--coarse 0`` the two-colour start (``start="two-colour"``);
   λ by the discrepancy rule with the search of
-  ``--search`` (``lt.DiscrepancyBracket(search=...)``);
+  ``--search`` (``lt.Discrepancy(search=...)``);
 * the reference: the T-only fit of the 650 nm channel alone with σₐ known
   (the effective truth's), the same segment table, sub-voxel model and
   symmetry, the library's defaults.
@@ -36,7 +36,7 @@ are in ``studies/accuracy_joint.py``).
 
 Usage::
 
-    python benchmarks/joint_fit.py [--n 24] [--coarse auto|N|0] [--refine 2] [--search projected|bracket] [--seed 100]
+    python benchmarks/joint_fit.py [--n 24] [--coarse auto|N|0] [--refine 2] [--search projected|root|bracket] [--seed 100]
                                    [--free] [--solver auto|dense-lm|levenberg-marquardt]
 """
 
@@ -49,7 +49,7 @@ import numpy as np
 
 import lftomo as lt
 from lftomo.inverse.compare import effective_truth, with_monte_carlo_noise
-from lftomo.inverse.lambdarules import BRACKET_SEARCHES
+from lftomo.inverse.lambdarules import DISCREPANCY_SEARCHES
 
 WAVELENGTHS = (650e-9, 900e-9)
 
@@ -90,7 +90,8 @@ def joint_fit(ms, cam, views, grid, search, symmetry, solver, start=None):
     seg = lt.ray_segments(cam, grid.refined(2), rays_per_pixel=16, seed=12, views=views, progress=False)
     t_seg = time.perf_counter() - t
     rec = lt.reconstruct(ms, seg, unknowns="T+sigma_a", symmetry=symmetry, grid=grid,
-                         rule=lt.DiscrepancyBracket(search=search), solver=SOLVERS[solver], start=start)
+                         rule=lt.Discrepancy(search="root" if search == "bracket" else search),
+                         solver=SOLVERS[solver], start=start)
     return rec, seg, t_seg, time.perf_counter() - t
 
 
@@ -111,8 +112,9 @@ def main():
                     help="the start: auto (the library's coarse-to-fine start), N (the same fit on an N³ grid with "
                          "its own segment table, as start=) or 0 (two-colour)")
     ap.add_argument("--refine", type=int, default=2, help="truth grid refinement factor")
-    ap.add_argument("--search", default="projected", choices=BRACKET_SEARCHES,
-                    help="the discrepancy rule's search (lt.DiscrepancyBracket(search=...))")
+    ap.add_argument("--search", default="projected", choices=DISCREPANCY_SEARCHES + ("bracket",),
+                    help="the discrepancy rule's search (lt.Discrepancy(search=...); root, or its old "
+                         "name bracket: the ladder of solves)")
     ap.add_argument("--seed", type=int, default=100, help="noise seed")
     ap.add_argument("--free", action="store_true",
                     help="free voxels on a (2n/3, n, 2n/3) grid and the two-lobed flame (not axisymmetric)")

@@ -42,7 +42,7 @@ Usage::
                                      [--sigma-a-space linear|log] [--sigma-a-min S] [--sigma-a-scale S]
                                      [--coarse-start NC | --start-npz file.npz] [--max-steps 100]
                                      [--method levenberg-marquardt|gauss-newton|dense-lm|auto]
-                                     [--search projected|bracket]
+                                     [--search projected|root|bracket]
                                      [--json out.json] [--npz out.npz]
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ import lftomo as lt
 from lftomo.io import ResumableRows, atomic_write_text
 from lftomo.inverse.compare import MC_FLOORS, effective_truth, with_monte_carlo_noise
 from lftomo.inverse.joint import SIGMA_A_SPACES
-from lftomo.inverse.lambdarules import BRACKET_SEARCHES
+from lftomo.inverse.lambdarules import DISCREPANCY_SEARCHES
 from lftomo.inverse.solvers import NOISE_SCALES
 
 #: ``--method``: the joint fit's solvers, as lt.reconstruct(..., solver=...) takes them
@@ -78,10 +78,11 @@ def main():
     ap.add_argument("--noise-scale", default="given", choices=NOISE_SCALES,
                     help="the joint fit's discrepancy rule: sigma as given (target chi2/m = 1) or trusted up to a "
                          "factor, estimated from the least-regularized fit "
-                         "(lt.reconstruct(..., rule=lt.DiscrepancyBracket(noise_scale=...)))")
-    ap.add_argument("--search", default="projected", choices=BRACKET_SEARCHES,
-                    help="how the discrepancy rule searches lambda (lt.DiscrepancyBracket(search=...)): on the "
-                         "fit's linearisation at each Gauss-Newton iterate, or on a ladder of converged solves")
+                         "(lt.reconstruct(..., rule=lt.Discrepancy(noise_scale=...)))")
+    ap.add_argument("--search", default="projected", choices=DISCREPANCY_SEARCHES + ("bracket",),
+                    help="how the discrepancy rule searches lambda (lt.Discrepancy(search=...)): on the fit's "
+                         "linearisation at each Gauss-Newton iterate, or (root; bracket, its old name) on a ladder of "
+                         "solves")
     ap.add_argument("--wavelengths", default="650e-9,800e-9")
     ap.add_argument("--view-etendue", type=float, default=0.7,
                     help="use views whose median étendue is at least this fraction of the peak")
@@ -187,7 +188,8 @@ def main():
     unknowns = lt.TemperatureAbsorption(**prior_opts)
     lambda_max = a.lambda_max if a.lambda_max > 0 else None  # None: the joint fit's default
     # the joint fit's discrepancy search, with the noise scale of --noise-scale
-    search = lt.DiscrepancyBracket(noise_scale=a.noise_scale, lambda_max=lambda_max, search=a.search)
+    search = lt.Discrepancy(noise_scale=a.noise_scale, lambda_max=lambda_max,
+                            search="root" if a.search == "bracket" else a.search)
     if a.coarse_start:
         t = time.perf_counter()
         grid_c = lt.phantoms.default_flame_grid((a.coarse_start,) * 3)

@@ -42,8 +42,7 @@ MOVED_OPTIONS: dict[str, str] = {
     "method": "solver=lt.LevenbergMarquardt(), lt.GaussNewton(), lt.DenseLM() or lt.AutoSolver()",
     "T0": "start=T0",
     "sigma_a0": "start=(T0, sigma_a0)",
-    "noise_scale": "rule=lt.Discrepancy(noise_scale=...) (lt.DiscrepancyBracket(noise_scale=...) for "
-                   "unknowns='T+sigma_a')",
+    "noise_scale": "rule=lt.Discrepancy(noise_scale=...)",
     "discrepancy_safety": "rule=lt.Discrepancy(safety=...)",
     "search_steps": "rule=lt.Discrepancy(search_steps=...)",
     "search_rtol": "rule=lt.Discrepancy(search_rtol=...)",
@@ -52,7 +51,7 @@ MOVED_OPTIONS: dict[str, str] = {
     "n_lambda": "rule=lt.GCV(n_lambda=...) or lt.LCurve(n_lambda=...)",
     "gcv_probes": "rule=lt.GCV(probes=...)",
     "seed": "rule=lt.GCV(seed=...)",
-    "lambda_max": "rule=lt.DiscrepancyBracket(lambda_max=...) or lt.LCurveDecades(lambda_max=...)",
+    "lambda_max": "rule=lt.Discrepancy(lambda_max=...) or lt.LCurve(lambda_max=...)",
     **{k: f"solver=lt.LevenbergMarquardt({k}=...) (or lt.GaussNewton(...))"
        for k in ("max_steps", "rtol", "atol", "linear_rtol", "linear_max_steps")},  # MATRIX_FREE_SETTINGS
     **{k: f"solver=lt.AutoSolver({k}=...) (or lt.LevenbergMarquardt, lt.DenseLM)" for k in ("polish_steps", "engine")},
@@ -159,8 +158,8 @@ def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solve
     opts = dict(options)
     given = {"regularization": regularization != "auto", "method": method is not None}
 
-    def fold(obj: Any, what: str) -> None:
-        for k, v in obj.keywords().items():
+    def fold(obj: Any, what: str, keywords: dict[str, Any]) -> None:
+        for k, v in keywords.items():
             if given.get(k) or k in options:
                 raise ValueError(f"{k} is set twice: by {what}={obj!r} and as {k}=...; give it one way")
             opts[k] = v
@@ -168,10 +167,11 @@ def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solve
     if isinstance(rule, LambdaRule):
         if fit not in rule.fits:
             raise ValueError(f"rule={rule!r} does not run for unknowns={fit!r} (it runs for {list(rule.fits)})")
-        fold(rule, "rule")
+        fold(rule, "rule", rule.keywords(fit))
         rule = None
     if solver is not None:
-        fold(resolve_solver(solver, fit=fit), "solver")
+        solver = resolve_solver(solver, fit=fit)
+        fold(solver, "solver", solver.keywords())
     regularization = opts.pop("regularization", regularization)
     method = opts.pop("method", method)
     rule = opts.pop("rule", rule)

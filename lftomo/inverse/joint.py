@@ -33,9 +33,10 @@ before Planck's law and the transmittance, ``T_q = E T``, ``σ_q = E σ_ref``
 (with symmetry ``E P``), as in the T-only solver.
 
 λ rule (``regularization="auto"``; the searches live in
-:mod:`lftomo.inverse.lambdarules`): ``rule="discrepancy-bracket"`` (default;
-``"discrepancy"`` is its deprecated name), the discrepancy principle (Morozov),
-the largest λ with ``χ²/m ≤ 1``.  With ``discrepancy_search="projected"``
+:mod:`lftomo.inverse.lambdarules`): ``rule="discrepancy"`` (default; the same
+:class:`~lftomo.inverse.lambdarules.Discrepancy` rule as the T-only fit's,
+``"discrepancy-bracket"`` its deprecated joint-fit name), the discrepancy
+principle (Morozov), searched as the largest λ with ``χ²/m ≤ 1``.  With ``discrepancy_search="projected"``
 (default), λ is chosen on the fit's linearisation at each iterate (exact dense
 Gauss–Newton matrices, or the sparse Jacobians of the matrix-free path),
 followed by a short inexact solve at that λ, until λ settles
@@ -130,13 +131,12 @@ start : Reconstruction, optional
     when that λ is the cap and the target is met there).  The fine fit's
     two-colour start is far from the solution and its λ path is slow to
     converge.  ``rule="lcurve"`` keeps its fixed path.
-rule : {"discrepancy-bracket", "lcurve"}
+rule : {"discrepancy", "lcurve"}
     How ``regularization="auto"`` chooses λ (module docstring;
-    :class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`,
-    :class:`~lftomo.inverse.lambdarules.LCurveDecades`).  ``"discrepancy"``,
-    this search's old name, still selects it with a DeprecationWarning: it is
-    not :func:`~lftomo.inverse.solvers.solve_temperature`'s discrepancy rule
-    (a root search for χ²/m = target).  When the given
+    :meth:`lftomo.inverse.lambdarules.Discrepancy.choose_bracketed`,
+    :meth:`~lftomo.inverse.lambdarules.LCurve.choose_decades`).  ``"discrepancy-bracket"``,
+    the discrepancy rule's old joint-fit name, still selects it with a
+    DeprecationWarning.  When the given
     noise σ is misestimated, χ²/m stays below 1 up to ``lambda_max`` (or above it down to the
     smallest λ); with more data than unknowns the rule then searches again with the noise scale
     estimated, as the T-only rule does, else takes that end of its range;
@@ -196,7 +196,7 @@ from .hostsparse import bandwidth_order, buffer_key, channels_normal_equations, 
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
-from .lambdarules import (BRACKET_SEARCHES, NOISE_SCALES, DiscrepancyBracket, Eval, LCurveDecades,
+from .lambdarules import (BRACKET_SEARCHES, JOINT_SEARCH_OF, NOISE_SCALES, Discrepancy, Eval, LCurve,
                           resolve_rule)
 from .lsq import hutchinson_dof, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
@@ -340,7 +340,7 @@ def _sized_defaults(model, method: str, noise_scale_arg, noise_scale: str, rule_
         if noise_scale_arg is not None:
             raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data "
                              f"for {n_unknowns} unknowns")
-        noise_scale, rule_obj = "given", DiscrepancyBracket("given", search=rule_obj.search)
+        noise_scale, rule_obj = "given", Discrepancy("given", search=rule_obj.search)
     return method, noise_scale, rule_obj
 
 
@@ -990,11 +990,11 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
         # axisymmetric, curvature prior) were worse: a cold solve at the cap reached only χ²/m 2.1 after
         # 60 steps at 24³ (0.797 at the end of the path), and a jump from 1e-2 straight to the cap 6.6 %
         # in the emitting voxels at 16³ (1.56 % at the end of the path).
-        if isinstance(rule, LCurveDecades):
-            best, note = rule.choose(path, p, lam_first=_LAMBDA_START, lam_max=lam_max)
+        if isinstance(rule, LCurve):
+            best, note = rule.choose_decades(path, p, lam_first=_LAMBDA_START, lam_max=lam_max)
         else:
-            best, note, target, scale_info, met = rule.choose(path, p, lam_start=lam_start, lam_min=_LAMBDA_MIN,
-                                                              lam_max=lam_max)
+            best, note, target, scale_info, met = rule.choose_bracketed(path, p, lam_start=lam_start,
+                                                                        lam_min=_LAMBDA_MIN, lam_max=lam_max)
         lam = best.lam
     else:
         lam = float(regularization)
@@ -1021,14 +1021,14 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
         raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
     rule_cls = resolve_rule(rule, fit="T+sigma_a", stacklevel=4)
     if noise_scale is None:  # the default: estimated where the discrepancy search runs
-        noise_scale = "estimated" if (rule_cls is DiscrepancyBracket and regularization == "auto") else "given"
+        noise_scale = "estimated" if (rule_cls is Discrepancy and regularization == "auto") else "given"
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
-    if noise_scale == "estimated" and (rule_cls is not DiscrepancyBracket or regularization != "auto"):
-        raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only "
-                         f"(the joint fit's 'discrepancy-bracket'), got regularization={regularization!r}, "
-                         f"rule={rule!r}")
+    if noise_scale == "estimated" and (rule_cls is not Discrepancy or regularization != "auto"):
+        raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only, "
+                         f"got regularization={regularization!r}, rule={rule!r}")
     search = require_choice("discrepancy_search", search, BRACKET_SEARCHES)
-    rule_obj = DiscrepancyBracket(noise_scale, search=search) if rule_cls is DiscrepancyBracket else rule_cls()
+    root = {joint: mine for mine, joint in JOINT_SEARCH_OF.items()}[search]
+    rule_obj = Discrepancy(noise_scale, search=root) if rule_cls is Discrepancy else rule_cls()
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
@@ -1065,7 +1065,7 @@ def solve_temperature_absorption(
     linear_rtol: float = 1e-6,
     linear_max_steps: int = 50,
     engine: str = "host",
-    rule: str = "discrepancy-bracket",
+    rule: str = "discrepancy",
     noise_scale: str | None = None,
     discrepancy_search: str = "projected",
     symmetry: Any = None,
@@ -1119,14 +1119,14 @@ def solve_temperature_absorption(
         steps (default 0; module docstring, *Options*); ``details["polish"]``
         records them.
 
-    rule : {"discrepancy-bracket", "lcurve"}
+    rule : {"discrepancy", "lcurve"}
         How ``regularization="auto"`` chooses λ (module docstring, *Options*).
     noise_scale : {"given", "estimated"}, optional
         Discrepancy target χ²/m = 1 (σ calibrated) or the estimated ``s²`` (σ
         known up to a common factor; the default where the discrepancy search
         runs; module docstring, *Options*).
     discrepancy_search : {"projected", "bracket"}
-        How the discrepancy rule searches λ (:class:`~lftomo.inverse.lambdarules.DiscrepancyBracket`).
+        How the discrepancy rule searches λ (``"bracket"``: ``lt.Discrepancy(search="root")``).
     engine : {"host", "jax"}
         Forward model and exact derivatives from host sparse Jacobians
         (default) or JAX autodiff of :meth:`lftomo.RaySegments.forward_jax`

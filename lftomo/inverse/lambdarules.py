@@ -9,30 +9,29 @@ which rules their paths support.
 
 Rules (:data:`RULE_CLASSES`; the string names select them):
 
-* :class:`Discrepancy` (``"discrepancy"``): Morozov's principle, the λ with
-  ``χ²/m = target``, target 1 + safety with the noise scale given, or
+* :class:`Discrepancy` (``"discrepancy"``), both fits: Morozov's principle, the
+  λ with ``χ²/m = target``, target 1 + safety with the noise scale given, or
   ``(1 + safety) s²`` with it estimated (``s² = χ²/(m − ν)`` of the
   least-regularized fit).  By default λ is chosen on the fit linearised at
   each Gauss–Newton iterate (:func:`projected_discrepancy_search`), then one
-  solve; else (or where that does not apply) a root search over converged
-  solves (factor-10 bracket, then Brent's method in log λ).  With the noise scale
-  given and χ²/m below the target at every λ (σ overestimated) or above it
-  (σ underestimated, or a model error), the search is redone with the scale
-  estimated, exactly as the rule with ``noise_scale="estimated"`` runs on its
-  own (projected search first, from the same least-regularized fit); the root
-  search's descent below the target stops early where χ²/m has stopped closing
-  on it (:func:`out_of_reach`).  The T-only fit's rule.
-* :class:`DiscrepancyBracket` (``"discrepancy-bracket"``): Morozov's principle
-  as "the largest λ with ``χ²/m ≤ target``", given or estimated noise scale:
-  by default the same projected search (:func:`projected_bracket_search`),
-  else a factor-10 ladder of solves refined by two bisections in log λ; with
-  the noise scale given and no λ meeting the target, again with it estimated.  The
-  joint fit's rule, which used to be called ``"discrepancy"`` too (that name
-  still selects it there, with a DeprecationWarning).
+  solve; else (or where that does not apply) a search over solves: in the
+  T-only fit a root search over converged solves (factor-10 bracket, then
+  Brent's method in log λ; its descent below the target stops early where
+  χ²/m has stopped closing on it, :func:`out_of_reach`), in the joint fit,
+  whose solves are capped in steps, the largest λ with ``χ²/m ≤ target``
+  (a factor-10 ladder refined by two bisections in log λ,
+  :func:`bracket_search`).  As χ²/m rises with λ, both find the same λ.  With
+  the noise scale given and χ²/m below the target at every λ (σ
+  overestimated) or above it (σ underestimated, or a model error), the search
+  is redone with the scale estimated, as the rule with
+  ``noise_scale="estimated"`` runs on its own.  (:class:`DiscrepancyBracket`
+  and the joint fit's name ``"discrepancy-bracket"`` are its deprecated
+  former joint-fit forms.)
 * :class:`GCV` (``"gcv"``): generalised cross-validation of the linearised problem.
-* :class:`LCurve` (``"lcurve"``): the corner of the L-curve of log-spaced solves.
-* :class:`LCurveDecades` (``"lcurve"`` in the joint fit): the corner of the
-  structured branch of solves at λ = 1e-2, 1e-1, … up to a cap.
+* :class:`LCurve` (``"lcurve"``), both fits: the corner of the L-curve of
+  log-spaced solves relative to the T-only fit's λ scale, or, in the joint
+  fit, of the structured branch of solves at λ = 1e-2, 1e-1, … up to a cap
+  (:class:`LCurveDecades` is its deprecated former joint-fit form).
 * :class:`Fixed`: λ given.
 
 The L-curve helpers (:func:`on_lcurve`, :func:`structured_branch`,
@@ -97,8 +96,12 @@ NOISE_SCALES = ("given", "estimated")
 #: How :class:`Discrepancy` searches λ: on projected linearisations, or by a root search over converged solves.
 DISCREPANCY_SEARCHES = ("projected", "root")
 
-#: How :class:`DiscrepancyBracket` searches λ: on projected linearisations, or on a ladder of converged solves.
+#: How the joint fit's discrepancy search runs (its ``discrepancy_search`` keyword): on projected
+#: linearisations, or on a ladder of solves (:class:`Discrepancy`'s ``search="root"`` there).
 BRACKET_SEARCHES = ("projected", "bracket")
+
+#: The joint fit's search for each :class:`Discrepancy` ``search``.
+JOINT_SEARCH_OF = {"projected": "projected", "root": "bracket"}
 
 
 # --------------------------------------------------------------------------- results
@@ -1117,10 +1120,10 @@ class LambdaRule:
     name: str = ""
     fits: tuple[str, ...] = ()
 
-    def keywords(self) -> dict[str, Any]:
-        """The fit function's keyword arguments that select this rule with its parameters
-        (:func:`lftomo.inverse.solvers.temperature_fit`,
-        :func:`lftomo.inverse.joint.solve_temperature_absorption`)."""
+    def keywords(self, fit: str = "T") -> dict[str, Any]:
+        """The keyword arguments of ``fit``'s engine (``"T"``: :func:`lftomo.inverse.solvers.temperature_fit`,
+        ``"T+sigma_a"``: :func:`lftomo.inverse.joint.solve_temperature_absorption`) that select this rule
+        with its parameters."""
         return {"rule": self.name}
 
     def __repr__(self) -> str:
@@ -1140,58 +1143,92 @@ class Fixed(LambdaRule):
             raise ValueError(f"regularization must be 'auto' or a finite number >= 0, got {value!r}")
         self.value = float(value)
 
-    def keywords(self) -> dict[str, Any]:
+    def keywords(self, fit: str = "T") -> dict[str, Any]:
         return {"regularization": self.value}
 
 
 class Discrepancy(LambdaRule):
-    """Root search for ``χ²/m = (1 + safety)`` (``noise_scale="given"``) or ``(1 + safety) s²``
-    (``"estimated"``): :func:`discrepancy_search`.  A given σ that proves too large
-    or too small (χ²/m below, or above, the target at every λ) is treated as
-    known up to a factor: the search is redone with the scale estimated, as the
-    rule with ``noise_scale="estimated"`` and the same ``search`` runs on its own
-    from the same least-regularized fit (where σ was too small, the choice's
+    """Morozov's discrepancy principle, one rule for both fits: the λ with ``χ²/m`` at the target,
+    ``1 + safety`` (``noise_scale="given"``) or ``(1 + safety) s²`` (``"estimated"``).
+
+    χ²/m of the regularized solution rises with λ, so the root of ``χ²/m = target``
+    and the largest λ with ``χ²/m ≤ target`` are the same λ; each fit searches
+    for it the way its solves allow.  The T-only fit (:meth:`choose`) solves each
+    candidate to convergence and finds the root (:func:`discrepancy_search`); the
+    joint T + σₐ fit (:meth:`choose_bracketed`), whose solves are capped in steps,
+    keeps the largest λ meeting the target (:func:`bracket_search`).  Both first
+    try the projected search on the fit's linearisation.  A given σ that proves
+    too large or too small (χ²/m below, or above, the target at every λ) is
+    treated as known up to a factor: the search is redone with the scale
+    estimated, as the rule with ``noise_scale="estimated"`` and the same
+    ``search`` runs on its own (where σ was too small, the choice's
     ``target_met`` is False: the target asked for was not met).
 
     Parameters
     ----------
-    noise_scale : {"given", "estimated"}
+    noise_scale : {"given", "estimated"}, optional
         σ is the noise standard deviation, or right up to a common factor that
-        is estimated from the least-regularized fit of the search.
+        is estimated from the least-regularized fit of the search.  Default
+        (None) the fit's: :func:`lftomo.inverse.fitoptions.default_noise_scale`
+        for T-only fits (given for one camera on voxels, estimated for a rig or
+        ring cells), estimated for the joint fit where there are more data than
+        unknowns.
     safety : float
-        Target ``χ²/m = 1 + safety`` (times ``s²`` when estimated), ≥ 0.
+        Target ``χ²/m = 1 + safety`` (times ``s²`` when estimated), ≥ 0
+        (T-only fits; the joint fit's target has no safety margin).
     search_steps : int, optional
-        Nonlinear step cap of each candidate solve (default the solver's ``max_steps``).
+        Nonlinear step cap of each candidate solve (default the solver's
+        ``max_steps``; T-only fits).
     search_rtol : float
         A candidate solve stops when its objective changes by less than this
-        fraction over a chunk of steps.
+        fraction over a chunk of steps (T-only fits).
     subvoxel_search : {"surrogate", "full"}, optional
-        With sub-voxel emission: run the rule on the linearly interpolated
-        surrogate model, then solve the sub-voxel model once at its λ
-        (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+        With sub-voxel emission (T-only fits): run the rule on the linearly
+        interpolated surrogate model, then solve the sub-voxel model once at
+        its λ (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
     search : {"projected", "root"}
         ``"projected"``: λ chosen on the linearised fit projected on a small
         subspace, refined as the iterate converges
-        (:func:`projected_discrepancy_search`; with the noise scale estimated,
-        after the least-regularized solve that estimates it,
-        :func:`estimated_target`).  Where it does not apply (TV prior, sub-voxel
-        emission, a fit without a linearisation) or does not reach the target,
-        the root search follows.  ``"root"``: the root search over converged
-        solves only (:func:`discrepancy_search`).
+        (:func:`projected_discrepancy_search`, :func:`projected_bracket_search`;
+        with the noise scale estimated, after the least-regularized solve that
+        estimates it, :func:`estimated_target`).  Where it does not apply (TV
+        prior, sub-voxel emission, a fit without a linearisation) or does not
+        reach the target, the search over solves follows.  ``"root"``: the
+        search over solves only (T-only: :func:`discrepancy_search`; joint:
+        :func:`bracket_search`).
+    lambda_max : float, optional
+        Largest λ the joint fit's search tries (default the joint fit's, 1e6).
+        The T-only search ranges over ``λ_ref · [1e-10, 1e4]`` and takes none.
     """
 
     name = "discrepancy"
-    fits = ("T",)
+    fits = ("T", "T+sigma_a")
 
-    def __init__(self, noise_scale: str = "given", safety: float = 0.0, search_steps: int | None = None,
-                 search_rtol: float = 1e-3, subvoxel_search: str | None = None, search: str = "projected") -> None:
-        self.noise_scale = _noise_scale(noise_scale)
+    def __init__(self, noise_scale: str | None = None, safety: float = 0.0, search_steps: int | None = None,
+                 search_rtol: float = 1e-3, subvoxel_search: str | None = None, search: str = "projected",
+                 lambda_max: float | None = None) -> None:
+        self.noise_scale = None if noise_scale is None else _noise_scale(noise_scale)
         self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
+        if not (math.isfinite(self.safety) and self.safety >= 0):
+            raise ValueError(f"safety must be a finite number >= 0, got {safety!r}")
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
         self.search = require_choice("search", search, DISCREPANCY_SEARCHES)
+        self.lambda_max = _lambda_max(lambda_max)
 
-    def keywords(self) -> dict[str, Any]:
-        return {"rule": self.name, "noise_scale": self.noise_scale, "discrepancy_safety": self.safety,
+    def keywords(self, fit: str = "T") -> dict[str, Any]:
+        scale = {} if self.noise_scale is None else {"noise_scale": self.noise_scale}
+        if fit == "T+sigma_a":
+            t_only = {k: v for k, v in (("safety", self.safety), ("search_steps", self.search_steps),
+                                        ("search_rtol", self.search_rtol),
+                                        ("subvoxel_search", self.subvoxel_search))
+                      if v != {"safety": 0.0, "search_rtol": 1e-3}.get(k)}
+            _refuse_other_fit(self, t_only, "unknowns='T' only; the joint fit's discrepancy search takes "
+                              "noise_scale, search and lambda_max")
+            return {"rule": self.name, **scale, **_lambda_max_kw(self),
+                    "discrepancy_search": JOINT_SEARCH_OF[self.search]}
+        _refuse_other_fit(self, {"lambda_max": self.lambda_max} if self.lambda_max is not None else {},
+                          "the joint fit only; the T-only search ranges over lambda_ref * [1e-10, 1e4]")
+        return {"rule": self.name, **scale, "discrepancy_safety": self.safety,
                 "search_steps": self.search_steps, "search_rtol": self.search_rtol,
                 "discrepancy_search": self.search, **_subvoxel_kw(self)}
 
@@ -1201,7 +1238,7 @@ class Discrepancy(LambdaRule):
         what the search did, every λ solved, and ``target_met``: False where the root search met no
         target and took an L-curve corner or an end of its λ range) and which search chose it:
         ``"projected"``, ``"projected, inexact"`` (the projected search handed over to inexact solves)
-        or ``"root"``."""
+        or ``"root"``.  ``noise_scale`` None counts as given (the fits set their default)."""
         estimate = self.noise_scale == "estimated"
         # (a fit whose linearization() is None makes the projected search give way at once)
         projected = self.search == "projected" and first is None and hasattr(path, "linearization")
@@ -1249,67 +1286,55 @@ class Discrepancy(LambdaRule):
         return found[0], target, scale_note + found[1], "projected, inexact" if found[2] else "projected"
 
 
-class DiscrepancyBracket(LambdaRule):
-    """The joint fit's discrepancy rule: the largest λ with ``χ²/m ≤ target``.
-
-    Parameters
-    ----------
-    noise_scale : {"given", "estimated"}, optional
-        As for :class:`Discrepancy`; default the joint fit's (estimated where
-        there are more data than unknowns).
-    lambda_max : float, optional
-        Largest λ the search tries (default the joint fit's, 1e6).
-    search : {"projected", "bracket"}
-        ``"projected"``: λ chosen on the fit's linearisation at each iterate,
-        each followed by a short inexact solve at that λ, until λ settles
-        (:func:`projected_bracket_search`); where the fit offers no
-        linearisation or the search does not meet the target, the bracket
-        search follows.  ``"bracket"``: a factor-10 ladder of solves and two
-        bisections (:func:`bracket_search`).
-
-    Notes
-    -----
-    With the noise scale given and χ²/m on one side of the target at every λ
-    tried (σ misestimated, or a model error), σ is trusted up to a common
-    factor as by :class:`Discrepancy`: where there are more data than
-    unknowns the search runs again with the scale estimated, and the choice
-    reports ``target_met`` False.  With fewer data it takes the end of its λ
-    range.
-    """
-
-    name = "discrepancy-bracket"
-    fits = ("T+sigma_a",)
-
-    def __init__(self, noise_scale: str | None = None, lambda_max: float | None = None,
-                 search: str = "projected") -> None:
-        self.noise_scale = None if noise_scale is None else _noise_scale(noise_scale)
-        self.lambda_max = _lambda_max(lambda_max)
-        self.search = require_choice("search", search, BRACKET_SEARCHES)
-
-    def keywords(self) -> dict[str, Any]:
-        scale = {} if self.noise_scale is None else {"noise_scale": self.noise_scale}
-        return {"rule": self.name, **scale, **_lambda_max_kw(self), "discrepancy_search": self.search}
-
-    def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
+    def choose_bracketed(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
+        """The joint fit's search, λ in ``[lam_min, lam_max]`` from ``lam_start``: ``(eval, note, target,
+        scale_info, target_met)`` as :func:`bracket_search` returns them.  ``noise_scale`` must be set
+        (the joint fit sets its default)."""
         estimate = self.noise_scale == "estimated"
-        found = self._search(path, theta0, estimate, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max)
+        found = self._bracketed(path, theta0, estimate, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max)
         e, _, target, _, met = found
         if met or estimate or path.m_total <= path.n_unknowns:
             return found
-        # No λ brackets the given target: σ is trusted up to a common factor, as by
-        # :class:`Discrepancy`, and the search runs again with that factor estimated.
-        # ``target_met`` stays False: the target asked for was not met.
+        # No λ brackets the given target: σ is trusted up to a common factor, as in :meth:`choose`, and the
+        # search runs again with that factor estimated.  ``target_met`` stays False: the target asked for
+        # was not met.
         why = sigma_misestimated(e.chi2 <= target, e.lam)
-        e, note, target, info, _ = self._search(path, theta0, True, lam_start=lam_start, lam_min=lam_min,
-                                                lam_max=lam_max)
+        e, note, target, info, _ = self._bracketed(path, theta0, True, lam_start=lam_start, lam_min=lam_min,
+                                                   lam_max=lam_max)
         return e, f"{why}: {note}", target, info, False
 
-    def _search(self, path: Any, theta0: Any, estimate: bool, **lams: float):
+    def _bracketed(self, path: Any, theta0: Any, estimate: bool, **lams: float):
         if self.search == "projected" and hasattr(path, "linearization"):
             found = projected_bracket_search(path, theta0, estimate_scale=estimate, **lams)
             if found is not None:
                 return found
         return bracket_search(path, theta0, estimate_scale=estimate, **lams)
+
+
+class DiscrepancyBracket(Discrepancy):
+    """Deprecated: :class:`Discrepancy`, which runs on the joint fit as well (``search="bracket"`` is
+    its ``search="root"`` there).  Constructing it warns (DeprecationWarning); as before, it runs on
+    the joint fit only."""
+
+    fits = ("T+sigma_a",)
+
+    def __init__(self, noise_scale: str | None = None, lambda_max: float | None = None,
+                 search: str = "projected") -> None:
+        search = require_choice("search", search, BRACKET_SEARCHES)
+        self._given = {"noise_scale": noise_scale, "lambda_max": lambda_max, "search": search}
+        new = "root" if search == "bracket" else search
+        given = {"noise_scale": noise_scale, "lambda_max": lambda_max, "search": None if new == "projected" else new}
+        args = ", ".join(f"{k}={v!r}" for k, v in given.items() if v is not None)
+        warnings.warn(f"lt.DiscrepancyBracket is lt.Discrepancy, one rule for the T-only and the joint fit: pass "
+                      f"lt.Discrepancy({args})", DeprecationWarning, stacklevel=2)
+        super().__init__(noise_scale, search=new, lambda_max=lambda_max)
+
+    def choose(self, path: Any, theta0: Any, *, lam_start: float, lam_min: float, lam_max: float):
+        """The joint fit's search, as before: :meth:`Discrepancy.choose_bracketed`."""
+        return self.choose_bracketed(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max)
+
+    def __repr__(self) -> str:
+        return f"DiscrepancyBracket({', '.join(f'{k}={v!r}' for k, v in self._given.items())})"
 
 
 class GCV(LambdaRule):
@@ -1337,7 +1362,7 @@ class GCV(LambdaRule):
         self.lambda_range, self.n_lambda, self.probes, self.seed = tuple(lambda_range), int(n_lambda), int(probes), int(seed)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
 
-    def keywords(self) -> dict[str, Any]:
+    def keywords(self, fit: str = "T") -> dict[str, Any]:
         return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda,
                 "gcv_probes": self.probes, "seed": self.seed, **_subvoxel_kw(self)}
 
@@ -1346,32 +1371,52 @@ class GCV(LambdaRule):
 
 
 class LCurve(LambdaRule):
-    """Corner of the L-curve of ``n_lambda`` log-spaced solves in ``λ_ref · lambda_range``: :func:`lcurve_search`.
+    """The corner of the L-curve (Hansen 1992), one rule for both fits.
+
+    The T-only fit (:meth:`choose`) solves at ``n_lambda`` log-spaced λ in
+    ``λ_ref · lambda_range`` (:func:`lcurve_search`); the joint fit, whose λ has
+    no reference scale, at decades of λ from 1e-2 up to a cap
+    (:meth:`choose_decades`, :func:`decade_lcurve_search`).
 
     Parameters
     ----------
     lambda_range : (float, float)
     n_lambda : int
-        As for :class:`GCV`.
+        As for :class:`GCV` (T-only fits).
     subvoxel_search : {"surrogate", "full"}, optional
-        With sub-voxel emission: run the rule on the linearly interpolated
-        surrogate model, then solve the sub-voxel model once at its λ
-        (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+        With sub-voxel emission (T-only fits): run the rule on the linearly
+        interpolated surrogate model, then solve the sub-voxel model once at
+        its λ (``"surrogate"``, the fit's default), or on the sub-voxel model itself.
+    lambda_max : float, optional
+        The joint fit's cap (default the joint fit's, 1e6).
     """
 
     name = "lcurve"
-    fits = ("T",)
+    fits = ("T", "T+sigma_a")
 
     def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13,
-                 subvoxel_search: str | None = None) -> None:
+                 subvoxel_search: str | None = None, lambda_max: float | None = None) -> None:
         self.lambda_range, self.n_lambda = tuple(lambda_range), int(n_lambda)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
+        self.lambda_max = _lambda_max(lambda_max)
 
-    def keywords(self) -> dict[str, Any]:
+    def keywords(self, fit: str = "T") -> dict[str, Any]:
+        if fit == "T+sigma_a":
+            t_only = {k: v for k, v in (("lambda_range", self.lambda_range), ("n_lambda", self.n_lambda),
+                                        ("subvoxel_search", self.subvoxel_search))
+                      if v != {"lambda_range": (1e-6, 1e1), "n_lambda": 13}.get(k)}
+            _refuse_other_fit(self, t_only, "unknowns='T' only; the joint fit's L-curve takes lambda_max")
+            return {"rule": self.name, **_lambda_max_kw(self)}
+        _refuse_other_fit(self, {"lambda_max": self.lambda_max} if self.lambda_max is not None else {},
+                          "the joint fit only; the T-only L-curve takes lambda_range and n_lambda")
         return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda, **_subvoxel_kw(self)}
 
     def choose(self, path: Any, theta0: Any, lam_ref: float):
         return lcurve_search(path, theta0, lam_ref, self.lambda_range, self.n_lambda)
+
+    def choose_decades(self, path: Any, theta0: Any, *, lam_first: float, lam_max: float):
+        """The joint fit's search: :func:`decade_lcurve_search` from ``lam_first`` up to ``lam_max``."""
+        return decade_lcurve_search(path, theta0, lam_first=lam_first, lam_max=lam_max)
 
 
 class Evidence(LambdaRule):
@@ -1414,31 +1459,35 @@ class Evidence(LambdaRule):
         self.trace_samples = require_int("trace_samples", trace_samples, minimum=4)
         self.noise_scale = _noise_scale(noise_scale)
 
-    def keywords(self) -> dict[str, Any]:
+    def keywords(self, fit: str = "T") -> dict[str, Any]:
         return {"lambda0": self.lambda0, "max_iter": self.max_iter, "lambda_rtol": self.rtol,
                 "trace_samples": self.trace_samples, "noise_scale": self.noise_scale}
 
 
-class LCurveDecades(LambdaRule):
-    """Corner of the structured branch of solves at decades of λ up to a cap: :func:`decade_lcurve_search`.
+class LCurveDecades(LCurve):
+    """Deprecated: :class:`LCurve`, which runs on the joint fit as well.  Constructing it warns
+    (DeprecationWarning); as before, it runs on the joint fit only."""
 
-    Parameters
-    ----------
-    lambda_max : float, optional
-        The cap (default the joint fit's, 1e6).
-    """
-
-    name = "lcurve"
     fits = ("T+sigma_a",)
 
     def __init__(self, lambda_max: float | None = None) -> None:
-        self.lambda_max = _lambda_max(lambda_max)
-
-    def keywords(self) -> dict[str, Any]:
-        return {"rule": self.name, **_lambda_max_kw(self)}
+        args = "" if lambda_max is None else f"lambda_max={lambda_max!r}"
+        warnings.warn(f"lt.LCurveDecades is lt.LCurve, one rule for the T-only and the joint fit: pass "
+                      f"lt.LCurve({args})", DeprecationWarning, stacklevel=2)
+        super().__init__(lambda_max=lambda_max)
 
     def choose(self, path: Any, theta0: Any, *, lam_first: float, lam_max: float):
-        return decade_lcurve_search(path, theta0, lam_first=lam_first, lam_max=lam_max)
+        """The joint fit's search, as before: :meth:`LCurve.choose_decades`."""
+        return self.choose_decades(path, theta0, lam_first=lam_first, lam_max=lam_max)
+
+    def __repr__(self) -> str:
+        return f"LCurveDecades(lambda_max={self.lambda_max!r})"
+
+
+def _refuse_other_fit(rule: LambdaRule, given: dict[str, Any], applies: str) -> None:
+    """ValueError naming ``rule``'s settings ``given`` that the fit asked for cannot use (they apply to ``applies``)."""
+    if given:
+        raise ValueError(f"{', '.join(f'{k}={v!r}' for k, v in given.items())} of {rule!r} apply to {applies}")
 
 
 def _subvoxel_search(value: Any) -> str | None:
@@ -1477,19 +1526,19 @@ def _noise_scale(value: Any) -> str:
 #: The rule classes of each fit, by name.
 RULE_CLASSES = {
     "T": {"discrepancy": Discrepancy, "gcv": GCV, "lcurve": LCurve},
-    "T+sigma_a": {"discrepancy-bracket": DiscrepancyBracket, "lcurve": LCurveDecades},
+    "T+sigma_a": {"discrepancy": Discrepancy, "lcurve": LCurve},
 }
 
 #: Old names kept working, with the name that replaces them (a DeprecationWarning says so).
-_DEPRECATED = {("T+sigma_a", "discrepancy"): "discrepancy-bracket"}
+_DEPRECATED = {("T+sigma_a", "discrepancy-bracket"): "discrepancy"}
 
 
 def resolve_rule(rule: Any, *, fit: str, stacklevel: int = 3) -> type:
     """The rule class that ``rule`` (a name) selects for ``fit`` (``"T"`` or ``"T+sigma_a"``).
 
-    ``rule="discrepancy"`` in the joint fit selects :class:`DiscrepancyBracket`
-    (a different search from the T-only fit's :class:`Discrepancy`) and warns
-    (DeprecationWarning) that its name is ``"discrepancy-bracket"``.
+    ``rule="discrepancy-bracket"`` (the joint fit's name for its discrepancy search
+    until :class:`Discrepancy` ran on both fits) selects :class:`Discrepancy` and
+    warns (DeprecationWarning) that its name is ``"discrepancy"``.
 
     Raises
     ------
@@ -1499,9 +1548,8 @@ def resolve_rule(rule: Any, *, fit: str, stacklevel: int = 3) -> type:
     names = RULE_CLASSES[fit]
     if isinstance(rule, str) and (fit, rule) in _DEPRECATED:
         new = _DEPRECATED[(fit, rule)]
-        warnings.warn(f"rule={rule!r} in the joint T + sigma_a fit is the search for the largest λ with "
-                      f"chi²/m ≤ target, not solve_temperature's root search of the same name: pass "
-                      f"rule={new!r}", DeprecationWarning, stacklevel=stacklevel)
+        warnings.warn(f"rule={rule!r} is the discrepancy rule, one rule for the T-only and the joint fit: "
+                      f"pass rule={new!r}", DeprecationWarning, stacklevel=stacklevel)
         return names[new]
     if not isinstance(rule, str) or rule not in names:
         allowed = tuple(names) + tuple(old for (f, old) in _DEPRECATED if f == fit)

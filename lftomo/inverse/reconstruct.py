@@ -155,7 +155,7 @@ def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noi
     regularization : "auto" or float
         A number fixes λ (:class:`~lftomo.inverse.lambdarules.Fixed`).
     noise_scale : {"given", "estimated"}, optional
-        The discrepancy rule's; default :data:`DEFAULT_NOISE_SCALE`.
+        The discrepancy rule's; default the fit's (:func:`~lftomo.inverse.fitoptions.default_noise_scale`).
 
     Returns
     -------
@@ -169,7 +169,7 @@ def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noi
     if regularization != "auto":
         return Fixed(regularization)
     if rule == "discrepancy":
-        return Discrepancy(noise_scale=noise_scale or DEFAULT_NOISE_SCALE)
+        return Discrepancy(noise_scale=noise_scale)
     if rule not in RULE_CLASSES["T"]:
         raise ValueError(f"rule must be one of {tuple(RULE_CLASSES['T'])}, got {rule!r}")
     return RULE_CLASSES["T"][rule]()
@@ -248,7 +248,7 @@ def reconstruct(
         :data:`DEFAULT_PRIOR` (``"curvature"``) for both kinds of unknowns.
     rule : str or LambdaRule, optional
         How λ is chosen (:mod:`lftomo.inverse.lambdarules`): a name
-        (``"discrepancy"``, ``"gcv"``, ``"lcurve"``; ``"discrepancy-bracket"``,
+        (``"discrepancy"``, ``"gcv"``, ``"lcurve"``; ``"discrepancy"``,
         ``"lcurve"`` for ``"T+sigma_a"``) or a rule object with its
         parameters, e.g. ``Discrepancy(noise_scale="estimated")``,
         ``GCV(n_lambda=9)``; ``Fixed(λ)`` fixes λ.  Default each fit's own: for
@@ -258,7 +258,7 @@ def reconstruct(
         scale estimated on ring cells or another ``symmetry``
         (:data:`DEFAULT_NOISE_SCALE_RINGS`) or of two or more cameras
         (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RIG`); for ``"T+sigma_a"``
-        the bracketing discrepancy search with the noise scale estimated.
+        the same discrepancy rule with the noise scale estimated.
     solver : Solver, optional
         The algorithm and its settings (:mod:`lftomo.inverse.solverchoice`):
         ``LevenbergMarquardt(max_steps=...)``, ``GaussNewton(...)``,

@@ -34,7 +34,7 @@ class Reconstruction:
         λ used.
     lambda_rule : str
         How λ was chosen: the rule's name (``"discrepancy"``, ``"gcv"``,
-        ``"lcurve"``, ``"discrepancy-bracket"``) or ``"fixed"``.
+        ``"lcurve"``) or ``"fixed"``.
     chi2 : float
         Whitened ``χ²/m`` at the solution.
     residual_norm, regularization_norm : float

@@ -225,7 +225,7 @@ def test_estimated_noise_scale_recovers_the_true_noise_and_is_calibrated():
         ({"prior": "tv"}, "prior must be one of"),
         ({"covariance": {"method": "dense"}}, "covariance must be an lt.LaplaceCovariance, got dict"),
         ({"credible_level": 1.5}, "credible_level"),
-        ({"rule": lt.DiscrepancyBracket()}, "rule must be lt.Evidence"),
+        ({"rule": lt.GaussNewton()}, "rule must be lt.Evidence"),
         ({"rule": lt.Fixed(0.0)}, r"needs λ > 0"),
         ({"rule": "bracket"}, "rule must be one of"),
         ({"bounds": (2000.0, 1000.0)}, "T_min < T_max"),
@@ -291,6 +291,33 @@ def test_progress_false_silences_the_reconstructions(case, monkeypatch, capsys):
                       progress=True)
     out = capsys.readouterr()
     assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
+
+
+def test_a_reconstruction_rule_without_a_noise_scale_takes_the_fits_default(case, monkeypatch):
+    """With the discrepancy rule (object, name or "auto") and no noise scale, the posterior's reconstruction
+    takes the fit's default as lt.reconstruct does: σ as given on voxels of one camera, estimated on ring
+    cells; a noise scale given, or another rule, is left alone."""
+    import lftomo.inverse.fieldposterior as fp
+    from lftomo.inverse.fitoptions import DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS
+
+    problem, _ = case
+    seen = []
+
+    def spy(problem, **kw):
+        seen.append((kw.get("rule"), kw.get("noise_scale")))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(fp, "temperature_fit", spy)
+    runs = [({"rule": lt.Discrepancy()}, ("discrepancy", DEFAULT_NOISE_SCALE)),
+            ({"rule": "auto", "symmetry": "axisymmetric"}, (None, DEFAULT_NOISE_SCALE_RINGS)),
+            ({"rule": lt.Discrepancy(), "symmetry": "axisymmetric"}, ("discrepancy", DEFAULT_NOISE_SCALE_RINGS)),
+            ({"rule": lt.Discrepancy("given"), "symmetry": "axisymmetric"}, ("discrepancy", "given")),
+            ({"rule": lt.GCV(), "symmetry": "axisymmetric"}, ("gcv", None))]
+    for kw, _ in runs:
+        with pytest.raises(RuntimeError, match="stop"):
+            laplace_posterior(problem, **kw)
+    assert seen == [want for _, want in runs]
+    assert DEFAULT_NOISE_SCALE_RINGS != DEFAULT_NOISE_SCALE  # (else the test could not tell them apart)
 
 
 def test_option_objects_refuse_bad_values():

@@ -499,12 +499,13 @@ def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_sca
     assert all(any(math.isclose(lam, x, rel_tol=1e-12) for lam in lams) for x in ladder)
 
 
-def test_discrepancy_bracket_is_the_largest_ladder_lambda_with_chi2_below_target():
-    """From 1e-2 by factors of 10, then two bisections in log λ: the returned λ is the largest solved
-    with χ²/m ≤ 1, and the true root lies within one bisection step (10^0.25) above it."""
+def test_joint_discrepancy_search_is_the_largest_ladder_lambda_with_chi2_below_target():
+    """The joint fit's search of the discrepancy rule (``Discrepancy.choose_bracketed``, ``search="root"``): from
+    1e-2 by factors of 10, then two bisections in log λ: the returned λ is the largest solved with χ²/m ≤ 1,
+    and the true root — the λ of the T-only fit's root search — lies within one bisection step (10^0.25) above it."""
     path = LinearPath()
-    e, note, target, info, met = DiscrepancyBracket().choose(path, np.zeros(path.n_unknowns), lam_start=1e-2,
-                                                             lam_min=1e-8, lam_max=1e4)
+    e, note, target, info, met = Discrepancy("given", search="root").choose_bracketed(
+        path, np.zeros(path.n_unknowns), lam_start=1e-2, lam_min=1e-8, lam_max=1e4)
     lams = [x.lam for x in path.evals]
     assert target == 1.0 and info is None and note.startswith("discrepancy (largest λ with chi²/m ≤ 1") and met
     assert e.chi2 <= 1.0 and e.lam == max(x.lam for x in path.evals if x.chi2 <= 1.0)
@@ -512,6 +513,11 @@ def test_discrepancy_bracket_is_the_largest_ladder_lambda_with_chi2_below_target
     lam_star = _root(path, 1.0)
     assert e.lam <= lam_star <= e.lam * 10 ** 0.25 * (1 + 1e-12), (e.lam, lam_star, lams)
     assert lams[0] == 1e-2 and all(b == pytest.approx(10 * a) for a, b in zip(lams[:3], lams[1:3]))
+    # the same rule's T-only search (Brent's root on converged solves) lands on that root
+    path_T = LinearPath()
+    e_T, ch_T, _ = Discrepancy("given", search="root").choose(path_T, np.zeros(path_T.n_unknowns), lam_ref=1.0)
+    assert ch_T.target == 1.0 and e.lam <= e_T.lam <= e.lam * 10 ** 0.25 * (1 + 1e-12), (e.lam, e_T.lam)
+    assert e_T.lam == pytest.approx(lam_star, rel=1e-2)
 
 
 def test_gcv_minimum_matches_a_dense_scan():
@@ -535,19 +541,43 @@ def test_lcurve_rules_return_a_solved_lambda_at_the_curvature_maximum():
     e, grid, chi2, reg, kappa = LCurve(lambda_range=(1e-4, 1e3), n_lambda=15).choose(path, None, lam_ref=1.0)
     assert e.lam == grid[int(np.nanargmax(kappa))] and e in path.evals
     path2 = LinearPath(seed=2)
-    e2, note = LCurveDecades().choose(path2, None, lam_first=1e-2, lam_max=1e4)
+    e2, note = LCurve().choose_decades(path2, None, lam_first=1e-2, lam_max=1e4)
     assert [x.lam for x in path2.evals] == pytest.approx([10.0 ** k for k in range(-2, 5)], rel=1e-12)
     assert note.startswith("lcurve: ") and e2 in path2.evals
 
 
-def test_rule_names_and_the_deprecated_joint_discrepancy():
-    assert resolve_rule("discrepancy", fit="T") is Discrepancy
-    assert resolve_rule("discrepancy-bracket", fit="T+sigma_a") is DiscrepancyBracket
-    with pytest.warns(DeprecationWarning, match="pass rule='discrepancy-bracket'"):
-        assert resolve_rule("discrepancy", fit="T+sigma_a") is DiscrepancyBracket
+def test_one_rule_per_principle_for_both_fits_and_the_deprecated_joint_forms():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        assert resolve_rule("discrepancy", fit="T") is Discrepancy
+        assert resolve_rule("discrepancy", fit="T+sigma_a") is Discrepancy
         resolve_rule("lcurve", fit="T+sigma_a")
+    with pytest.warns(DeprecationWarning, match="pass rule='discrepancy'"):
+        assert resolve_rule("discrepancy-bracket", fit="T+sigma_a") is Discrepancy
+    with pytest.warns(DeprecationWarning, match=r"pass lt.Discrepancy\(noise_scale='given', search='root'\)"):
+        old = DiscrepancyBracket("given", search="bracket")
+    assert isinstance(old, Discrepancy) and old.keywords("T+sigma_a") == Discrepancy(
+        "given", search="root").keywords("T+sigma_a") == {"rule": "discrepancy", "noise_scale": "given",
+                                                          "discrepancy_search": "bracket"}
+    with pytest.raises(ValueError, match="safety=0.1 of Discrepancy.*apply to unknowns='T' only"):
+        Discrepancy(safety=0.1).keywords("T+sigma_a")
+    # as before, the deprecated forms run on the joint fit only, with their old search signatures
+    assert old.fits == ("T+sigma_a",) and repr(old) == "DiscrepancyBracket(noise_scale='given', lambda_max=None, " \
+        "search='bracket')"
+    kw = {"lam_start": 1e-2, "lam_min": 1e-8, "lam_max": 1e4}
+    p1, p2 = LinearPath(), LinearPath()
+    assert old.choose(p1, np.zeros(p1.n_unknowns), **kw)[0].lam == Discrepancy("given", search="root").choose_bracketed(
+        p2, np.zeros(p2.n_unknowns), **kw)[0].lam
+    assert resolve_rule("lcurve", fit="T") is resolve_rule("lcurve", fit="T+sigma_a") is LCurve
+    with pytest.warns(DeprecationWarning, match=r"pass lt.LCurve\(lambda_max=10000.0\)"):
+        old = LCurveDecades(lambda_max=1e4)
+    assert isinstance(old, LCurve) and old.keywords("T+sigma_a") == {"rule": "lcurve", "lambda_max": 1e4}
+    assert old.fits == ("T+sigma_a",) and old.choose(LinearPath(), None, lam_first=1e-2, lam_max=1e4)[0].lam == \
+        LCurve().choose_decades(LinearPath(), None, lam_first=1e-2, lam_max=1e4)[0].lam
+    with pytest.raises(ValueError, match="n_lambda=9 of LCurve.*apply to unknowns='T' only"):
+        LCurve(n_lambda=9).keywords("T+sigma_a")
+    with pytest.raises(ValueError, match="lambda_max=10000.0 of LCurve.*apply to the joint fit only"):
+        LCurve(lambda_max=1e4).keywords("T")
     with pytest.raises(ValueError, match="rule must be one of .*for the joint fit, got 'gcv'"):
         resolve_rule("gcv", fit="T+sigma_a")
     with pytest.raises(ValueError, match="noise_scale must be one of"):
@@ -660,31 +690,31 @@ NO_BRACKET = [
 
 
 @pytest.mark.parametrize("make, side, says", NO_BRACKET)
-def test_discrepancy_bracket_estimates_the_scale_when_no_solve_brackets_the_given_target(make, side, says):
-    """The joint fit's bracketing rule, σ given, where no solve brackets the target: with more data than
+def test_joint_discrepancy_search_estimates_the_scale_when_no_solve_brackets_the_given_target(make, side, says):
+    """The discrepancy rule's joint-fit search, σ given, where no solve brackets the target: with more data than
     unknowns σ is trusted up to a common factor, as by the T-only rule, and the search runs again with the
     noise scale estimated.  Its result is exactly the estimated-scale search run alone (same λ and target),
     reported with ``target_met`` False (the joint Reconstruction's ``details["target_met"]``)."""
     kw = {"lam_start": 1e-2, "lam_min": 1e-4, "lam_max": 1e4}
     path = make()
-    e, note, target, info, met = DiscrepancyBracket("given", search="bracket").choose(
+    e, note, target, info, met = Discrepancy("given", search="root").choose_bracketed(
         path, np.zeros(path.n_unknowns), **kw)
     assert f"stays {side} the target" in note and "noise scale estimated" in note and met is False, note
     assert all(x.chi2 > 1.0 for x in path.evals) or all(x.chi2 <= 1.0 for x in path.evals)  # the given target
     alone = make()
-    e1, _, target1, info1, met1 = DiscrepancyBracket("estimated", search="bracket").choose(
+    e1, _, target1, info1, met1 = Discrepancy("estimated", search="root").choose_bracketed(
         alone, np.zeros(alone.n_unknowns), **kw)
     assert met1 and target == pytest.approx(target1, rel=1e-12) and info["dof"] == pytest.approx(info1["dof"])
     assert e.lam == pytest.approx(e1.lam, rel=1e-12) and e.lam not in (kw["lam_min"], kw["lam_max"])
 
 
 @pytest.mark.parametrize("make, side, says", NO_BRACKET)
-def test_discrepancy_bracket_with_too_few_data_says_when_no_solve_brackets_the_target(make, side, says):
+def test_joint_discrepancy_search_with_too_few_data_says_when_no_solve_brackets_the_target(make, side, says):
     """With as many unknowns as data no noise scale can be estimated: the rule falls back to an end of
     its λ range and reports ``target_met`` False; it is True where it brackets the target (the tests
     above)."""
     path = _few_data(make())
-    e, note, target, info, met = DiscrepancyBracket("given", search="bracket").choose(
+    e, note, target, info, met = Discrepancy("given", search="root").choose_bracketed(
         path, np.zeros(20), lam_start=1e-2, lam_min=1e-4, lam_max=1e4)
     assert says in note and met is False and info is None, note
     assert all((x.chi2 <= target) == (e.chi2 <= target) for x in path.evals)  # every solve on one side

@@ -80,7 +80,7 @@ def test_rule_and_solver_objects_are_the_keywords_they_stand_for(setup):
         plain = reconstruct(m, W, regularization=1e-3, method="gauss-newton", max_steps=5, **kw)
     assert np.array_equal(fixed.T, plain.T) and fixed.lambda_rule == "fixed"
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="noise_scale is set twice"):
-        reconstruct(m, W, rule=lt.Discrepancy(), noise_scale="estimated")
+        reconstruct(m, W, rule=lt.Discrepancy(noise_scale="given"), noise_scale="estimated")
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="regularization is set twice"):
         reconstruct(m, W, rule=lt.Fixed(1.0), regularization=2.0)
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="max_steps is set twice"):
@@ -90,7 +90,11 @@ def test_rule_and_solver_objects_are_the_keywords_they_stand_for(setup):
     with pytest.raises(ValueError, match="solver must be one of lftomo's solver objects"):
         reconstruct(m, W, solver="lm")
     with pytest.raises(ValueError, match="does not run for unknowns='T'"):
-        reconstruct(m, W, rule=lt.DiscrepancyBracket())
+        reconstruct(m, W, rule=lt.Evidence())
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="does not run for unknowns='T'"):
+        reconstruct(m, W, rule=lt.DiscrepancyBracket())  # the deprecated joint form, joint-only as before
+    with pytest.raises(ValueError, match="lambda_max=10000.0 of Discrepancy.*apply to the joint fit only"):
+        reconstruct(m, W, rule=lt.Discrepancy(lambda_max=1e4))
     with pytest.raises(ValueError, match="max_steps must be an integer >= 1"):
         lt.LevenbergMarquardt(max_steps=0)
 
@@ -149,9 +153,9 @@ def test_joint_temperature_and_absorption_from_two_wavelengths(capsys, method, s
 
 #: σ as given and λ up to 1e4 (with ``kw`` of :func:`_blob_two_colour`: the discrepancy search the
 #: paths below were worked out for).
-GIVEN = {"rule": lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e4)}
+GIVEN = {"rule": lt.Discrepancy(noise_scale="given", lambda_max=1e4)}
 #: The same rule with the ladder of converged solves (the subject of the tests that name it).
-GIVEN_BRACKET = {"rule": lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e4, search="bracket")}
+GIVEN_BRACKET = {"rule": lt.Discrepancy(noise_scale="given", lambda_max=1e4, search="root")}
 
 
 def _blob_two_colour(claimed_std_factor):
@@ -204,7 +208,7 @@ def test_joint_discrepancy_rule_brackets_up_from_1e_2_and_bisects():
     assert (rec.regularization, rec.chi2) == max(ok), (rec.regularization, path)
     assert all(c > 1.0 for lam, c, _ in path if lam > rec.regularization), path
     assert rec.lambda_note.startswith("discrepancy (largest λ with chi²/m ≤ 1"), rec.lambda_note
-    assert rec.lambda_rule == "discrepancy-bracket"
+    assert rec.lambda_rule == "discrepancy"
     # the χ² the rule compared, recomputed from the path's fields through each measurement's own
     # linear model W(σ_a) I_b(T) (weights of the segment table, the soot law σ_a ∝ λ^-1.38)
     grid = lt.Grid.from_dict(seg.metadata["grid"])
@@ -261,7 +265,7 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     out = {}
     for f in (3.0, 1.15):
         flame, ms, seg, kw = _blob_two_colour_dense(f)
-        rec = reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated", search="bracket"), **kw)
+        rec = reconstruct(ms, seg, rule=lt.Discrepancy(noise_scale="estimated", search="root"), **kw)
         scale = rec.details["noise_scale"]
         assert rec.lambda_note.startswith("noise scale estimated: s²") and "largest λ with chi²/m ≤ s²" in \
             rec.lambda_note, rec.lambda_note
@@ -285,7 +289,7 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
     coarse = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=grid.upper)
     seg_c = lt.ray_segments(ms[0].camera, coarse, rays_per_pixel=8, seed=2, progress=False)
     rec_c = reconstruct(ms, seg_c, rule=lt.Fixed(3e3), **kw)
-    rec_s = reconstruct(ms, seg, start=rec_c, rule=lt.DiscrepancyBracket(noise_scale="estimated"), **kw)
+    rec_s = reconstruct(ms, seg, start=rec_c, rule=lt.Discrepancy(noise_scale="estimated"), **kw)
     assert START_LAMBDA_FACTOR == 0.1
     assert rec_s.details["lambda_path"][0][0] == pytest.approx(300.0, rel=1e-12)
     assert rec_s.details["noise_scale"]["dof_lambda"] == pytest.approx(300.0, rel=1e-12)
@@ -297,7 +301,7 @@ def test_joint_discrepancy_with_estimated_noise_scale_ignores_a_wrong_sigma_scal
         with pytest.warns(DeprecationWarning, match="noise_scale"), pytest.raises(ValueError, match=match):
             reconstruct(ms, seg, **{"noise_scale": "estimated", **kw, **bad})
     with pytest.raises(ValueError, match="noise_scale must be one of"):
-        reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="guess"), **kw)
+        reconstruct(ms, seg, rule=lt.Discrepancy(noise_scale="guess"), **kw)
 
 
 def test_joint_projected_discrepancy_search_meets_the_target_inside_the_ladder_bracket():
@@ -310,9 +314,9 @@ def test_joint_projected_discrepancy_search_meets_the_target_inside_the_ladder_b
     converged solve after the first, where the ladder needs seven or more."""
     for f, scale in ((1.15, "given"), (1.15, "estimated"), (3.0, "estimated")):
         flame, ms, seg, kw = _blob_two_colour_dense(f)
-        rule = {s: lt.DiscrepancyBracket(noise_scale=scale, lambda_max=1e4, search=s) for s in ("projected", "bracket")}
+        rule = {s: lt.Discrepancy(noise_scale=scale, lambda_max=1e4, search=s) for s in ("projected", "root")}
         rec = reconstruct(ms, seg, rule=rule["projected"], **kw)
-        ref = reconstruct(ms, seg, rule=rule["bracket"], **kw)
+        ref = reconstruct(ms, seg, rule=rule["root"], **kw)
         m = sum(mm.size for mm in ms)
         tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
         target = rec.details["chi2_target"]
@@ -321,7 +325,7 @@ def test_joint_projected_discrepancy_search_meets_the_target_inside_the_ladder_b
         assert abs(rec.chi2 / target - 1.0) <= tol, (rec.chi2, target)
         assert ref.regularization <= rec.regularization <= ref.regularization * 10 ** 0.25, (
             rec.regularization, ref.regularization)
-        assert "projected discrepancy search" in rec.lambda_note and rec.lambda_rule == "discrepancy-bracket"
+        assert "projected discrepancy search" in rec.lambda_note and rec.lambda_rule == "discrepancy"
         # the search's inexact solves are marked on the path; one full solve, at most two (the search's
         # max_solves), after the first one that estimates the scale
         d = rec.details
@@ -420,7 +424,7 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     assert np.allclose([p[0] for p in path[:7]], [10.0 ** k for k in range(-2, 5)], rtol=1e-12, atol=0), path
     assert all(c < 0.5 for _, c, _ in path), path
     assert "stays below the target up to λ = 1e+04 (noise σ overestimated)" in rec.lambda_note, rec.lambda_note
-    alone = reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated", lambda_max=1e4), **kw)
+    alone = reconstruct(ms, seg, rule=lt.Discrepancy(noise_scale="estimated", lambda_max=1e4), **kw)
     assert rec.details["target_met"] is False and alone.details["target_met"] is True
     assert rec.details["chi2_target"] == pytest.approx(alone.details["chi2_target"], rel=1e-9)
     assert rec.regularization == pytest.approx(alone.regularization, rel=1e-6) and rec.regularization < 1e3
@@ -433,7 +437,7 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     assert rec.regularization_norm == path[-1][2]
     # the L-curve path runs over the decades up to lambda_max and ends at lambda_max itself when that
     # is not a power of ten
-    lc = reconstruct(ms, seg, rule=lt.LCurveDecades(lambda_max=3e4), **kw)
+    lc = reconstruct(ms, seg, rule=lt.LCurve(lambda_max=3e4), **kw)
     assert lc.lambda_note.startswith("lcurve: L-curve corner") and lc.regularization < 1e4, lc.lambda_note
     assert lc.lambda_rule == "lcurve"
     assert "λ = 1e-2 … 3e+04" in lc.lambda_note, lc.lambda_note
@@ -444,7 +448,7 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     np.testing.assert_allclose(lc.details["lambda_path_T"][k], lc.T)
     err = [float(np.mean(np.abs(T / flame.T - 1.0)[hot])) for T in lc.details["lambda_path_T"]]
     assert err[k] < err[-1], (lc.lambda_note, err)  # the corner beats the cap
-    with pytest.raises(ValueError, match="rule must be one of \\('discrepancy-bracket', 'lcurve'"):
+    with pytest.raises(ValueError, match="rule must be one of \\('discrepancy', 'lcurve'"):
         reconstruct(ms, seg, rule="gcv", **kw)
     # coarse-to-fine: a fit on 2³ (its own segment table, fixed λ 3e3) starts the 4³ search at its λ,
     # warm from the interpolated fields; the factor-10 step stops at the cap, and the cap's solve
@@ -461,14 +465,14 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     objective = [c * sum(m.size for m in ms) + 1e4 * r ** 2 for _, c, r in (path_s[1], path[6])]
     assert objective[0] == pytest.approx(objective[1], rel=1e-3), objective
     # a higher cap (lambda_max) lets the factor-10 steps go on past 1e4, and the rule names it
-    rec_m = reconstruct(ms, seg, start=rec_c, rule=lt.DiscrepancyBracket(noise_scale="given", lambda_max=1e5),
+    rec_m = reconstruct(ms, seg, start=rec_c, rule=lt.Discrepancy(noise_scale="given", lambda_max=1e5),
                         **kw)
     assert np.allclose([p[0] for p in rec_m.details["lambda_path"][:3]], [3e3, 3e4, 1e5], rtol=1e-12, atol=0)
     assert "stays below the target up to λ = 1e+05" in rec_m.lambda_note, rec_m.lambda_note
     for bad in (0.0, 1e-3, math.inf, math.nan):
         # refused by the rule object (not a number > 0) or by the joint fit (below its first λ, 1e-2)
         with pytest.raises(ValueError, match="lambda_max must be a finite number (> 0|>= 0.01)"):
-            reconstruct(ms, seg, rule=lt.DiscrepancyBracket(noise_scale="estimated", lambda_max=bad), **kw)
+            reconstruct(ms, seg, rule=lt.Discrepancy(noise_scale="estimated", lambda_max=bad), **kw)
     with pytest.warns(DeprecationWarning, match="T0"), pytest.raises(ValueError, match="either start or T0"):
         reconstruct(ms, seg, start=rec_c, T0=rec.T, **kw)
     with pytest.raises(ValueError, match="start must be a Reconstruction with unknowns='T\\+sigma_a'"):
@@ -505,7 +509,7 @@ def test_rig_of_measurements_is_the_stacked_least_squares_problem(setup):
 def test_default_noise_scale_is_estimated_for_a_rig(setup, monkeypatch):
     """With no rule, a T-only fit of two or more cameras on voxels estimates the noise scale
     (DEFAULT_NOISE_SCALE_RIG); one camera's, or two measurements by the same camera, take σ as given;
-    a rule object overrides it."""
+    a rule object's noise scale overrides it."""
     import lftomo.inverse.solvers as S
     from lftomo.inverse.fitoptions import DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RIG
 
@@ -522,10 +526,13 @@ def test_default_noise_scale_is_estimated_for_a_rig(setup, monkeypatch):
 
     monkeypatch.setattr(S, "temperature_fit", spy)
     for ms, ws, rule in (([m1, m2], [W, W2], None), (m1, W, None), ([m1, m1], [W, W], None),
-                         ([m1, m2], [W, W2], lt.Discrepancy(noise_scale="given"))):
+                         ([m1, m2], [W, W2], lt.Discrepancy(noise_scale="given")),
+                         ([m1, m2], [W, W2], lt.Discrepancy()), (m1, W, lt.Discrepancy(search="root"))):
         with pytest.raises(RuntimeError, match="stop"):
             reconstruct(ms, ws, rule=rule)
-    assert seen == [DEFAULT_NOISE_SCALE_RIG, DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE, "given"]
+    # a rule object without a noise scale takes the fit's default, as no rule does
+    assert seen == [DEFAULT_NOISE_SCALE_RIG, DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE, "given",
+                    DEFAULT_NOISE_SCALE_RIG, DEFAULT_NOISE_SCALE]
     assert (DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RIG) == ("given", "estimated")
 
 
@@ -579,7 +586,7 @@ def test_joint_defaults_pick_the_solver_and_noise_scale_by_problem_size(monkeypa
     assert sum(m.size for m in few) <= 2 * grid6.n_voxels
     opts = dict(unknowns="T+sigma_a", bounds=(500.0, 2500.0), solver=lt.AutoSolver(max_steps=1))
     with pytest.raises(ValueError, match="noise_scale='estimated' needs more data than unknowns"):
-        reconstruct(few, seg6, rule=lt.DiscrepancyBracket(noise_scale="estimated", lambda_max=1.0), **opts)
+        reconstruct(few, seg6, rule=lt.Discrepancy(noise_scale="estimated", lambda_max=1.0), **opts)
     with pytest.warns(UserWarning):  # fewer data than unknowns: the underdetermination warning
-        rec = reconstruct(few, seg6, rule=lt.DiscrepancyBracket(lambda_max=1.0), **opts)  # the default noise scale
+        rec = reconstruct(few, seg6, rule=lt.Discrepancy(lambda_max=1.0), **opts)  # the default noise scale
     assert rec.details["noise_scale"] is None and not rec.lambda_note.startswith("noise scale estimated")

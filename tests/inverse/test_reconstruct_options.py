@@ -116,18 +116,18 @@ def test_temperature_unknowns_and_solver_and_rule_parameters_are_checked():
     with pytest.raises(ValueError, match="polish_steps must be an integer >= 0"):
         lt.LevenbergMarquardt(polish_steps=-1)
     with pytest.raises(ValueError, match="lambda_max must be a finite number > 0"):
-        lt.DiscrepancyBracket(lambda_max=float("inf"))
+        lt.Discrepancy(lambda_max=float("inf"))
     with pytest.raises(ValueError, match="subvoxel_search must be one of"):
         lt.Discrepancy(subvoxel_search="fast")
     assert lt.TemperatureAbsorption() == lt.TemperatureAbsorption(alpha=1.38)
     assert lt.LevenbergMarquardt(polish_steps=2, engine="jax").keywords() == {
         "method": "levenberg-marquardt", "polish_steps": 2, "engine": "jax"}
-    assert lt.DiscrepancyBracket(lambda_max=1e4).keywords() == {"rule": "discrepancy-bracket", "lambda_max": 1e4,
-                                                                "discrepancy_search": "projected"}
+    assert lt.Discrepancy(lambda_max=1e4).keywords("T+sigma_a") == {"rule": "discrepancy", "lambda_max": 1e4,
+                                                                   "discrepancy_search": "projected"}
     with pytest.raises(ValueError, match="search must be one of"):
-        lt.DiscrepancyBracket(search="root")
-    assert lt.DiscrepancyBracket("given", search="bracket").keywords() == {
-        "rule": "discrepancy-bracket", "noise_scale": "given", "discrepancy_search": "bracket"}
+        lt.Discrepancy(search="bracket")
+    assert lt.Discrepancy("given", search="root").keywords("T+sigma_a") == {
+        "rule": "discrepancy", "noise_scale": "given", "discrepancy_search": "bracket"}
     assert lt.AutoSolver(max_steps=7).keywords() == {"method": "auto", "max_steps": 7}
 
 
@@ -166,7 +166,7 @@ def test_temperature_and_joint_fits_report_the_same_fields():
         "joint fixed": reconstruct(ms, seg, unknowns="T+sigma_a", rule=lt.Fixed(1e-2), solver=lt.DenseLM(max_steps=5),
                                    bounds=(1000.0, 2500.0)),
     }
-    names = {"T auto": "discrepancy", "T fixed": "fixed", "joint auto": "discrepancy-bracket", "joint fixed": "fixed"}
+    names = {"T auto": "discrepancy", "T fixed": "fixed", "joint auto": "discrepancy", "joint fixed": "fixed"}
     keys = {k: set(rec.summary()) for k, rec in fits.items()}
     assert len({frozenset(v) for v in keys.values()}) == 1, keys
     for k, rec in fits.items():
@@ -180,5 +180,10 @@ def test_temperature_and_joint_fits_report_the_same_fields():
         assert "fixed" in k or len(rec.lambda_path) > 1, (k, rec.lambda_path)
     for k in ("joint auto",):
         assert fits[k].lambda_path == tuple(tuple(p) for p in fits[k].details["lambda_path"])
+    # one discrepancy rule for both fits: lt.Discrepancy() given to the joint fit is its default, bit for bit
+    same = reconstruct(ms, seg, unknowns="T+sigma_a", rule=lt.Discrepancy(), solver=lt.DenseLM(max_steps=10),
+                       bounds=(1000.0, 2500.0))
+    assert np.array_equal(same.T, fits["joint auto"].T) and np.array_equal(same.sigma_a, fits["joint auto"].sigma_a)
+    assert same.regularization == fits["joint auto"].regularization and same.lambda_rule == "discrepancy"
     assert dataclasses.is_dataclass(fits["T auto"]) and fits["T auto"].lambda_note == \
         fits["T auto"].details.lambda_choice.note
