@@ -65,7 +65,7 @@ from ..radiation import dblackbody_dT
 from .problem import LinearProblem
 from .fitproblem import Problem, as_problem, problem_on_grid, temperature_start
 from .result import symmetry_name, temperature_errors
-from .fitoptions import MOVED_OPTIONS, default_noise_scale, fit_keywords, moved_options
+from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options, with_default_noise_scale
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
 from .solverchoice import LevenbergMarquardt
@@ -506,8 +506,9 @@ def laplace_posterior(
     method = cov.method
     if method == "auto":
         method = "dense" if grid.n_voxels <= cov.dense_max else "sampled"
-    options = _with_default_noise_scale(options, rule, reduced=ring is not None,
-                                        cameras=measurement.n_cameras if isinstance(measurement, Problem) else 1)
+    if not isinstance(rule, (Evidence, Fixed)):  # the reconstructions' rule: the fit's default noise scale
+        options = with_default_noise_scale(options, options.get("rule"), reduced=ring is not None,
+                                           cameras=measurement.n_cameras if isinstance(measurement, Problem) else 1)
     # the solves show their bars only when asked (lftomo demo --quiet printed them)
     run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": bool(progress)},
                         method=method, n_samples=cov.n_samples, rng=np.random.default_rng(seed),
@@ -615,16 +616,6 @@ def _posterior_rule(rule: Any, options: dict[str, Any]) -> tuple[Any, dict[str, 
     if twice:
         raise ValueError(f"{', '.join(twice)} set twice: by rule={rule!r} and as keywords; give it one way")
     return rule, {**options, **kw}
-
-
-def _with_default_noise_scale(options: dict[str, Any], rule: Any, *, reduced: bool, cameras: int) -> dict[str, Any]:
-    """``options`` with the fit's default noise scale (:func:`~lftomo.inverse.fitoptions.default_noise_scale`)
-    where the reconstructions choose λ by the discrepancy rule and no noise scale is given, as
-    :func:`lftomo.reconstruct` does."""
-    if isinstance(rule, (Evidence, Fixed)) or "noise_scale" in options or options.get("rule", "discrepancy") != \
-            "discrepancy":
-        return options
-    return {**options, "noise_scale": default_noise_scale(reduced=reduced, cameras=cameras)}
 
 
 class _PosteriorRun:

@@ -126,14 +126,21 @@ def default_noise_scale(*, reduced: bool = False, cameras: int = 1) -> str:
     return DEFAULT_NOISE_SCALE_RIG if cameras > 1 else DEFAULT_NOISE_SCALE
 
 
+def with_default_noise_scale(options: dict[str, Any], rule: Any, *, reduced: bool, cameras: int) -> dict[str, Any]:
+    """``options`` with :func:`default_noise_scale` of the unknowns (``reduced``) and the number of ``cameras``
+    where λ is chosen by the discrepancy rule (``rule`` None or ``"discrepancy"``) and no noise scale is given."""
+    if rule not in (None, "discrepancy") or "noise_scale" in options:
+        return dict(options)
+    return {**options, "noise_scale": default_noise_scale(reduced=reduced, cameras=cameras)}
+
+
 def temperature_defaults(*, regularization: Any, prior: Any, rule: Any, options: dict[str, Any],
                          reduced: bool = False, cameras: int = 1) -> dict[str, Any]:
     """The T-only fit engine's keywords for ``prior``, ``rule`` and ``options`` (folded by :func:`fit_keywords`)
     with the library's defaults where they are not given: :data:`DEFAULT_PRIOR`, the discrepancy rule and,
     for it, :func:`default_noise_scale` of the unknowns (``reduced``) and the number of ``cameras``."""
-    kw = dict(options)
-    if rule in (None, "discrepancy") and regularization == "auto":
-        kw.setdefault("noise_scale", default_noise_scale(reduced=reduced, cameras=cameras))
+    kw = with_default_noise_scale(options, rule, reduced=reduced, cameras=cameras) if regularization == "auto" \
+        else dict(options)
     return {**kw, "regularization": regularization, "prior": DEFAULT_PRIOR if prior is None else prior,
             "rule": "discrepancy" if rule is None else rule}
 

@@ -196,7 +196,7 @@ from .hostsparse import bandwidth_order, buffer_key, channels_normal_equations, 
 from .problem import LinearProblem, taken_by_camera_of
 from .projected import Linearization
 from .regularizers import resolve_prior, to_bcoo
-from .lambdarules import (BRACKET_SEARCHES, JOINT_SEARCH_OF, NOISE_SCALES, Discrepancy, Eval, LCurve,
+from .lambdarules import (BRACKET_SEARCHES, NOISE_SCALES, SEARCH_OF_JOINT, Discrepancy, Eval, LCurve,
                           resolve_rule)
 from .lsq import hutchinson_dof, jacobi_scale, nonlinear_solver, scaled_chunks
 from .result import Reconstruction
@@ -1027,8 +1027,7 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
         raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only, "
                          f"got regularization={regularization!r}, rule={rule!r}")
     search = require_choice("discrepancy_search", search, BRACKET_SEARCHES)
-    root = {joint: mine for mine, joint in JOINT_SEARCH_OF.items()}[search]
-    rule_obj = Discrepancy(noise_scale, search=root) if rule_cls is Discrepancy else rule_cls()
+    rule_obj = Discrepancy(noise_scale, search=SEARCH_OF_JOINT[search]) if rule_cls is Discrepancy else rule_cls()
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")

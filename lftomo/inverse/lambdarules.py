@@ -100,8 +100,9 @@ DISCREPANCY_SEARCHES = ("projected", "root")
 #: linearisations, or on a ladder of solves (:class:`Discrepancy`'s ``search="root"`` there).
 BRACKET_SEARCHES = ("projected", "bracket")
 
-#: The joint fit's search for each :class:`Discrepancy` ``search``.
+#: The joint fit's search for each :class:`Discrepancy` ``search``, and the other way round.
 JOINT_SEARCH_OF = {"projected": "projected", "root": "bracket"}
+SEARCH_OF_JOINT = {joint: search for search, joint in JOINT_SEARCH_OF.items()}
 
 
 # --------------------------------------------------------------------------- results
@@ -1218,15 +1219,13 @@ class Discrepancy(LambdaRule):
     def keywords(self, fit: str = "T") -> dict[str, Any]:
         scale = {} if self.noise_scale is None else {"noise_scale": self.noise_scale}
         if fit == "T+sigma_a":
-            t_only = {k: v for k, v in (("safety", self.safety), ("search_steps", self.search_steps),
-                                        ("search_rtol", self.search_rtol),
-                                        ("subvoxel_search", self.subvoxel_search))
-                      if v != {"safety": 0.0, "search_rtol": 1e-3}.get(k)}
+            t_only = _changed(self, {"safety": 0.0, "search_steps": None, "search_rtol": 1e-3,
+                                     "subvoxel_search": None})
             _refuse_other_fit(self, t_only, "unknowns='T' only; the joint fit's discrepancy search takes "
                               "noise_scale, search and lambda_max")
             return {"rule": self.name, **scale, **_lambda_max_kw(self),
                     "discrepancy_search": JOINT_SEARCH_OF[self.search]}
-        _refuse_other_fit(self, {"lambda_max": self.lambda_max} if self.lambda_max is not None else {},
+        _refuse_other_fit(self, _changed(self, {"lambda_max": None}),
                           "the joint fit only; the T-only search ranges over lambda_ref * [1e-10, 1e4]")
         return {"rule": self.name, **scale, "discrepancy_safety": self.safety,
                 "search_steps": self.search_steps, "search_rtol": self.search_rtol,
@@ -1321,8 +1320,7 @@ class DiscrepancyBracket(Discrepancy):
     def __init__(self, noise_scale: str | None = None, lambda_max: float | None = None,
                  search: str = "projected") -> None:
         search = require_choice("search", search, BRACKET_SEARCHES)
-        self._given = {"noise_scale": noise_scale, "lambda_max": lambda_max, "search": search}
-        new = "root" if search == "bracket" else search
+        new = SEARCH_OF_JOINT[search]
         given = {"noise_scale": noise_scale, "lambda_max": lambda_max, "search": None if new == "projected" else new}
         args = ", ".join(f"{k}={v!r}" for k, v in given.items() if v is not None)
         warnings.warn(f"lt.DiscrepancyBracket is lt.Discrepancy, one rule for the T-only and the joint fit: pass "
@@ -1334,7 +1332,8 @@ class DiscrepancyBracket(Discrepancy):
         return self.choose_bracketed(path, theta0, lam_start=lam_start, lam_min=lam_min, lam_max=lam_max)
 
     def __repr__(self) -> str:
-        return f"DiscrepancyBracket({', '.join(f'{k}={v!r}' for k, v in self._given.items())})"
+        return (f"DiscrepancyBracket(noise_scale={self.noise_scale!r}, lambda_max={self.lambda_max!r}, "
+                f"search={JOINT_SEARCH_OF[self.search]!r})")
 
 
 class GCV(LambdaRule):
@@ -1402,12 +1401,10 @@ class LCurve(LambdaRule):
 
     def keywords(self, fit: str = "T") -> dict[str, Any]:
         if fit == "T+sigma_a":
-            t_only = {k: v for k, v in (("lambda_range", self.lambda_range), ("n_lambda", self.n_lambda),
-                                        ("subvoxel_search", self.subvoxel_search))
-                      if v != {"lambda_range": (1e-6, 1e1), "n_lambda": 13}.get(k)}
+            t_only = _changed(self, {"lambda_range": (1e-6, 1e1), "n_lambda": 13, "subvoxel_search": None})
             _refuse_other_fit(self, t_only, "unknowns='T' only; the joint fit's L-curve takes lambda_max")
             return {"rule": self.name, **_lambda_max_kw(self)}
-        _refuse_other_fit(self, {"lambda_max": self.lambda_max} if self.lambda_max is not None else {},
+        _refuse_other_fit(self, _changed(self, {"lambda_max": None}),
                           "the joint fit only; the T-only L-curve takes lambda_range and n_lambda")
         return {"rule": self.name, "lambda_range": self.lambda_range, "n_lambda": self.n_lambda, **_subvoxel_kw(self)}
 
@@ -1482,6 +1479,11 @@ class LCurveDecades(LCurve):
 
     def __repr__(self) -> str:
         return f"LCurveDecades(lambda_max={self.lambda_max!r})"
+
+
+def _changed(rule: LambdaRule, defaults: dict[str, Any]) -> dict[str, Any]:
+    """``rule``'s settings among ``defaults`` (name: default value) that differ from their default."""
+    return {k: getattr(rule, k) for k, v in defaults.items() if getattr(rule, k) != v}
 
 
 def _refuse_other_fit(rule: LambdaRule, given: dict[str, Any], applies: str) -> None:
