@@ -13,6 +13,7 @@ from typing import NoReturn
 import numpy as np
 
 from .errors import LftomoError
+from ._validate import require_regular_file
 
 
 def _load(scene_path, args=None):
@@ -389,6 +390,11 @@ def cmd_series(args) -> int:
         raise LftomoError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
     args.scene = scenes[0] if scenes else None
     _series_raw_check(args)
+    # a mistyped path is refused before the cluster starts; what a file holds is checked per frame (a bad frame
+    # is recorded as failed and the series goes on)
+    for k, f in enumerate(frames):
+        require_regular_file(f, what="light-field file" if args.calibration is None else "raw frame",
+                             prefix=f"FRAMES[{k}]: ")
     raw_kw: dict = {}
     out = check_output_dir(args.output, what="-o/--output")
     if args.calibration is not None:
@@ -736,7 +742,8 @@ def main(argv=None) -> int:
     """Run the ``lftomo`` command.
 
     Exit status: 0 success; 2 a bad argument, scene file, input file or output
-    location (``lftomo: error: ...`` on stderr, no traceback); 130 interrupted
+    location (``lftomo: error: ...`` on stderr, no traceback); 1 ``lftomo series``
+    with frames that failed (listed, the others done); 130 interrupted
     (Ctrl-C), with every output file either as before or complete.
     """
     args = build_parser().parse_args(argv)

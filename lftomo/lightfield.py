@@ -45,8 +45,9 @@ import scipy.sparse as sp
 
 from .errors import LftomoError
 from .version import __version__
-from ._validate import check_allocation, require_array, require_int
+from ._validate import check_allocation, require_array, require_finite_scalar, require_int
 from .forward.camera import Camera, best_focus_z, view_displacements
+from .forward.sampler import SAMPLERS
 
 FORMAT = "lftomo-lightfield-1"
 
@@ -167,10 +168,14 @@ def alpha_of_depth(camera: Camera, depth: float) -> float:
     and to the MLA principal plane.  α = 1 at the focus distance; α > 1 for
     nearer depths.
     """
-    _require_camera(camera)
+    return _alpha(camera, check_refocus_depth(camera, depth))
+
+
+def _alpha(camera: Camera, depth: float) -> float:
+    """:func:`alpha_of_depth` of a checked depth (also at the refocus range's near end)."""
     z_xp, _ = camera.exit_pupil
     z_h1 = camera.z_mla - camera.mla.front_principal_plane
-    return (z_xp - _image_plane_z(camera, float(depth))) / (z_xp - z_h1)
+    return (z_xp - _image_plane_z(camera, depth)) / (z_xp - z_h1)
 
 
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
@@ -197,13 +202,13 @@ def depth_of_alpha(camera: Camera, alpha: float) -> float:
     f = camera.main_lens.focal_length
     lo = f * 1.02 + camera.main_lens.stop_to_vertex
     hi = 1e4 * f
-    a = float(alpha)
-    g = lambda z: alpha_of_depth(camera, z) - a  # noqa: E731
+    a = require_finite_scalar("alpha", alpha)
+    g = lambda z: _alpha(camera, z) - a  # noqa: E731
     glo, ghi = g(lo), g(hi)
     if glo * ghi > 0:
         raise LftomoError(
-            f"alpha = {a!r} is outside the refocus range [{alpha_of_depth(camera, hi):.4g}, "
-            f"{alpha_of_depth(camera, lo):.4g}] of this camera (depths {lo:.3g} m to {hi:.3g} m)"
+            f"alpha = {a!r} is outside the refocus range [{_alpha(camera, hi):.4g}, "
+            f"{_alpha(camera, lo):.4g}] of this camera (depths {lo:.3g} m to {hi:.3g} m)"
         )
     return float(scipy.optimize.brentq(g, lo, hi, xtol=1e-12, rtol=1e-12))
 
@@ -552,8 +557,17 @@ def _check_lightfield_meta(data: dict, path) -> dict:
     if missing:
         raise LftomoError(f"{what} {str(path)!r}: member(s) {missing} are missing (the file lists {listed}); "
                           "the file is truncated or was edited")
-    if not isinstance(meta.get("metadata", {}), dict):
+    md = meta.get("metadata", {})
+    if not isinstance(md, dict):
         raise LftomoError(f"{what} {str(path)!r}: member 'meta' key 'metadata' must be a JSON object")
+    # the keys the noise model reads (Monte Carlo degrees of freedom)
+    rpp = md.get("rays_per_pixel")
+    if rpp is not None and (isinstance(rpp, bool) or not isinstance(rpp, int) or rpp < 1):
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' metadata.rays_per_pixel must be an integer >= 1, "
+                          f"got {rpp!r}")
+    if md.get("sampler") is not None and md["sampler"] not in SAMPLERS:
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' metadata.sampler must be one of {list(SAMPLERS)}, "
+                          f"got {md['sampler']!r}")
     return meta
 
 

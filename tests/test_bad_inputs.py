@@ -136,6 +136,12 @@ OBJECT_CASES = {
     "flame-grid-str": (lambda: lt.phantoms.axisymmetric_flame("grid"), "grid must be an lftomo.Grid, got str"),
     "alpha-camera": (lambda: lt.alpha_of_depth({}, 1.0), "camera must be an lftomo.Camera, got dict"),
     "centers-camera": (lambda: lt.geometric_centers(None), "camera must be an lftomo.Camera, got NoneType"),
+    "rig-center-2": (lambda: lt.rig_around(tiny_camera(), (0.0, 1.0), [0.0]), "center must have 3 components"),
+    "rig-center-str": (lambda: lt.rig_around(tiny_camera(), "abc", [0.0]), "center must be a sequence of 3 numbers"),
+    "rig-angles-str": (lambda: lt.rig_around(tiny_camera(), (0, 0, 1), "90"), "angles_deg must be a sequence"),
+    "rig-angle-nan": (lambda: lt.rig_around(tiny_camera(), (0, 0, 1), [0, float("nan")]),
+                      r"angles_deg\[1\] must be finite"),
+    "rig-camera": (lambda: lt.rig_around({}, (0, 0, 1), [0]), "camera must be an lftomo.Camera, got dict"),
     "reconstruct-types": (lambda: lt.reconstruct("m", "w"), "measurement must be an lftomo.Measurement, got str"),
     "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
                                                  {}), "camera must be an lftomo.Camera, got dict"),
@@ -167,6 +173,12 @@ REFOCUS_CASES = {
     "channel": (lambda lf: lf.subaperture(0, 0, channel=3), r"channel must be an integer <= 0, got 3"),
     "stack-scalar": (lambda lf: lf.focal_stack(1.0), "depths must be a non-empty sequence of depths in m, got 1.0"),
     "stack-text": (lambda lf: lf.focal_stack(["near"]), "depths must be a non-empty sequence"),
+    "alpha-depth-zero": (lambda lf: lf.alpha_of_depth(0.0), "depth must be > 0, got 0.0"),
+    "alpha-depth-inside-f": (lambda lf: lf.alpha_of_depth(0.1), "depth = 0.1 m is inside"),
+    "alpha-depth-nan": (lambda lf: lf.alpha_of_depth(float("nan")), "depth must be finite"),
+    "alpha-depth-str": (lambda lf: lf.alpha_of_depth("1"), "depth must be a real number, got '1'"),
+    "depth-alpha-nan": (lambda lf: lf.depth_of_alpha(float("nan")), "alpha must be finite, got nan"),
+    "depth-alpha-str": (lambda lf: lf.depth_of_alpha("x"), "alpha must be a real number, got 'x'"),
 }
 
 
@@ -453,6 +465,12 @@ LF_FILE_CASES = {
     "format": (dict(meta=lambda m: {**m, "format": "x"}), r"member 'meta' has format 'x'"),
     "json": (dict(meta="{"), r"member 'meta' is not valid JSON"),
     "arrays-list": (dict(meta=lambda m: {**m, "arrays": ["raw", "bogus"]}), r"key 'arrays' must list"),
+    "rays-str": (dict(meta=lambda m: {**m, "metadata": {**m["metadata"], "rays_per_pixel": "x"}}),
+                 r"metadata.rays_per_pixel must be an integer >= 1, got 'x'"),
+    "rays-float": (dict(meta=lambda m: {**m, "metadata": {**m["metadata"], "rays_per_pixel": 2.5}}),
+                   r"metadata.rays_per_pixel must be an integer >= 1, got 2.5"),
+    "sampler": (dict(meta=lambda m: {**m, "metadata": {**m["metadata"], "sampler": "sobol"}}),
+                r"metadata.sampler must be one of \['stratified', 'independent'\], got 'sobol'"),
 }
 
 

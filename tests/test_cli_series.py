@@ -19,7 +19,8 @@ def test_series_from_saved_frames_and_weights(tmp_path, capsys):
     assert main(["weights", str(model), "-o", str(tmp_path / "W.npz"), "--quiet"]) == 0
     lf = str(tmp_path / "render" / "lightfield.npz")
     out = tmp_path / "series"
-    argv = ["series", lf, lf, str(tmp_path / "missing.npz"), "--weights", str(tmp_path / "W.npz"), "-o", str(out),
+    (tmp_path / "corrupt.npz").write_bytes(b"not a zip file")  # exists, so it fails as a frame, not up front
+    argv = ["series", lf, lf, str(tmp_path / "corrupt.npz"), "--weights", str(tmp_path / "W.npz"), "-o", str(out),
             "--workers", "1", "--noise", "0.02", "--seed", "3", "--regularization", "1e-3", "--max-steps", "2",
             "--quiet"]
     assert main(argv) == 1  # one frame failed
@@ -45,3 +46,13 @@ def test_series_from_saved_frames_and_weights(tmp_path, capsys):
 def test_series_bad_arguments(argv, match, tmp_path, capsys):
     assert main(["series", *argv, "-o", str(tmp_path / "o")]) == 2
     assert match in capsys.readouterr().err
+
+
+def test_series_refuses_a_missing_frame_before_any_work(tmp_path, capsys):
+    frame = tmp_path / "frame.npz"
+    frame.write_bytes(b"")  # exists: what it holds is checked per frame, later
+    argv = ["series", str(frame), str(tmp_path / "nope.npz"), "--weights", str(tmp_path / "W.npz")]
+    assert main([*argv, "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "FRAMES[1]: light-field file" in err and "nope.npz' does not exist" in err
+    assert not (tmp_path / "o").exists()

@@ -70,6 +70,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import LftomoError
+from .._validate import require_finite_scalar, require_instance, require_vector
 from ..forward.grid import Grid
 from ..forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 
@@ -529,6 +530,15 @@ def psf_widths(psf: np.ndarray, grid: Grid, voxel: Sequence[int]) -> np.ndarray:
     return out
 
 
+def _hot_region_probes(T: np.ndarray, hot: float, probes: Any) -> tuple:
+    """The probes (given, checked, or :func:`_default_probes`), once the flame is known to have voxels above ``hot``."""
+    if not np.any(T > hot):
+        raise LftomoError(f"no voxel of the flame's effective temperature on the grid exceeds hot = {hot:g} K "
+                          f"(hottest {float(T.max()):.0f} K): the design's summaries and Cramér–Rao bound cover "
+                          "the voxels above hot; give a hotter flame or a lower hot")
+    return _default_probes(T, hot) if probes is None else _check_probes(probes, T.shape)
+
+
 def _default_probes(T: np.ndarray, hot: float) -> tuple:
     """The hottest voxel and the hot region's centroid voxel (one probe if they coincide)."""
     first = tuple(int(v) for v in np.unravel_index(int(np.argmax(T)), T.shape))
@@ -655,7 +665,7 @@ def design(
     sa, T = effective_truth(flame, grid, float(wavelength))
     wgrid = grid if quadrature == 1 else grid.refined(quadrature)
     sa_w = sa if quadrature == 1 else interpolate_field(sa, grid, wgrid)
-    probes = _default_probes(T, hot) if probes is None else _check_probes(probes, grid.shape)
+    probes = _hot_region_probes(T, hot, probes)
     show = sys.stderr.isatty() if progress is None else bool(progress)
     bar = progress_bar(2 * len(cams) + 2 + (bias == "nonlinear"), show, "design", unit="step")
     clean = [] if bias == "nonlinear" else None
@@ -729,14 +739,19 @@ def rig_around(camera: Any, center: Sequence[float], angles_deg: Sequence[float]
     -------
     tuple of Camera
     """
+    from ..forward.camera import Camera
     from ..forward.pose import Pose
 
-    c = np.asarray(center, dtype=float)
+    require_instance("camera", camera, Camera, "an lftomo.Camera")
+    c = np.asarray(require_vector("center", center, 3))
+    if isinstance(angles_deg, (str, bytes)) or not isinstance(angles_deg, Sequence | np.ndarray):
+        raise LftomoError(f"angles_deg must be a sequence of angles in degrees, got {angles_deg!r}")
+    angles = [require_finite_scalar(f"angles_deg[{k}]", a) for k, a in enumerate(angles_deg)]
     pose = camera.pose if camera.pose is not None else Pose.identity()
     eye0 = np.asarray(pose.position, dtype=float) - c
     out = []
-    for a in angles_deg:
-        co, si = _cos_sin_degrees(float(a))
+    for a in angles:
+        co, si = _cos_sin_degrees(a)
         rot = np.array([[co, 0.0, si], [0.0, 1.0, 0.0], [-si, 0.0, co]])
         eye = c + rot @ eye0
         out.append(camera.with_pose(Pose.look_at(eye=tuple(eye), target=tuple(c), up=(0.0, 1.0, 0.0))))

@@ -161,6 +161,9 @@ def test_design_refuses_bad_input(blob_design):
         design(cam, grid, flame, probes=[(5, 0, 0)])
     with pytest.raises(lt.LftomoError, match="bias must be 'nonlinear' or 'linear', got 'quadratic'"):
         design(cam, grid, flame, bias="quadratic")
+    # a flame with no voxel above hot would summarise empty sets (NaN): refused before any render
+    with pytest.raises(lt.LftomoError, match=r"no voxel .* exceeds hot = 2500 K \(hottest \d+ K\)"):
+        design(cam, grid, flame, hot=2500.0, progress=False)
 
 
 def test_a_second_camera_can_only_shrink_the_posterior(blob_design):
