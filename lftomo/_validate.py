@@ -87,9 +87,9 @@ def require_int(name: str, value: Any, *, minimum: int | None = None, maximum: i
 
 
 def require_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
-    """``value`` if it is one of the strings ``allowed``, else ValueError naming ``name``."""
+    """``value`` if it is one of the strings ``allowed``, else LftomoError naming ``name``."""
     if not isinstance(value, str) or value not in allowed:
-        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+        raise LftomoError(f"{name} must be one of {allowed}, got {value!r}")
     return value
 
 
@@ -98,13 +98,13 @@ def require_bounds(bounds: Any) -> tuple[float, float]:
     try:
         items = list(bounds)
     except TypeError:
-        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}") from None
+        raise LftomoError(f"bounds must be (T_min, T_max) in K, got {bounds!r}") from None
     if len(items) != 2:
-        raise ValueError(f"bounds must be (T_min, T_max) in K, got {bounds!r}")
+        raise LftomoError(f"bounds must be (T_min, T_max) in K, got {bounds!r}")
     lo = require_positive("bounds[0] (T_min)", items[0])
     hi = require_finite_scalar("bounds[1] (T_max)", items[1])
     if not hi > lo:
-        raise ValueError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
+        raise LftomoError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
     return lo, hi
 
 
@@ -303,7 +303,7 @@ def toml_int(where: str, value: Any, *, minimum: int | None = None, maximum: int
 
     Raises
     ------
-    ValueError
+    LftomoError
         Naming ``where``, the value and what is allowed.
     """
     allowed = "an integer" + ("" if minimum is None else f" >= {minimum}")
@@ -351,7 +351,7 @@ def toml_number(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Naming ``where``, the value and what is allowed.
     """
     rule = _rule(gt, ge, le)
@@ -399,7 +399,7 @@ def toml_numbers(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Naming ``where``, the value and what is allowed.
     """
     rule = _rule(gt, ge, None)

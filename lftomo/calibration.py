@@ -62,6 +62,7 @@ import scipy.ndimage
 import scipy.optimize
 import scipy.sparse as sp
 
+from .errors import LftomoError
 from .version import __version__
 from ._validate import require_array, require_nonnegative, require_npz_file, require_positive
 from .radiation import dplanck_dT, planck
@@ -172,7 +173,7 @@ class MicrolensGrid:
 def _prepare_white(white: Any, dark: Any) -> np.ndarray:
     img = require_array("white", white, ndim=2)
     if min(img.shape) < 16:
-        raise ValueError(f"white image must be at least 16 x 16 pixels, got shape {img.shape}")
+        raise LftomoError(f"white image must be at least 16 x 16 pixels, got shape {img.shape}")
     if dark is not None:
         d = np.asarray(dark, dtype=float)
         if d.ndim == 0:
@@ -183,7 +184,7 @@ def _prepare_white(white: Any, dark: Any) -> np.ndarray:
     else:  # no dark frame: the darkest pixels (gaps between lenslet images) as the floor
         img = img - np.percentile(img, 0.5)
     if not np.any(img > 0) or float(np.ptp(img)) == 0.0:
-        raise ValueError("white image has no signal above its dark level; cannot calibrate the microlens grid")
+        raise LftomoError("white image has no signal above its dark level; cannot calibrate the microlens grid")
     return img
 
 
@@ -217,7 +218,7 @@ def _fourier_lattice(img: np.ndarray, min_pitch: float, max_pitch: float) -> np.
         ang = np.abs(np.arctan2(FC, FR)) if not along_cols else np.abs(np.arctan2(FR, FC))
         cone = band & (ang < np.radians(30)) & ((FR > 0) if not along_cols else (FC > 0))
         if not cone.any():
-            raise ValueError(f"white image of shape {img.shape} is too small for lenslet pitches up to "
+            raise LftomoError(f"white image of shape {img.shape} is too small for lenslet pitches up to "
                              f"{max_pitch:.3g} px")
         Pc = np.where(cone, P, 0.0)
         top = Pc.max()
@@ -229,7 +230,7 @@ def _fourier_lattice(img: np.ndarray, min_pitch: float, max_pitch: float) -> np.
         k = np.array([(pr - rows // 2) / rows, (pc - cols // 2) / cols])
         vecs.append(k / np.dot(k, k))  # a lattice vector parallel to its reciprocal (orthogonal lattice)
     if abs(np.dot(vecs[0], vecs[1])) > 0.2 * np.linalg.norm(vecs[0]) * np.linalg.norm(vecs[1]):
-        raise ValueError("the white image's power spectrum shows no rectangular lattice of lenslet images (is it a white "
+        raise LftomoError("the white image's power spectrum shows no rectangular lattice of lenslet images (is it a white "
                          "image of a plenoptic camera? hexagonal MLAs are not supported)")
     return np.array(vecs)
 
@@ -302,7 +303,7 @@ def _fit_rigid(ij: np.ndarray, pts: np.ndarray, clip: float = 4.5, rounds: int =
     x = None
     for _ in range(rounds):
         if keep.sum() < 6:
-            raise ValueError(f"only {int(keep.sum())} lenslets usable for the grid fit; need at least 6 "
+            raise LftomoError(f"only {int(keep.sum())} lenslets usable for the grid fit; need at least 6 "
                              "(is this a white image of a microlens camera?)")
         if x is None:  # affine start
             coef, *_ = np.linalg.lstsq(A[keep], pts[keep], rcond=None)
@@ -347,7 +348,7 @@ def _index_range(origin: np.ndarray, basis: np.ndarray, shape: tuple[int, int]) 
             counts[k] = int(np.sum((p[:, 0] < -0.5) | (p[:, 0] > rows - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > cols - 0.5)))
         i0, i1, j0, j1 = trials[max(counts, key=counts.get)]
     if i0 > i1 or j0 > j1:
-        raise ValueError("no lenslet centre lies on the sensor")
+        raise LftomoError("no lenslet centre lies on the sensor")
     return range(i0, i1 + 1), range(j0, j1 + 1)
 
 
@@ -416,7 +417,7 @@ def calibrate_grid(white: Any, *, dark: Any = None, min_pitch: float = 3.0, max_
     max_pitch = min(rows, cols) / 4.0 if max_pitch is None else require_positive("max_pitch", max_pitch)
     min_pitch = require_positive("min_pitch", min_pitch)
     if not min_pitch < max_pitch:
-        raise ValueError(f"min_pitch ({min_pitch}) must be < max_pitch ({max_pitch}) for an image of shape {img.shape}")
+        raise LftomoError(f"min_pitch ({min_pitch}) must be < max_pitch ({max_pitch}) for an image of shape {img.shape}")
     basis = _fourier_lattice(img, min_pitch, max_pitch)
     origin = _coarse_node(img, basis)
     p = float(np.min(np.linalg.norm(basis, axis=1)))
@@ -519,10 +520,10 @@ def decode_operator(grid: MicrolensGrid, *, n_views: int | None = None, valid: A
         True where the view pixel is not usable.
     """
     if not isinstance(grid, MicrolensGrid):
-        raise ValueError(f"grid must be a MicrolensGrid (lftomo.calibrate_grid), got {type(grid).__name__}")
+        raise LftomoError(f"grid must be a MicrolensGrid (lftomo.calibrate_grid), got {type(grid).__name__}")
     n = int(round(min(grid.pitch))) if n_views is None else int(n_views)
     if n < 1:
-        raise ValueError(f"n_views must be an integer >= 1, got {n_views!r}")
+        raise LftomoError(f"n_views must be an integer >= 1, got {n_views!r}")
     rows, cols = grid.image_shape
     ny, nx = grid.shape
     a, b = grid.basis
@@ -534,7 +535,7 @@ def decode_operator(grid: MicrolensGrid, *, n_views: int | None = None, valid: A
     if valid is not None:
         v = np.asarray(valid)
         if v.shape != (rows, cols) or v.dtype != bool:
-            raise ValueError(f"valid must be a bool array of the grid's image shape {(rows, cols)}, got "
+            raise LftomoError(f"valid must be a bool array of the grid's image shape {(rows, cols)}, got "
                              f"{v.dtype} array of shape {v.shape}")
         ok &= np.all(v.ravel()[idx] | (w <= 0), axis=1)
     white = np.einsum("mk,mk->m", grid.devignetting.ravel()[idx].astype(float), w)
@@ -569,7 +570,7 @@ def decode_views(image: Any, grid: MicrolensGrid, *, n_views: int | None = None,
     """
     img = require_array("image", image, ndim=2)
     if img.shape != tuple(grid.image_shape):
-        raise ValueError(f"shape of image {img.shape} does not match the calibrated grid's image shape "
+        raise LftomoError(f"shape of image {img.shape} does not match the calibrated grid's image shape "
                          f"{tuple(grid.image_shape)}")
     D, mask = decode_operator(grid, n_views=n_views, valid=valid, min_white=min_white)
     views = (D @ img.ravel()).reshape(mask.shape)
@@ -596,7 +597,7 @@ def refocus_views(views: Any, shift: float) -> np.ma.MaskedArray:
     """
     V = np.ma.asarray(views)
     if V.ndim != 4:
-        raise ValueError(f"views must be 4-D (n_v, n_u, n_y, n_x), got shape {V.shape}")
+        raise LftomoError(f"views must be 4-D (n_v, n_u, n_y, n_x), got shape {V.shape}")
     nv, nu, ny, nx = V.shape
     data = np.asarray(V.filled(0.0), float)
     w = (~np.ma.getmaskarray(V)).astype(float)
@@ -667,7 +668,7 @@ def _check_saturation(saturated: np.ndarray, lit: np.ndarray, what: str, max_cou
     bad = saturated & lit
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise ValueError(f"{what} has {int(bad.sum())} saturated pixel(s) (at the maximum count {max_count}), first "
+        raise LftomoError(f"{what} has {int(bad.sum())} saturated pixel(s) (at the maximum count {max_count}), first "
                          f"at (row {r}, col {c}); a saturated calibration frame gives no factor: lower the exposure "
                          "or the source temperature")
 
@@ -733,7 +734,7 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
 
     Raises
     ------
-    ValueError
+    LftomoError
         For a saturated pixel where the étendue is positive, mismatched
         shapes, or no valid pixel.
 
@@ -763,7 +764,7 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
     g = require_positive("gain", gain)
     eps = require_positive("emissivity", emissivity)
     if eps > 1:
-        raise ValueError(f"emissivity must be in (0, 1], got {eps!r}")
+        raise LftomoError(f"emissivity must be in (0, 1], got {eps!r}")
     G = np.broadcast_to(require_array("etendue", etendue, minimum=0.0), bb.shape) if np.ndim(etendue) == 0 else \
         require_array("etendue", etendue, shape=bb.shape, minimum=0.0)
     lit = G > 0
@@ -776,7 +777,7 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
         signal = bb - dk
         n_dark = int(dark_frames)
         if n_dark < 1:
-            raise ValueError(f"dark_frames must be an integer >= 1, got {dark_frames!r}")
+            raise LftomoError(f"dark_frames must be an integer >= 1, got {dark_frames!r}")
     else:
         signal = bb
     sr = require_nonnegative("read_noise", read_noise)
@@ -784,7 +785,7 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
     var = np.maximum(signal, 0.0) / g + (sr / g) ** 2 * extra + extra / 12.0
     valid = lit & (signal >= require_nonnegative("min_snr", min_snr) * np.sqrt(var))
     if not valid.any():
-        raise ValueError(f"{src} has no pixel with signal above {min_snr} x its noise where the etendue is > 0")
+        raise LftomoError(f"{src} has no pixel with signal above {min_snr} x its noise where the etendue is > 0")
     Ib = float(planck(T, lam))
     with np.errstate(divide="ignore", invalid="ignore"):
         rad = np.where(valid, eps * Ib / signal, np.nan)
@@ -828,7 +829,7 @@ def save_calibration(path: str | Path, grid: MicrolensGrid, *, radiometric: Radi
 
 def _expect(cond: bool, path: Path, what: str) -> None:
     if not cond:
-        raise ValueError(f"calibration file {str(path)!r}: {what}")
+        raise LftomoError(f"calibration file {str(path)!r}: {what}")
 
 
 def load_calibration(path: str | Path) -> tuple[MicrolensGrid, RadiometricCalibration | None, dict]:
@@ -844,12 +845,12 @@ def load_calibration(path: str | Path) -> tuple[MicrolensGrid, RadiometricCalibr
         with np.load(p, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except (ValueError, OSError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{str(p)!r} is not a readable calibration .npz: {exc}") from None
+        raise LftomoError(f"{str(p)!r} is not a readable calibration .npz: {exc}") from None
     _expect("meta" in data and data["meta"].dtype.kind == "U", p, "no lftomo metadata ('meta')")
     try:
         meta = json.loads(str(data["meta"]))
     except json.JSONDecodeError as exc:
-        raise ValueError(f"calibration file {str(p)!r}: metadata is not JSON: {exc}") from None
+        raise LftomoError(f"calibration file {str(p)!r}: metadata is not JSON: {exc}") from None
     _expect(isinstance(meta, dict) and meta.get("format") == FORMAT, p,
             f"format {meta.get('format') if isinstance(meta, dict) else None!r}, expected {FORMAT!r}")
     try:
@@ -859,7 +860,7 @@ def load_calibration(path: str | Path) -> tuple[MicrolensGrid, RadiometricCalibr
         scal = dict(pitch=tuple(float(v) for v in g["pitch"]), rotation=float(g["rotation"]),
                     offset=tuple(float(v) for v in g["offset"]), center_index=tuple(int(v) for v in g["center_index"]))
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"calibration file {str(p)!r}: bad grid metadata ({exc})") from None
+        raise LftomoError(f"calibration file {str(p)!r}: bad grid metadata ({exc})") from None
     _expect(len(scal["pitch"]) == 2 and min(scal["pitch"]) > 0 and np.isfinite(scal["rotation"]), p,
             f"pitch {scal['pitch']} must be two numbers > 0")
     shapes = {"devignetting": (rows, cols), "measured": (ny, nx, 2)}

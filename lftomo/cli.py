@@ -163,7 +163,7 @@ def cmd_demo(args) -> int:
 
 
 def _refuse_given(args, names: tuple[str, ...], where: str) -> None:
-    """ValueError if any option ``names`` (argparse dests) was given: it would be ignored here."""
+    """LftomoError if any option ``names`` (argparse dests) was given: it would be ignored here."""
     given = [f"--{k.replace('_', '-')}" for k in names if getattr(args, k) is not None]
     if given:
         raise LftomoError(f"{' and '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} {where}")
@@ -223,12 +223,12 @@ def cmd_calibrate(args) -> int:
     from .rawio import load_camera_description, read_raw
 
     if (args.blackbody is None) != (args.temperature is None):
-        raise ValueError("--blackbody and --temperature go together (the blackbody frame and its temperature in K)")
+        raise LftomoError("--blackbody and --temperature go together (the blackbody frame and its temperature in K)")
     cam = load_camera_description(args.camera) if args.camera else None
     if args.blackbody is not None and cam is None:
-        raise ValueError("--blackbody needs --camera CAMERA.toml (wavelength, gain, f-number of the acquisition)")
+        raise LftomoError("--blackbody needs --camera CAMERA.toml (wavelength, gain, f-number of the acquisition)")
     if args.blackbody is not None and cam.gain is None:
-        raise ValueError(f"--blackbody: camera file {cam.source!r} needs [sensor] gain_e_per_count for the noise "
+        raise LftomoError(f"--blackbody: camera file {cam.source!r} needs [sensor] gain_e_per_count for the noise "
                          "of the calibration factors")
     out = npz_output_path(args.output, what="-o/--output")
     scene_camera = None
@@ -238,14 +238,14 @@ def cmd_calibrate(args) -> int:
     bits = cam.bit_depth if cam else None
     white = read_raw(args.white, bit_depth=bits, what="white frame")
     if cam is not None and cam.sensor_shape is not None and white.shape != cam.sensor_shape:
-        raise ValueError(f"white frame {white.source!r} has shape {white.shape}, but camera file {cam.source!r} "
+        raise LftomoError(f"white frame {white.source!r} has shape {white.shape}, but camera file {cam.source!r} "
                          f"says [sensor] shape = {list(cam.sensor_shape)}")
     frames = {}
     for key, path in (("dark", args.dark), ("blackbody", args.blackbody)):
         if path is not None:
             f = read_raw(path, bit_depth=white.bit_depth, allow_float=key == "dark", what=f"--{key} frame")
             if f.shape != white.shape:
-                raise ValueError(f"--{key} frame {f.source!r} has shape {f.shape}, but white frame "
+                raise LftomoError(f"--{key} frame {f.source!r} has shape {f.shape}, but white frame "
                                  f"{white.source!r} has shape {white.shape}")
             frames[key] = f
     dark = frames.get("dark")

@@ -52,7 +52,7 @@ optional ``name`` (letters, digits, ``_``, ``-``; default ``camera1``,
     [medium]                   # optional participating medium (see README)
 
 Every value is checked when the file is loaded, before any rendering: a bad
-value raises ``ValueError`` naming the table and key (``[render]
+value raises ``LftomoError`` naming the table and key (``[render]
 rays_per_pixel``, ``[[surface]] #2 size``; surfaces count from 1), the value
 given and what is allowed.  Unknown keys, and keys that would be ignored (e.g.
 ``squares`` without ``texture = "checkerboard"``), are errors too.
@@ -308,7 +308,7 @@ def camera_from_table(cam: Mapping[str, Any], label: str = "[camera]") -> Camera
 
     Raises
     ------
-    ValueError
+    LftomoError
         For unknown keys, values of the wrong type or out of range, naming the
         table and key (``[camera.main_lens] stop_diameter``).
     """
@@ -410,7 +410,7 @@ def load_scene_file(path: str | Path | None = None, *, allow_outside: bool = Fal
 
     Raises
     ------
-    ValueError
+    LftomoError
         If the file is missing, not TOML, or any value is invalid; the message
         names the table and key, the value given and what is allowed.
     """

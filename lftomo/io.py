@@ -330,7 +330,7 @@ def _member_header(zf, name: str):
         elif version in ((2, 0), (3, 0)):
             shape, fortran, dtype = npf.read_array_header_2_0(fh)
         else:  # pragma: no cover - numpy raises first
-            raise ValueError(f"unknown .npy version {version}")
+            raise LftomoError(f"unknown .npy version {version}")
         offset = fh.tell()
     return shape, np.dtype(dtype), offset
 

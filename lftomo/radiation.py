@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from scipy import constants as _c
 
+from .errors import LftomoError
 from ._validate import require_array
 
 __all__ = [
@@ -73,7 +74,7 @@ def _temperature(T: Any) -> np.ndarray:
 def _wavelength(wavelength: Any) -> np.ndarray:
     lam = require_array("wavelength", wavelength, strictly_positive=True)
     if np.any(lam > 1.0):  # 650 for 650 nm: a unit slip, not a radio wave
-        raise ValueError(f"wavelength must be in m, at most 1 m (e.g. 650e-9 for 650 nm), got maximum "
+        raise LftomoError(f"wavelength must be in m, at most 1 m (e.g. 650e-9 for 650 nm), got maximum "
                          f"{float(np.max(lam))!r}")
     return lam
 
@@ -102,7 +103,7 @@ def planck(T: Any, wavelength: Any) -> Any:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``T`` or ``wavelength`` is not finite and > 0.
     """
     T = _temperature(T)
@@ -133,7 +134,7 @@ def planck_inverse(I: Any, wavelength: Any) -> Any:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``I`` is negative or not finite, or ``wavelength`` is not finite and > 0.
         Radiances from a noisy reconstruction must be clipped by the caller
         first; a negative radiance has no temperature.
@@ -203,7 +204,7 @@ def gray_inverse(I: Any) -> Any:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``I`` is negative or not finite.
     """
     I = require_array("I", I, minimum=0.0)
@@ -233,7 +234,7 @@ def blackbody_intensity(T: Any, wavelengths: Any = None) -> np.ndarray:
     lam = require_array("wavelengths", wavelengths, strictly_positive=True)
     lam = np.atleast_1d(lam)
     if lam.ndim != 1:
-        raise ValueError(f"wavelengths must be a scalar or 1-D, got shape {lam.shape}")
+        raise LftomoError(f"wavelengths must be a scalar or 1-D, got shape {lam.shape}")
     lam_b = lam.reshape((lam.size,) + (1,) * T.ndim)
     return np.asarray(planck(T[None, ...], lam_b), dtype=np.float64)
 

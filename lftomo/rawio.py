@@ -32,6 +32,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .errors import LftomoError
 from ._validate import toml_int, toml_number, toml_numbers
 from .io import atomic_path, check_output_file
 
@@ -85,34 +86,34 @@ def _read_array(path: Path) -> tuple[np.ndarray, int | None]:
     if suffix == ".npy":
         with open(path, "rb") as fh:
             if fh.read(6) != b"\x93NUMPY":
-                raise ValueError(f"raw file {str(path)!r} is not an .npy file (numpy.save)")
+                raise LftomoError(f"raw file {str(path)!r} is not an .npy file (numpy.save)")
         try:
             return np.load(path, allow_pickle=False), None
         except ValueError as exc:
-            raise ValueError(f"cannot read {str(path)!r} without pickle: {exc}") from None
+            raise LftomoError(f"cannot read {str(path)!r} without pickle: {exc}") from None
     if suffix == ".png":
         from PIL import Image, UnidentifiedImageError
 
         try:
             with Image.open(path) as im:
                 if im.format != "PNG":
-                    raise ValueError(f"raw file {str(path)!r} is a {im.format} image, not a PNG")
+                    raise LftomoError(f"raw file {str(path)!r} is a {im.format} image, not a PNG")
                 return np.asarray(im), None
         except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-            raise ValueError(f"raw file {str(path)!r} is not a readable PNG: {exc}") from None
+            raise LftomoError(f"raw file {str(path)!r} is not a readable PNG: {exc}") from None
     import tifffile
 
     try:
         with tifffile.TiffFile(path) as tf:
             if len(tf.pages) != 1:
-                raise ValueError(f"raw file {str(path)!r} has {len(tf.pages)} pages (a stack); expected one "
+                raise LftomoError(f"raw file {str(path)!r} has {len(tf.pages)} pages (a stack); expected one "
                                  "frame per file")
             page = tf.pages[0]
             return page.asarray(), int(page.bitspersample)
     except (tifffile.TiffFileError, OSError, ValueError) as exc:
         if isinstance(exc, ValueError) and str(path) in str(exc):
             raise
-        raise ValueError(f"raw file {str(path)!r} is not a readable TIFF: {exc}") from None
+        raise LftomoError(f"raw file {str(path)!r} is not a readable TIFF: {exc}") from None
 
 
 def read_raw(path: str | Path, *, bit_depth: int | None = None, allow_float: bool = False,
@@ -139,7 +140,7 @@ def read_raw(path: str | Path, *, bit_depth: int | None = None, allow_float: boo
 
     Raises
     ------
-    ValueError
+    LftomoError
         Naming the file and what is wrong: missing file, unknown suffix,
         unreadable content, ndim other than 2 (colour or stacks), a dtype
         other than unsigned/non-negative integers, a bit depth that does not
@@ -147,22 +148,22 @@ def read_raw(path: str | Path, *, bit_depth: int | None = None, allow_float: boo
     """
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"{what} {str(p)!r} does not exist")
+        raise LftomoError(f"{what} {str(p)!r} does not exist")
     if p.suffix.lower() not in RAW_SUFFIXES:
-        raise ValueError(f"{what} {str(p)!r}: unknown suffix {p.suffix!r}; allowed: {', '.join(RAW_SUFFIXES)}")
+        raise LftomoError(f"{what} {str(p)!r}: unknown suffix {p.suffix!r}; allowed: {', '.join(RAW_SUFFIXES)}")
     arr, declared = _read_array(p)
     if arr.ndim != 2:
         hint = " (colour or multi-channel image; lftomo needs one monochrome frame)" if arr.ndim == 3 else ""
-        raise ValueError(f"{what} {str(p)!r} must be a 2-D array (rows, cols), got shape {arr.shape}{hint}")
+        raise LftomoError(f"{what} {str(p)!r} must be a 2-D array (rows, cols), got shape {arr.shape}{hint}")
     if 0 in arr.shape:
-        raise ValueError(f"{what} {str(p)!r} is empty (shape {arr.shape})")
+        raise LftomoError(f"{what} {str(p)!r} is empty (shape {arr.shape})")
     if arr.dtype.kind == "f" and allow_float:
         if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{what} {str(p)!r} has non-finite values")
+            raise LftomoError(f"{what} {str(p)!r} has non-finite values")
         container = 32
     elif arr.dtype not in _CONTAINER_BITS:
         allowed = "uint8, uint16, uint32, int16, int32, int64" + (", float" if allow_float else "")
-        raise ValueError(f"{what} {str(p)!r} has dtype {arr.dtype}; allowed: {allowed} (counts)")
+        raise LftomoError(f"{what} {str(p)!r} has dtype {arr.dtype}; allowed: {allowed} (counts)")
     else:
         container = _CONTAINER_BITS[arr.dtype]
     if bit_depth is None:
@@ -170,13 +171,13 @@ def read_raw(path: str | Path, *, bit_depth: int | None = None, allow_float: boo
     else:
         bits = toml_int("bit_depth", bit_depth, minimum=1)
         if bits > min(container, 32):
-            raise ValueError(f"bit_depth {bits} does not fit {what} {str(p)!r} of dtype {arr.dtype} "
+            raise LftomoError(f"bit_depth {bits} does not fit {what} {str(p)!r} of dtype {arr.dtype} "
                              f"(at most {min(container, 32)} bits)")
     lo, hi = float(arr.min()), float(arr.max())
     if lo < 0:
-        raise ValueError(f"{what} {str(p)!r} has negative counts (minimum {lo:g}); counts are >= 0")
+        raise LftomoError(f"{what} {str(p)!r} has negative counts (minimum {lo:g}); counts are >= 0")
     if hi > 2**bits - 1:
-        raise ValueError(f"{what} {str(p)!r} has counts up to {hi:g} > {2**bits - 1} = 2**{bits} - 1: "
+        raise LftomoError(f"{what} {str(p)!r} has counts up to {hi:g} > {2**bits - 1} = 2**{bits} - 1: "
                          f"bit_depth {bits} is wrong, or the data are MSB-aligned (shift them right)")
     return RawFrame(counts=arr, bit_depth=int(bits), source=str(p))
 
@@ -196,16 +197,16 @@ def write_raw(path: str | Path, counts: Any, *, bit_depth: int) -> Path:
     p = Path(path)
     bits = toml_int("bit_depth", bit_depth, minimum=1)
     if bits > 16:
-        raise ValueError(f"bit_depth must be 1..16 for write_raw, got {bits}")
+        raise LftomoError(f"bit_depth must be 1..16 for write_raw, got {bits}")
     a = np.asarray(counts)
     if a.ndim != 2 or a.dtype.kind not in "iu":
-        raise ValueError(f"counts must be a 2-D integer array, got shape {a.shape}, dtype {a.dtype}")
+        raise LftomoError(f"counts must be a 2-D integer array, got shape {a.shape}, dtype {a.dtype}")
     if a.size and (a.min() < 0 or a.max() > 2**bits - 1):
-        raise ValueError(f"counts must lie in 0..{2**bits - 1} for bit_depth {bits}, got {a.min()}..{a.max()}")
+        raise LftomoError(f"counts must lie in 0..{2**bits - 1} for bit_depth {bits}, got {a.min()}..{a.max()}")
     a = a.astype(np.uint8 if bits <= 8 else np.uint16)
     suffix = p.suffix.lower()
     if suffix not in RAW_SUFFIXES:
-        raise ValueError(f"raw output {str(p)!r}: unknown suffix {p.suffix!r}; allowed: {', '.join(RAW_SUFFIXES)}")
+        raise LftomoError(f"raw output {str(p)!r}: unknown suffix {p.suffix!r}; allowed: {', '.join(RAW_SUFFIXES)}")
     check_output_file(p, what="raw output")
     with atomic_path(p) as tmp:  # the temporary name keeps the suffix
         if suffix == ".npy":
@@ -226,17 +227,17 @@ def subtract_dark(frame: RawFrame, dark: RawFrame | None) -> np.ndarray:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If the shapes or bit depths of the two frames differ (naming both files).
     """
     counts = np.asarray(frame.counts, dtype=np.float64)
     if dark is None:
         return counts
     if dark.shape != frame.shape:
-        raise ValueError(f"dark frame {dark.source!r} has shape {dark.shape}, but {frame.source!r} has shape "
+        raise LftomoError(f"dark frame {dark.source!r} has shape {dark.shape}, but {frame.source!r} has shape "
                          f"{frame.shape}; the dark frame must come from the same sensor and region")
     if dark.bit_depth != frame.bit_depth:
-        raise ValueError(f"dark frame {dark.source!r} has bit depth {dark.bit_depth}, but {frame.source!r} has "
+        raise LftomoError(f"dark frame {dark.source!r} has bit depth {dark.bit_depth}, but {frame.source!r} has "
                          f"{frame.bit_depth}")
     return counts - np.asarray(dark.counts, dtype=np.float64)
 
@@ -330,14 +331,14 @@ def _camera_fields(d: Mapping[str, Any]) -> dict[str, Any]:
         "f_number": toml_number("[main_lens] f_number", m["f_number"], gt=0),
     }
     if out["bit_depth"] > 16:
-        raise ValueError(f"[sensor] bit_depth must be an integer in 1..16, got {out['bit_depth']}")
+        raise LftomoError(f"[sensor] bit_depth must be an integer in 1..16, got {out['bit_depth']}")
     if not 100e-9 <= out["wavelength"] <= 100e-6:
-        raise ValueError(f"[acquisition] wavelength_nm = {a['wavelength_nm']!r} is outside 100-100000 nm; "
+        raise LftomoError(f"[acquisition] wavelength_nm = {a['wavelength_nm']!r} is outside 100-100000 nm; "
                          "give nanometres")
     if "shape" in s:
         rc = toml_numbers("[sensor] shape", s["shape"], length=2, gt=0, hint="[rows, cols]")
         if not all(float(v).is_integer() for v in rc):
-            raise ValueError(f"[sensor] shape must be two integers [rows, cols], got {s['shape']!r}")
+            raise LftomoError(f"[sensor] shape must be two integers [rows, cols], got {s['shape']!r}")
         out["sensor_shape"] = (int(rc[0]), int(rc[1]))
     if "gain_e_per_count" in s:
         out["gain"] = toml_number("[sensor] gain_e_per_count", s["gain_e_per_count"], gt=0, unit="e-/ADU")
@@ -347,7 +348,7 @@ def _camera_fields(d: Mapping[str, Any]) -> dict[str, Any]:
         out["filter_fwhm"] = toml_number("[acquisition] filter_fwhm_nm", a["filter_fwhm_nm"], gt=0, unit="nm") * 1e-9
     if "filter" in a:
         if not isinstance(a["filter"], str):
-            raise ValueError(f"[acquisition] filter must be a string (a name), got {a['filter']!r}")
+            raise LftomoError(f"[acquisition] filter must be a string (a name), got {a['filter']!r}")
         out["filter"] = a["filter"]
     if "pitch_um" in mla:
         out["mla_pitch"] = toml_number("[mla] pitch_um", mla["pitch_um"], gt=0, unit="µm") * 1e-6
@@ -360,35 +361,35 @@ def camera_description_from_dict(d: Mapping[str, Any], *, source: str = "<dict>"
     """Validate a parsed camera TOML (see :class:`CameraDescription`); errors name ``source``, table and key."""
     try:
         if not isinstance(d, Mapping):
-            raise ValueError(f"expected a table, got {type(d).__name__}")
+            raise LftomoError(f"expected a table, got {type(d).__name__}")
         unknown = sorted(set(d) - set(_TABLES))
         if unknown:
-            raise ValueError(f"unknown table(s) {unknown}; allowed: {sorted(_TABLES)}")
+            raise LftomoError(f"unknown table(s) {unknown}; allowed: {sorted(_TABLES)}")
         for tab, keys in _TABLES.items():
             t = d.get(tab, {})
             if not isinstance(t, Mapping):
-                raise ValueError(f"[{tab}] must be a table, got {t!r}")
+                raise LftomoError(f"[{tab}] must be a table, got {t!r}")
             bad = sorted(set(t) - keys)
             if bad:
-                raise ValueError(f"unknown key(s) {bad} in [{tab}]; allowed: {sorted(keys)}")
+                raise LftomoError(f"unknown key(s) {bad} in [{tab}]; allowed: {sorted(keys)}")
             missing = [k for k in _REQUIRED[tab] if k not in t]
             if missing:
-                raise ValueError(f"[{tab}] needs {', '.join(missing)}")
+                raise LftomoError(f"[{tab}] needs {', '.join(missing)}")
         return CameraDescription(**_camera_fields(d), source=source)
     except ValueError as exc:
-        raise ValueError(f"camera file {source!r}: {exc}") from None
+        raise LftomoError(f"camera file {source!r}: {exc}") from None
 
 
 def load_camera_description(path: str | Path) -> CameraDescription:
     """Read and validate a camera/acquisition TOML file (see :class:`CameraDescription`)."""
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"camera file {str(p)!r} does not exist")
+        raise LftomoError(f"camera file {str(p)!r} does not exist")
     try:
         with open(p, "rb") as fh:
             d = tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"camera file {str(p)!r} is not valid TOML: {exc}") from None
+        raise LftomoError(f"camera file {str(p)!r} is not valid TOML: {exc}") from None
     except UnicodeDecodeError:
-        raise ValueError(f"camera file {str(p)!r} is not a text (TOML) file") from None
+        raise LftomoError(f"camera file {str(p)!r} is not a text (TOML) file") from None
     return camera_description_from_dict(d, source=str(p))

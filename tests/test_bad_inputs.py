@@ -696,3 +696,34 @@ def test_damaged_npy_files(tmp_path, damage, match):
     scene = _scene(tmp_path, surface='texture = "file"\npath = "t.npy"')
     with pytest.raises(LftomoError, match=rf"\[\[surface\]\] #1 path: '.*t.npy'.*({match})"):
         load_scene_file(scene)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: lt.Fixed(-1), "regularization must be 'auto' or a finite number >= 0, got -1"),
+    (lambda: lt.Discrepancy(noise_scale="guess"), "noise_scale must be one of"),
+    (lambda: lt.LevenbergMarquardt(max_steps=0), "max_steps must be an integer >= 1"),
+])
+def test_option_objects_refuse_with_the_library_error(make, match):
+    # these were plain ValueErrors, which `except lt.LftomoError` missed
+    with pytest.raises(LftomoError, match=match):
+        make()
+
+
+def test_no_plain_value_error_is_raised_by_the_library():
+    """Every check raises LftomoError (a ValueError subclass) outside numba kernels, whose
+    compiled code can only raise built-in exception classes."""
+    import ast
+
+    root = Path(lt.__file__).parent
+    plain = []
+    for path in sorted(root.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        kernels = [(n.lineno, n.end_lineno) for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)
+                   and any("jit" in ast.unparse(d) for d in n.decorator_list)]
+        for n in ast.walk(tree):
+            if isinstance(n, ast.Raise) and n.exc is not None:
+                f = n.exc.func if isinstance(n.exc, ast.Call) else n.exc
+                if (isinstance(f, ast.Name) and f.id == "ValueError"
+                        and not any(a <= n.lineno <= b for a, b in kernels)):
+                    plain.append(f"{path.relative_to(root)}:{n.lineno}")
+    assert not plain, f"raise ValueError instead of LftomoError at {plain}"

@@ -116,7 +116,7 @@ class Grid:
     def flat_index(self, ix: Any, iy: Any, iz: Any) -> Any:
         """C-order flat index of voxel ``(ix, iy, iz)`` (``np.ravel_multi_index``).
 
-        Raises ``ValueError`` for indices out of range.
+        Raises ``LftomoError`` for indices out of range.
         """
         return np.ravel_multi_index((ix, iy, iz), self.shape)
 
@@ -186,7 +186,7 @@ class Grid:
     def coarsened(self, factor: int) -> Grid:
         """Grid over the same box with ``factor`` times fewer voxels per axis.
 
-        Raises ``ValueError`` unless every ``shape`` component is divisible by ``factor``.
+        Raises ``LftomoError`` unless every ``shape`` component is divisible by ``factor``.
         """
         f = require_int("factor", factor, minimum=1)
         if any(n % f for n in self.shape):

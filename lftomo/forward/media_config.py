@@ -155,7 +155,7 @@ def medium_from_table(t: Mapping[str, Any], *, base: Path = Path("."), focus_dis
 
     Raises
     ------
-    ValueError
+    LftomoError
         For unknown or unused keys, a missing or unreadable medium file, missing
         required ``[medium.params]`` or any invalid value; the message names the
         key (``[medium] path``, ``[medium.params] T``), the value and what is allowed.

@@ -69,7 +69,7 @@ def box_in_camera_frame(lower, upper, camera) -> tuple[np.ndarray, np.ndarray, s
 
 
 def check_medium_visible(medium, camera) -> None:
-    """Raise ValueError before any tracing if the medium box overlaps the
+    """Raise LftomoError before any tracing if the medium box overlaps the
     camera (camera-frame z <= 0) or lies entirely outside the field of view.
 
     A posed camera tests the box's corners mapped to its own frame
@@ -78,11 +78,11 @@ def check_medium_visible(medium, camera) -> None:
     lo, hi, where = box_in_camera_frame(g.lower, g.upper, camera)
     if lo[2] <= 0.0:
         if hi[2] <= 0.0:
-            raise ValueError(
+            raise LftomoError(
                 f"the medium box lies wholly behind the camera (z from {lo[2]:.4g} to {hi[2]:.4g} m{where}); "
                 "the camera sees object space z > 0 only: point it at the medium (pose target) or move the box"
             )
-        raise ValueError(
+        raise LftomoError(
             f"the medium box starts at z = {lo[2]:.4g} m{where}; it must lie in object space z > 0 "
             "(the aperture stop is at z = 0 and the lens behind it)"
         )
@@ -98,7 +98,7 @@ def check_medium_visible(medium, camera) -> None:
         zfar = hi[2]
         limit = r + zfar * tan[axis]
         if lo[axis] > limit or hi[axis] < -limit:
-            raise ValueError(
+            raise LftomoError(
                 f"the medium box spans {name} = [{lo[axis]:.4g}, {hi[axis]:.4g}] m{where}, outside the camera's "
                 f"field of view (|{name}| <= {limit:.4g} m at z = {zfar:.4g} m): the camera cannot see it"
             )

@@ -382,7 +382,7 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
 
     Raises
     ------
-    ValueError
+    LftomoError
         For object (pickled) arrays, non-real dtypes, a missing key, a wrong
         shape, or non-finite values.
     """

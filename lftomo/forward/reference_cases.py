@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import LftomoError
 from .camera import Camera
 from .grid import Grid
 from . import phantoms
@@ -38,7 +39,7 @@ FRONT, BACK, TARGET = 0.975, 1.025, 1.05
 def reference_scene(case: str, *, target: bool = True, shape=(16, 16, 16)) -> Scene:
     """Scene of one of the three cases (``"absorbing"``, ``"scattering"``, ``"emitting"``)."""
     if case not in CASES:
-        raise ValueError(f"case must be one of {CASES}, got {case!r}")
+        raise LftomoError(f"case must be one of {CASES}, got {case!r}")
     grid = Grid(shape=shape, lower=(-0.025, -0.025, FRONT), upper=(0.025, 0.025, BACK))
     medium = getattr(phantoms, f"reference_{case}")(grid)
     surfaces = []

@@ -59,6 +59,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..errors import LftomoError
 from . import optics as _o
 from .rng import rng_init, rng_uniform
 
@@ -433,13 +434,13 @@ def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0,
     component would have zero measure otherwise).
     """
     if kind not in SAMPLERS:
-        raise ValueError(f"sampler must be one of {SAMPLERS}, got {kind!r}")
+        raise LftomoError(f"sampler must be one of {SAMPLERS}, got {kind!r}")
     if kind == "stratified" and not (math.isfinite(rho) and rho > 0.0 and math.isfinite(kappa)):
-        raise ValueError(f"the stratified sampler needs the lenslet sampling disc (kappa, rho) of "
+        raise LftomoError(f"the stratified sampler needs the lenslet sampling disc (kappa, rho) of "
                          f":func:`lenslet_disc`, with rho > 0 m; got kappa = {kappa!r}, rho = {rho!r}")
     radii = np.zeros(0) if radii is None else np.asarray(radii, dtype=float)
     if radii.size > N_RHO_TABLE or not np.all(np.isfinite(radii)) or np.any(radii <= 0.0) or np.any(radii > rho):
-        raise ValueError(f"radii must be at most {N_RHO_TABLE} positive radii no larger than rho = {rho!r} m, "
+        raise LftomoError(f"radii must be at most {N_RHO_TABLE} positive radii no larger than rho = {rho!r} m, "
                          f"got {radii!r}")
     s = np.zeros(S_SIZE)
     s[S_KIND] = 1.0 if kind == "stratified" else 0.0
@@ -549,7 +550,7 @@ def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float,
         num += 0.5 * (hi - lo) * d
         den += d * d
     if den == 0.0:
-        raise ValueError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
+        raise LftomoError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
     kappa = num / den
     d_step = math.sqrt(2.0) * half / (N_RHO_TABLE - 1)
     radii = np.array([_edge_radius(optics, cx, cy, kappa, k * d_step, 4, n_angles, i, j)
@@ -562,7 +563,7 @@ def lenslet_disc(optics: np.ndarray, n_angles: int = 128) -> tuple[float, float,
             radii[k + 1] += short
     radii *= 1.0002
     if not radii.max() > 0.0:
-        raise ValueError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
+        raise LftomoError("no ray from the sensor passes a lenslet: check the camera's MLA and sensor gap")
     return float(kappa), float(radii.max()), float(d_step), radii
 
 

@@ -66,6 +66,7 @@ from numba import njit, prange
 
 from lftomo.forward.rng import rng_init, rng_uniform, rng_uniform_open
 from lftomo.forward.surfaces import SURF_NCOL, surfaces_hit
+from lftomo.errors import LftomoError
 
 __all__ = [
     "RR_DEPTH",
@@ -228,7 +229,7 @@ def _as_block(block):
     for v in b:
         iv = int(v)
         if iv != v or iv < 1:
-            raise ValueError(f"block must be a positive integer or 3 of them, got {block!r}")
+            raise LftomoError(f"block must be a positive integer or 3 of them, got {block!r}")
         out.append(iv)
     return tuple(out)
 
@@ -261,13 +262,13 @@ def majorant_grid(sigma_t, shape, block):
     """
     shape = tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 1:
-        raise ValueError(f"shape must be 3 positive integers, got {shape!r}")
+        raise LftomoError(f"shape must be 3 positive integers, got {shape!r}")
     st = np.asarray(sigma_t, dtype=np.float64)
     n_vox = shape[0] * shape[1] * shape[2]
     if st.ndim == 1:
         st = st[None, :]
     if st.ndim != 2 or st.shape[1] != n_vox:
-        raise ValueError(
+        raise LftomoError(
             f"shape of sigma_t {np.shape(sigma_t)} does not match (n_ch, {n_vox}) or ({n_vox},) "
             f"for a grid of shape {shape}"
         )
@@ -629,14 +630,14 @@ def _per_channel(name, value, n_vox, n_ch=None):
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != n_vox:
-        raise ValueError(f"shape of {name} {np.shape(value)} does not match (n_ch, {n_vox}) or ({n_vox},)")
+        raise LftomoError(f"shape of {name} {np.shape(value)} does not match (n_ch, {n_vox}) or ({n_vox},)")
     if n_ch is not None and arr.shape[0] != n_ch:
         if arr.shape[0] == 1:
             arr = np.repeat(arr, n_ch, axis=0)
         else:
-            raise ValueError(f"number of channels of {name} ({arr.shape[0]}) does not match Ib ({n_ch})")
+            raise LftomoError(f"number of channels of {name} ({arr.shape[0]}) does not match Ib ({n_ch})")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
+        raise LftomoError(f"{name} must be finite")
     return np.ascontiguousarray(arr)
 
 
@@ -700,21 +701,21 @@ def radiance_mc(
     ro = np.ascontiguousarray(np.asarray(rays_o, dtype=np.float64).reshape(-1, 3))
     rd = np.asarray(rays_d, dtype=np.float64).reshape(-1, 3)
     if ro.shape != rd.shape:
-        raise ValueError(f"shape of rays_o {ro.shape} does not match rays_d {rd.shape}")
+        raise LftomoError(f"shape of rays_o {ro.shape} does not match rays_d {rd.shape}")
     norm = np.linalg.norm(rd, axis=1)
     if np.any(norm == 0) or not np.all(np.isfinite(norm)):
-        raise ValueError("rays_d must be finite and non-zero")
+        raise LftomoError("rays_d must be finite and non-zero")
     rd = np.ascontiguousarray(rd / norm[:, None])
     sa_in = np.asarray(sigma_a, dtype=np.float64)
     ib_in = np.asarray(Ib, dtype=np.float64)
     if shape is None:
         ref = sa_in if sa_in.ndim >= 3 else ib_in
         if ref.ndim < 3:
-            raise ValueError("cannot infer the grid shape: pass shape=(nx, ny, nz)")
+            raise LftomoError("cannot infer the grid shape: pass shape=(nx, ny, nz)")
         shape = ref.shape[-3:]
     shape = tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 1:
-        raise ValueError(f"shape must be 3 positive integers, got {shape!r}")
+        raise LftomoError(f"shape must be 3 positive integers, got {shape!r}")
     n_vox = shape[0] * shape[1] * shape[2]
 
     def flat(name, a):
@@ -730,17 +731,17 @@ def radiance_mc(
     sa = _per_channel("sigma_a", flat("sigma_a", sa_in), n_vox, n_ch)
     ss = _per_channel("sigma_s", flat("sigma_s", sigma_s), n_vox, n_ch)
     if sa.min() < 0 or ss.min() < 0:
-        raise ValueError("sigma_a and sigma_s must be >= 0")
+        raise LftomoError("sigma_a and sigma_s must be >= 0")
     gg = np.asarray(g, dtype=np.float64)
     gg = np.full(n_vox, float(gg)) if gg.ndim == 0 else gg.reshape(-1)
     if gg.shape != (n_vox,):
-        raise ValueError(f"shape of g {np.shape(g)} does not match the grid {shape}")
+        raise LftomoError(f"shape of g {np.shape(g)} does not match the grid {shape}")
     if np.any(np.abs(gg) >= 1.0):
-        raise ValueError(f"g must satisfy -1 < g < 1, got range [{gg.min()}, {gg.max()}]")
+        raise LftomoError(f"g must satisfy -1 < g < 1, got range [{gg.min()}, {gg.max()}]")
     x0, y0, z0 = (float(v) for v in lower)
     hx, hy, hz = (float(v) for v in spacing)
     if min(hx, hy, hz) <= 0:
-        raise ValueError(f"spacing must be > 0, got {tuple(spacing)!r}")
+        raise LftomoError(f"spacing must be > 0, got {tuple(spacing)!r}")
     st = sa + ss
     if majorant is None:
         maj = majorant_grid(st, shape, block)
@@ -749,13 +750,13 @@ def radiance_mc(
         if maj.ndim == 0:
             maj = maj.reshape(1, 1, 1)
         if maj.ndim != 3 or any(m < 1 or m > n for m, n in zip(maj.shape, shape)):
-            raise ValueError(f"shape of majorant {maj.shape} must be 3-D with 1 <= m <= n for grid {shape}")
+            raise LftomoError(f"shape of majorant {maj.shape} must be 3-D with 1 <= m <= n for grid {shape}")
         bl = tuple(-(-n // m) for n, m in zip(shape, maj.shape))
         tight = majorant_grid(st, shape, bl)
         if tight.shape != maj.shape:
-            raise ValueError(f"shape of majorant {maj.shape} is not a macro grid of {shape} (expected {tight.shape})")
+            raise LftomoError(f"shape of majorant {maj.shape} is not a macro grid of {shape} (expected {tight.shape})")
         if np.any(maj < tight * (1.0 - 1e-12)):
-            raise ValueError(
+            raise LftomoError(
                 f"majorant is below max(sigma_a + sigma_s) in some macro cell "
                 f"(worst: {maj[maj < tight].min()} < {tight[maj < tight].max()})"
             )
@@ -767,7 +768,7 @@ def radiance_mc(
     tex = np.ascontiguousarray(tex, dtype=np.float64)
     n_samples = int(n_samples)
     if n_samples < 2:
-        raise ValueError(f"n_samples must be >= 2 for a standard error, got {n_samples}")
+        raise LftomoError(f"n_samples must be >= 2 for a standard error, got {n_samples}")
     n = ro.shape[0]
     out = np.zeros((n, n_ch))
     out_sq = np.zeros((n, n_ch))
@@ -888,15 +889,15 @@ def slab_collimated(albedo, g, tau, n_photons, seed, *, majorant_factor=1.0):
     tau = float(tau)
     n_photons = int(n_photons)
     if not 0.0 <= albedo <= 1.0:
-        raise ValueError(f"albedo must be in [0, 1], got {albedo!r}")
+        raise LftomoError(f"albedo must be in [0, 1], got {albedo!r}")
     if not -1.0 < g < 1.0:
-        raise ValueError(f"g must satisfy -1 < g < 1, got {g!r}")
+        raise LftomoError(f"g must satisfy -1 < g < 1, got {g!r}")
     if not tau > 0.0:
-        raise ValueError(f"tau must be > 0, got {tau!r}")
+        raise LftomoError(f"tau must be > 0, got {tau!r}")
     if n_photons < 2:
-        raise ValueError(f"n_photons must be >= 2, got {n_photons}")
+        raise LftomoError(f"n_photons must be >= 2, got {n_photons}")
     if not majorant_factor >= 1.0:
-        raise ValueError(f"majorant_factor must be >= 1, got {majorant_factor!r}")
+        raise LftomoError(f"majorant_factor must be >= 1, got {majorant_factor!r}")
     chunk = 4096
     n_chunks = -(-n_photons // chunk)
     sums = np.zeros((n_chunks, 4))

@@ -200,7 +200,7 @@ class Scene:
         return d
 
     def check_visible_from(self, camera) -> None:
-        """Raise ValueError if any part of the scene is at or behind the camera's stop plane.
+        """Raise LftomoError if any part of the scene is at or behind the camera's stop plane.
 
         Surfaces are tested in the camera's frame (their corners mapped by the
         camera's pose, if it has one)."""

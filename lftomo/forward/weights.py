@@ -1544,7 +1544,7 @@ def weights(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Invalid inputs, a grid outside the field of view, or an estimated size
         above ``memory_limit``.
     """
@@ -1565,7 +1565,7 @@ def weights(
     require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
     optics = camera.packed
     if sampler not in _smp.SAMPLERS:
-        raise ValueError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
+        raise LftomoError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
     sampler_name = sampler
     sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
     ga = _grid_args(grid)
@@ -1721,7 +1721,7 @@ class RaySegments:
 
         Raises
         ------
-        ValueError
+        LftomoError
             For a factor that is not a whole number ≥ 1 or does not divide the grid's shape.
         """
         from .grid import Grid
@@ -1729,7 +1729,7 @@ class RaySegments:
         f = require_int("factor", factor, minimum=1)
         grid = Grid.from_dict(self.metadata["grid"])
         if any(n % f for n in grid.shape):
-            raise ValueError(f"factor={factor!r} must divide every axis of the table's grid {tuple(grid.shape)}")
+            raise LftomoError(f"factor={factor!r} must divide every axis of the table's grid {tuple(grid.shape)}")
         coarse = Grid(shape=tuple(n // f for n in grid.shape), lower=grid.lower, upper=grid.upper)
         (_, ny, nz), (_, cy, cz) = grid.shape, coarse.shape
         ray_ptr = np.zeros(self.n_rays + 1, np.int64)
@@ -2009,7 +2009,7 @@ def ray_segments(
     require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
     optics = camera.packed
     if sampler not in _smp.SAMPLERS:
-        raise ValueError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
+        raise LftomoError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
     sampler_name = sampler
     sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
     ga = _grid_args(grid)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import scipy.optimize as so
 
+from ..errors import LftomoError
 from .._validate import require_array, require_finite_scalar, require_int, require_positive
 from .parameterize import bspline_design
 
@@ -46,7 +47,7 @@ MAX_COEFFS = 40
 
 def _check_n_params(K: int, what: str) -> None:
     if K < 1 or K > MAX_COEFFS:
-        raise ValueError(f"{what} gives K = {K} coefficients; allowed 1 <= K <= {MAX_COEFFS}")
+        raise LftomoError(f"{what} gives K = {K} coefficients; allowed 1 <= K <= {MAX_COEFFS}")
 
 
 def _per_axis(name: str, value: Any, grid: Any) -> tuple[int, int, int]:
@@ -55,11 +56,11 @@ def _per_axis(name: str, value: Any, grid: Any) -> tuple[int, int, int]:
     except TypeError:
         items = [value] * 3
     if len(items) != 3:
-        raise ValueError(f"{name} must be an int or 3 ints (per axis x, y, z), got {value!r}")
+        raise LftomoError(f"{name} must be an int or 3 ints (per axis x, y, z), got {value!r}")
     out = tuple(require_int(f"{name}[{i}]", k, minimum=1) for i, k in enumerate(items))
     for a, (k, nvox) in enumerate(zip(out, grid.shape)):
         if k > nvox:
-            raise ValueError(
+            raise LftomoError(
                 f"{name}[{a}] = {k} exceeds the {nvox} voxels of the grid along axis {'xyz'[a]}; "
                 f"allowed 1 <= {name}[{a}] <= {nvox}"
             )
@@ -106,7 +107,7 @@ class TemperatureBasis(ABC):
         single = arr.ndim == 1
         arr2 = np.atleast_2d(arr)
         if arr2.ndim != 2 or arr2.shape[1] != self.n_params:
-            raise ValueError(
+            raise LftomoError(
                 f"{name} must have shape ({self.n_params},) or (n_walkers, {self.n_params}), got {arr.shape}"
             )
         return arr2, single
@@ -135,7 +136,7 @@ class TemperatureBasis(ABC):
     def _field_vector(self, T_field: Any) -> np.ndarray:
         T = np.asarray(T_field, dtype=np.float64)
         if T.shape not in (tuple(self.grid.shape), (self.n_voxels,)):
-            raise ValueError(
+            raise LftomoError(
                 f"T_field must have the grid shape {tuple(self.grid.shape)} or ({self.n_voxels},), got {T.shape}"
             )
         return require_array("T_field", T.ravel())
@@ -194,7 +195,7 @@ class LinearBasis(TemperatureBasis):
         self.grid = grid
         B = require_array("matrix", matrix, ndim=2)
         if B.shape[0] != grid.n_voxels:
-            raise ValueError(
+            raise LftomoError(
                 f"matrix must have one row per voxel ({grid.n_voxels} for grid shape {tuple(grid.shape)}), "
                 f"got shape {B.shape}"
             )
@@ -202,14 +203,14 @@ class LinearBasis(TemperatureBasis):
         Q, R = np.linalg.qr(B)
         d = np.abs(np.diag(R))
         if d.min() <= 1e-10 * d.max():
-            raise ValueError("matrix must have full column rank (its basis functions are linearly dependent)")
+            raise LftomoError("matrix must have full column rank (its basis functions are linearly dependent)")
         self.matrix = B
         self._Q, self._R = Q, R
         if names is None:
             names = [f"c{k}" for k in range(B.shape[1])]
         names = tuple(str(s) for s in names)
         if len(names) != B.shape[1]:
-            raise ValueError(f"names must have {B.shape[1]} entries, got {len(names)}")
+            raise LftomoError(f"names must have {B.shape[1]} entries, got {len(names)}")
         self.names = names
 
     def T(self, c: Any) -> np.ndarray:
@@ -256,7 +257,7 @@ class DCTBasis(LinearBasis):
 
     Raises
     ------
-    ValueError
+    LftomoError
         If a ``k_a`` is out of range or ``K > 40``.
     """
 
@@ -304,14 +305,14 @@ class BSplineBasis(LinearBasis):
 
     Raises
     ------
-    ValueError
+    LftomoError
         If a count is out of range, ``K > 40`` or ``degree`` not in 0..3.
     """
 
     def __init__(self, grid: Any, n_coeffs: Any = (3, 4, 3), *, degree: int = 3) -> None:
         deg = require_int("degree", degree, minimum=0)
         if deg > 3:
-            raise ValueError(f"degree must be 0, 1, 2 or 3, got {deg}")
+            raise LftomoError(f"degree must be 0, 1, 2 or 3, got {deg}")
         k = _per_axis("n_coeffs", n_coeffs, grid)
         _check_n_params(int(np.prod(k)), f"n_coeffs={k}")
         mats = [
@@ -381,7 +382,7 @@ class ParametricFlame(TemperatureBasis):
         self.axial_order = require_positive("axial_order", axial_order)
         self.T_peak_max = require_positive("T_peak_max", T_peak_max)
         if self.T_peak_max <= self.T_ambient:
-            raise ValueError(
+            raise LftomoError(
                 f"T_peak_max must exceed T_ambient = {self.T_ambient!r} K, got {self.T_peak_max!r}"
             )
         X, Y, Z = grid.centers_mesh()

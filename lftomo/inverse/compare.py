@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..errors import LftomoError
 from .._validate import require_int
 from ..forward.grid import Grid
 
@@ -33,10 +34,10 @@ def resample_mean(field: np.ndarray, src: Grid, dst: Grid) -> np.ndarray:
     """Average a field of ``src`` over the voxels of ``dst`` (same box; each
     ``src.shape`` an integer multiple of ``dst.shape``)."""
     if not (np.allclose(src.lower, dst.lower) and np.allclose(src.upper, dst.upper)):
-        raise ValueError(f"grids must cover the same box, got {src.lower}-{src.upper} and {dst.lower}-{dst.upper}")
+        raise LftomoError(f"grids must cover the same box, got {src.lower}-{src.upper} and {dst.lower}-{dst.upper}")
     f = [a // b for a, b in zip(src.shape, dst.shape)]
     if any(a != b * k for a, b, k in zip(src.shape, dst.shape, f)):
-        raise ValueError(f"source grid {src.shape} must be an integer refinement of {dst.shape}")
+        raise LftomoError(f"source grid {src.shape} must be an integer refinement of {dst.shape}")
     n = dst.shape
     return np.asarray(field).reshape(n[0], f[0], n[1], f[1], n[2], f[2]).mean(axis=(1, 3, 5))
 
@@ -129,11 +130,11 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     ndarray, shape of ``lf.raw`` (signal units)
     """
     if lf.std_error is None:
-        raise ValueError("lf has no std_error (not a Monte Carlo render)")
+        raise LftomoError("lf has no std_error (not a Monte Carlo render)")
     if weights_rays_per_pixel < 1 or rays_per_pixel < 1:
-        raise ValueError(f"rays per pixel must be >= 1, got {rays_per_pixel!r} and {weights_rays_per_pixel!r}")
+        raise LftomoError(f"rays per pixel must be >= 1, got {rays_per_pixel!r} and {weights_rays_per_pixel!r}")
     if floor not in MC_FLOORS:
-        raise ValueError(f"floor must be one of {MC_FLOORS}, got {floor!r}")
+        raise LftomoError(f"floor must be one of {MC_FLOORS}, got {floor!r}")
     se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
     fl = monte_carlo_floor(lf).reshape(lf.n_channels, -1)
     if floor == "bound":
@@ -213,7 +214,7 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
     """
     if min_etendue_fraction is not None:
         if not 0.0 <= min_etendue_fraction < 1.0:
-            raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+            raise LftomoError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
         lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
         noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
     mc = monte_carlo_std(lf, weights_rays_per_pixel=weights_rays_per_pixel, rays_per_pixel=rays_per_pixel,
@@ -301,10 +302,10 @@ def _weights_grid(weights: Any, recon_grid: Grid, quadrature: int | None) -> Gri
 
     wgrid = weights_grid(weights)
     if weights.shape[1] != wgrid.n_voxels:
-        raise ValueError(f"weights has {weights.shape[1]} columns, its grid {wgrid.n_voxels} voxels")
+        raise LftomoError(f"weights has {weights.shape[1]} columns, its grid {wgrid.n_voxels} voxels")
     resolve_quadrature(recon_grid, wgrid, "weights'")
     if quadrature is not None and wgrid != recon_grid.refined(quadrature):
-        raise ValueError(f"quadrature={quadrature!r} asks for weights on {recon_grid.refined(quadrature).shape}, "
+        raise LftomoError(f"quadrature={quadrature!r} asks for weights on {recon_grid.refined(quadrature).shape}, "
                          f"the weights given are on {wgrid.shape}: give one or the other")
     return wgrid
 
@@ -313,19 +314,19 @@ def _checked_inputs(scene, camera, recon_grid, *, depths, min_etendue_fraction, 
                     lightfield, regularization, reconstruct_options) -> Grid:
     """:func:`compare_refocus_subaperture`'s arguments checked before any work; returns the weights' grid."""
     if scene.medium is None:
-        raise ValueError("scene must contain a medium (the flame to reconstruct)")
+        raise LftomoError("scene must contain a medium (the flame to reconstruct)")
     if not depths:
-        raise ValueError("depths must list at least one refocus depth (m)")
+        raise LftomoError("depths must list at least one refocus depth (m)")
     if not 0.0 <= min_etendue_fraction < 1.0:
-        raise ValueError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+        raise LftomoError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
     if quadrature is not None:
         quadrature = require_int("quadrature", quadrature, minimum=1)
     if "grid" in reconstruct_options:
-        raise ValueError("grid is recon_grid here; give the quadrature (or weights on a finer grid) for sub-voxel "
+        raise LftomoError("grid is recon_grid here; give the quadrature (or weights on a finer grid) for sub-voxel "
                          "emission")
     if subaperture is not None and (getattr(subaperture, "data_kind", None) != "subaperture"
                                     or getattr(subaperture, "grid", None) != recon_grid):
-        raise ValueError("subaperture must be a Reconstruction of sub-aperture views on recon_grid, got "
+        raise LftomoError("subaperture must be a Reconstruction of sub-aperture views on recon_grid, got "
                          f"{getattr(subaperture, 'data_kind', type(subaperture).__name__)!r} on "
                          f"{getattr(getattr(subaperture, 'grid', None), 'shape', None)}")
     if weights is not None:
@@ -334,9 +335,9 @@ def _checked_inputs(scene, camera, recon_grid, *, depths, min_etendue_fraction, 
         wgrid = recon_grid.refined(DEFAULT_QUADRATURE if quadrature is None else quadrature)
     if lightfield is not None and (lightfield.camera.sensor_shape != camera.sensor_shape
                                    or lightfield.n_channels != 1):
-        raise ValueError("lightfield must be a one-channel render by the given camera")
+        raise LftomoError("lightfield must be a one-channel render by the given camera")
     if regularization != "auto" and "rule" in reconstruct_options:
-        raise ValueError(f"give regularization ({regularization!r}) or rule "
+        raise LftomoError(f"give regularization ({regularization!r}) or rule "
                          f"({reconstruct_options['rule']!r}), not both")
     return wgrid
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from ..errors import LftomoError
 from ..interrupt import check_interrupt
 
 __all__ = ["DenseLMResult", "levenberg_marquardt_dense", "residual_dof"]
@@ -291,7 +292,7 @@ def levenberg_marquardt_dense(
     lo = np.full(p.size, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
     hi = np.full(p.size, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)
     if lo.shape != p.shape or hi.shape != p.shape or np.any(lo > hi):
-        raise ValueError(f"lower and upper must have the shape of p0 {p.shape} with lower <= upper")
+        raise LftomoError(f"lower and upper must have the shape of p0 {p.shape} with lower <= upper")
     p = np.clip(p, lo, hi)
     F, data_sq, G, g = evaluate(p, True)
     if not np.isfinite(F):

@@ -282,7 +282,7 @@ def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, 
     if bias not in ("nonlinear", "linear"):
         raise LftomoError(f"bias must be 'nonlinear' or 'linear', got {bias!r}")
     if sampler not in SAMPLERS:
-        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
+        raise LftomoError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
+from ..errors import LftomoError
 from .._validate import require_int, require_positive
 from .fitoptions import moved_options
 
@@ -62,7 +63,7 @@ class EnsembleChain:
 
     Raises
     ------
-    ValueError
+    LftomoError
         A value outside the ranges above (the check against K is made when sampling).
     """
 
@@ -81,13 +82,13 @@ class EnsembleChain:
             require_int("n_walkers", self.n_walkers, minimum=2)
         n_steps = require_int("n_steps", self.n_steps, minimum=2)
         if self.burn is not None and require_int("burn", self.burn, minimum=0) >= n_steps:
-            raise ValueError(f"burn must be < n_steps = {n_steps}, got {self.burn}")
+            raise LftomoError(f"burn must be < n_steps = {n_steps}, got {self.burn}")
         require_int("thin", self.thin, minimum=1)
         require_positive("init_scale", self.init_scale)
         require_int("n_importance", self.n_importance, minimum=10)
         require_positive("max_field_elements", self.max_field_elements)
         if not isinstance(self.strict, bool):
-            raise ValueError(f"strict must be True or False, got {self.strict!r}")
+            raise LftomoError(f"strict must be True or False, got {self.strict!r}")
 
     @property
     def burn_steps(self) -> int:
@@ -129,20 +130,20 @@ def moved_sampling_options(given: dict[str, Any], chain: EnsembleChain | None,
     ------
     TypeError
         A keyword ``sample_posterior`` never took.
-    ValueError
+    LftomoError
         A chain keyword next to ``chain=``, or a definition keyword next to a LogPosterior.
     """
     unknown = sorted(set(given) - set(SAMPLING_MOVED))
     if unknown:
         raise TypeError(f"sample_posterior() got an unexpected keyword argument {unknown[0]!r}")
     if chain is not None and not isinstance(chain, EnsembleChain):
-        raise ValueError(f"chain must be an lt.EnsembleChain, got {type(chain).__name__}")
+        raise LftomoError(f"chain must be an lt.EnsembleChain, got {type(chain).__name__}")
     moved_chain = {k: v for k, v in given.items() if k in _CHAIN_FIELDS}
     definition = {k: v for k, v in given.items() if k in DEFINITION_KEYWORDS}
     if moved_chain and chain is not None:
-        raise ValueError(f"{', '.join(moved_chain)} set twice: by chain={chain!r} and as keywords; give it one way")
+        raise LftomoError(f"{', '.join(moved_chain)} set twice: by chain={chain!r} and as keywords; give it one way")
     if definition and not definition_allowed:
-        raise ValueError(f"{', '.join(definition)} given next to a LogPosterior, which already defines the "
+        raise LftomoError(f"{', '.join(definition)} given next to a LogPosterior, which already defines the "
                          "posterior; pass them to lt.build_log_posterior instead")
     moved_options(given, "sample_posterior", table=SAMPLING_MOVED, stacklevel=5)  # the caller of sample_posterior
     chain = EnsembleChain(**moved_chain) if moved_chain else (chain or EnsembleChain())

@@ -141,10 +141,10 @@ class FieldPosterior:
         """Fraction of the voxels with ``T_true > hot`` (K) whose credible interval contains ``T_true``."""
         T_true = np.asarray(T_true, dtype=float)
         if T_true.shape != self.T_mean.shape:
-            raise ValueError(f"shape of T_true {T_true.shape} does not match the posterior {self.T_mean.shape}")
+            raise LftomoError(f"shape of T_true {T_true.shape} does not match the posterior {self.T_mean.shape}")
         sel = T_true > hot
         if not sel.any():
-            raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
+            raise LftomoError(f"no voxel of T_true exceeds hot = {hot} K")
         inside = (self.T_lower <= T_true) & (T_true <= self.T_upper)
         return float(inside[sel].mean())
 
@@ -376,7 +376,7 @@ class LaplaceCovariance:
 
     def __post_init__(self) -> None:
         if self.method not in _METHODS:
-            raise ValueError(f"method must be one of {_METHODS}, got {self.method!r}")
+            raise LftomoError(f"method must be one of {_METHODS}, got {self.method!r}")
         require_int("dense_max", self.dense_max, minimum=1)
         require_int("n_samples", self.n_samples, minimum=8)
         require_positive("cg_rtol", self.cg_rtol)
@@ -480,7 +480,7 @@ def laplace_posterior(
 
     Raises
     ------
-    ValueError
+    LftomoError
         For a bad argument (before any solve).
     """
     t_start = time.perf_counter()
@@ -492,11 +492,11 @@ def laplace_posterior(
                                        grid=grid).linear_problem(), measurement.parameterization
     elif isinstance(measurement, LinearProblem):
         if weights is not None:
-            raise ValueError("weights must be None when measurement is a LinearProblem (it has its operator)")
+            raise LftomoError("weights must be None when measurement is a LinearProblem (it has its operator)")
         problem = measurement
     else:
         if weights is None:
-            raise ValueError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
+            raise LftomoError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
         problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights
     T_start = temperature_start(start, problem.grid)
     ring = resolve_symmetry(symmetry, problem.grid)
@@ -536,33 +536,33 @@ def laplace_posterior(
 
 
 def _posterior_options(measurement, *, prior, rule, covariance, solver, start, credible_level, bounds, options):
-    """The checked options of :func:`laplace_posterior` (ValueError naming the argument otherwise), the
+    """The checked options of :func:`laplace_posterior` (LftomoError naming the argument otherwise), the
     keywords it took before folded into their objects (with a DeprecationWarning each):
     ``(prior name, bounds, rule object, LaplaceCovariance, start, keywords of the reconstructions)``."""
     prior = resolve_prior(prior, quadratic_only=True, where="laplace_posterior (a Gaussian prior)").name
     if not (isinstance(credible_level, (int, float)) and 0.0 < float(credible_level) < 1.0):
-        raise ValueError(f"credible_level must be in (0, 1), got {credible_level!r}")
+        raise LftomoError(f"credible_level must be in (0, 1), got {credible_level!r}")
     bounds = require_bounds(bounds)
     if options.get("penalize", "temperature") != "temperature":
-        raise ValueError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
+        raise LftomoError("laplace_posterior needs penalize='temperature' (the prior acts on T)")
     if isinstance(measurement, (list, tuple)):
-        raise ValueError("laplace_posterior takes one Measurement (one wavelength channel)")
+        raise LftomoError("laplace_posterior takes one Measurement (one wavelength channel)")
     moved = moved_options(dict(options), "laplace_posterior", table=POSTERIOR_MOVED, stacklevel=4)
     options = {k: moved.pop(k) for k in (*_RULE_MOVED, "penalize") if k in moved}
     if "T0" in moved:
         if start is not None:
-            raise ValueError("give either start or T0, not both")
+            raise LftomoError("give either start or T0, not both")
         start = moved.pop("T0")
     options.update(_solver_keywords(solver, {k: moved.pop(k) for k in _SOLVER_MOVED if k in moved}))
     cov_kw = {k: moved.pop(k) for k in _COVARIANCE_FIELDS if k in moved}
     if cov_kw and covariance is not None:
-        raise ValueError(f"{', '.join(cov_kw)} set twice: by covariance={covariance!r} and as keywords; "
+        raise LftomoError(f"{', '.join(cov_kw)} set twice: by covariance={covariance!r} and as keywords; "
                          "give it one way")
     if covariance is not None and not isinstance(covariance, LaplaceCovariance):
-        raise ValueError(f"covariance must be an lt.LaplaceCovariance, got {type(covariance).__name__}")
+        raise LftomoError(f"covariance must be an lt.LaplaceCovariance, got {type(covariance).__name__}")
     cov = LaplaceCovariance(**cov_kw) if cov_kw else (covariance or LaplaceCovariance())
     if moved and rule is not None:
-        raise ValueError(f"{', '.join(moved)} set twice: by rule={rule!r} and as keywords; give it one way")
+        raise LftomoError(f"{', '.join(moved)} set twice: by rule={rule!r} and as keywords; give it one way")
     rule = _moved_rule(moved) if moved else rule
     rule, options = _posterior_rule(rule, options)
     return prior, bounds, rule, cov, start, options
@@ -572,7 +572,7 @@ def _solver_keywords(solver: Any, old: dict[str, Any]) -> dict[str, Any]:
     """The reconstructions' solver keywords (``method`` and the settings given) from ``solver`` or from the
     old keywords ``old`` (which build a :class:`~lftomo.LevenbergMarquardt`); None: the reconstruction's."""
     if old and solver is not None:
-        raise ValueError(f"{', '.join(old)} set twice: by solver={solver!r} and as keywords; give it one way")
+        raise LftomoError(f"{', '.join(old)} set twice: by solver={solver!r} and as keywords; give it one way")
     if old:
         solver = LevenbergMarquardt(**old)
     if solver is None:
@@ -587,11 +587,11 @@ def _moved_rule(moved: dict[str, Any]) -> Any:
     reg = moved.pop("regularization", "evidence")
     evidence_kw = {new: moved[old] for old, new in _EVIDENCE_MOVED.items() if old in moved}
     if isinstance(reg, str) and reg not in ("evidence", "auto"):
-        raise ValueError(f"regularization must be 'evidence', 'auto' or a float > 0, got {reg!r}")
+        raise LftomoError(f"regularization must be 'evidence', 'auto' or a float > 0, got {reg!r}")
     if reg == "evidence":
         return Evidence(**evidence_kw)
     if evidence_kw:
-        raise ValueError(f"{', '.join(evidence_kw)} belong to the evidence rule, not regularization={reg!r}")
+        raise LftomoError(f"{', '.join(evidence_kw)} belong to the evidence rule, not regularization={reg!r}")
     return "auto" if reg == "auto" else Fixed(require_positive("regularization", reg))
 
 
@@ -601,7 +601,7 @@ def _posterior_rule(rule: Any, options: dict[str, Any]) -> tuple[Any, dict[str, 
     if rule is None:
         return Evidence(), options
     if isinstance(rule, Fixed) and rule.value <= 0:
-        raise ValueError(f"rule=lt.Fixed({rule.value!r}): the posterior needs λ > 0 (the prior's precision)")
+        raise LftomoError(f"rule=lt.Fixed({rule.value!r}): the posterior needs λ > 0 (the prior's precision)")
     if isinstance(rule, (Evidence, Fixed)):
         return rule, options
     if isinstance(rule, str):
@@ -609,12 +609,12 @@ def _posterior_rule(rule: Any, options: dict[str, Any]) -> tuple[Any, dict[str, 
             return (Evidence() if rule == "evidence" else rule), options
         rule = resolve_rule(rule, fit="T")()
     if not isinstance(rule, LambdaRule) or "T" not in rule.fits:
-        raise ValueError(f"rule must be lt.Evidence(), lt.Fixed(λ) or a T-only reconstruction rule "
+        raise LftomoError(f"rule must be lt.Evidence(), lt.Fixed(λ) or a T-only reconstruction rule "
                          f"(lt.Discrepancy(), lt.GCV(), lt.LCurve() or their names), got {rule!r}")
     kw = rule.keywords()
     twice = sorted(set(kw) & set(options))
     if twice:
-        raise ValueError(f"{', '.join(twice)} set twice: by rule={rule!r} and as keywords; give it one way")
+        raise LftomoError(f"{', '.join(twice)} set twice: by rule={rule!r} and as keywords; give it one way")
     return rule, {**options, **kw}
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
+from ..errors import LftomoError
 from .unknowns import Unknowns
 
 #: The T-only fit's prior when none is given: second differences per axis, no boundary
@@ -111,7 +112,7 @@ def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tup
     (as keywords) build the object when ``unknowns`` is a name, and are refused next to an object."""
     moved = {k: options.pop(k) for k in what.keywords() if k in options}
     if moved and isinstance(unknowns, Unknowns):
-        raise ValueError(f"{', '.join(moved)} set twice: by unknowns={unknowns!r} and as keywords; give it one way")
+        raise LftomoError(f"{', '.join(moved)} set twice: by unknowns={unknowns!r} and as keywords; give it one way")
     if moved:
         what = type(what)(**moved)
     return what, {**options, **what.keywords()}
@@ -168,12 +169,12 @@ def fit_keywords(fit: str, *, regularization: Any, method: Any, rule: Any, solve
     def fold(obj: Any, what: str, keywords: dict[str, Any]) -> None:
         for k, v in keywords.items():
             if given.get(k) or k in options:
-                raise ValueError(f"{k} is set twice: by {what}={obj!r} and as {k}=...; give it one way")
+                raise LftomoError(f"{k} is set twice: by {what}={obj!r} and as {k}=...; give it one way")
             opts[k] = v
 
     if isinstance(rule, LambdaRule):
         if fit not in rule.fits:
-            raise ValueError(f"rule={rule!r} does not run for unknowns={fit!r} (it runs for {list(rule.fits)})")
+            raise LftomoError(f"rule={rule!r} does not run for unknowns={fit!r} (it runs for {list(rule.fits)})")
         fold(rule, "rule", rule.keywords(fit))
         rule = None
     if solver is not None:

@@ -48,7 +48,7 @@ def weights_grid(W) -> Grid:
     """The grid a weight matrix (or ray-segment table) was built on (from its metadata)."""
     g = W.metadata.get("grid")
     if g is None:
-        raise ValueError("the weight matrix carries no grid metadata")
+        raise LftomoError("the weight matrix carries no grid metadata")
     return Grid.from_dict(g)
 
 
@@ -109,7 +109,7 @@ def check_types(measurement: Any, weights: Any) -> None:
             where = "measurement" if len(ms) == 1 and not isinstance(measurement, (list, tuple)) else f"measurement[{k}]"
             raise LftomoError(f"{where} must be an lftomo.Measurement, got {type(m).__name__}")
     if weights is None:
-        raise ValueError("weights is required with measurement data (give the forward model: a WeightMatrix, "
+        raise LftomoError("weights is required with measurement data (give the forward model: a WeightMatrix, "
                          "RaySegments, or one per measurement), or give an lftomo.Problem alone")
     ws = list(weights) if isinstance(weights, (list, tuple)) else [weights]
     for w in ws:
@@ -123,20 +123,20 @@ def _paired_temperature_channels(measurement, weights) -> tuple[tuple, tuple]:
     own weight matrix (one measurement and one matrix, or sequences of equal length)."""
     if not isinstance(measurement, (list, tuple)):
         if isinstance(weights, (list, tuple)):
-            raise ValueError(f"weights is a sequence of {len(weights)} but measurement is one Measurement: give one "
+            raise LftomoError(f"weights is a sequence of {len(weights)} but measurement is one Measurement: give one "
                              "measurement per weight matrix (one per camera)")
         return (measurement,), (weights,)
     if not isinstance(weights, (list, tuple)) or len(weights) != len(measurement):
         n_w = len(weights) if isinstance(weights, (list, tuple)) else 1
-        raise ValueError(
+        raise LftomoError(
             f"unknowns='T' with {len(measurement)} measurements needs one weight matrix per measurement (the "
             f"camera that took it), got {n_w}; several wavelengths of one camera are fitted with "
             "unknowns='T+sigma_a'")
     if len(measurement) == 0:
-        raise ValueError("measurement is an empty sequence: give at least one Measurement")
+        raise LftomoError("measurement is an empty sequence: give at least one Measurement")
     for k, (m, w) in enumerate(zip(measurement, weights)):
         if not taken_by_camera_of(m, w):
-            raise ValueError(f"weights[{k}] was built for another camera (or pose) than the one that took "
+            raise LftomoError(f"weights[{k}] was built for another camera (or pose) than the one that took "
                              f"measurement[{k}]: pair each camera's data with its own weight matrix")
     return tuple(measurement), tuple(weights)
 
@@ -191,7 +191,7 @@ class Problem:
 
         Raises
         ------
-        LftomoError, ValueError
+        LftomoError
             Data or forward models of the wrong type, unpaired cameras, grids
             that differ, a symmetry on another grid, too few wavelengths for
             ``"T+sigma_a"``.  Warns (UserWarning) when there are fewer data
@@ -205,7 +205,7 @@ class Problem:
         parts = [problem_on_grid(m, w, grid) for m, w in zip(ms, ws)]   # assembled and checked now
         grids = {p[1] for p in parts}
         if len(grids) > 1:
-            raise ValueError(f"the weight matrices are on different grids ({sorted(map(repr, grids))}): build every "
+            raise LftomoError(f"the weight matrices are on different grids ({sorted(map(repr, grids))}): build every "
                              "camera's weights on the same grid")
         g = grids.pop()
         ring = resolve_symmetry(symmetry, g)
@@ -218,12 +218,12 @@ class Problem:
     def _joint(cls, measurement, forward, what, symmetry, grid) -> "Problem":
         ms = tuple(measurement) if isinstance(measurement, (list, tuple)) else (measurement,)
         if len(ms) < 2:
-            raise ValueError(f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}")
+            raise LftomoError(f"unknowns='T+sigma_a' needs measurements at 2 or more wavelengths, got {len(ms)}")
         fw = tuple(forward) if isinstance(forward, (list, tuple)) else forward
         first = fw[0] if isinstance(fw, tuple) and fw else fw
         meta = getattr(first, "metadata", None)
         if not (isinstance(meta, dict) and meta.get("grid") is not None):
-            raise ValueError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, "
+            raise LftomoError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, "
                              f"...)) as its forward model, got {type(first).__name__} without a grid")
         g, _ = resolve_quadrature(grid, weights_grid(first), "segment table's")
         ring = resolve_symmetry(symmetry, g)
@@ -262,11 +262,11 @@ class Problem:
 
         Raises
         ------
-        ValueError
+        LftomoError
             For ``unknowns="T+sigma_a"`` (not linear in the blackbody intensity).
         """
         if self.unknowns.name != "T":
-            raise ValueError(f"linear_problem() is the T-only fit's; this problem's unknowns are {self.unknowns!r}")
+            raise LftomoError(f"linear_problem() is the T-only fit's; this problem's unknowns are {self.unknowns!r}")
         return self._linear_problem
 
     def fitted_problem(self) -> LinearProblem:
@@ -310,8 +310,8 @@ def as_problem(measurement: Any, weights: Any, *, unknowns: Any, symmetry: Any, 
                                  symmetry=symmetry, grid=grid)
     given = {k: v for k, v in (("weights", weights), ("symmetry", symmetry), ("grid", grid)) if v is not None}
     if given:
-        raise ValueError(f"{', '.join(given)} given with a Problem, which carries its own forward model, grid and "
+        raise LftomoError(f"{', '.join(given)} given with a Problem, which carries its own forward model, grid and "
                          "parameterization: give them to lftomo.Problem.from_data instead")
     if unknowns is not None and resolve_unknowns(unknowns) != measurement.unknowns:
-        raise ValueError(f"unknowns={unknowns!r} given with a Problem whose unknowns are {measurement.unknowns!r}")
+        raise LftomoError(f"unknowns={unknowns!r} given with a Problem whose unknowns are {measurement.unknowns!r}")
     return measurement

@@ -40,6 +40,7 @@ from jax.custom_derivatives import linear_call
 from numba import get_num_threads, njit, prange
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from ..errors import LftomoError
 from ..interrupt import check_interrupt
 from .hostregistry import ContentRegistry, content_hash
 
@@ -174,7 +175,7 @@ class HostCSR:
         m, n = self.shape
         x = jnp.asarray(x, dtype=jnp.float64)
         if x.shape != (n,):
-            raise ValueError(f"shape of x {x.shape} does not match the matrix columns {n}")
+            raise LftomoError(f"shape of x {x.shape} does not match the matrix columns {n}")
 
         h = self.handle
 
@@ -194,7 +195,7 @@ def host_csr(matrix: Any) -> HostCSR:
     The matrix is copied to float64 CSR (and its transpose is built once).
     """
     if not sp.issparse(matrix):
-        raise ValueError(f"matrix must be a scipy sparse matrix, got {type(matrix).__name__}")
+        raise LftomoError(f"matrix must be a scipy sparse matrix, got {type(matrix).__name__}")
     A = sp.csr_matrix(matrix, dtype=np.float64, copy=True)
     A.sum_duplicates()
     A.sort_indices()
@@ -330,7 +331,7 @@ def _scale_vector(name: str, value, n: int) -> np.ndarray:
         return np.full(n, float(value))
     arr = np.ascontiguousarray(value, dtype=np.float64)
     if arr.shape != (n,):
-        raise ValueError(f"{name} must be a number or an array of shape ({n},), got shape {arr.shape}")
+        raise LftomoError(f"{name} must be a number or an array of shape ({n},), got shape {arr.shape}")
     return arr
 
 
@@ -401,7 +402,7 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *, rows: 
     """
     one_block = channels[0][1] is None
     if any((c[1] is None) != one_block for c in channels):
-        raise ValueError("B must be None in every channel or in none")
+        raise LftomoError("B must be None in every channel or in none")
     A0 = sp.csr_matrix(channels[0][0], dtype=np.float64)
     m_table, n_q = A0.shape
     # no second block: an empty pattern of A's shape (no row has an entry), so the kernel's B pass adds nothing
@@ -409,28 +410,28 @@ def channels_normal_equations(channels: list, M: sp.csr_matrix | None, *, rows: 
     channels = [(A, B0 if one_block else B, *rest) for A, B, *rest in channels]
     rows = np.arange(m_table, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
     if rows.size and (rows.min() < 0 or rows.max() >= m_table):
-        raise ValueError(f"rows must index the {m_table} rows of A and B")
+        raise LftomoError(f"rows must index the {m_table} rows of A and B")
     if M is None:
         M = sp.identity(n_q, format="csr", dtype=np.float64)
     M = sp.csr_matrix(M, dtype=np.float64)
     if M.shape[0] != n_q:
-        raise ValueError(f"M has {M.shape[0]} rows, A and B {n_q} columns")
+        raise LftomoError(f"M has {M.shape[0]} rows, A and B {n_q} columns")
     n_u = M.shape[1]
     if order is not None:
         order = np.asarray(order)
         if order.shape != (n_u,) or not np.array_equal(np.sort(order), np.arange(n_u)):
-            raise ValueError(f"order must be a permutation of the {n_u} unknowns (shape ({n_u},)), got an array of "
+            raise LftomoError(f"order must be a permutation of the {n_u} unknowns (shape ({n_u},)), got an array of "
                              f"shape {order.shape}" + ("" if order.shape != (n_u,) else " that is not one"))
     ad, bd, res_all, w_all, a_all, b_all = [], [], [], [], [], []
     for A, B, res, row_weight, column_scale in channels:
         A, B = sp.csr_matrix(A, dtype=np.float64), sp.csr_matrix(B, dtype=np.float64)
         if A.shape != B.shape or A.shape != A0.shape or rows.shape != np.shape(res):
-            raise ValueError(f"A {A.shape}, B {B.shape} and res {np.shape(res)} must have the same rows (and A, B "
+            raise LftomoError(f"A {A.shape}, B {B.shape} and res {np.shape(res)} must have the same rows (and A, B "
                              "columns)" + ("" if rows.size == m_table else f" ({rows.size} rows selected)"))
         for X, X0, name in ((A, A0, "A"), (B, B0, "B")):
             shared = same_buffer(X.indptr, X0.indptr) and same_buffer(X.indices, X0.indices)
             if not (shared or (np.array_equal(X.indptr, X0.indptr) and np.array_equal(X.indices, X0.indices))):
-                raise ValueError(f"the channels' {name} must share one sparsity pattern")
+                raise LftomoError(f"the channels' {name} must share one sparsity pattern")
         ad.append(A.data)
         bd.append(B.data)
         res_all.append(np.asarray(res, dtype=np.float64))
@@ -485,7 +486,7 @@ def bandwidth_order(G: np.ndarray, n_u: int) -> np.ndarray:
     """
     k = G.shape[0] // n_u
     if G.shape != (k * n_u, k * n_u) or k < 1:
-        raise ValueError(f"G must be square with a multiple of n_u = {n_u} rows, got shape {G.shape}")
+        raise LftomoError(f"G must be square with a multiple of n_u = {n_u} rows, got shape {G.shape}")
     coupled = np.zeros((n_u, n_u), np.bool_)
     for a in range(k):
         for b in range(k):

@@ -185,6 +185,7 @@ from scipy.special import expit
 from scipy.sparse.linalg import lsmr
 from threadpoolctl import threadpool_limits
 
+from ..errors import LftomoError
 from .._validate import require_choice, require_steps
 from ..forward.grid import Grid
 from ..forward.weights import RaySegments
@@ -338,28 +339,28 @@ def _sized_defaults(model, method: str, noise_scale_arg, noise_scale: str, rule_
         method = "dense-lm" if n_unknowns <= DENSE_LM_MAX_UNKNOWNS else "levenberg-marquardt"
     if noise_scale == "estimated" and model.m_total <= n_unknowns:
         if noise_scale_arg is not None:
-            raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data "
+            raise LftomoError(f"noise_scale='estimated' needs more data than unknowns, got {model.m_total} data "
                              f"for {n_unknowns} unknowns")
         noise_scale, rule_obj = "given", Discrepancy("given", search=rule_obj.search)
     return method, noise_scale, rule_obj
 
 
 def _check_sigma_space(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale, sigma_a_ridge) -> tuple[SigmaSpace, float]:
-    """The checked σₐ coordinate and ridge weight (ValueError naming the argument otherwise)."""
+    """The checked σₐ coordinate and ridge weight (LftomoError naming the argument otherwise)."""
     if not (sigma_a_max > 0):
-        raise ValueError(f"sigma_a_max must be > 0, got {sigma_a_max!r}")
+        raise LftomoError(f"sigma_a_max must be > 0, got {sigma_a_max!r}")
     sigma_a_space = require_choice("sigma_a_space", sigma_a_space, SIGMA_A_SPACES)
     if sigma_a_space == "log":
         is_number = isinstance(sigma_a_min, (int, float, np.number)) and not isinstance(sigma_a_min, bool)
         if not (is_number and 0 < sigma_a_min < sigma_a_max):
-            raise ValueError(f"sigma_a_min must be a number with 0 < sigma_a_min < sigma_a_max ({sigma_a_max!r}) "
+            raise LftomoError(f"sigma_a_min must be a number with 0 < sigma_a_min < sigma_a_max ({sigma_a_max!r}) "
                              f"for sigma_a_space='log', got {sigma_a_min!r}")
     space = SigmaSpace(sigma_a_space, sigma_a_max, sigma_a_min, sigma_a_scale)
     ridge = float(sigma_a_ridge)
     if not (ridge >= 0 and math.isfinite(ridge)):
-        raise ValueError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
+        raise LftomoError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
     if not (space.scale > 0 and math.isfinite(space.scale)):
-        raise ValueError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
+        raise LftomoError(f"sigma_a_scale must be a finite number > 0 or None, got {sigma_a_scale!r}")
     return space, ridge
 
 
@@ -375,7 +376,7 @@ def _check_channels(measurements, segments) -> tuple[list, list[float], Any, lis
     ms = list(measurements)
     if isinstance(segments, (list, tuple)):
         if len(segments) != len(ms):
-            raise ValueError(f"a rig's segments must be one table per measurement (camera of each channel): got "
+            raise LftomoError(f"a rig's segments must be one table per measurement (camera of each channel): got "
                              f"{len(segments)} tables for {len(ms)} measurements")
         tables, camera = [], []
         for t in segments:
@@ -388,35 +389,35 @@ def _check_channels(measurements, segments) -> tuple[list, list[float], Any, lis
     elif isinstance(segments, RaySegments):
         forward, camera = segments, None
     else:
-        raise ValueError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, ...)) "
+        raise LftomoError(f"unknowns='T+sigma_a' needs the ray-segment table (lftomo.ray_segments(camera, grid, ...)) "
                          f"as its forward model, or one per measurement for a rig, got {type(segments).__name__}: a "
                          "weight matrix is built for one known sigma_a")
     if len(ms) < 2:
-        raise ValueError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got {len(ms)}")
+        raise LftomoError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got {len(ms)}")
     wls = []
     for k, m in enumerate(ms):
         if m.kind != "subaperture":
-            raise ValueError(f"measurements[{k}] is {m.kind!r} data; the joint fit uses 'subaperture' data")
+            raise LftomoError(f"measurements[{k}] is {m.kind!r} data; the joint fit uses 'subaperture' data")
         if m.wavelength is None:
-            raise ValueError(f"measurements[{k}] is gray; the joint fit needs spectral channels")
+            raise LftomoError(f"measurements[{k}] is gray; the joint fit needs spectral channels")
         wls.append(float(m.wavelength))
     channels = list(zip(wls, camera or [0] * len(ms)))
     if len(set(channels)) != len(channels):
         where = "" if camera is None else " (per camera)"
-        raise ValueError(f"the measurements' wavelengths must differ{where}, got {wls}")
+        raise LftomoError(f"the measurements' wavelengths must differ{where}, got {wls}")
     if len(set(wls)) < 2:
-        raise ValueError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got only {wls[0] * 1e9:g} nm")
+        raise LftomoError(f"joint T + sigma_a fitting needs 2 or more wavelengths, got only {wls[0] * 1e9:g} nm")
     if camera is None:
         rows = [rows_of_pixels(m, forward) for m in ms]
     else:
         for c, (m, t) in enumerate(zip(ms, segments)):
             if not taken_by_camera_of(m, t):
-                raise ValueError(f"segments[{c}] was built for another camera (or pose) than the one that took "
+                raise LftomoError(f"segments[{c}] was built for another camera (or pose) than the one that took "
                                  f"measurements[{c}]: pair each channel with its camera's ray-segment table")
         rows = [forward.rows_for(m, k) for m, k in zip(ms, camera)]
     for k, (m, r) in enumerate(zip(ms, rows)):
         if not (r >= 0).any():
-            raise ValueError(f"measurements[{k}]: none of its pixels has a row in its ray-segment table (a "
+            raise LftomoError(f"measurements[{k}]: none of its pixels has a row in its ray-segment table (a "
                              "measurement of another camera, or of pixels whose rays miss the grid)")
     return ms, wls, forward, rows
 
@@ -938,9 +939,9 @@ def _initial_fields(model: JointModel, *, T0, sigma_a0, start, lam_max, prior, s
     lam_start = _LAMBDA_START
     if start is not None:
         if T0 is not None or sigma_a0 is not None:
-            raise ValueError("give either start or T0 / sigma_a0, not both")
+            raise LftomoError("give either start or T0 / sigma_a0, not both")
         if getattr(start, "unknowns", None) != "T+sigma_a" or getattr(start, "sigma_a", None) is None:
-            raise ValueError(f"start must be a Reconstruction with unknowns='T+sigma_a', got "
+            raise LftomoError(f"start must be a Reconstruction with unknowns='T+sigma_a', got "
                              f"{type(start).__name__} with unknowns={getattr(start, 'unknowns', None)!r}")
         require_same_box(start.grid, grid)
         T0 = interpolate_field(start.T, start.grid, grid)  # raises if start's grid is finer than grid
@@ -950,7 +951,7 @@ def _initial_fields(model: JointModel, *, T0, sigma_a0, start, lam_max, prior, s
         start_label = f"interpolated from a fit on {tuple(start.grid.shape)} (λ {start.regularization:.3g})"
     if T0 is None or sigma_a0 is None:
         if isinstance(T0, str) or isinstance(sigma_a0, str):
-            raise ValueError("T0 and sigma_a0 must be arrays or None")
+            raise LftomoError("T0 and sigma_a0 must be arrays or None")
         t_tc = time.perf_counter()
         T_tc, s_tc = _two_colour_start(model.ms, model.segments, model.rows, model.wls, model.factors, prior,
                                        model.lo, model.hi, sigma_a_max, grid, model.E)
@@ -958,7 +959,7 @@ def _initial_fields(model: JointModel, *, T0, sigma_a0, start, lam_max, prior, s
     T_init = T_tc if T0 is None else np.asarray(T0, float).ravel()
     s_init = s_tc if sigma_a0 is None else np.asarray(sigma_a0, float).ravel()
     if T_init.size != model.n or s_init.size != model.n:
-        raise ValueError(f"T0 and sigma_a0 must have {model.n} voxels (grid {grid.shape})")
+        raise LftomoError(f"T0 and sigma_a0 must have {model.n} voxels (grid {grid.shape})")
     if model.ring is not None:
         T_init, s_init = model.ring.project(T_init).ravel(), model.ring.project(s_init).ravel()
     p = jnp.asarray(np.concatenate([_logit((T_init - model.lo) / (model.hi - model.lo)),
@@ -999,7 +1000,7 @@ def _choose_lambda(path: _JointPath, p, *, regularization, rule, lam_start, lam_
     else:
         lam = float(regularization)
         if not (lam >= 0):
-            raise ValueError(f"regularization must be 'auto' or a number >= 0, got {regularization!r}")
+            raise LftomoError(f"regularization must be 'auto' or a number >= 0, got {regularization!r}")
         best = path.run(p, lam)
         note = "fixed"
     if polish_steps > 0 and not best.converged:
@@ -1018,22 +1019,22 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
                    max_steps, linear_max_steps, search):
     """Checked ``(rule object, noise_scale, (T_min, T_max), λ_max)`` of the joint fit's options."""
     if engine not in ("host", "jax"):
-        raise ValueError(f"engine must be 'host' or 'jax', got {engine!r}")
+        raise LftomoError(f"engine must be 'host' or 'jax', got {engine!r}")
     rule_cls = resolve_rule(rule, fit="T+sigma_a", stacklevel=4)
     if noise_scale is None:  # the default: estimated where the discrepancy search runs
         noise_scale = "estimated" if (rule_cls is Discrepancy and regularization == "auto") else "given"
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
     if noise_scale == "estimated" and (rule_cls is not Discrepancy or regularization != "auto"):
-        raise ValueError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only, "
+        raise LftomoError(f"noise_scale='estimated' applies to regularization='auto' with rule='discrepancy' only, "
                          f"got regularization={regularization!r}, rule={rule!r}")
     search = require_choice("discrepancy_search", search, BRACKET_SEARCHES)
     rule_obj = Discrepancy(noise_scale, search=SEARCH_OF_JOINT[search]) if rule_cls is Discrepancy else rule_cls()
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
-        raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+        raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     lam_max = float(lambda_max)
     if not (math.isfinite(lam_max) and lam_max >= _LAMBDA_START):
-        raise ValueError(f"lambda_max must be a finite number >= {_LAMBDA_START:g}, got {lambda_max!r}")
+        raise LftomoError(f"lambda_max must be a finite number >= {_LAMBDA_START:g}, got {lambda_max!r}")
     require_steps("polish_steps", polish_steps, minimum=0)
     require_steps("max_steps", max_steps)
     require_steps("linear_max_steps", linear_max_steps)
@@ -1158,7 +1159,7 @@ def solve_temperature_absorption(
     """
     t_start = time.perf_counter()
     if method not in JOINT_METHODS:
-        raise ValueError(f"method must be one of {', '.join(map(repr, JOINT_METHODS))} for the joint fit, got {method!r}")
+        raise LftomoError(f"method must be one of {', '.join(map(repr, JOINT_METHODS))} for the joint fit, got {method!r}")
     # the σ terms, the Jacobi scaling and the normal equations need R = L x: TV is refused, never replaced
     prior = resolve_prior(prior, quadratic_only=True, where="the joint T + sigma_a fit (unknowns='T+sigma_a')")
     ms, wls, segments, rows = _check_channels(measurements, segments)

@@ -51,6 +51,7 @@ from typing import Any, Protocol
 import jax.numpy as jnp
 import numpy as np
 
+from ..errors import LftomoError
 from .._validate import require_choice, require_int, require_positive
 
 __all__ = [
@@ -399,7 +400,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
         # above that fit, whose own spread is √(2ν) in total: the tolerance.
         n_unknowns = run.n_unknowns
         if m - n_unknowns < 1:
-            raise ValueError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
+            raise LftomoError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
                              f"{n_unknowns} unknowns")
         target, tol, scale_note, _ = estimated_target(run, e, safety, tol)
     ladder: dict[float, Eval] = {}
@@ -1141,7 +1142,7 @@ class Fixed(LambdaRule):
     def __init__(self, value: float) -> None:
         if not (isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
                 and math.isfinite(value) and value >= 0):
-            raise ValueError(f"regularization must be 'auto' or a finite number >= 0, got {value!r}")
+            raise LftomoError(f"regularization must be 'auto' or a finite number >= 0, got {value!r}")
         self.value = float(value)
 
     def keywords(self, fit: str = "T") -> dict[str, Any]:
@@ -1211,7 +1212,7 @@ class Discrepancy(LambdaRule):
         self.noise_scale = None if noise_scale is None else _noise_scale(noise_scale)
         self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
         if not (math.isfinite(self.safety) and self.safety >= 0):
-            raise ValueError(f"safety must be a finite number >= 0, got {safety!r}")
+            raise LftomoError(f"safety must be a finite number >= 0, got {safety!r}")
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
         self.search = require_choice("search", search, DISCREPANCY_SEARCHES)
         self.lambda_max = _lambda_max(lambda_max)
@@ -1487,14 +1488,14 @@ def _changed(rule: LambdaRule, defaults: dict[str, Any]) -> dict[str, Any]:
 
 
 def _refuse_other_fit(rule: LambdaRule, given: dict[str, Any], applies: str) -> None:
-    """ValueError naming ``rule``'s settings ``given`` that the fit asked for cannot use (they apply to ``applies``)."""
+    """LftomoError naming ``rule``'s settings ``given`` that the fit asked for cannot use (they apply to ``applies``)."""
     if given:
-        raise ValueError(f"{', '.join(f'{k}={v!r}' for k, v in given.items())} of {rule!r} apply to {applies}")
+        raise LftomoError(f"{', '.join(f'{k}={v!r}' for k, v in given.items())} of {rule!r} apply to {applies}")
 
 
 def _subvoxel_search(value: Any) -> str | None:
     if value is not None and value not in SUBVOXEL_SEARCHES:
-        raise ValueError(f"subvoxel_search must be one of {SUBVOXEL_SEARCHES} or None (the fit's default), got {value!r}")
+        raise LftomoError(f"subvoxel_search must be one of {SUBVOXEL_SEARCHES} or None (the fit's default), got {value!r}")
     return value
 
 
@@ -1507,7 +1508,7 @@ def _lambda_max(value: Any) -> float | None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not (
             math.isfinite(value) and value > 0):
-        raise ValueError(f"lambda_max must be a finite number > 0 or None (the fit's default), got {value!r}")
+        raise LftomoError(f"lambda_max must be a finite number > 0 or None (the fit's default), got {value!r}")
     return float(value)
 
 
@@ -1521,7 +1522,7 @@ SUBVOXEL_SEARCHES = ("surrogate", "full")
 
 def _noise_scale(value: Any) -> str:
     if not isinstance(value, str) or value not in NOISE_SCALES:
-        raise ValueError(f"noise_scale must be one of {NOISE_SCALES}, got {value!r}")
+        raise LftomoError(f"noise_scale must be one of {NOISE_SCALES}, got {value!r}")
     return value
 
 
@@ -1544,7 +1545,7 @@ def resolve_rule(rule: Any, *, fit: str, stacklevel: int = 3) -> type:
 
     Raises
     ------
-    ValueError
+    LftomoError
         A name the fit does not know, naming the ones it does.
     """
     names = RULE_CLASSES[fit]
@@ -1556,5 +1557,5 @@ def resolve_rule(rule: Any, *, fit: str, stacklevel: int = 3) -> type:
     if not isinstance(rule, str) or rule not in names:
         allowed = tuple(names) + tuple(old for (f, old) in _DEPRECATED if f == fit)
         where = "for the joint fit" if fit == "T+sigma_a" else "for unknowns='T'"
-        raise ValueError(f"rule must be one of {allowed} {where}, got {rule!r}")
+        raise LftomoError(f"rule must be one of {allowed} {where}, got {rule!r}")
     return names[rule]

@@ -31,6 +31,7 @@ import lineax as lx  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 
+from ..errors import LftomoError
 from ..interrupt import check_interrupt  # noqa: E402
 
 __all__ = ["CHUNK", "TruncatedLSMR", "linear_solver", "nonlinear_solver", "jacobi_scale", "scaled_chunks",
@@ -202,7 +203,7 @@ def hutchinson_dof(quad, m: int, n_unknowns: int, *, n_probes: int | None = None
         outnumber the degrees of freedom two probes do.
     """
     if n_probes is not None and n_probes < 2:
-        raise ValueError(f"n_probes must be at least 2 (a standard error), got {n_probes}")
+        raise LftomoError(f"n_probes must be at least 2 (a standard error), got {n_probes}")
     k_max = DOF_PROBES_MAX if n_probes is None else n_probes
     probes = np.random.default_rng(seed).choice([-1.0, 1.0], size=(max(k_max, DOF_PROBES_MAX), m))
     q: list[float] = []

@@ -30,6 +30,7 @@ from typing import Any, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import LftomoError
 from .._validate import require_array, require_int, require_nonnegative, require_positive
 
 __all__ = ["SensorModel", "add_noise", "saturated_mask", "Measurement", "DATA_KINDS"]
@@ -117,13 +118,13 @@ class SensorModel:
         object.__setattr__(self, "read_noise", require_nonnegative("read_noise", self.read_noise))
         bits = require_int("bit_depth", self.bit_depth, minimum=1)
         if bits > 32:
-            raise ValueError(f"bit_depth must be an integer in 1..32, got {bits}")
+            raise LftomoError(f"bit_depth must be an integer in 1..32, got {bits}")
         object.__setattr__(self, "bit_depth", bits)
         object.__setattr__(self, "full_well", require_positive("full_well", self.full_well))
         object.__setattr__(self, "dark_current", require_nonnegative("dark_current", self.dark_current))
         bl = require_int("black_level", self.black_level, minimum=0)
         if bl >= 2**bits - 1:
-            raise ValueError(
+            raise LftomoError(
                 f"black_level must be an integer in [0, {2**bits - 1}) for bit_depth {bits}, got {bl}"
             )
         object.__setattr__(self, "black_level", bl)
@@ -170,13 +171,13 @@ class SensorModel:
         t = require_positive("exposure_time", exposure_time)
         qe = require_positive("quantum_efficiency", quantum_efficiency)
         if qe > 1.0:
-            raise ValueError(f"quantum_efficiency must be in (0, 1], got {qe!r}")
+            raise LftomoError(f"quantum_efficiency must be in (0, 1], got {qe!r}")
         bw = 1.0 if bandwidth is None else require_positive("bandwidth", bandwidth)
         wl = require_positive("wavelength", wavelength)
         if wl >= 1e-3:
-            raise ValueError(f"wavelength must be in m (e.g. 650e-9), got {wl!r}; did you pass nanometres?")
+            raise LftomoError(f"wavelength must be in m (e.g. 650e-9), got {wl!r}; did you pass nanometres?")
         if "responsivity" in kwargs:
-            raise ValueError("responsivity is computed by from_exposure; do not pass it")
+            raise LftomoError("responsivity is computed by from_exposure; do not pass it")
         return cls(responsivity=bw * t * qe * wl / (_H * _C), **kwargs)
 
     # ---- derived quantities ---------------------------------------------------
@@ -352,14 +353,14 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
     from ..lightfield import LightField
 
     if not isinstance(lf, LightField):
-        raise ValueError(f"lf must be an lftomo.LightField, got {type(lf).__name__}")
+        raise LftomoError(f"lf must be an lftomo.LightField, got {type(lf).__name__}")
     if (relative_std is None) == (sensor is None):
-        raise ValueError(
+        raise LftomoError(
             "give exactly one noise model: relative_std or sensor, got "
             f"relative_std={relative_std!r}, sensor={sensor!r}"
         )
     if lf.signal is not None or lf.noise_std is not None:
-        raise ValueError(
+        raise LftomoError(
             "lf is already a noisy light field (it has signal/noise_std); pass the noise-free one, "
             "e.g. dataclasses.replace(lf, raw=lf.signal, signal=None, noise_std=None)"
         )
@@ -371,9 +372,9 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
         try:
             sensors = list(sensors)
         except TypeError:
-            raise ValueError(f"sensor must be a SensorModel or a sequence of them, got {type(sensor).__name__}") from None
+            raise LftomoError(f"sensor must be a SensorModel or a sequence of them, got {type(sensor).__name__}") from None
         if len(sensors) != n_ch or not all(isinstance(s, SensorModel) for s in sensors):
-            raise ValueError(
+            raise LftomoError(
                 f"sensor must be a SensorModel or a sequence of {n_ch} SensorModel (one per channel), "
                 f"got {sensor!r}"
             )
@@ -381,7 +382,7 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
 
     signal = lf.raw.reshape((n_ch,) + lf.camera.sensor_shape)
     if np.any(signal < 0):
-        raise ValueError(f"the signal of lf must be >= 0 everywhere, got minimum {signal.min()!r}")
+        raise LftomoError(f"the signal of lf must be >= 0 everywhere, got minimum {signal.min()!r}")
     noisy = np.empty_like(signal)
     std = np.empty_like(signal)
     saturated = np.zeros(signal.shape, bool)
@@ -390,7 +391,7 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
         for c in range(n_ch):
             smax = float(signal[c].max())
             if smax <= 0:
-                raise ValueError(
+                raise LftomoError(
                     f"channel {c} of lf has zero signal everywhere; relative noise (relative_std={rel!r}) "
                     "is undefined there; use a sensor model"
                 )
@@ -421,7 +422,7 @@ def saturated_mask(lf) -> np.ndarray:
     mask = np.zeros(lf.raw.size, bool)
     idx = np.asarray(lf.metadata.get("saturated_pixels", []), dtype=np.int64)
     if idx.size and (idx.min() < 0 or idx.max() >= mask.size):
-        raise ValueError(
+        raise LftomoError(
             f"metadata['saturated_pixels'] of lf holds indices outside 0..{mask.size - 1} "
             f"(range {idx.min()}..{idx.max()})"
         )
@@ -438,33 +439,33 @@ def _check_views(views: Any, lf) -> list[tuple[int, int]]:
     """Validate a list of (v, u) pairs; return them sorted in (v, u) order."""
     nv, nu = lf.camera.views_shape[:2]
     if isinstance(views, (str, bytes)):
-        raise ValueError(f"views must be a list of (v, u) pairs, got {views!r}")
+        raise LftomoError(f"views must be a list of (v, u) pairs, got {views!r}")
     try:
         items = list(views)
     except TypeError:
-        raise ValueError(f"views must be a list of (v, u) pairs, got {views!r}") from None
+        raise LftomoError(f"views must be a list of (v, u) pairs, got {views!r}") from None
     if not items:
-        raise ValueError("views must name at least one (v, u) view, got an empty list")
+        raise LftomoError("views must name at least one (v, u) view, got an empty list")
     out = []
     for k, vu in enumerate(items):
         try:
             pair = tuple(vu)
         except TypeError:
-            raise ValueError(f"views[{k}] must be a (v, u) pair, got {vu!r}") from None
+            raise LftomoError(f"views[{k}] must be a (v, u) pair, got {vu!r}") from None
         if len(pair) != 2 or not all(isinstance(a, (numbers.Integral, np.integer)) and not isinstance(a, bool)
                                       for a in pair):
-            raise ValueError(f"views[{k}] must be a pair of integers (v, u), got {vu!r}")
+            raise LftomoError(f"views[{k}] must be a pair of integers (v, u), got {vu!r}")
         v, u = int(pair[0]), int(pair[1])
         if not (0 <= v < nv and 0 <= u < nu):
-            raise ValueError(f"views[{k}] = (v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
+            raise LftomoError(f"views[{k}] = (v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
         out.append((v, u))
     if len(set(out)) != len(out):
         dup = sorted({x for x in out if out.count(x) > 1})
-        raise ValueError(f"views lists some views more than once: {dup}")
+        raise LftomoError(f"views lists some views more than once: {dup}")
     lit = lf.view_mask.any(axis=(2, 3))
     dark = [vu for vu in out if not lit[vu]]
     if dark:
-        raise ValueError(f"views {dark} have no lit pixels; lit views are lf.lit_views ({int(lit.sum())} views)")
+        raise LftomoError(f"views {dark} have no lit pixels; lit views are lf.lit_views ({int(lit.sum())} views)")
     return sorted(out)
 
 
@@ -472,11 +473,11 @@ def _check_depths(depths: Any) -> tuple[float, ...]:
     try:
         arr = np.atleast_1d(np.asarray(depths, dtype=float))
     except (TypeError, ValueError):
-        raise ValueError(f"depths must be a sequence of depths in m, got {depths!r}") from None
+        raise LftomoError(f"depths must be a sequence of depths in m, got {depths!r}") from None
     if arr.ndim != 1 or arr.size == 0:
-        raise ValueError(f"depths must be a non-empty 1-D sequence of depths in m, got shape {arr.shape}")
+        raise LftomoError(f"depths must be a non-empty 1-D sequence of depths in m, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ValueError(f"depths must be finite and > 0 (m from the aperture stop), got {arr.tolist()}")
+        raise LftomoError(f"depths must be finite and > 0 (m from the aperture stop), got {arr.tolist()}")
     return tuple(float(d) for d in arr)
 
 
@@ -543,14 +544,14 @@ class Measurement:
 
     def __post_init__(self) -> None:
         if self.kind not in DATA_KINDS:
-            raise ValueError(f"kind must be one of {DATA_KINDS}, got {self.kind!r}")
+            raise LftomoError(f"kind must be one of {DATA_KINDS}, got {self.kind!r}")
         if not sp.issparse(self.operator):
-            raise ValueError(f"operator must be a scipy sparse matrix, got {type(self.operator).__name__}")
+            raise LftomoError(f"operator must be a scipy sparse matrix, got {type(self.operator).__name__}")
         op = sp.csr_matrix(self.operator, dtype=np.float64)
         m, n_raw = op.shape
         exp_raw = int(np.prod(self.camera.sensor_shape))
         if n_raw != exp_raw:
-            raise ValueError(
+            raise LftomoError(
                 f"operator has {n_raw} columns but the camera's raw image has {exp_raw} pixels "
                 f"(sensor {tuple(self.camera.sensor_shape)})"
             )
@@ -559,13 +560,13 @@ class Measurement:
         data_shape = tuple(int(a) for a in self.data_shape)
         mask = np.asarray(self.mask, dtype=bool)
         if mask.shape != data_shape:
-            raise ValueError(f"shape of mask {mask.shape} does not match data_shape {data_shape}")
+            raise LftomoError(f"shape of mask {mask.shape} does not match data_shape {data_shape}")
         if int(mask.sum()) != m:
-            raise ValueError(f"mask has {int(mask.sum())} True entries but there are {m} data")
+            raise LftomoError(f"mask has {int(mask.sum())} True entries but there are {m} data")
         if self.raw_index is not None:
             ri = np.asarray(self.raw_index, dtype=np.int64)
             if ri.shape != (m,) or (m and (ri.min() < 0 or ri.max() >= n_raw)):
-                raise ValueError(f"raw_index must be {m} indices in 0..{n_raw - 1}, got shape {ri.shape}")
+                raise LftomoError(f"raw_index must be {m} indices in 0..{n_raw - 1}, got shape {ri.shape}")
             object.__setattr__(self, "raw_index", ri)
         if self.raw_noise_std is not None:
             object.__setattr__(self, "raw_noise_std",
@@ -634,29 +635,29 @@ class Measurement:
 
         # ---- validation, before any work ----
         if not isinstance(lf, LightField):
-            raise ValueError(f"lf must be an lftomo.LightField, got {type(lf).__name__}")
+            raise LftomoError(f"lf must be an lftomo.LightField, got {type(lf).__name__}")
         if data not in DATA_KINDS:
-            raise ValueError(f"data must be one of {DATA_KINDS}, got {data!r}")
+            raise LftomoError(f"data must be one of {DATA_KINDS}, got {data!r}")
         ch = require_int("channel", channel, minimum=0)
         if ch >= lf.n_channels:
-            raise ValueError(f"channel must be in 0..{lf.n_channels - 1} for this light field, got {ch}")
+            raise LftomoError(f"channel must be in 0..{lf.n_channels - 1} for this light field, got {ch}")
         if lf.noise_std is None:
-            raise ValueError(
+            raise LftomoError(
                 "lf has no noise_std (a noise-free light field); make a noisy one with "
                 "lftomo.add_noise(lf, relative_std=... or sensor=..., seed=...)"
             )
         if data == "subaperture":
             if depths is not None:
-                raise ValueError(f"depths is only used with data='refocus', got depths={depths!r}")
+                raise LftomoError(f"depths is only used with data='refocus', got depths={depths!r}")
             sel = lf.lit_views if views is None else _check_views(views, lf)
             if not sel:
-                raise ValueError("lf has no lit views; nothing to measure")
+                raise LftomoError("lf has no lit views; nothing to measure")
             dep = None
         else:
             if depths is None:
-                raise ValueError("data='refocus' needs depths (m), e.g. depths=[0.98, 1.0, 1.02]; got None")
+                raise LftomoError("data='refocus' needs depths (m), e.g. depths=[0.98, 1.0, 1.02]; got None")
             if views is not None:
-                raise ValueError(
+                raise LftomoError(
                     f"views selects sub-aperture data; data='refocus' uses every lit view, got views={views!r}"
                 )
             dep = _check_depths(depths)
@@ -679,10 +680,10 @@ class Measurement:
             mask &= ~sat[np.maximum(idx, 0)]
             raw_index = idx[mask].astype(np.int64)
             if raw_index.size == 0:
-                raise ValueError("every selected view pixel is saturated; no data left")
+                raise LftomoError("every selected view pixel is saturated; no data left")
             sigma = std[raw_index]
             if np.any(sigma <= 0):
-                raise ValueError(
+                raise LftomoError(
                     f"noise_std of lf must be > 0 at every datum, got {int(np.sum(sigma <= 0))} "
                     f"pixel(s) with noise_std <= 0 (minimum {sigma.min()!r})"
                 )
@@ -705,11 +706,11 @@ class Measurement:
             R = (sp.diags(inv) @ R).tocsr()
         rows = np.flatnonzero(np.diff(R.indptr) > 0)
         if rows.size == 0:
-            raise ValueError(f"no refocused pixel at depths {list(dep)} has a contributing lit view")
+            raise LftomoError(f"no refocused pixel at depths {list(dep)} has a contributing lit view")
         R = R[rows]
         var = R.multiply(R) @ (std**2)
         if np.any(var <= 0):
-            raise ValueError(
+            raise LftomoError(
                 f"noise_std of lf must be > 0 at the pixels used by the refocus, got {int(np.sum(var <= 0))} "
                 "refocused pixel(s) with zero propagated variance"
             )
@@ -741,7 +742,7 @@ class Measurement:
         correlations that ``sigma`` ignores.
         """
         if self.raw_noise_std is None:
-            raise ValueError("this Measurement has no raw_noise_std; cannot form the covariance")
+            raise LftomoError("this Measurement has no raw_noise_std; cannot form the covariance")
         return (self.operator @ sp.diags(self.raw_noise_std**2) @ self.operator.T).tocsr()
 
     def _raw_weights(self, W_raw: Any) -> tuple[sp.csr_matrix, np.ndarray | None]:
@@ -749,7 +750,7 @@ class Measurement:
         if hasattr(W_raw, "pixel_index") and hasattr(W_raw, "matrix"):  # lftomo WeightMatrix
             sensor = tuple(getattr(W_raw, "sensor_shape", ()))
             if sensor != tuple(self.camera.sensor_shape):
-                raise ValueError(
+                raise LftomoError(
                     f"W_raw was made for a sensor of shape {sensor}, the measurement for "
                     f"{tuple(self.camera.sensor_shape)}"
                 )
@@ -758,7 +759,7 @@ class Measurement:
                 (wl_w is None) != (self.wavelength is None)
                 or (wl_w is not None and not np.isclose(float(wl_w), float(self.wavelength), rtol=1e-9))
             ):
-                raise ValueError(
+                raise LftomoError(
                     f"W_raw was made for wavelength {wl_w!r} m, the measurement is at {self.wavelength!r} m"
                 )
             pix = np.asarray(W_raw.pixel_index, dtype=np.int64)
@@ -766,7 +767,7 @@ class Measurement:
             used = np.unique(self.operator.indices)
             missing = np.setdiff1d(used, pix_u, assume_unique=True)
             if missing.size:
-                raise ValueError(
+                raise LftomoError(
                     f"W_raw has no row for {missing.size} raw pixel(s) that the data use "
                     f"(e.g. raw index {int(missing[0])}); build the weights for all the views the data use"
                 )
@@ -776,12 +777,12 @@ class Measurement:
             bg[pix_u] = np.asarray(W_raw.background, dtype=float)[first]
             return Wr, bg
         if not sp.issparse(W_raw):
-            raise ValueError(
+            raise LftomoError(
                 f"W_raw must be a scipy sparse matrix (n_raw, n_voxels) or an lftomo WeightMatrix, "
                 f"got {type(W_raw).__name__}"
             )
         if W_raw.shape[0] != self.n_raw:
-            raise ValueError(
+            raise LftomoError(
                 f"W_raw has {W_raw.shape[0]} rows but must have one per raw pixel ({self.n_raw}, sensor "
                 f"{tuple(self.camera.sensor_shape)}); rows are flat raw indices r * n_cols + c"
             )
@@ -845,7 +846,7 @@ class Measurement:
         """
         x = np.asarray(vector, dtype=float)
         if x.ndim == 0 or x.shape[-1] != self.size:
-            raise ValueError(f"shape of vector {x.shape} does not end with the {self.size} data of this measurement")
+            raise LftomoError(f"shape of vector {x.shape} does not end with the {self.size} data of this measurement")
         lead = x.shape[:-1]
         out = np.full(lead + (int(np.prod(self.data_shape)),), float(fill))
         flat = np.flatnonzero(self.mask.ravel())

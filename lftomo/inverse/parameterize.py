@@ -42,6 +42,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.interpolate import BSpline
 
+from ..errors import LftomoError
 from ..forward.grid import Grid
 from .problem import LinearProblem
 from .subvoxel import interpolation_matrix
@@ -117,7 +118,7 @@ class Parameterization(ABC):
         if arr.shape == tuple(self.shape):
             arr = arr.reshape(-1)
         if arr.ndim == 0 or arr.shape[-1] != self.n_params:
-            raise ValueError(f"p must have shape {tuple(self.shape)} or (..., {self.n_params}), got {np.shape(p)}")
+            raise LftomoError(f"p must have shape {tuple(self.shape)} or (..., {self.n_params}), got {np.shape(p)}")
         flat = arr.reshape(-1, self.n_params)
         out = np.asarray(self.expansion @ flat.T).T
         return out.reshape(arr.shape[:-1] + tuple(self.grid.shape))
@@ -135,7 +136,7 @@ class Parameterization(ABC):
     def _field(self, field: Any) -> np.ndarray:
         f = np.asarray(field, dtype=np.float64)
         if f.shape not in (tuple(self.grid.shape), (self.grid.n_voxels,)):
-            raise ValueError(
+            raise LftomoError(
                 f"field must have the grid shape {tuple(self.grid.shape)} or ({self.grid.n_voxels},), got {f.shape}"
             )
         return f.ravel()
@@ -143,9 +144,9 @@ class Parameterization(ABC):
     def reduce(self, A: Any) -> sp.csr_matrix:
         """``A P``: a matrix acting on the grid's voxels (columns) made to act on the unknowns."""
         if not sp.issparse(A):
-            raise ValueError(f"A must be a scipy sparse matrix, got {type(A).__name__}")
+            raise LftomoError(f"A must be a scipy sparse matrix, got {type(A).__name__}")
         if A.shape[1] != self.grid.n_voxels:
-            raise ValueError(f"A has {A.shape[1]} columns; the grid of this parameterisation has "
+            raise LftomoError(f"A has {A.shape[1]} columns; the grid of this parameterisation has "
                              f"{self.grid.n_voxels} voxels")
         return (sp.csr_matrix(A) @ self.expansion).tocsr()
 
@@ -164,15 +165,15 @@ class Parameterization(ABC):
 
         Raises
         ------
-        ValueError
+        LftomoError
             When the problem is not on this parameterisation's grid, or ``P``
             is not convex (the temperature bounds would not hold).
         """
         if problem.grid != self.grid:
-            raise ValueError(f"the problem's grid {tuple(problem.grid.shape)} is not the grid of "
+            raise LftomoError(f"the problem's grid {tuple(problem.grid.shape)} is not the grid of "
                              f"{type(self).__name__} {tuple(self.grid.shape)}")
         if not self.is_convex:
-            raise ValueError(f"{type(self).__name__}'s expansion is not convex (rows >= 0 summing to 1): "
+            raise LftomoError(f"{type(self).__name__}'s expansion is not convex (rows >= 0 summing to 1): "
                              "temperature bounds on its unknowns would not bound the field")
         keep = dict(y=problem.y, sigma=problem.sigma, grid=self.unknowns_grid, wavelength=problem.wavelength,
                     background=problem.background, metadata=problem.metadata)
@@ -199,7 +200,7 @@ class Parameterization(ABC):
 def require_selection(par: Parameterization | None, fit: str = "unknowns='T+sigma_a'") -> None:
     """Refuse a parameterisation that is not a selection of voxels (for fits that need ``I_b(P p) = P I_b(p)``)."""
     if par is not None and not par.is_selection:
-        raise ValueError(f"symmetry={par!r} is not a selection of voxels (each voxel one unknown); {fit} takes "
+        raise LftomoError(f"symmetry={par!r} is not a selection of voxels (each voxel one unknown); {fit} takes "
                          "None, 'axisymmetric' or a RingGrid")
 
 
@@ -231,7 +232,7 @@ class Voxels(Parameterization):
 
     def apply(self, problem: LinearProblem) -> LinearProblem:
         if problem.grid != self.grid:
-            raise ValueError(f"the problem's grid {tuple(problem.grid.shape)} is not {tuple(self.grid.shape)}")
+            raise LftomoError(f"the problem's grid {tuple(problem.grid.shape)} is not {tuple(self.grid.shape)}")
         return problem
 
 
@@ -275,16 +276,16 @@ class Splines(Parameterization):
 
     def __post_init__(self) -> None:
         if not isinstance(self.grid, Grid):
-            raise ValueError(f"grid must be an lftomo Grid, got {type(self.grid).__name__}")
+            raise LftomoError(f"grid must be an lftomo Grid, got {type(self.grid).__name__}")
         try:
             k = tuple(int(v) for v in self.n_coeffs)
         except (TypeError, ValueError):
-            raise ValueError(f"n_coeffs must be three integers, got {self.n_coeffs!r}") from None
+            raise LftomoError(f"n_coeffs must be three integers, got {self.n_coeffs!r}") from None
         if len(k) != 3 or any(not 1 <= kk <= n for kk, n in zip(k, self.grid.shape)):
-            raise ValueError(f"n_coeffs must be three integers with 1 <= n_coeffs[a] <= {tuple(self.grid.shape)}[a], "
+            raise LftomoError(f"n_coeffs must be three integers with 1 <= n_coeffs[a] <= {tuple(self.grid.shape)}[a], "
                              f"got {self.n_coeffs!r}")
         if self.degree not in (0, 1, 2, 3):
-            raise ValueError(f"degree must be 0, 1, 2 or 3, got {self.degree!r}")
+            raise LftomoError(f"degree must be 0, 1, 2 or 3, got {self.degree!r}")
         object.__setattr__(self, "n_coeffs", k)
 
     @functools.cached_property

@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import LftomoError
 from .._validate import (
     check_allocation,
     require_array,
@@ -190,7 +191,7 @@ class SufficientStatistics:
     def recentered(self, x_ref: Any) -> SufficientStatistics:
         """Same statistics about a new reference point (one exact pass over the data)."""
         if self._A is None:
-            raise ValueError("these statistics do not keep the data; rebuild them with x_ref")
+            raise LftomoError("these statistics do not keep the data; rebuild them with x_ref")
         x_ref = require_array("x_ref", x_ref, shape=(self.n,))
         r = self._r - self._A @ x_ref
         wr = self._w * r
@@ -234,7 +235,7 @@ def gaussian_sufficient_statistics(
 
     Raises
     ------
-    ValueError
+    LftomoError
         On shape mismatch, non-finite values or ``sigma <= 0``.
     """
     if sp.issparse(A):
@@ -289,10 +290,10 @@ def _emission(kind: str, wavelength: float | None) -> tuple[Callable, Callable, 
         return (lambda T: np.asarray(gray_intensity(T))), (lambda T: 4.0 * np.asarray(gray_intensity(T)) / T), "gray"
     if kind in ("planck", "auto"):
         if wavelength is None:
-            raise ValueError("emission='planck' needs a problem with a wavelength (got wavelength=None)")
+            raise LftomoError("emission='planck' needs a problem with a wavelength (got wavelength=None)")
         lam = float(wavelength)
         return (lambda T: np.asarray(planck(T, lam))), (lambda T: np.asarray(dplanck_dT(T, lam))), "planck"
-    raise ValueError(f"emission must be one of {_EMISSIONS}, got {kind!r}")
+    raise LftomoError(f"emission must be one of {_EMISSIONS}, got {kind!r}")
 
 
 @dataclass
@@ -480,7 +481,7 @@ class LogPosterior:
         c = np.asarray(c0, dtype=np.float64).copy()
         lp, g, G = self.gauss_newton(c)
         if not np.isfinite(lp):
-            raise ValueError(
+            raise LftomoError(
                 "the starting coefficients give a temperature field outside the bounds "
                 f"{self.T_bounds} K (or parameters outside the basis bounds); widen bounds or "
                 "pass a T_start inside them"
@@ -544,15 +545,15 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
     probs = list(problem) if isinstance(problem, Sequence) else [problem]
     probs = [p.linear_problem() if isinstance(p, Problem) else p for p in probs]
     if not probs:
-        raise ValueError("problem must be a LinearProblem or a non-empty sequence of them, got an empty sequence")
+        raise LftomoError("problem must be a LinearProblem or a non-empty sequence of them, got an empty sequence")
     for i, p in enumerate(probs):
         for attr in ("A", "y", "sigma", "grid"):
             if not hasattr(p, attr):
-                raise ValueError(f"problem[{i}] must be a LinearProblem, got {type(p).__name__}")
+                raise LftomoError(f"problem[{i}] must be a LinearProblem, got {type(p).__name__}")
         if getattr(p, "interpolation", None) is not None:
             probs[i] = p = p.uniform_emission()   # the statistics are linear in the voxels' I_b
         if tuple(p.grid.shape) != tuple(basis.grid.shape) or p.A.shape[1] != basis.n_voxels:
-            raise ValueError(
+            raise LftomoError(
                 f"problem[{i}] grid shape {tuple(p.grid.shape)} (A with {p.A.shape[1]} columns) does not match "
                 f"the basis grid shape {tuple(basis.grid.shape)}"
             )
@@ -565,11 +566,11 @@ def _check_bounds(bounds: Any, emission_kinds: list[str]) -> tuple[float, float]
     try:
         lo, hi = (float(v) for v in bounds)
     except (TypeError, ValueError):
-        raise ValueError(f"bounds must be (T_min, T_max) in K or None, got {bounds!r}") from None
+        raise LftomoError(f"bounds must be (T_min, T_max) in K or None, got {bounds!r}") from None
     if np.isnan(lo) or np.isnan(hi) or not lo < hi:
-        raise ValueError(f"bounds must satisfy T_min < T_max (K), got {bounds!r}")
+        raise LftomoError(f"bounds must satisfy T_min < T_max (K), got {bounds!r}")
     if any(k != "linear" for k in emission_kinds) and hi <= 0:
-        raise ValueError(f"bounds must allow T > 0 K for Planck/gray emission, got {bounds!r}")
+        raise LftomoError(f"bounds must allow T > 0 K for Planck/gray emission, got {bounds!r}")
     return (lo, hi)
 
 
@@ -626,16 +627,16 @@ def build_log_posterior(
 
     Raises
     ------
-    ValueError
+    LftomoError
         On K > 40, inverted bounds, bad prior or regularization arguments, grid mismatch.
     """
     if not isinstance(basis, TemperatureBasis):
-        raise ValueError(f"basis must be a TemperatureBasis (DCTBasis, BSplineBasis, ...), got {type(basis).__name__}")
+        raise LftomoError(f"basis must be a TemperatureBasis (DCTBasis, BSplineBasis, ...), got {type(basis).__name__}")
     K = basis.n_params
     if K > MAX_COEFFS:
-        raise ValueError(f"basis has K = {K} coefficients; allowed K <= {MAX_COEFFS}")
+        raise LftomoError(f"basis has K = {K} coefficients; allowed K <= {MAX_COEFFS}")
     if emission not in _EMISSIONS:
-        raise ValueError(f"emission must be one of {_EMISSIONS}, got {emission!r}")
+        raise LftomoError(f"emission must be one of {_EMISSIONS}, got {emission!r}")
     probs = _prepare_problems(problem, basis)
     channels = []
     for p in probs:
@@ -650,9 +651,9 @@ def build_log_posterior(
         prec = 1.0 / s**2
         mean = np.zeros(K) if prior_mean is None else require_array("prior_mean", prior_mean, shape=(K,))
     elif prior_mean is not None:
-        raise ValueError("prior_mean needs prior_std (the prior standard deviations), got prior_std=None")
+        raise LftomoError("prior_mean needs prior_std (the prior standard deviations), got prior_std=None")
     if prior is not None and not callable(prior):
-        raise ValueError(f"prior must be a callable log-prior C (W, K) -> (W,), got {type(prior).__name__}")
+        raise LftomoError(f"prior must be a callable log-prior C (W, K) -> (W,), got {type(prior).__name__}")
     lam = 0.0 if regularization is None else require_nonnegative("regularization", regularization)
     if T_scale is None:
         T_scale = T_bounds[1] - T_bounds[0] if np.all(np.isfinite(T_bounds)) else 1000.0
@@ -664,12 +665,12 @@ def build_log_posterior(
             from .regularizers import prior_operator
 
             if L not in ("gradient", "laplacian", "curvature"):
-                raise ValueError(f"L must be 'gradient', 'laplacian', 'curvature' or a sparse matrix, got {L!r}")
+                raise LftomoError(f"L must be 'gradient', 'laplacian', 'curvature' or a sparse matrix, got {L!r}")
             Lop = prior_operator(basis.grid, L, dimensionless=True)
         else:
             Lop = L
         if not (sp.issparse(Lop) or isinstance(Lop, np.ndarray)) or Lop.ndim != 2 or Lop.shape[1] != basis.n_voxels:
-            raise ValueError(
+            raise LftomoError(
                 f"L must be a sparse matrix with {basis.n_voxels} columns (one per voxel), "
                 f"got {type(Lop).__name__} of shape {getattr(Lop, 'shape', None)}"
             )
@@ -818,11 +819,11 @@ def laplace_approximation(
     """
     if isinstance(problem, LogPosterior):
         if posterior_kwargs or (basis is not None and basis is not problem.basis):
-            raise ValueError("a LogPosterior already defines the posterior: give neither basis nor "
+            raise LftomoError("a LogPosterior already defines the posterior: give neither basis nor "
                              f"{', '.join(posterior_kwargs) or 'posterior keywords'} with it")
         logpost = problem
     elif basis is None:
-        raise ValueError("basis is required when the posterior is given as problems")
+        raise LftomoError("basis is required when the posterior is given as problems")
     else:
         logpost = build_log_posterior(problem, basis=basis, **posterior_kwargs)
     return _laplace(logpost, T_start, c_start, max_iter, tol)
@@ -1110,7 +1111,7 @@ def sample_posterior(
 
     Raises
     ------
-    ValueError
+    LftomoError
         K > 40, ``n_walkers < 2 K``, inverted bounds, ``burn >= n_steps``, a start
         outside the bounds, grid mismatch, bad prior arguments, a basis other
         than the LogPosterior's, an option given both on ``chain`` and as a keyword.
@@ -1170,11 +1171,11 @@ def _sampling_model(posterior: Any, basis: Any, chain: Any, moved: dict[str, Any
     chain, definition = moved_sampling_options(moved, chain, definition_allowed=not is_model)
     if is_model:
         if basis is not None and basis is not posterior.basis:
-            raise ValueError("basis differs from the LogPosterior's basis; leave basis out (the LogPosterior "
+            raise LftomoError("basis differs from the LogPosterior's basis; leave basis out (the LogPosterior "
                              "carries it)")
         return posterior, chain
     if basis is None:
-        raise ValueError("basis is required when the posterior is given as problems (or pass a LogPosterior "
+        raise LftomoError("basis is required when the posterior is given as problems (or pass a LogPosterior "
                          "from lt.build_log_posterior)")
     return build_log_posterior(posterior, basis=basis, **definition), chain
 
@@ -1206,17 +1207,17 @@ def _check_sampling_options(logpost: Any, basis: Any, *, chain: EnsembleChain, c
     K = basis.n_params
     n_walkers = 2 * max(K + 1, 8) if chain.n_walkers is None else int(chain.n_walkers)
     if n_walkers < 2 * K:
-        raise ValueError(f"n_walkers must be >= 2 K = {2 * K} for K = {K} coefficients, got {n_walkers}")
+        raise LftomoError(f"n_walkers must be >= 2 K = {2 * K} for K = {K} coefficients, got {n_walkers}")
     # emcee allocates the whole chain and its log-posterior up front; the results copy them
     check_allocation(f"a chain of n_steps = {chain.n_steps} x n_walkers = {n_walkers} x {K} coefficients",
                      2.0 * chain.n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
     level = require_finite_scalar("credible_level", credible_level)
     if not 0.0 < level < 1.0:
-        raise ValueError(f"credible_level must be in (0, 1), got {level!r}")
+        raise LftomoError(f"credible_level must be in (0, 1), got {level!r}")
     if likelihood not in ("auto", "exact", "taylor"):
-        raise ValueError(f"likelihood must be 'auto', 'exact' or 'taylor', got {likelihood!r}")
+        raise LftomoError(f"likelihood must be 'auto', 'exact' or 'taylor', got {likelihood!r}")
     if likelihood == "taylor" and not _basis_is_linear(logpost):
-        raise ValueError(
+        raise LftomoError(
             f"likelihood='taylor' needs a linear basis (DCTBasis, BSplineBasis, LinearBasis), "
             f"got {type(basis).__name__}; use likelihood='exact'"
         )
@@ -1266,10 +1267,10 @@ def _sampler_start(logpost: Any, basis: Any, *, optimize: bool, T_start: Any):
         c_start, cov = lap.c_map, lap.cov
     else:
         if T_start is None:
-            raise ValueError("optimize=False needs T_start (the field to start the walkers around), got None")
+            raise LftomoError("optimize=False needs T_start (the field to start the walkers around), got None")
         c_start = basis.fit(T_start)
         if not np.isfinite(logpost(c_start)):
-            raise ValueError(
+            raise LftomoError(
                 f"the basis fit of T_start lies outside the bounds {logpost.T_bounds} K or the basis bounds; "
                 "widen bounds or smooth T_start"
             )
@@ -1299,7 +1300,7 @@ def _walker_ball(logpost: Any, c_start: np.ndarray, chol: np.ndarray, n_walkers:
         scale *= 0.7
         p0[bad] = c_start + scale * rng.standard_normal((int(bad.sum()), K)) @ chol.T
     else:
-        raise ValueError("could not place the walkers inside the bounds around the starting point; widen bounds")
+        raise LftomoError("could not place the walkers inside the bounds around the starting point; widen bounds")
     return p0
 
 
@@ -1362,7 +1363,7 @@ def _importance_correct(
     lp = np.concatenate([np.atleast_1d(logpost(sub[i : i + chunk])) for i in range(0, len(sub), chunk)])
     iw = _importance_weights(lp, taylor(sub))
     if iw is None:
-        raise ValueError(
+        raise LftomoError(
             "every sample of the Taylor model lies outside the temperature or basis bounds; "
             "widen bounds or use likelihood='exact'"
         )

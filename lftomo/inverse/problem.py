@@ -25,6 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import LftomoError
 from .._validate import require_array
 
 
@@ -63,25 +64,25 @@ class LinearProblem:
 
     def __post_init__(self) -> None:
         if not sp.issparse(self.A):
-            raise ValueError(f"A must be a scipy sparse matrix, got {type(self.A).__name__}")
+            raise LftomoError(f"A must be a scipy sparse matrix, got {type(self.A).__name__}")
         A = sp.csr_matrix(self.A, dtype=np.float64)
         m, n = A.shape
         if self.interpolation is not None:
             E = self.interpolation
             if not sp.issparse(E):
-                raise ValueError(f"interpolation must be a scipy sparse matrix, got {type(E).__name__}")
+                raise LftomoError(f"interpolation must be a scipy sparse matrix, got {type(E).__name__}")
             E = sp.csr_matrix(E, dtype=np.float64)
             if E.shape != (n, self.grid.n_voxels):
-                raise ValueError(
+                raise LftomoError(
                     f"interpolation has shape {E.shape}; it must map the grid's {self.grid.n_voxels} voxels "
                     f"to A's {n} columns, shape ({n}, {self.grid.n_voxels})"
                 )
             if not np.all(np.isfinite(E.data)) or (E.data < 0).any():
-                raise ValueError("interpolation must have finite, non-negative entries")
+                raise LftomoError("interpolation must have finite, non-negative entries")
             object.__setattr__(self, "interpolation", E)
             n = self.grid.n_voxels
         if n != self.grid.n_voxels:
-            raise ValueError(
+            raise LftomoError(
                 f"A has {n} columns but the reconstruction grid has {self.grid.n_voxels} voxels "
                 f"(shape {tuple(self.grid.shape)})"
             )
@@ -89,7 +90,7 @@ class LinearProblem:
         s = require_array("sigma", self.sigma, shape=(m,), strictly_positive=True)
         bg = np.zeros(m) if self.background is None else require_array("background", self.background, shape=(m,))
         if self.wavelength is not None and not (np.isfinite(self.wavelength) and 0 < self.wavelength < 1e-3):
-            raise ValueError(f"wavelength must be in m (e.g. 650e-9) or None for gray, got {self.wavelength!r}")
+            raise LftomoError(f"wavelength must be in m (e.g. 650e-9) or None for gray, got {self.wavelength!r}")
         object.__setattr__(self, "A", A)
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "sigma", s)
@@ -179,7 +180,7 @@ class LinearProblem:
         import scipy.linalg as sla
 
         if self.interpolation is not None:
-            raise ValueError("least_chi2 needs a model linear in the voxels' I_b: use problem.surrogate()")
+            raise LftomoError("least_chi2 needs a model linear in the voxels' I_b: use problem.surrogate()")
         Aw, yw = self.whitened()
         G = (Aw.T @ Aw).toarray()
         b = Aw.T @ yw
@@ -224,28 +225,28 @@ def stack_problems(problems: Sequence[LinearProblem]) -> LinearProblem:
 
     Raises
     ------
-    ValueError
+    LftomoError
         When the problems do not share grid, wavelength or interpolation.
     """
     ps = list(problems)
     if not ps:
-        raise ValueError("stack_problems needs at least one LinearProblem, got none")
+        raise LftomoError("stack_problems needs at least one LinearProblem, got none")
     first = ps[0]
     for k, p in enumerate(ps):
         if not isinstance(p, LinearProblem):
-            raise ValueError(f"problems[{k}] must be a LinearProblem, got {type(p).__name__}")
+            raise LftomoError(f"problems[{k}] must be a LinearProblem, got {type(p).__name__}")
         if p.grid != first.grid:
-            raise ValueError(f"problems[{k}] is on grid {p.grid!r}, problems[0] on {first.grid!r}: the cameras of "
+            raise LftomoError(f"problems[{k}] is on grid {p.grid!r}, problems[0] on {first.grid!r}: the cameras of "
                              "one fit must share the reconstruction grid")
         if p.wavelength != first.wavelength:
-            raise ValueError(
+            raise LftomoError(
                 f"problems[{k}] is at wavelength {p.wavelength!r} m, problems[0] at {first.wavelength!r} m: a "
                 "temperature-only fit stacks channels of one wavelength (fit several wavelengths with "
                 "unknowns='T+sigma_a')")
         same_E = (p.interpolation is None) == (first.interpolation is None) and (
             p.interpolation is None or (p.interpolation != first.interpolation).nnz == 0)
         if not same_E:
-            raise ValueError(f"problems[{k}] has a different sub-voxel interpolation than problems[0]: build every "
+            raise LftomoError(f"problems[{k}] has a different sub-voxel interpolation than problems[0]: build every "
                              "camera's weights on the same quadrature grid")
     if len(ps) == 1:
         return first

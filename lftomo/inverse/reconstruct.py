@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import LftomoError
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
@@ -164,14 +165,14 @@ def rule_from_names(rule: str = "discrepancy", regularization: Any = "auto", noi
     from .lambdarules import RULE_CLASSES, Discrepancy, Fixed
 
     if noise_scale == "estimated" and (rule != "discrepancy" or regularization != "auto"):
-        raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only (with regularization='auto'), "
+        raise LftomoError(f"noise_scale='estimated' applies to rule='discrepancy' only (with regularization='auto'), "
                          f"got rule={rule!r}, regularization={regularization!r}")
     if regularization != "auto":
         return Fixed(regularization)
     if rule == "discrepancy":
         return Discrepancy(noise_scale=noise_scale)
     if rule not in RULE_CLASSES["T"]:
-        raise ValueError(f"rule must be one of {tuple(RULE_CLASSES['T'])}, got {rule!r}")
+        raise LftomoError(f"rule must be one of {tuple(RULE_CLASSES['T'])}, got {rule!r}")
     return RULE_CLASSES["T"][rule]()
 
 
@@ -181,11 +182,11 @@ def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]
     if start is None:
         return options
     if "T0" in options or "sigma_a0" in options:
-        raise ValueError("give either start or T0 / sigma_a0, not both")
+        raise LftomoError("give either start or T0 / sigma_a0, not both")
     opts = dict(options)
     if isinstance(start, str) and start == TWO_COLOUR_START:
         if fit != "T+sigma_a":
-            raise ValueError(f"start={start!r} is for unknowns='T+sigma_a'; give a temperature field for 'T'")
+            raise LftomoError(f"start={start!r} is for unknowns='T+sigma_a'; give a temperature field for 'T'")
         opts[TWO_COLOUR_START] = True
     elif isinstance(start, Reconstruction):
         if fit == "T+sigma_a":
@@ -194,7 +195,7 @@ def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]
             opts["T0"] = start
     elif isinstance(start, tuple) and len(start) == 2 and not isinstance(start[0], (int, float, str)):
         if fit != "T+sigma_a":
-            raise ValueError("start=(T, sigma_a) is for unknowns='T+sigma_a'; give a temperature field for 'T'")
+            raise LftomoError("start=(T, sigma_a) is for unknowns='T+sigma_a'; give a temperature field for 'T'")
         opts["T0"], opts["sigma_a0"] = start
     else:
         opts["T0"] = start
@@ -335,11 +336,11 @@ def reconstruct(
     try:
         lo, hi = (float(b) for b in bounds)
     except (TypeError, ValueError):
-        raise ValueError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
+        raise LftomoError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+        raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     if fit == "T" and method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
-        raise ValueError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
+        raise LftomoError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
                          f"unknowns='T', got {method!r}")
     if progress is not None:
         options["progress"] = progress

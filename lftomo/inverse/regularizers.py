@@ -71,6 +71,7 @@ import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 from jax.experimental import sparse as jsparse  # noqa: E402
 
+from ..errors import LftomoError
 from .._validate import require_positive  # noqa: E402
 from .parameterize import Parameterization  # noqa: E402
 
@@ -100,7 +101,7 @@ def _check_grid(grid: Any) -> tuple[tuple[int, int, int], np.ndarray]:
     shape = getattr(grid, "shape", None)
     spacing = getattr(grid, "spacing", None)
     if shape is None or spacing is None or len(tuple(shape)) != 3:
-        raise ValueError(f"grid must be an lftomo.Grid (shape (nx, ny, nz), spacing), got {type(grid).__name__}")
+        raise LftomoError(f"grid must be an lftomo.Grid (shape (nx, ny, nz), spacing), got {type(grid).__name__}")
     return tuple(int(s) for s in shape), np.asarray(spacing, dtype=np.float64)
 
 
@@ -145,7 +146,7 @@ def gradient_operator(grid: Any) -> sp.csr_matrix:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``grid`` is not a Grid.
     """
     return _per_axis(grid, _diff_1d)
@@ -452,7 +453,7 @@ def resolve_prior(prior: Any, *, argument: str = "prior", quadratic_only: bool =
 
     Raises
     ------
-    ValueError
+    LftomoError
         An unknown name, or a non-quadratic prior with ``quadratic_only``.
     """
     allowed = tuple(n for n in PRIORS if not quadratic_only or _PRIOR_CLASSES[n].quadratic)
@@ -462,10 +463,10 @@ def resolve_prior(prior: Any, *, argument: str = "prior", quadratic_only: bool =
         cls = _PRIOR_CLASSES[prior]
         obj = cls(1e-3 if tv_eps is None else tv_eps) if cls is TotalVariationPrior else cls()
     else:
-        raise ValueError(f"{argument} must be one of {allowed if quadratic_only else PRIORS} or an "
+        raise LftomoError(f"{argument} must be one of {allowed if quadratic_only else PRIORS} or an "
                          f"lftomo.inverse.regularizers.Prior, got {prior!r}")
     if quadratic_only and not obj.quadratic:
-        raise ValueError(f"{argument} must be one of {allowed}" + (f" for {where}" if where else "")
+        raise LftomoError(f"{argument} must be one of {allowed}" + (f" for {where}" if where else "")
                          + f", got {getattr(prior, 'name', prior)!r}: {type(obj).__name__} is not quadratic "
                          "(R = L x), which this fit's algebra needs")
     return obj
@@ -499,11 +500,11 @@ def prior_operator(grid: Any, prior: str, *, dimensionless: bool = True) -> sp.c
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``prior`` is not one of :data:`PRIORS` or a Prior.
     """
     if isinstance(prior, str) and prior not in PRIORS:
-        raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
+        raise LftomoError(f"prior must be one of {PRIORS}, got {prior!r}")
     return resolve_prior(prior).operator(grid, dimensionless=dimensionless)
 
 
@@ -523,11 +524,11 @@ def to_bcoo(matrix: Any) -> jsparse.BCOO:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``matrix`` is not a scipy sparse matrix.
     """
     if not sp.issparse(matrix):
-        raise ValueError(f"matrix must be a scipy sparse matrix, got {type(matrix).__name__}")
+        raise LftomoError(f"matrix must be a scipy sparse matrix, got {type(matrix).__name__}")
     M = sp.csr_matrix(matrix, dtype=np.float64, copy=True)
     M.sum_duplicates()
     M.sort_indices()
@@ -589,7 +590,7 @@ def tv(x: Any, grid: Any, eps: float) -> jax.Array:
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``eps`` is not > 0 or ``x`` has the wrong size.
     """
     eps = require_positive("eps", eps)
@@ -597,7 +598,7 @@ def tv(x: Any, grid: Any, eps: float) -> jax.Array:
     n = int(np.prod(shape))
     x = jnp.asarray(x, dtype=jnp.float64)
     if x.size != n or x.shape not in ((n,), shape):
-        raise ValueError(f"x must have shape {shape} or ({n},), got {x.shape}")
+        raise LftomoError(f"x must have shape {shape} or ({n},), got {x.shape}")
     r = tv_residuals(x.reshape(-1), to_bcoo(gradient_operator(grid)), eps)
     return jnp.sum(r * r)
 
@@ -630,11 +631,11 @@ def jax_operator(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Unknown ``prior`` or ``eps`` not > 0.
     """
     if isinstance(prior, str) and prior not in PRIORS:
-        raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
+        raise LftomoError(f"prior must be one of {PRIORS}, got {prior!r}")
     eps = require_positive("eps", eps)
     obj = resolve_prior(prior, tv_eps=eps)
     B = to_bcoo(obj.operator(grid, dimensionless=dimensionless))

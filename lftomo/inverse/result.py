@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import LftomoError
 from ..forward.grid import Grid
 from .symmetry import RingGrid
 
@@ -94,7 +95,7 @@ class Reconstruction:
         """
         T_true = np.asarray(T_true, dtype=float)
         if T_true.shape != self.T.shape:
-            raise ValueError(f"shape of T_true {T_true.shape} does not match the reconstruction {self.T.shape}")
+            raise LftomoError(f"shape of T_true {T_true.shape} does not match the reconstruction {self.T.shape}")
         return temperature_errors(self.T, T_true, hot=hot)
 
     def summary(self) -> dict[str, Any]:
@@ -125,14 +126,14 @@ def symmetry_name(par: Any) -> str | None:
 def temperature_errors(T: np.ndarray, T_true: np.ndarray, *, hot: float = 800.0) -> dict[str, float]:
     """Relative errors of ``T`` against ``T_true`` (same shape, K) where ``T_true > hot``.
 
-    Returns ``{"mean_rel", "max_rel", "rms_K", "n_voxels"}``; raises ValueError
+    Returns ``{"mean_rel", "max_rel", "rms_K", "n_voxels"}``; raises LftomoError
     when no voxel is that hot.
     """
     T = np.asarray(T, dtype=float)
     T_true = np.asarray(T_true, dtype=float)
     sel = T_true > hot
     if not sel.any():
-        raise ValueError(f"no voxel of T_true exceeds hot = {hot} K")
+        raise LftomoError(f"no voxel of T_true exceeds hot = {hot} K")
     rel = np.abs(T[sel] - T_true[sel]) / T_true[sel]
     return {
         "mean_rel": float(rel.mean()),

@@ -20,6 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import LftomoError
 from ..forward.weights import RaySegments
 
 __all__ = ["SegmentStack", "rows_of_pixels"]
@@ -43,20 +44,20 @@ class SegmentStack:
 
     Raises
     ------
-    ValueError
+    LftomoError
         No table, a table that is not a :class:`~lftomo.RaySegments`, or tables on different grids.
     """
 
     def __init__(self, tables: Sequence[RaySegments]) -> None:
         tables = tuple(tables)
         if not tables:
-            raise ValueError("a rig needs at least one ray-segment table, got none")
+            raise LftomoError("a rig needs at least one ray-segment table, got none")
         for k, t in enumerate(tables):
             if not isinstance(t, RaySegments):
-                raise ValueError(f"segments[{k}] must be a RaySegments (lftomo.ray_segments(camera, grid, ...)), "
+                raise LftomoError(f"segments[{k}] must be a RaySegments (lftomo.ray_segments(camera, grid, ...)), "
                                  f"got {type(t).__name__}")
             if t.metadata.get("grid") != tables[0].metadata.get("grid") or t.n_voxels != tables[0].n_voxels:
-                raise ValueError(f"segments[{k}] is on grid {t.metadata.get('grid')}, segments[0] on "
+                raise LftomoError(f"segments[{k}] is on grid {t.metadata.get('grid')}, segments[0] on "
                                  f"{tables[0].metadata.get('grid')}: a rig's tables must share the grid")
         self.tables = tables
         self.row_offset = np.concatenate([[0], np.cumsum([t.n_rows for t in tables])]).astype(np.int64)
@@ -87,16 +88,16 @@ class SegmentStack:
 
         Raises
         ------
-        ValueError
+        LftomoError
             No row, or rows of more than one table (a channel is taken by one camera).
         """
         rows = np.asarray(rows, dtype=np.int64)
         valid = rows >= 0
         if not valid.any():
-            raise ValueError("a channel needs at least one row of the stacked tables, got none")
+            raise LftomoError("a channel needs at least one row of the stacked tables, got none")
         k = int(np.searchsorted(self.row_offset, rows[valid].min(), side="right")) - 1
         lo, hi = int(self.row_offset[k]), int(self.row_offset[k + 1])
         if rows[valid].max() >= hi:
-            raise ValueError(f"a channel's rows must all be one camera's: rows {rows[valid].min()}.."
+            raise LftomoError(f"a channel's rows must all be one camera's: rows {rows[valid].min()}.."
                              f"{rows[valid].max()} span tables from {k} on (table {k} holds rows {lo}..{hi - 1})")
         return k, np.where(valid, rows - lo, -1)

@@ -22,6 +22,7 @@ for ``"T+sigma_a"``).
 from __future__ import annotations
 
 from typing import Any
+from ..errors import LftomoError
 
 __all__ = ["Solver", "LevenbergMarquardt", "GaussNewton", "DenseLM", "AutoSolver", "resolve_solver"]
 
@@ -49,7 +50,7 @@ def _steps(name: str, value: Any) -> int | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1 or None (the fit's default), got {value!r}")
+        raise LftomoError(f"{name} must be an integer >= 1 or None (the fit's default), got {value!r}")
     return int(value)
 
 
@@ -57,7 +58,7 @@ def _tolerance(name: str, value: Any) -> float | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= float(value) < 1.0:
-        raise ValueError(f"{name} must be a number in [0, 1) or None (the fit's default), got {value!r}")
+        raise LftomoError(f"{name} must be a number in [0, 1) or None (the fit's default), got {value!r}")
     return float(value)
 
 
@@ -65,13 +66,13 @@ def _polish(value: Any) -> int | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ValueError(f"polish_steps must be an integer >= 0 or None (the fit's default), got {value!r}")
+        raise LftomoError(f"polish_steps must be an integer >= 0 or None (the fit's default), got {value!r}")
     return int(value)
 
 
 def _engine(value: Any) -> str | None:
     if value is not None and value not in ENGINES:
-        raise ValueError(f"engine must be one of {ENGINES} or None (the fit's default), got {value!r}")
+        raise LftomoError(f"engine must be one of {ENGINES} or None (the fit's default), got {value!r}")
     return value
 
 
@@ -182,16 +183,16 @@ def resolve_solver(solver: Any, *, fit: str) -> Solver:
 
     Raises
     ------
-    ValueError
+    LftomoError
         Not a Solver, or one that does not run this fit, naming those that do.
     """
     allowed = [c.__name__ for c in (LevenbergMarquardt, GaussNewton, DenseLM, AutoSolver) if fit in c.fits]
     if not isinstance(solver, Solver):
-        raise ValueError(f"solver must be one of lftomo's solver objects ({', '.join(allowed)}), got {solver!r}")
+        raise LftomoError(f"solver must be one of lftomo's solver objects ({', '.join(allowed)}), got {solver!r}")
     if fit not in solver.fits:
-        raise ValueError(f"solver {solver!r} does not run unknowns={fit!r}; use one of {', '.join(allowed)}")
+        raise LftomoError(f"solver {solver!r} does not run unknowns={fit!r}; use one of {', '.join(allowed)}")
     given = [k for k in JOINT_ONLY if getattr(solver, k, None) is not None]
     if fit != "T+sigma_a" and given:
-        raise ValueError(f"{', '.join(given)} of solver {solver!r} appl{'ies' if len(given) == 1 else 'y'} to the "
+        raise LftomoError(f"{', '.join(given)} of solver {solver!r} appl{'ies' if len(given) == 1 else 'y'} to the "
                          "joint fit (unknowns='T+sigma_a') only")
     return solver

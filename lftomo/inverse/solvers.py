@@ -171,6 +171,7 @@ import scipy.sparse.linalg as spla  # noqa: E402
 from scipy.optimize import lsq_linear  # noqa: E402
 from scipy.special import expit  # noqa: E402
 
+from ..errors import LftomoError
 from ..radiation import (  # noqa: E402  (re-exported: the JAX laws used to live here)
     blackbody,
     blackbody_inverse,
@@ -348,7 +349,7 @@ class BaselineSolution:
 # --------------------------------------------------------------------------- validation
 def _check_problem(problem: Any) -> LinearProblem:
     if not isinstance(problem, LinearProblem):
-        raise ValueError(f"problem must be an lftomo.inverse.problem.LinearProblem, got {type(problem).__name__}")
+        raise LftomoError(f"problem must be an lftomo.inverse.problem.LinearProblem, got {type(problem).__name__}")
     return problem
 
 
@@ -357,7 +358,7 @@ def _check_regularization(value: Any, *, allow_auto: bool) -> float | None:
         if allow_auto and value == "auto":
             return None
         allowed = "'auto' or a finite float >= 0" if allow_auto else "a finite float >= 0"
-        raise ValueError(f"regularization must be {allowed}, got {value!r}")
+        raise LftomoError(f"regularization must be {allowed}, got {value!r}")
     return require_nonnegative("regularization", value)
 
 
@@ -728,7 +729,7 @@ def _theta_of_T(T: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
 def _dense_fit(s: _Setup) -> DenseTemperatureFit:
     """The dense Levenberg–Marquardt form of the fit (quadratic priors only)."""
     if not s.prior_model.quadratic:
-        raise ValueError(f"method='dense-lm' needs a quadratic prior (its Gauss–Newton matrix LᵀL); "
+        raise LftomoError(f"method='dense-lm' needs a quadratic prior (its Gauss–Newton matrix LᵀL); "
                          f"prior={s.prior!r} is not: use method='levenberg-marquardt'")
     return DenseTemperatureFit(A=s.A_s if s.E is None else s.A_q, d=s.d, L=s.L, E=s.E, tmin=s.tmin, tmax=s.tmax,
                                wavelength=s.wavelength, I_scale=s.I_scale, I_reg=s.I_reg, T_scale=s.T_scale,
@@ -911,7 +912,7 @@ def solve_temperature(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Before any solving, for a problem that is neither a LinearProblem nor a
         T-only Problem, bad
         bounds, an unknown prior, rule or solver (or one that does not run
@@ -921,7 +922,7 @@ def solve_temperature(
     options = moved_options(moved, "solve_temperature", TEMPERATURE_MOVED)
     what = resolve_unknowns("T" if unknowns is None else unknowns)
     if what.name != "T":
-        raise ValueError(f"unknowns must be lftomo.Temperature(...) for solve_temperature, got {unknowns!r} "
+        raise LftomoError(f"unknowns must be lftomo.Temperature(...) for solve_temperature, got {unknowns!r} "
                          "(the joint fit is lftomo.reconstruct(..., unknowns='T+sigma_a'))")
     _, options = fold_unknowns(unknowns, what, options)
     regularization, method, rule, options = fit_keywords(
@@ -947,7 +948,7 @@ def _fitted(problem: Any, T0: Any) -> tuple[Any, Parameterization | None, Any]:
     if not isinstance(problem, Problem):
         return problem, None, T0
     if problem.unknowns.name != "T":
-        raise ValueError(f"solve_temperature fits T only; this Problem's unknowns are {problem.unknowns!r}: "
+        raise LftomoError(f"solve_temperature fits T only; this Problem's unknowns are {problem.unknowns!r}: "
                          "use lftomo.reconstruct(problem)")
     return problem.fitted_problem(), problem.parameterization, problem.fit_start(T0)
 
@@ -1085,7 +1086,7 @@ def temperature_fit(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Before any solving, as :func:`solve_temperature`; also for an unknown
         ``method`` or ``penalize``, a negative or non-finite λ, bad tolerances or counts.
     """
@@ -1144,7 +1145,7 @@ def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0,
     noise_scale = require_choice("noise_scale", noise_scale, NOISE_SCALES)
     discrepancy_search = require_choice("discrepancy_search", discrepancy_search, DISCREPANCY_SEARCHES)
     if noise_scale == "estimated" and rule != "discrepancy":
-        raise ValueError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
+        raise LftomoError(f"noise_scale='estimated' applies to rule='discrepancy' only, got rule={rule!r}")
     (max_steps, rtol, atol, safety, lr, n_lambda, gcv_probes, seed, linear_rtol, linear_max_steps, search_steps,
      search_rtol) = _check_step_options(
         max_steps=max_steps, rtol=rtol, atol=atol, discrepancy_safety=discrepancy_safety, lambda_range=lambda_range,
@@ -1173,19 +1174,19 @@ def _check_step_options(*, max_steps, rtol, atol, discrepancy_safety, lambda_ran
                         linear_rtol, linear_max_steps, search_steps, search_rtol) -> tuple:
     """The checked step counts, tolerances and λ-rule options of :func:`solve_temperature`, in the order of its
     signature: ``(max_steps, rtol, atol, safety, lambda_range, n_lambda, gcv_probes, seed, linear_rtol,
-    linear_max_steps, search_steps, search_rtol)`` (ValueError naming the argument otherwise)."""
+    linear_max_steps, search_steps, search_rtol)`` (LftomoError naming the argument otherwise)."""
     max_steps = require_steps("max_steps", max_steps)
     rtol = require_nonnegative("rtol", rtol)
     atol = require_nonnegative("atol", atol)
     if rtol == 0 and atol == 0:
-        raise ValueError("rtol and atol must not both be 0")
+        raise LftomoError("rtol and atol must not both be 0")
     safety = require_nonnegative("discrepancy_safety", discrepancy_safety)
     try:
         lr = (require_positive("lambda_range[0]", lambda_range[0]), require_positive("lambda_range[1]", lambda_range[1]))
     except (TypeError, IndexError):
-        raise ValueError(f"lambda_range must be (low, high) multipliers > 0, got {lambda_range!r}") from None
+        raise LftomoError(f"lambda_range must be (low, high) multipliers > 0, got {lambda_range!r}") from None
     if not lr[1] > lr[0]:
-        raise ValueError(f"lambda_range must satisfy low < high, got {lambda_range!r}")
+        raise LftomoError(f"lambda_range must satisfy low < high, got {lambda_range!r}")
     n_lambda = require_int("n_lambda", n_lambda, minimum=4)
     gcv_probes = require_int("gcv_probes", gcv_probes, minimum=1)
     seed = require_int("seed", seed, minimum=0)
@@ -1193,20 +1194,20 @@ def _check_step_options(*, max_steps, rtol, atol, discrepancy_safety, lambda_ran
     linear_max_steps = require_steps("linear_max_steps", linear_max_steps)
     search_steps = max_steps if search_steps is None else require_steps("search_steps", search_steps)
     if not (isinstance(search_rtol, (int, float)) and 0.0 < float(search_rtol) < 1.0):
-        raise ValueError(f"search_rtol must be a number in (0, 1), got {search_rtol!r}")
+        raise LftomoError(f"search_rtol must be a number in (0, 1), got {search_rtol!r}")
     return (max_steps, rtol, atol, safety, lr, n_lambda, gcv_probes, seed, linear_rtol, linear_max_steps, search_steps,
             search_rtol)
 
 
 def _check_T0(T0: Any, grid, bounds: tuple[float, float]) -> tuple[np.ndarray | None, str]:
     """``(T0 as a flat array or None, how it was given: "baseline", "uniform" or "given")`` of
-    :func:`solve_temperature`'s ``T0`` (ValueError for a bad one)."""
+    :func:`solve_temperature`'s ``T0`` (LftomoError for a bad one)."""
     n = grid.n_voxels
     T0_arr = None
     T0_mode = "baseline"
     if isinstance(T0, str):
         if T0 != "uniform":
-            raise ValueError(f"T0 must be None, 'uniform', a temperature (K) or an array of shape {grid.shape}, got {T0!r}")
+            raise LftomoError(f"T0 must be None, 'uniform', a temperature (K) or an array of shape {grid.shape}, got {T0!r}")
         T0_mode = "uniform"
         T0_arr = np.full(n, 0.5 * (bounds[0] + bounds[1]))
     elif T0 is not None:
@@ -1214,11 +1215,11 @@ def _check_T0(T0: Any, grid, bounds: tuple[float, float]) -> tuple[np.ndarray | 
         if arr.ndim == 0:
             arr = np.full(n, float(arr))
         if arr.size != n or arr.shape not in ((n,), tuple(grid.shape)):
-            raise ValueError(f"T0 must have shape {tuple(grid.shape)}, got {arr.shape}")
+            raise LftomoError(f"T0 must have shape {tuple(grid.shape)}, got {arr.shape}")
         if not np.all(np.isfinite(arr)):
-            raise ValueError("T0 must be finite, got NaN or inf")
+            raise LftomoError("T0 must be finite, got NaN or inf")
         if arr.min() < bounds[0] or arr.max() > bounds[1]:
-            raise ValueError(
+            raise LftomoError(
                 f"T0 must lie within bounds {bounds} K, got range [{arr.min():.6g}, {arr.max():.6g}]"
             )
         T0_mode = "given"
@@ -1498,7 +1499,7 @@ def solve_linear_baseline(
 
     Raises
     ------
-    ValueError
+    LftomoError
         Bad problem, negative or non-numeric λ, unknown prior or method,
         inverted bounds.
     """

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import LftomoError
 from ..forward.grid import Grid
 
 
@@ -70,24 +71,24 @@ def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
 
     Raises
     ------
-    ValueError
+    LftomoError
         When either argument is not a Grid, the quadrature box leaves the
         grid's box, or the quadrature grid is coarser on some axis.
     """
     for name, g in (("grid", grid), ("quadrature", quadrature)):
         if not isinstance(g, Grid):
-            raise ValueError(f"{name} must be an lftomo Grid, got {type(g).__name__}")
+            raise LftomoError(f"{name} must be an lftomo Grid, got {type(g).__name__}")
     h = np.asarray(grid.spacing, dtype=np.float64)
     lo, hi = np.asarray(grid.lower, float), np.asarray(grid.upper, float)
     qlo, qhi = np.asarray(quadrature.lower, float), np.asarray(quadrature.upper, float)
     tol = 1e-9 * h
     if np.any(qlo < lo - tol) or np.any(qhi > hi + tol):
-        raise ValueError(
+        raise LftomoError(
             f"the quadrature grid's box {format_vector(qlo)}..{format_vector(qhi)} m must lie inside the grid's box "
             f"{format_vector(lo)}..{format_vector(hi)} m"
         )
     if np.any(np.asarray(quadrature.spacing) > h * (1 + 1e-9)):
-        raise ValueError(
+        raise LftomoError(
             f"the quadrature grid (spacing {format_vector(quadrature.spacing)} m) must be at least as fine "
             f"as the grid (spacing {format_vector(h)} m) on every axis"
         )
@@ -116,14 +117,14 @@ def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
 
 
 def require_same_box(source: Grid, grid: Grid, what: str = "start") -> None:
-    """Raise ValueError unless ``source`` spans the box of ``grid`` (to 1e-9 of its smallest spacing).
+    """Raise LftomoError unless ``source`` spans the box of ``grid`` (to 1e-9 of its smallest spacing).
 
     ``what`` names the argument whose grid ``source`` is, for the message.
     """
     tol = 1e-9 * min(grid.spacing)
     if not (np.allclose(source.lower, grid.lower, rtol=0, atol=tol)
             and np.allclose(source.upper, grid.upper, rtol=0, atol=tol)):
-        raise ValueError(f"{what}'s grid box {format_vector(source.lower)}..{format_vector(source.upper)} m is not "
+        raise LftomoError(f"{what}'s grid box {format_vector(source.lower)}..{format_vector(source.upper)} m is not "
                          f"the reconstruction grid's {format_vector(grid.lower)}..{format_vector(grid.upper)} m")
 
 
@@ -135,9 +136,9 @@ def interpolate_field(field: Any, grid: Grid, quadrature: Grid) -> np.ndarray:
     """
     arr = np.asarray(field, dtype=np.float64)
     if arr.shape != tuple(grid.shape):
-        raise ValueError(f"field must have the grid's shape {tuple(grid.shape)}, got {arr.shape}")
+        raise LftomoError(f"field must have the grid's shape {tuple(grid.shape)}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError("field must be finite, got NaN or inf")
+        raise LftomoError("field must be finite, got NaN or inf")
     return (interpolation_matrix(grid, quadrature) @ arr.ravel()).reshape(quadrature.shape)
 
 
@@ -162,16 +163,16 @@ def resolve_quadrature(grid: Any, model_grid: Grid, model: str) -> tuple[Grid, s
 
     Raises
     ------
-    ValueError
+    LftomoError
         When ``grid`` is not a Grid or cannot use ``model_grid`` as its quadrature grid.
     """
     if grid is None or grid == model_grid:
         return model_grid, None
     if not isinstance(grid, Grid):
-        raise ValueError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
+        raise LftomoError(f"grid must be an lftomo Grid or None, got {type(grid).__name__}")
     try:
         E = interpolation_matrix(grid, model_grid)
     except ValueError as err:
-        raise ValueError(f"grid {tuple(grid.shape)} cannot use the {model} grid {tuple(model_grid.shape)} as its "
+        raise LftomoError(f"grid {tuple(grid.shape)} cannot use the {model} grid {tuple(model_grid.shape)} as its "
                          f"quadrature grid: {err}") from None
     return grid, E

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from ..errors import LftomoError
 
 __all__ = ["TaylorLogPosterior"]
 
@@ -88,7 +89,7 @@ class TaylorLogPosterior:
     def __init__(self, logpost: Any, c_e: Any, T_std: Any = None, margin: float = 6.0) -> None:
         basis = logpost.basis
         if not getattr(basis, "is_linear", False):
-            raise ValueError(
+            raise LftomoError(
                 f"the Taylor likelihood needs a linear basis (DCTBasis, BSplineBasis, LinearBasis), "
                 f"got {type(basis).__name__}; use likelihood='exact'"
             )

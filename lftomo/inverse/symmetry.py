@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import LftomoError
 from .._validate import require_nonnegative, require_vector
 from ..forward.grid import Grid
 from .parameterize import Parameterization, Voxels
@@ -132,7 +133,7 @@ class RingGrid(Parameterization):
         if arr.shape == self.shape:
             arr = arr.reshape(-1)
         if arr.ndim == 0 or arr.shape[-1] != self.n_voxels:
-            raise ValueError(
+            raise LftomoError(
                 f"t must have shape {self.shape} or (..., {self.n_voxels}) (ring cells), got {np.shape(t)}"
             )
         return arr[..., self.cell_of_voxel].reshape(arr.shape[:-1] + tuple(self.grid.shape))
@@ -145,7 +146,7 @@ class RingGrid(Parameterization):
         """
         f = np.asarray(field, dtype=np.float64)
         if f.shape not in (tuple(self.grid.shape), (self.grid.n_voxels,)):
-            raise ValueError(
+            raise LftomoError(
                 f"field must have the grid shape {tuple(self.grid.shape)} or ({self.grid.n_voxels},), got {f.shape}"
             )
         sums = np.bincount(self.cell_of_voxel, weights=f.ravel(), minlength=self.n_voxels)
@@ -181,7 +182,7 @@ def ring_grid(grid: Grid, *, axis: Any = None, tolerance: float | None = None) -
 
     Raises
     ------
-    ValueError
+    LftomoError
         If ``axis`` lies outside the box or ``tolerance`` is negative or not finite.
 
     Examples
@@ -192,14 +193,14 @@ def ring_grid(grid: Grid, *, axis: Any = None, tolerance: float | None = None) -
     (3, 3)
     """
     if not isinstance(grid, Grid):
-        raise ValueError(f"grid must be a lftomo Grid, got {type(grid).__name__}")
+        raise LftomoError(f"grid must be a lftomo Grid, got {type(grid).__name__}")
     sp_ = grid.spacing
     if axis is None:
         ax = (float(grid.center[0]), float(grid.center[2]))
     else:
         ax = require_vector("axis", axis, 2)
         if not (grid.lower[0] <= ax[0] <= grid.upper[0] and grid.lower[2] <= ax[1] <= grid.upper[2]):
-            raise ValueError(
+            raise LftomoError(
                 f"axis = {tuple(axis)!r} (x, z in m) lies outside the box: x in [{grid.lower[0]}, {grid.upper[0]}], "
                 f"z in [{grid.lower[2]}, {grid.upper[2]}]"
             )
@@ -248,16 +249,16 @@ def resolve_symmetry(symmetry: Any, grid: Grid) -> Parameterization | None:
         return None
     if isinstance(symmetry, str):
         if symmetry != "axisymmetric":
-            raise ValueError(f"symmetry must be {allowed}, got {symmetry!r}")
+            raise LftomoError(f"symmetry must be {allowed}, got {symmetry!r}")
         return ring_grid(grid)
     if isinstance(symmetry, Parameterization):
         if isinstance(symmetry, Voxels) and symmetry.grid == grid:
             return None
         if symmetry.grid != grid:
-            raise ValueError(
+            raise LftomoError(
                 f"symmetry is a {type(symmetry).__name__} on grid shape {tuple(symmetry.grid.shape)} "
                 f"(box {symmetry.grid.lower}–{symmetry.grid.upper}); the reconstruction grid is "
                 f"{tuple(grid.shape)} (box {grid.lower}–{grid.upper})"
             )
         return symmetry
-    raise ValueError(f"symmetry must be {allowed}, got {type(symmetry).__name__}")
+    raise LftomoError(f"symmetry must be {allowed}, got {type(symmetry).__name__}")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ..errors import LftomoError
 from .._validate import require_choice, require_nonnegative, require_positive
 
 __all__ = ["Unknowns", "Temperature", "TemperatureAbsorption", "resolve_unknowns", "PENALIZED", "SIGMA_A_SPACES"]
@@ -114,12 +115,12 @@ class TemperatureAbsorption(Unknowns):
         self.sigma_a_min = (require_positive("sigma_a_min", sigma_a_min) if self.sigma_a_space == "log"
                             else sigma_a_min)
         if self.sigma_a_space == "log" and not self.sigma_a_min < self.sigma_a_max:
-            raise ValueError(f"sigma_a_min must be below sigma_a_max ({self.sigma_a_max:g}) for sigma_a_space='log', "
+            raise LftomoError(f"sigma_a_min must be below sigma_a_max ({self.sigma_a_max:g}) for sigma_a_space='log', "
                              f"got {sigma_a_min!r}")
         self.sigma_a_scale = None if sigma_a_scale is None else require_positive("sigma_a_scale", sigma_a_scale)
         self.sigma_a_ridge = require_nonnegative("sigma_a_ridge", sigma_a_ridge)
         if not math.isfinite(self.sigma_a_ridge):
-            raise ValueError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
+            raise LftomoError(f"sigma_a_ridge must be a finite number >= 0, got {sigma_a_ridge!r}")
 
 
 def resolve_unknowns(unknowns: Any) -> Unknowns:
@@ -127,7 +128,7 @@ def resolve_unknowns(unknowns: Any) -> Unknowns:
 
     Raises
     ------
-    ValueError
+    LftomoError
         Anything else, naming what is allowed.
     """
     if isinstance(unknowns, Unknowns):
@@ -136,5 +137,5 @@ def resolve_unknowns(unknowns: Any) -> Unknowns:
         return Temperature()
     if isinstance(unknowns, str) and unknowns == "T+sigma_a":
         return TemperatureAbsorption()
-    raise ValueError(f"unknowns must be 'T', 'T+sigma_a', lftomo.Temperature(...) or lftomo.TemperatureAbsorption(...), "
+    raise LftomoError(f"unknowns must be 'T', 'T+sigma_a', lftomo.Temperature(...) or lftomo.TemperatureAbsorption(...), "
                      f"got {unknowns!r}")
