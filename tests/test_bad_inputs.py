@@ -702,6 +702,14 @@ def test_damaged_npy_files(tmp_path, damage, match):
     (lambda: lt.Fixed(-1), "regularization must be 'auto' or a finite number >= 0, got -1"),
     (lambda: lt.Discrepancy(noise_scale="guess"), "noise_scale must be one of"),
     (lambda: lt.LevenbergMarquardt(max_steps=0), "max_steps must be an integer >= 1"),
+    # checked when made, not only when a fit starts (n_lambda=5.5 was cut to 5)
+    (lambda: lt.LCurve(lambda_range=(10, 1e-6)), r"lambda_range must satisfy low < high, got \(10, 1e-06\)"),
+    (lambda: lt.LCurve(n_lambda=5.5), "n_lambda must be an integer, got 5.5"),
+    (lambda: lt.GCV(lambda_range="ab"), "lambda_range must be \\(low, high\\) multipliers > 0, got 'ab'"),
+    (lambda: lt.GCV(probes=0), "probes must be an integer >= 1, got 0"),
+    (lambda: lt.GCV(seed=-1), "seed must be an integer >= 0, got -1"),
+    (lambda: lt.Discrepancy(search_rtol=0), r"search_rtol must be a number in \(0, 1\), got 0"),
+    (lambda: lt.Discrepancy(search_steps=0), "search_steps must be an integer >= 1, got 0"),
 ])
 def test_option_objects_refuse_with_the_library_error(make, match):
     # these were plain ValueErrors, which `except lt.LftomoError` missed

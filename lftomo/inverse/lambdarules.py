@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_choice, require_int, require_positive
+from .._validate import require_choice, require_int, require_nonnegative, require_positive, require_steps
 
 __all__ = [
     "Eval",
@@ -1210,9 +1210,9 @@ class Discrepancy(LambdaRule):
                  search_rtol: float = 1e-3, subvoxel_search: str | None = None, search: str = "projected",
                  lambda_max: float | None = None) -> None:
         self.noise_scale = None if noise_scale is None else _noise_scale(noise_scale)
-        self.safety, self.search_steps, self.search_rtol = float(safety), search_steps, float(search_rtol)
-        if not (math.isfinite(self.safety) and self.safety >= 0):
-            raise LftomoError(f"safety must be a finite number >= 0, got {safety!r}")
+        self.safety = require_nonnegative("safety", safety)
+        self.search_steps = None if search_steps is None else require_steps("search_steps", search_steps)
+        self.search_rtol = check_search_rtol(search_rtol)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
         self.search = require_choice("search", search, DISCREPANCY_SEARCHES)
         self.lambda_max = _lambda_max(lambda_max)
@@ -1359,7 +1359,8 @@ class GCV(LambdaRule):
 
     def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13, probes: int = 8,
                  seed: int = 0, subvoxel_search: str | None = None) -> None:
-        self.lambda_range, self.n_lambda, self.probes, self.seed = tuple(lambda_range), int(n_lambda), int(probes), int(seed)
+        self.lambda_range, self.n_lambda = check_lambda_grid(lambda_range, n_lambda)
+        self.probes, self.seed = require_int("probes", probes, minimum=1), require_int("seed", seed, minimum=0)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
 
     def keywords(self, fit: str = "T") -> dict[str, Any]:
@@ -1396,7 +1397,7 @@ class LCurve(LambdaRule):
 
     def __init__(self, lambda_range: tuple[float, float] = (1e-6, 1e1), n_lambda: int = 13,
                  subvoxel_search: str | None = None, lambda_max: float | None = None) -> None:
-        self.lambda_range, self.n_lambda = tuple(lambda_range), int(n_lambda)
+        self.lambda_range, self.n_lambda = check_lambda_grid(lambda_range, n_lambda)
         self.subvoxel_search = _subvoxel_search(subvoxel_search)
         self.lambda_max = _lambda_max(lambda_max)
 
@@ -1509,6 +1510,24 @@ def _lambda_max(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not (
             math.isfinite(value) and value > 0):
         raise LftomoError(f"lambda_max must be a finite number > 0 or None (the fit's default), got {value!r}")
+    return float(value)
+
+
+def check_lambda_grid(lambda_range: Any, n_lambda: Any) -> tuple[tuple[float, float], int]:
+    """``(lambda_range, n_lambda)`` of a scan of λ, checked: two multipliers ``0 < low < high`` of the
+    fit's λ scale and at least 4 values (LftomoError naming the argument otherwise)."""
+    if isinstance(lambda_range, (str, bytes)) or not hasattr(lambda_range, "__len__") or len(lambda_range) != 2:
+        raise LftomoError(f"lambda_range must be (low, high) multipliers > 0, got {lambda_range!r}")
+    lr = (require_positive("lambda_range[0]", lambda_range[0]), require_positive("lambda_range[1]", lambda_range[1]))
+    if not lr[1] > lr[0]:
+        raise LftomoError(f"lambda_range must satisfy low < high, got {lambda_range!r}")
+    return lr, require_int("n_lambda", n_lambda, minimum=4)
+
+
+def check_search_rtol(value: Any) -> float:
+    """The root search's relative tolerance on λ, a number in (0, 1)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0.0 < float(value) < 1.0:
+        raise LftomoError(f"search_rtol must be a number in (0, 1), got {value!r}")
     return float(value)
 
 

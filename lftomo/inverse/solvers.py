@@ -201,6 +201,8 @@ from .lambdarules import (  # noqa: E402
     Eval,
     LambdaChoice,
     LCurve,
+    check_lambda_grid,
+    check_search_rtol,
     discrepancy_local_minimum,
     objective,
     resolve_rule,
@@ -1181,20 +1183,13 @@ def _check_step_options(*, max_steps, rtol, atol, discrepancy_safety, lambda_ran
     if rtol == 0 and atol == 0:
         raise LftomoError("rtol and atol must not both be 0")
     safety = require_nonnegative("discrepancy_safety", discrepancy_safety)
-    try:
-        lr = (require_positive("lambda_range[0]", lambda_range[0]), require_positive("lambda_range[1]", lambda_range[1]))
-    except (TypeError, IndexError):
-        raise LftomoError(f"lambda_range must be (low, high) multipliers > 0, got {lambda_range!r}") from None
-    if not lr[1] > lr[0]:
-        raise LftomoError(f"lambda_range must satisfy low < high, got {lambda_range!r}")
-    n_lambda = require_int("n_lambda", n_lambda, minimum=4)
+    lr, n_lambda = check_lambda_grid(lambda_range, n_lambda)
     gcv_probes = require_int("gcv_probes", gcv_probes, minimum=1)
     seed = require_int("seed", seed, minimum=0)
     linear_rtol = require_positive("linear_rtol", linear_rtol)
     linear_max_steps = require_steps("linear_max_steps", linear_max_steps)
     search_steps = max_steps if search_steps is None else require_steps("search_steps", search_steps)
-    if not (isinstance(search_rtol, (int, float)) and 0.0 < float(search_rtol) < 1.0):
-        raise LftomoError(f"search_rtol must be a number in (0, 1), got {search_rtol!r}")
+    search_rtol = check_search_rtol(search_rtol)
     return (max_steps, rtol, atol, safety, lr, n_lambda, gcv_probes, seed, linear_rtol, linear_max_steps, search_steps,
             search_rtol)
 
