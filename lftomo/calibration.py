@@ -414,6 +414,16 @@ def calibrate_grid(white: Any, *, dark: Any = None, min_pitch: float = 3.0, max_
     """
     img = _prepare_white(white, dark)
     rows, cols = img.shape
+    # the options first: out of range they would surface as "no lattice found", far from their cause
+    window = require_positive("window", window)
+    if window > 1.0:
+        raise LftomoError(f"window must be a fraction of the pitch in (0, 1], got {window!r}")
+    min_fraction = require_nonnegative("min_fraction", min_fraction)
+    if min_fraction > 1.0:
+        raise LftomoError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
+    vignetting_percentile = require_positive("vignetting_percentile", vignetting_percentile)
+    if vignetting_percentile > 100.0:
+        raise LftomoError(f"vignetting_percentile must be in (0, 100], got {vignetting_percentile!r}")
     max_pitch = min(rows, cols) / 4.0 if max_pitch is None else require_positive("max_pitch", max_pitch)
     min_pitch = require_positive("min_pitch", min_pitch)
     if not min_pitch < max_pitch:
@@ -421,7 +431,7 @@ def calibrate_grid(white: Any, *, dark: Any = None, min_pitch: float = 3.0, max_
     basis = _fourier_lattice(img, min_pitch, max_pitch)
     origin = _coarse_node(img, basis)
     p = float(np.min(np.linalg.norm(basis, axis=1)))
-    radius = require_positive("window", window) * p
+    radius = window * p
     # divide out the slow vignetting gradient, which would pull every centroid towards the
     # image centre (a radial bias that shrinks the fitted pitch)
     flat = img
@@ -438,7 +448,7 @@ def calibrate_grid(white: Any, *, dark: Any = None, min_pitch: float = 3.0, max_
         pred = origin + ij[:, :1] * basis[0] + ij[:, 1:] * basis[1]
         cen, tot = _centroids(flat, pred, radius)
         med = np.median(tot[tot > 0]) if np.any(tot > 0) else np.inf
-        good = np.isfinite(cen[:, 0]) & (tot >= require_nonnegative("min_fraction", min_fraction) * med)
+        good = np.isfinite(cen[:, 0]) & (tot >= min_fraction * med)
         params, keep = _fit_rigid(ij[good], cen[good])
         if reach is None and flat is img:
             # second pass over all lenslets on the flattened image

@@ -7,6 +7,7 @@ import json
 import signal
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import NoReturn
 
@@ -773,14 +774,22 @@ def main(argv=None) -> int:
         return 2
 
 
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """One line per warning for a command-line user (the category where it is not a UserWarning)."""
+    kind = "" if category is UserWarning else f" ({category.__name__})"
+    return f"lftomo: warning{kind}: {message}\n"
+
+
 def console_main() -> NoReturn:
     """The ``lftomo`` executable: :func:`main`, then the process's exit with its status.
 
     Once the command has returned its files are complete or as before, and a
     Ctrl-C has nothing left to stop; one that arrived while Python shuts down
     would interrupt a finalizer (numba's and llvmlite's run then) and print
-    its traceback. From then on SIGINT is ignored.
+    its traceback. From then on SIGINT is ignored.  Warnings print as
+    ``lftomo: warning: <message>``, without the source line that raised them.
     """
+    warnings.formatwarning = _format_warning
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise SystemExit(code)

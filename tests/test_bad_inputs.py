@@ -735,3 +735,17 @@ def test_no_plain_value_error_is_raised_by_the_library():
                         and not any(a <= n.lineno <= b for a, b in kernels)):
                     plain.append(f"{path.relative_to(root)}:{n.lineno}")
     assert not plain, f"raise ValueError instead of LftomoError at {plain}"
+
+
+@pytest.mark.parametrize("option, match", [
+    (dict(window=5.0), r"window must be a fraction of the pitch in \(0, 1\], got 5.0"),
+    (dict(window=0.0), "window must be > 0"),
+    (dict(vignetting_percentile=200.0), r"vignetting_percentile must be in \(0, 100\], got 200.0"),
+    (dict(min_fraction=1.5), r"min_fraction must be in \[0, 1\], got 1.5"),
+])
+def test_calibrate_grid_names_a_bad_option_before_searching_the_lattice(option, match):
+    # any white image: the options are checked before the lattice search, which would report
+    # "no rectangular lattice" for them
+    white = np.random.default_rng(0).uniform(100.0, 200.0, size=(64, 64))
+    with pytest.raises(LftomoError, match=match):
+        lt.calibrate_grid(white, **option)

@@ -197,3 +197,24 @@ def test_cli_step_cap_defaults_to_the_librarys():
     assert inspect.signature(run_reconstruct).parameters["max_steps"].default is None
     assert lt.AutoSolver().keywords().get("max_steps") is None  # None: the fit's own default
     assert inspect.signature(temperature_fit).parameters["max_steps"].default == 200
+
+
+
+def test_the_executable_prints_warnings_as_one_line():
+    import subprocess
+    import sys
+
+    # the executable's entry point, with a command that warns twice and succeeds (in a child process:
+    # console_main changes the warning format and SIGINT handling of its process)
+    code = ("import warnings\n"
+            "from lftomo import cli\n"
+            "def command():\n"
+            "    warnings.warn(\"the model shares the data's rays\", UserWarning)\n"
+            "    warnings.warn('old keyword', DeprecationWarning)\n"
+            "    return 0\n"
+            "cli.main = command\n"
+            "cli.console_main()\n")
+    run = subprocess.run([sys.executable, "-W", "always", "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.splitlines() == ["lftomo: warning: the model shares the data's rays",
+                                       "lftomo: warning (DeprecationWarning): old keyword"]
