@@ -41,6 +41,17 @@ def require_positive(name: str, value: Any) -> float:
     return v
 
 
+def require_in_range(name: str, value: Any, low: float, high: float, *, low_open: bool = False,
+                     what: str = "") -> float:
+    """``value`` as float if it is a finite number in ``[low, high]`` (``(low, high]`` with ``low_open``);
+    ``what`` (e.g. "a fraction of the pitch") is named in the message."""
+    v = require_finite_scalar(name, value)
+    if v > high or v < low or (low_open and v == low):
+        interval = f"{'(' if low_open else '['}{low:g}, {high:g}]"
+        raise LftomoError(f"{name} must be in {interval}{f' ({what})' if what else ''}, got {v!r}")
+    return v
+
+
 def require_nonnegative(name: str, value: Any) -> float:
     v = require_finite_scalar(name, value)
     if v < 0.0:

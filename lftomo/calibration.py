@@ -64,7 +64,7 @@ import scipy.sparse as sp
 
 from .errors import LftomoError
 from .version import __version__
-from ._validate import require_array, require_nonnegative, require_npz_file, require_positive
+from ._validate import require_array, require_in_range, require_nonnegative, require_npz_file, require_positive
 from .radiation import dplanck_dT, planck
 from .io import atomic_path, check_output_file, npz_output_path
 
@@ -415,15 +415,10 @@ def calibrate_grid(white: Any, *, dark: Any = None, min_pitch: float = 3.0, max_
     img = _prepare_white(white, dark)
     rows, cols = img.shape
     # the options first: out of range they would surface as "no lattice found", far from their cause
-    window = require_positive("window", window)
-    if window > 1.0:
-        raise LftomoError(f"window must be a fraction of the pitch in (0, 1], got {window!r}")
-    min_fraction = require_nonnegative("min_fraction", min_fraction)
-    if min_fraction > 1.0:
-        raise LftomoError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
-    vignetting_percentile = require_positive("vignetting_percentile", vignetting_percentile)
-    if vignetting_percentile > 100.0:
-        raise LftomoError(f"vignetting_percentile must be in (0, 100], got {vignetting_percentile!r}")
+    window = require_in_range("window", window, 0.0, 1.0, low_open=True, what="a fraction of the pitch")
+    min_fraction = require_in_range("min_fraction", min_fraction, 0.0, 1.0)
+    vignetting_percentile = require_in_range("vignetting_percentile", vignetting_percentile, 0.0, 100.0,
+                                             low_open=True)
     max_pitch = min(rows, cols) / 4.0 if max_pitch is None else require_positive("max_pitch", max_pitch)
     min_pitch = require_positive("min_pitch", min_pitch)
     if not min_pitch < max_pitch:

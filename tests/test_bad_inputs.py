@@ -738,8 +738,8 @@ def test_no_plain_value_error_is_raised_by_the_library():
 
 
 @pytest.mark.parametrize("option, match", [
-    (dict(window=5.0), r"window must be a fraction of the pitch in \(0, 1\], got 5.0"),
-    (dict(window=0.0), "window must be > 0"),
+    (dict(window=5.0), r"window must be in \(0, 1\] \(a fraction of the pitch\), got 5.0"),
+    (dict(window=0.0), r"window must be in \(0, 1\] \(a fraction of the pitch\), got 0.0"),
     (dict(vignetting_percentile=200.0), r"vignetting_percentile must be in \(0, 100\], got 200.0"),
     (dict(min_fraction=1.5), r"min_fraction must be in \[0, 1\], got 1.5"),
 ])

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_finite_scalar, require_nonnegative, require_positive, require_vector
+from .._validate import require_finite_scalar, require_in_range, require_nonnegative, require_positive, require_vector
 from .grid import Grid
 from .medium import Medium, SootRule
 
@@ -484,12 +484,8 @@ def precessing_flame(
     _require_grid(grid)
     t = require_finite_scalar("t", t)
     P = require_positive("period", period)
-    rho = require_nonnegative("orbit", orbit)
-    if rho > 0.3:
-        raise LftomoError(f"orbit must be in [0, 0.3] (a fraction of the box width), got {rho!r}")
-    a = require_nonnegative("secondary_amplitude", secondary_amplitude)
-    if a > 1.0:
-        raise LftomoError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+    rho = require_in_range("orbit", orbit, 0.0, 0.3, what="a fraction of the box width")
+    a = require_in_range("secondary_amplitude", secondary_amplitude, 0.0, 1.0)
     ws = require_positive("width_scale", width_scale)
     L, c, y0 = grid.size, grid.center, grid.lower[1]
     X, Y, Z = _mesh(grid)
