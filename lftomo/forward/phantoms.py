@@ -322,9 +322,7 @@ def two_lobed_flame(
     stay at ``T_ambient``).
     """
     _require_grid(grid)
-    a = require_nonnegative("secondary_amplitude", secondary_amplitude)
-    if a > 1.0:
-        raise LftomoError(f"secondary_amplitude must be in [0, 1], got {a!r}")
+    a = require_in_range("secondary_amplitude", secondary_amplitude, 0.0, 1.0)
     ws = require_positive("width_scale", width_scale)
     L = grid.size
     c = grid.center
