@@ -42,12 +42,12 @@ def require_positive(name: str, value: Any) -> float:
 
 
 def require_in_range(name: str, value: Any, low: float, high: float, *, low_open: bool = False,
-                     what: str = "") -> float:
-    """``value`` as float if it is a finite number in ``[low, high]`` (``(low, high]`` with ``low_open``);
-    ``what`` (e.g. "a fraction of the pitch") is named in the message."""
+                     high_open: bool = False, what: str = "") -> float:
+    """``value`` as float if it is a finite number in ``[low, high]`` (an end excluded with ``low_open``,
+    ``high_open``); ``what`` (e.g. "a fraction of the pitch") is named in the message."""
     v = require_finite_scalar(name, value)
-    if v > high or v < low or (low_open and v == low):
-        interval = f"{'(' if low_open else '['}{low:g}, {high:g}]"
+    if v > high or v < low or (low_open and v == low) or (high_open and v == high):
+        interval = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
         raise LftomoError(f"{name} must be in {interval}{f' ({what})' if what else ''}, got {v!r}")
     return v
 

@@ -40,6 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ._validate import require_in_range
 from .errors import LftomoError
 from .forward.sampler import DEFAULT_SAMPLER
 from .inverse.reconstruct import (DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, problem_on_grid,
@@ -1068,8 +1069,7 @@ def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds,
         raise LftomoError("--depths is only used with --data refocus")
     if not (0 < bounds[0] < bounds[1]):
         raise LftomoError(f"--bounds must be T_min,T_max with 0 < T_min < T_max (K), got {bounds!r}")
-    if not 0.0 <= min_etendue_fraction < 1.0:
-        raise LftomoError(f"--min-etendue-fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    require_in_range("--min-etendue-fraction", min_etendue_fraction, 0.0, 1.0, high_open=True)
     if noise is not None and not (math.isfinite(noise) and noise > 0):
         raise LftomoError(f"--noise must be a relative noise level > 0 (0.01 = 1 %), got {noise!r}")
     if symmetry not in (None, "none", "axisymmetric"):

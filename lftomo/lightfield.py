@@ -178,6 +178,11 @@ def _alpha(camera: Camera, depth: float) -> float:
     return (z_xp - _image_plane_z(camera, depth)) / (z_xp - z_h1)
 
 
+def _nearest_refocus_depth(camera: Camera) -> float:
+    """The nearest depth (m from the stop) refocusing accepts: 2 % beyond the main lens's front focal length."""
+    return camera.main_lens.focal_length * 1.02 + camera.main_lens.stop_to_vertex
+
+
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
     """``depth`` (m from the stop) as float if the main lens images it behind itself.
 
@@ -188,7 +193,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
     from ._validate import require_positive
 
     d = require_positive(name, depth)
-    lo = camera.main_lens.focal_length * 1.02 + camera.main_lens.stop_to_vertex
+    lo = _nearest_refocus_depth(camera)
     if d <= lo:
         raise LftomoError(f"{name} = {d!r} m is inside or too close to the main-lens focal length "
                           f"({camera.main_lens.focal_length:.4g} m): refocus depths must be > {lo:.4g} m "
@@ -199,9 +204,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
 def depth_of_alpha(camera: Camera, alpha: float) -> float:
     """Inverse of :func:`alpha_of_depth` (m)."""
     _require_camera(camera)
-    f = camera.main_lens.focal_length
-    lo = f * 1.02 + camera.main_lens.stop_to_vertex
-    hi = 1e4 * f
+    lo, hi = _nearest_refocus_depth(camera), 1e4 * camera.main_lens.focal_length
     a = require_finite_scalar("alpha", alpha)
     g = lambda z: _alpha(camera, z) - a  # noqa: E731
     glo, ghi = g(lo), g(hi)

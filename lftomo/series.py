@@ -46,6 +46,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ._validate import require_in_range
 from .errors import LftomoError
 
 __all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "WORKER_DASK_CONFIG", "MANIFEST",
@@ -584,8 +585,7 @@ def _raw_setup(calibration: Any, forward: Any, *, camera: Any, dark: Any, dark_f
         from .demo import MIN_ETENDUE_FRACTION
 
         min_etendue_fraction = MIN_ETENDUE_FRACTION
-    if not 0.0 <= min_etendue_fraction < 1.0:
-        raise LftomoError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    min_etendue_fraction = require_in_range("min_etendue_fraction", min_etendue_fraction, 0.0, 1.0, high_open=True)
     desc = conv.describe()
     files = {"calibration_sha256": _file_sha256(Path(conv.calibration))}
     if conv.dark is not None and Path(conv.dark.source).is_file():

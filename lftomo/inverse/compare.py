@@ -23,7 +23,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import LftomoError
-from .._validate import require_int
+from .._validate import require_in_range, require_int
 from ..forward.grid import Grid
 
 #: Sub-voxel quadrature of the weights :func:`compare_refocus_subaperture` builds (refinement per axis).
@@ -213,8 +213,8 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
         ``noise_std = sqrt(noise_std² + monte_carlo_std²)``.
     """
     if min_etendue_fraction is not None:
-        if not 0.0 <= min_etendue_fraction < 1.0:
-            raise LftomoError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+        min_etendue_fraction = require_in_range("min_etendue_fraction", min_etendue_fraction, 0.0, 1.0,
+                                                high_open=True)
         lf = dataclasses.replace(lf, min_etendue_fraction=float(min_etendue_fraction))
         noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
     mc = monte_carlo_std(lf, weights_rays_per_pixel=weights_rays_per_pixel, rays_per_pixel=rays_per_pixel,
@@ -317,8 +317,7 @@ def _checked_inputs(scene, camera, recon_grid, *, depths, min_etendue_fraction, 
         raise LftomoError("scene must contain a medium (the flame to reconstruct)")
     if not depths:
         raise LftomoError("depths must list at least one refocus depth (m)")
-    if not 0.0 <= min_etendue_fraction < 1.0:
-        raise LftomoError(f"min_etendue_fraction must be in [0, 1), got {min_etendue_fraction!r}")
+    min_etendue_fraction = require_in_range("min_etendue_fraction", min_etendue_fraction, 0.0, 1.0, high_open=True)
     if quadrature is not None:
         quadrature = require_int("quadrature", quadrature, minimum=1)
     if "grid" in reconstruct_options:
