@@ -302,6 +302,62 @@ def temperature_start(T0: Any, grid: Grid) -> Any:
     return np.asarray(T0.T, dtype=float) if src == grid else interpolate_field(T0.T, src, grid)
 
 
+def check_start_fields(problem: Problem, T0: Any, sigma_a0: Any, bounds: tuple[float, float]) -> tuple[Any, Any]:
+    """The start fields of a fit of ``problem`` as given to :func:`lftomo.reconstruct`'s ``start``, checked
+    before any work: ``(T0, sigma_a0)`` with a joint fit's numbers made uniform fields.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fit whose grid (and parameterisation) the fields must match.
+    T0, sigma_a0 : None, str, float, array_like or Reconstruction
+        The temperature (K) and absorption coefficient (m⁻¹) starts; a Reconstruction and None pass
+        through (checked where they are used).  ``unknowns="T"`` takes ``"uniform"``, a number or a field
+        of shape ``grid.shape``, ``(n_voxels,)`` or the parameterisation's own shape; ``"T+sigma_a"``
+        numbers or fields of shape ``grid.shape`` or ``(n_voxels,)``.
+    bounds : (float, float)
+        Temperature bounds (K); a start temperature must lie within them.
+
+    Raises
+    ------
+    LftomoError
+        Naming ``start`` (``start[0]``, ``start[1]`` for a joint fit's pair), the value's shape or range,
+        and what is allowed.
+    """
+    joint = problem.unknowns.name == "T+sigma_a"
+    grid = problem.grid
+    shapes = [tuple(grid.shape), (grid.n_voxels,)]
+    allowed = f"{shapes[0]} or {shapes[1]} on the reconstruction grid"
+    if not joint and problem.parameterization is not None:
+        shapes.append(tuple(problem.parameterization.shape))
+        allowed += f", or {shapes[2]} (one per fitted unknown)"
+    names = ("start[0] (T)", "start[1] (sigma_a)") if joint else ("start", "sigma_a0")
+    checked = []
+    for value, name, is_T in ((T0, names[0], True), (sigma_a0, names[1], False)):
+        if value is None or isinstance(value, Reconstruction) or (isinstance(value, str) and value == "uniform"
+                                                                   and not joint):
+            checked.append(value)
+            continue
+        what = "a temperature (K)" if is_T else "an absorption coefficient (1/m)"
+        extra = "'uniform', " if is_T and not joint else ""
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            arr = None
+        if arr is None or (arr.ndim > 0 and arr.shape not in shapes):
+            got = f"shape {arr.shape}" if arr is not None else repr(value) if isinstance(value, str) else (
+                type(value).__name__)
+            raise LftomoError(f"{name} must be {extra}{what} or a field of shape {allowed}, got {got}")
+        if not np.all(np.isfinite(arr)):
+            raise LftomoError(f"{name} must be finite, got {int(np.sum(~np.isfinite(arr)))} NaN or inf value(s)")
+        low, high = (float(bounds[0]), float(bounds[1])) if is_T else (0.0, np.inf)
+        if arr.min() < low or arr.max() > high:
+            allowed_range = f"within bounds {tuple(bounds)} K" if is_T else "non-negative"
+            raise LftomoError(f"{name} must be {allowed_range}, got range [{arr.min():.6g}, {arr.max():.6g}]")
+        checked.append(np.full(grid.shape, float(arr)) if joint and arr.ndim == 0 else value)
+    return checked[0], checked[1]
+
+
 def as_problem(measurement: Any, weights: Any, *, unknowns: Any, symmetry: Any, grid: Any) -> Problem:
     """``measurement`` if it is a :class:`Problem` (then ``weights``, ``symmetry`` and ``grid`` must be
     None and ``unknowns`` None or the problem's), else :meth:`Problem.from_data` of the arguments."""

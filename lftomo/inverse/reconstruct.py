@@ -23,8 +23,8 @@ from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
 from .result import Reconstruction, temperature_errors  # noqa: F401  (re-exported: they lived here)
 from .fitproblem import (  # noqa: F401  (problem_on_grid, weights_grid, warn_underdetermined, temperature_start
-    Problem, as_problem, check_types, problem_on_grid, temperature_start, warn_underdetermined,  # re-exported)
-    weights_grid)
+    Problem, as_problem, check_start_fields, check_types, problem_on_grid, temperature_start,
+    warn_underdetermined, weights_grid)
 from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: they lived here)
     DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
     moved_options, temperature_defaults)
@@ -193,12 +193,26 @@ def _fold_start(start: Any, options: dict[str, Any], fit: str) -> dict[str, Any]
             opts["start"] = start
         else:
             opts["T0"] = start
-    elif isinstance(start, tuple) and len(start) == 2 and not isinstance(start[0], (int, float, str)):
+    elif fit == "T+sigma_a" and isinstance(start, tuple) and len(start) != 2:
+        raise LftomoError(f"start must be a pair (T, sigma_a) for unknowns='T+sigma_a', got {len(start)} items")
+    elif isinstance(start, tuple) and len(start) == 2 and (fit == "T+sigma_a"
+                                                           or not isinstance(start[0], (int, float, str))):
         if fit != "T+sigma_a":
             raise LftomoError("start=(T, sigma_a) is for unknowns='T+sigma_a'; give a temperature field for 'T'")
         opts["T0"], opts["sigma_a0"] = start
     else:
         opts["T0"] = start
+    return opts
+
+
+def _checked_start(options: dict[str, Any], problem: Problem, bounds: tuple[float, float]) -> dict[str, Any]:
+    """``options`` with its start fields (``T0``, ``sigma_a0``) checked against ``problem``
+    (:func:`check_start_fields`)."""
+    if "T0" not in options and "sigma_a0" not in options:
+        return options
+    opts = dict(options)
+    T0, sigma_a0 = check_start_fields(problem, opts.pop("T0", None), opts.pop("sigma_a0", None), bounds)
+    opts.update({k: v for k, v in (("T0", T0), ("sigma_a0", sigma_a0)) if v is not None})
     return opts
 
 
@@ -300,13 +314,12 @@ def reconstruct(
         :data:`COARSE_START_MIN_VOXELS` voxels, the same fit on
         :func:`coarse_grid` first: ``metadata["coarse_start"]``).
         ``"two-colour"`` (``"T+sigma_a"``): the two-colour start on the grid
-        itself, no coarse fit.  A
-        temperature field of shape ``grid.shape`` (K), a float, or
-        ``"uniform"``; for ``"T+sigma_a"`` also a pair ``(T, sigma_a)`` of
-        fields (``sigma_a`` at the first wavelength, m⁻¹).  A
-        :class:`Reconstruction` on the same box (a coarser grid is
-        interpolated): its temperature; for ``"T+sigma_a"`` its two fields and
-        its λ (coarse-to-fine).
+        itself, no coarse fit.  A temperature field of shape ``grid.shape`` (K), a float, or
+        ``"uniform"``; for ``"T+sigma_a"`` also a pair ``(T, sigma_a)`` of fields or numbers
+        (``sigma_a`` at the first wavelength, m⁻¹), checked before the fit
+        (:func:`~lftomo.inverse.fitproblem.check_start_fields`).  A :class:`Reconstruction` on the
+        same box (a coarser grid is interpolated): its temperature; for ``"T+sigma_a"`` its two
+        fields and its λ (coarse-to-fine).
     progress : bool, optional
         A progress bar on stderr over the solver's steps.  Default: shown for
         large problems.
@@ -347,6 +360,7 @@ def reconstruct(
     t0 = time.perf_counter()
     problem = measurement if given else Problem.from_data(measurement, weights, unknowns=what, symmetry=symmetry,
                                                           grid=grid)
+    options = _checked_start(options, problem, (lo, hi))
     if fit == "T+sigma_a":
         return _reconstruct_joint(problem, regularization=regularization, prior=prior, bounds=bounds,
                                   method=method, rule=rule, options=options)

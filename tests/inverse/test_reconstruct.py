@@ -55,6 +55,18 @@ def test_reconstruct_refuses_bad_input(setup):
         reconstruct(m, W, unknowns="T+sigma_a")
     with pytest.raises(ValueError, match="needs the ray-segment table"):  # a WeightMatrix is for one known sigma_a
         reconstruct([m, m], W, unknowns="T+sigma_a")
+    # a start field is checked against the reconstruction grid under the keyword the user gave
+    fast = {"solver": lt.LevenbergMarquardt(max_steps=1)}
+    for start, msg in ((np.full((4, 4, 4), 1500.0), r"start must be 'uniform', a temperature \(K\) or a field of "
+                                                    r"shape \(5, 5, 5\) or \(125,\) on the reconstruction grid, "
+                                                    r"got shape \(4, 4, 4\)"),
+                       ("hot", "start must be 'uniform'.*got 'hot'"),
+                       (np.full(grid.shape, np.nan), "start must be finite, got 125 NaN"),
+                       (np.full(grid.shape, 200.0), r"start must be within bounds \(300.0, 3000.0\) K")):
+        with pytest.raises(lt.LftomoError, match=msg):
+            reconstruct(m, W, start=start, **fast)
+    with pytest.raises(lt.LftomoError, match=r"or \(6, 5\) \(one per fitted unknown\), got shape \(4, 4, 4\)"):
+        reconstruct(m, W, start=np.full((4, 4, 4), 1500.0), symmetry="axisymmetric", **fast)
     rec_like = reconstruct(m, W, rule=lt.Fixed(1e-3), bounds=(500.0, 2500.0), solver=lt.LevenbergMarquardt(max_steps=5))
     assert repr(rec_like).startswith("Reconstruction(unknowns='T'") and len(repr(rec_like)) < 400  # not the fields
     with pytest.raises(ValueError, match="does not match"):
@@ -480,6 +492,37 @@ def test_joint_lambda_rules_when_sigma_is_overestimated():
     shifted = lt.Grid(shape=(2, 2, 2), lower=grid.lower, upper=tuple(u + 0.001 for u in grid.upper))
     with pytest.raises(ValueError, match="start's grid box"):
         reconstruct(ms, seg, start=dataclasses.replace(rec_c, grid=shifted), **kw)
+
+
+def test_joint_start_fields_are_checked_before_the_fit():
+    """A joint fit's start pair is checked against the grid and the bounds and named as given
+    (``start[0]``, ``start[1]``; the fields were clipped into range, a wrong size named ``T0``); a pair of
+    numbers is a pair of uniform fields."""
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    grid = lt.Grid(shape=(3, 3, 3), lower=(-0.006, -0.006, 0.994), upper=(0.006, 0.006, 1.006))
+    flame = lt.Medium(grid, sigma_a=np.full(grid.shape, 20.0), T=np.full(grid.shape, 1700.0),
+                      sigma_a_rule=lt.SootRule(650e-9, 1.38))
+    lf = lt.add_noise(lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=4, seed=2, wavelengths=(650e-9, 800e-9)),
+                      relative_std=0.01, seed=1)
+    ms = [lt.Measurement.from_lightfield(lf, data="subaperture", channel=c) for c in range(2)]
+    seg = lt.ray_segments(cam, grid, rays_per_pixel=4, seed=2, progress=False)
+    kw = {"unknowns": "T+sigma_a", "rule": lt.Fixed(1e-3), "bounds": (1000.0, 2500.0),
+          "solver": lt.DenseLM(max_steps=1)}
+    T, s = np.full(grid.shape, 1600.0), np.full(grid.shape, 15.0)
+    for start, msg in (((np.full((2, 2, 2), 1600.0), s), r"start\[0\] \(T\) must be a temperature \(K\) or a "
+                                                         r"field of shape \(3, 3, 3\) or \(27,\)"),
+                       ((T, np.full((2, 2, 2), 15.0)), r"start\[1\] \(sigma_a\) must be an absorption coefficient"),
+                       ((np.full(grid.shape, 500.0), s), r"start\[0\] \(T\) must be within bounds \(1000.0, 2500.0\)"),
+                       ((T, np.full(grid.shape, -1.0)), r"start\[1\] \(sigma_a\) must be non-negative"),
+                       ((T, np.full(grid.shape, np.inf)), r"start\[1\] \(sigma_a\) must be finite"),
+                       (("hot", s), r"start\[0\] \(T\) must be .*got 'hot'"),
+                       ((T, s, s), r"start must be a pair \(T, sigma_a\) for unknowns='T\+sigma_a', got 3 items")):
+        with pytest.raises(lt.LftomoError, match=msg):
+            reconstruct(ms, seg, start=start, **kw)
+    by_numbers = reconstruct(ms, seg, start=(1600.0, 15.0), **kw)
+    by_fields = reconstruct(ms, seg, start=(T, s), **kw)
+    np.testing.assert_array_equal(by_numbers.details["T_start"], by_fields.details["T_start"])
+    np.testing.assert_array_equal(by_numbers.T, by_fields.T)
 
 
 def test_rig_of_measurements_is_the_stacked_least_squares_problem(setup):
