@@ -39,7 +39,7 @@ from . import sampler as _smp
 from .chunks import ChunkSizer, interruptible
 from .dda import integrate_emission, ray_box, transmittance
 from .rng import rng_init, rng_uniform
-from .scattering import hg_phase, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance
+from .scattering import hg_phase_kernel, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance
 from .surfaces import surfaces_hit
 
 MAX_BOUNCES = 1000
@@ -458,7 +458,7 @@ def _forward_kernel(n_chunks, n_bundles, W, states, optics, x0, y0, z0, hx, hy, 
                     transmittance(px, py, pz, cdx, cdy, cdz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sig_t1, 0.0,
                                   dist, tbuf)
                     cos_t = dx * cdx + dy * cdy + dz * cdz
-                    _score(img, pix, w * hg_phase(g[vv], cos_t) * geom * tbuf[0], optics)
+                    _score(img, pix, w * hg_phase_kernel(g[vv], cos_t) * geom * tbuf[0], optics)
                 state, h1 = rng_uniform(state)
                 state, h2 = rng_uniform(state)
                 dx, dy, dz = sample_hg_direction(dx, dy, dz, g[vv], h1, h2)

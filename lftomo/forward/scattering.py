@@ -67,11 +67,13 @@ from numba import njit, prange
 from lftomo.forward.rng import rng_init, rng_uniform, rng_uniform_open
 from lftomo.forward.surfaces import SURF_NCOL, surfaces_hit
 from lftomo.errors import LftomoError
+from lftomo._validate import require_in_range
 
 __all__ = [
     "RR_DEPTH",
     "SlabResult",
     "hg_phase",
+    "hg_phase_kernel",
     "hg_sample_cos",
     "majorant_grid",
     "radiance_mc",
@@ -87,6 +89,7 @@ RR_DEPTH = 3
 
 _INV4PI = 1.0 / (4.0 * math.pi)
 _G_ISO = 1e-6  # |g| below this samples the isotropic phase function
+_COS_ROUNDING = 1e-9  # a cosine this far past ±1 (dot products of unit vectors) is taken as ±1
 
 
 # ---------------------------------------------------------------------------
@@ -94,9 +97,8 @@ _G_ISO = 1e-6  # |g| below this samples the isotropic phase function
 # ---------------------------------------------------------------------------
 
 
-@njit(cache=True)
 def hg_phase(g, cos_theta):
-    """Henyey–Greenstein phase function per steradian.
+    """Henyey–Greenstein phase function per steradian (arguments checked).
 
     ``p(cos θ) = (1 - g²) / (4π (1 + g² - 2 g cos θ)^{3/2})``, normalised so
     that its integral over the unit sphere is 1.
@@ -113,7 +115,33 @@ def hg_phase(g, cos_theta):
     -------
     float or ndarray
         Phase function value (sr^-1), same shape as ``cos_theta``.
+
+    Raises
+    ------
+    LftomoError
+        ``g`` not a finite number in (-1, 1), or ``cos_theta`` not finite and within [-1, 1] (up to
+        1e-9 of rounding, clipped).
+
+    See Also
+    --------
+    hg_phase_kernel : the same function without checks, for numba code.
     """
+    g = require_in_range("g", g, -1.0, 1.0, low_open=True, high_open=True, what="the mean cosine")
+    try:
+        mu = np.asarray(cos_theta, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise LftomoError(f"cos_theta must be a number or an array of numbers in [-1, 1], got {cos_theta!r}") from None
+    ok = np.isfinite(mu) & (np.abs(mu) <= 1.0 + _COS_ROUNDING)
+    if not np.all(ok):
+        raise LftomoError(f"cos_theta must lie in [-1, 1] (a cosine), got {mu[~ok].ravel()[0]!r}")
+    value = hg_phase_kernel(g, np.clip(mu, -1.0, 1.0))
+    return float(value) if mu.ndim == 0 else value
+
+
+@njit(cache=True)
+def hg_phase_kernel(g, cos_theta):
+    """:func:`hg_phase` for numba code: the same formula, no checks (``-1 < g < 1``, ``|cos θ| <= 1``
+    assumed; float or ndarray ``cos_theta``, sr⁻¹)."""
     return (1.0 - g * g) * _INV4PI / (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5
 
 

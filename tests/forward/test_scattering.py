@@ -14,9 +14,11 @@ import pytest
 from numba import njit
 from scipy import integrate, optimize, stats
 
+import lftomo as lt
 from lftomo.forward.rng import rng_init, rng_uniform
 from lftomo.forward.scattering import (
     hg_phase,
+    hg_phase_kernel,
     hg_sample_cos,
     majorant_grid,
     radiance_mc,
@@ -133,6 +135,22 @@ def test_hg_sampled_cosines_chisquare(g):
     counts, _ = np.histogram(mu, bins=edges)
     res = stats.chisquare(counts, np.full(n_bins, n / n_bins))
     assert res.pvalue > 1e-3, (g, res)
+
+
+def test_hg_phase_checks_its_domain_and_matches_the_kernel():
+    """lt.hg_phase refuses |g| >= 1 and cosines outside [-1, 1] (the formula gives 0/0 or a negative
+    base there) and otherwise equals the numba kernel, for numbers and arrays."""
+    mu = np.linspace(-1.0, 1.0, 11)
+    np.testing.assert_array_equal(hg_phase(0.6, mu), hg_phase_kernel(0.6, mu))
+    assert isinstance(hg_phase(0.6, 0.3), float) and hg_phase(0.6, 0.3) == hg_phase_kernel(0.6, 0.3)
+    assert hg_phase(0.6, 1.0 + 1e-15) == hg_phase(0.6, 1.0)  # rounding of a unit-vector dot product
+    assert hg_phase(0.0, 0.2) == pytest.approx(1.0 / (4.0 * np.pi), rel=1e-15)
+    for g in (1.0, -1.0, 1.5, np.nan, "0.5"):
+        with pytest.raises(lt.LftomoError, match="g must be"):
+            hg_phase(g, 0.5)
+    for cos in (1.01, -2.0, np.nan, [0.0, 3.0], "a"):
+        with pytest.raises(lt.LftomoError, match="cos_theta must"):
+            hg_phase(0.5, cos)
 
 
 @pytest.mark.parametrize("g", [-0.9, -0.3, 0.0, 0.5, 0.95])
