@@ -1361,7 +1361,7 @@ def _reconstruct_posterior(problem, rec, inp: _ReconstructInputs, *, basis_name,
             raise LftomoError("--posterior-basis field needs a Gaussian prior: --prior gradient or laplacian")
         post = lt.laplace_posterior(problem, rule=lt.Evidence(lambda0=rec.regularization), prior=prior,
                                     bounds=tuple(bounds), seed=inp.posterior_seed,
-                                    solver=lt.AutoSolver(max_steps=max_steps), symmetry=symmetry)
+                                    solver=lt.AutoSolver(max_steps=max_steps), symmetry=symmetry, progress=progress)
         metrics = {"basis": "field", **post.summary()}
         if inp.T_true is not None:
             metrics["coverage_90"] = post.coverage(inp.T_true, hot=HOT)

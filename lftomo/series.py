@@ -278,7 +278,7 @@ def solve_frame(index: int, frame: Any, forward: Any, settings: dict) -> dict:
             warnings.simplefilter("always")
             m = _measurement(frame, index, settings)
             m_meta = getattr(frame, "metadata", None) or {}  # raw frames: pixels left out
-            rec = reconstruct(m, forward, **settings["reconstruct"])
+            rec = reconstruct(m, forward, **{"progress": False, **settings["reconstruct"]})  # the series has its bar
         T = np.asarray(rec.T, dtype=float)
         if not np.all(np.isfinite(T)):
             raise LftomoError(f"frame {index}: the reconstruction returned non-finite temperatures")

@@ -457,7 +457,7 @@ def _noise_free_fit(clean, Ws, grid, lam, *, prior, bounds, start):
     from .reconstruct import reconstruct
 
     return reconstruct(_single_or_list(clean), _single_or_list(Ws), prior=prior, bounds=bounds, rule=Fixed(lam),
-                       grid=grid, start=start)
+                       grid=grid, start=start, progress=False)
 
 
 def cramer_rao_bound(G: np.ndarray, hot: np.ndarray) -> np.ndarray:
@@ -681,7 +681,7 @@ def design(
         if regularization == "auto":
             bar.set_postfix_str("reconstruct one draw (λ)")
             rec = reconstruct(_single_or_list(ms), _single_or_list(Ws), prior=prior_name, bounds=bounds, rule=rule,
-                              grid=grid)
+                              grid=grid, progress=False)  # design's own bar names the step
             lam = float(rec.regularization)
         else:
             lam = float(regularization)

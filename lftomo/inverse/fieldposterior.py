@@ -69,7 +69,7 @@ from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options, with_default
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
 from .solverchoice import LevenbergMarquardt
-from .solvers import temperature_fit
+from .solvers import PROGRESS_MIN_UNKNOWNS, temperature_fit
 from .symmetry import resolve_symmetry
 
 _METHODS = ("auto", "dense", "sampled")
@@ -418,7 +418,7 @@ def laplace_posterior(
     symmetry: Any = None,
     grid: Any = None,
     seed: int | None = 0,
-    progress: bool = False,
+    progress: bool | None = None,
     **moved: Any,
 ) -> FieldPosterior:
     """Full-grid Laplace posterior of the temperature field (T only, known ``sigma_a``).
@@ -466,8 +466,9 @@ def laplace_posterior(
         in :func:`lftomo.reconstruct`); default the weights' grid.
     seed : int or None, keyword-only
         Seed of the sampled covariance's draws.
-    progress : bool, keyword-only
-        Print one line per evidence iteration, and show the reconstructions' progress bars.
+    progress : bool, optional, keyword-only
+        Print one line per evidence iteration, and show the reconstructions' progress bars.  Default:
+        shown for fits of at least :data:`~lftomo.inverse.solvers.PROGRESS_MIN_UNKNOWNS` unknowns.
     **moved
         The keywords this function took before its options moved onto the objects
         above (``regularization``, ``lambda0``, ``method``, ``n_samples``, ``T0``,
@@ -509,8 +510,10 @@ def laplace_posterior(
     if not isinstance(rule, (Evidence, Fixed)):  # the reconstructions' rule: the fit's default noise scale
         options = with_default_noise_scale(options, options.get("rule"), reduced=ring is not None,
                                            cameras=measurement.n_cameras if isinstance(measurement, Problem) else 1)
-    # the solves show their bars only when asked (lftomo demo --quiet printed them)
-    run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": bool(progress)},
+    # the solves show their bars as the posterior's progress says (lftomo demo --quiet printed them)
+    show = bool(progress) if progress is not None else (
+        grid.n_voxels if ring is None else ring.n_params) >= PROGRESS_MIN_UNKNOWNS
+    run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": show},
                         method=method, n_samples=cov.n_samples, rng=np.random.default_rng(seed),
                         cg_rtol=cov.cg_rtol, cg_max_iter=cov.cg_max_iter)
     if ring is not None:
@@ -520,7 +523,7 @@ def laplace_posterior(
     if isinstance(rule, Evidence):
         rec, lam, st, evidence = _evidence_iterations(
             run, T_start, lambda0=rule.lambda0, max_iter=rule.max_iter, lambda_rtol=rule.rtol,
-            trace_samples=rule.trace_samples, noise_scale=rule.noise_scale, progress=progress)
+            trace_samples=rule.trace_samples, noise_scale=rule.noise_scale, progress=show)
         rule_name = "evidence"
         if method == "sampled":  # the variances at the final λ, with the full number of draws
             st = run.stats_at(rec.T, lam)

@@ -246,6 +246,9 @@ CHUNK = 10
 #: ``progress=None`` shows a progress bar when the operator has more nonzeros
 #: than this (24³ with sub-voxel quadrature 2: 26 M, about 8 min on 2 cores).
 PROGRESS_MIN_NNZ = 5_000_000
+#: ... or when it fits at least this many unknowns (dense steps cost ~n³: 12³ takes about a minute and a
+#: half, 16³ about six on 2 cores).
+PROGRESS_MIN_UNKNOWNS = 1000
 
 
 # --------------------------------------------------------------------------- results
@@ -1079,7 +1082,7 @@ def temperature_fit(
     progress : bool, optional, keyword-only
         A tqdm bar on stderr counting the nonlinear steps of every solve, with
         the current λ and χ²/m.  Default: shown when ``A`` has more than
-        ``PROGRESS_MIN_NNZ`` non-zeros.
+        ``PROGRESS_MIN_NNZ`` non-zeros or at least ``PROGRESS_MIN_UNKNOWNS`` unknowns.
 
     Returns
     -------
@@ -1159,7 +1162,8 @@ def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0,
     s = _make_setup(problem, bounds=bounds, prior=prior_model, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
     run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
                   linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
-    show = progress if progress is not None else s.A_s.nnz > PROGRESS_MIN_NNZ
+    show = progress if progress is not None else (s.A_s.nnz > PROGRESS_MIN_NNZ
+                                                   or s.A_s.shape[1] >= PROGRESS_MIN_UNKNOWNS)
     run.bar = progress_bar(None, bool(show), "reconstruct T", unit="step")
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)

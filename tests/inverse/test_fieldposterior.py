@@ -279,16 +279,23 @@ def test_unconstrained_voxels_raise_a_clear_error_naming_them():
 
 def test_progress_false_silences_the_reconstructions(case, monkeypatch, capsys):
     """``progress=False`` (``lftomo demo --quiet``) prints nothing, although the solver would show its bar on a
-    problem this size by default; ``progress=True`` shows the bars and the evidence iterations."""
+    problem this size by default; ``progress=True`` shows the bars and the evidence iterations, and so does
+    the default from ``PROGRESS_MIN_UNKNOWNS`` unknowns (a 16³ posterior runs for minutes)."""
+    import lftomo.inverse.fieldposterior as fieldposterior
     import lftomo.inverse.solvers as solvers
 
     problem, _ = case
     monkeypatch.setattr(solvers, "PROGRESS_MIN_NNZ", 0)  # every problem is "large": bars by default
-    laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0, max_iter=2), covariance=lt.LaplaceCovariance(method="dense"))
+    kw = {"rule": lt.Evidence(lambda0=100.0, max_iter=2), "covariance": lt.LaplaceCovariance(method="dense")}
+    for progress in (False, None):  # the default: this problem has fewer unknowns than PROGRESS_MIN_UNKNOWNS
+        laplace_posterior(problem, progress=progress, **kw)
+        out = capsys.readouterr()
+        assert out.out == "" and out.err == "", out
+    laplace_posterior(problem, progress=True, **kw)
     out = capsys.readouterr()
-    assert out.out == "" and out.err == "", out
-    laplace_posterior(problem, rule=lt.Evidence(lambda0=100.0, max_iter=2), covariance=lt.LaplaceCovariance(method="dense"),
-                      progress=True)
+    assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
+    monkeypatch.setattr(fieldposterior, "PROGRESS_MIN_UNKNOWNS", problem.grid.n_voxels)
+    laplace_posterior(problem, **kw)
     out = capsys.readouterr()
     assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
 

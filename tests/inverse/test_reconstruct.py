@@ -111,7 +111,7 @@ def test_rule_and_solver_objects_are_the_keywords_they_stand_for(setup):
         lt.LevenbergMarquardt(max_steps=0)
 
 
-def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
+def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys, monkeypatch):
     """progress=True draws a bar on stderr (steps, λ, χ²/m); the default for a small problem is silent."""
     cam, grid, flame, lf, W = setup
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="subaperture")
@@ -122,6 +122,15 @@ def test_progress_bar_reports_steps_lambda_and_chi2(setup, capsys):
     err = capsys.readouterr().err
     assert "reconstruct T" in err and "λ=0.001" in err and "χ²/m=" in err, err
     assert f"{rec.iterations}" in err
+    # the default also shows it for a fit of many unknowns (a dense 16³ fit takes minutes): here the
+    # threshold is lowered to the 125 voxels of this grid, on the dense path
+    from lftomo.inverse import solvers
+    monkeypatch.setattr(solvers, "PROGRESS_MIN_UNKNOWNS", grid.n_voxels)
+    reconstruct(m, W, rule=lt.Fixed(1e-3), bounds=(500.0, 2500.0), solver=lt.DenseLM(max_steps=20))
+    assert "reconstruct T" in capsys.readouterr().err
+    monkeypatch.setattr(solvers, "PROGRESS_MIN_UNKNOWNS", grid.n_voxels + 1)
+    reconstruct(m, W, rule=lt.Fixed(1e-3), bounds=(500.0, 2500.0), solver=lt.DenseLM(max_steps=20))
+    assert capsys.readouterr().err == ""
 
 
 # the matrix-free LM with σₐ linear (54 s in CI) is heavy: LM is covered by the log case, σₐ linear by dense-lm
