@@ -109,7 +109,7 @@ def hg_phase(g, cos_theta):
         Asymmetry parameter (mean cosine), ``-1 < g < 1``.
     cos_theta : float or ndarray
         Cosine of the angle between the incident and scattered propagation
-        directions (any shape; numba array expressions are supported).
+        directions (any shape).  Numba code calls :func:`hg_phase_kernel`.
 
     Returns
     -------
