@@ -580,8 +580,10 @@ def test_transmittance_count_steps_and_bare_kernel():
         tr = np.empty(2)
         transmittance(*rays_o[i], *rays_d[i], *g, sigma, 0.0, np.inf, tr)
         np.testing.assert_allclose(tr, np.exp(-(sigma[:, vox] * seg).sum(axis=1)), rtol=1e-12)
-    assert count_steps(rays_o, rays_d, *g) == total
-    bare = bare_dda_exp(rays_o, rays_d, *g, np.ascontiguousarray(sigma[0]))
+    # the benchmark-only parallel kernels run as Python (prange is range there): the same
+    # source, without a minute of cold parallel compilation in every fresh CI run
+    assert count_steps.py_func(rays_o, rays_d, *g) == total
+    bare = bare_dda_exp.py_func(rays_o, rays_d, *g, np.ascontiguousarray(sigma[0]))
     assert bare == pytest.approx(bare_ref, rel=1e-12)
     # uniform box along the normal: exp(-sigma L)
     tr = np.empty(1)
