@@ -345,6 +345,14 @@ def out_of_reach(gap: float, falls: list[float], decades_left: float, tol: float
     return gap > max(falls[-1], 0.0) * decades_left + tol
 
 
+def _top_of_ladder(lam: float, lam_max: float) -> float:
+    """The last λ of the factor-10 ladder from ``lam`` (the first at or above ``lam_max``), as the ladder
+    computes it (the same products, so the same float)."""
+    while lam < lam_max:
+        lam *= 10.0
+    return lam
+
+
 def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_steps: int | None,
                        search_rtol: float, *, estimate_scale: bool = False, first: Eval | None = None,
                        climbed: dict[float, Eval] | None = None, redo: Any = None):
@@ -356,7 +364,10 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     below ``1 + safety`` at every λ (σ overestimated) or above it (σ underestimated, or a model error) and
     there are more data than unknowns, the search is redone with ``estimate_scale`` (``met`` then True
     below, False above: the target asked for was not met); the descent then stops as soon as
-    :func:`out_of_reach` says the target is out of its reach.
+    :func:`out_of_reach` says the target is out of its reach.  Where the least-regularized fit's χ²/m lies
+    below the target by more than ``n/m + 3√(2/m)`` (more than a right σ leaves: ``n`` unknowns), one solve
+    at the top of the range comes first: χ²/m rises with λ, so if it is below the target there, σ is
+    overestimated without the ladder's other decades.
     ``estimate_scale``: the target is ``(1 + safety) s²``, ``s² = χ²/(m − ν)``
     of the first, least-regularized fit (``ν = run.fit_dof(e)``).  ``first``: the solve at ``λ_ref · 1e-2``
     from ``theta0``, when already done; ``climbed``: the solves of an earlier pass's factor-10 ladder up from
@@ -407,10 +418,22 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     if g(e) < 0:  # too little misfit: increase λ
         lo = e
         hi = None
+        top = _top_of_ladder(lam, hi_lim)
+        known = dict(climbed or {})
+        if (not estimate_scale and not climbed and m > run.n_unknowns
+                and e.chi2 < target - run.n_unknowns / m - 3.0 * math.sqrt(2.0 / m)):
+            # further below the target than a right σ leaves (χ²/m ≥ 1 − ν/m within its noise, ν ≤ the unknowns):
+            # σ is likely overestimated, which the ladder would take every decade to prove.  χ²/m rises with λ,
+            # so one solve at the top of the range proves it; where it does not, the ladder reuses that solve
+            # (docs/accuracy.md, *The given σ's overestimate proved at the top of the range*)
+            known[top] = solve(top, e.theta)
+            if g(known[top]) < 0:
+                e, target, note, met = redo(first, {top: known[top]})
+                return e, target, f"{sigma_misestimated(True, top)}: {note}", met
         while lam < hi_lim:
             lam *= 10.0
             # a retry climbs the ladder of the first pass: the same λ from the same start
-            e = climbed[lam] if climbed and lam in climbed else solve(lam, lo.theta)
+            e = known[lam] if lam in known else solve(lam, lo.theta)
             ladder[lam] = e
             if g(e) >= 0:
                 hi = e

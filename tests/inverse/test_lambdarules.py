@@ -521,24 +521,30 @@ def test_a_misestimated_sigma_falls_back_on_the_estimated_scale_rule_as_run_alon
     assert abs(e.chi2 / ch.target - 1.0) < 1e-2, (e.chi2, ch.target)  # the estimated scale's target is met
 
 
-def test_overestimated_sigma_retry_reuses_the_ladder_and_finds_the_estimated_scale_root():
-    """Data scaled by 0.1 (noise 0.1 against σ = 1 given): χ²/m < 1 at every λ, so the search is redone
-    with the noise scale estimated.  The retry climbs the same factor-10 ladder from the same starts: it
-    must take those solves from the first pass (no λ solved twice) and find the same λ as the
-    estimated-scale rule run on its own."""
+def test_overestimated_sigma_is_proved_at_the_top_of_the_range_and_the_estimated_scale_root_found():
+    """Data scaled by 0.1 (noise 0.1 against σ = 1 given): χ²/m of the least-regularized fit is far below
+    what a right σ leaves (1 − ν/m within 3√(2/m), ν ≤ the unknowns), and χ²/m rises with λ, so one solve
+    at the top of the range (λ_ref·1e4, below the target there) proves σ overestimated instead of the
+    factor-10 ladder over six decades.  The search is redone with the noise scale estimated: the same λ as
+    that rule run on its own, with one solve more than it (the top one, reused: no λ solved twice).  With
+    σ right the top is not solved: the ladder stops where it brackets the target."""
     path = _scaled(LinearPath(), 0.1)
     e, ch, _ = Discrepancy(search="root").choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
     target, note = ch.target, ch.note
     lams = [ev.lam for ev in path.evals]
-    assert "stays below the target" in note and "noise scale estimated" in note, note
+    assert "stays below the target up to λ = 1e+04" in note and "noise scale estimated" in note, note
     assert len(lams) == len(set(lams)), lams
     alone = _scaled(LinearPath(), 0.1)
     e_alone, ch_alone, _ = Discrepancy(noise_scale="estimated").choose(alone, np.zeros(alone.n_unknowns), 1.0)
     target_alone = ch_alone.target
     assert target == pytest.approx(target_alone, rel=1e-12)
     assert e.lam == pytest.approx(e_alone.lam, rel=1e-12)
-    ladder = [1e-2 * 10.0**k for k in range(1, 7)]  # λ_ref·1e-1 … λ_ref·1e4: climbed once
-    assert all(any(math.isclose(lam, x, rel_tol=1e-12) for lam in lams) for x in ladder)
+    top = 1e-2 * 10.0**6
+    assert sum(math.isclose(lam, top, rel_tol=1e-12) for lam in lams) == 1
+    assert len(lams) <= len(alone.evals) + 1, (lams, [x.lam for x in alone.evals])
+    right = LinearPath()
+    Discrepancy(search="root").choose(right, np.zeros(right.n_unknowns), lam_ref=1.0)
+    assert max(x.lam for x in right.evals) < 1e3
 
 
 def test_joint_discrepancy_search_is_the_largest_ladder_lambda_with_chi2_below_target():

@@ -282,6 +282,7 @@ class _BranchRunner:
     standard flame at 24³ with Monte Carlo data.  No λ attains χ²/m = 1."""
 
     m_total = 100_000  # a SolvePath's number of data
+    n_unknowns = 4096  # and of unknowns (16³)
 
     def __init__(self):
         self.evals = []
