@@ -345,6 +345,29 @@ def out_of_reach(gap: float, falls: list[float], decades_left: float, tol: float
     return gap > max(falls[-1], 0.0) * decades_left + tol
 
 
+def _likely_overestimated(run: Any, e: Eval, target: float) -> bool:
+    """Whether the least-regularized fit ``e``'s χ²/m lies below ``target`` by more than a right σ leaves.
+
+    χ²/m of that fit is ``1 − ν/m`` within its noise ``√(2/m)``, and ``ν ≤ n`` (the unknowns): True where
+    ``m > n`` and ``χ²/m < target − n/m − 3√(2/m)`` (docs/accuracy.md, *The given σ's overestimate proved at
+    the top of the range*).
+    """
+    m, n = run.m_total, run.n_unknowns
+    return m > n and e.chi2 < target - n / m - 3.0 * math.sqrt(2.0 / m)
+
+
+def _estimated_scale(run: Any, e: Eval, safety: float, tol: float) -> tuple[float, float, str]:
+    """The root search's ``(target, tol, note)`` with σ known up to a factor, estimated from the least-regularized
+    fit ``e`` (:func:`estimated_target`: ``s² = χ²/(m − ν)``; the target sits ``ν/(m − ν)`` above that fit's
+    χ²/m, and the rise of χ² above it, whose spread is ``√(2ν)``, sets the tolerance).  Refuses ``m ≤ n``."""
+    m, n_unknowns = run.m_total, run.n_unknowns
+    if m - n_unknowns < 1:
+        raise LftomoError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
+                         f"{n_unknowns} unknowns")
+    target, tol, note, _ = estimated_target(run, e, safety, tol)
+    return target, tol, note
+
+
 def _top_of_ladder(lam: float, lam_max: float) -> float:
     """The last λ of the factor-10 ladder from ``lam`` (the first at or above ``lam_max``), as the ladder
     computes it (the same products, so the same float)."""
@@ -393,10 +416,8 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
                                       first=first_fit, climbed=ladder_up)
 
     def solve(lam, start):
-        # χ² of a candidate must be converged to the search tolerance: a solve
-        # stopped early overstates χ² (measured, standard flame 24³: 2.39 after
-        # 25 steps vs 0.80 converged at λ = 41), which sent the search to a λ
-        # 100× too small.
+        # χ² of a candidate must be converged to the search tolerance: a solve stopped early overstates χ² (standard
+        # flame 24³: 2.39 after 25 steps vs 0.80 converged at λ = 41), which sent the search to a λ 100× too small.
         return run.solve(lam, start, search_steps, objective_rtol=search_rtol)
 
     lam = lam_ref * 1e-2
@@ -405,27 +426,15 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     note = ""
     scale_note = ""
     if estimate_scale:
-        # σ known up to a factor: estimate it from this least-regularized fit
-        # (s² = χ²_s/(m − ν), ν its residual degrees of freedom).  The target
-        # then sits ν/(m − ν) above χ²_s; what fixes λ is the rise of χ²
-        # above that fit, whose own spread is √(2ν) in total: the tolerance.
-        n_unknowns = run.n_unknowns
-        if m - n_unknowns < 1:
-            raise LftomoError(f"noise_scale='estimated' needs more data than unknowns, got {m} data for "
-                             f"{n_unknowns} unknowns")
-        target, tol, scale_note, _ = estimated_target(run, e, safety, tol)
+        target, tol, scale_note = _estimated_scale(run, e, safety, tol)
     ladder: dict[float, Eval] = {}
     if g(e) < 0:  # too little misfit: increase λ
-        lo = e
-        hi = None
+        lo, hi = e, None
         top = _top_of_ladder(lam, hi_lim)
         known = dict(climbed or {})
-        if (not estimate_scale and not climbed and m > run.n_unknowns
-                and e.chi2 < target - run.n_unknowns / m - 3.0 * math.sqrt(2.0 / m)):
-            # further below the target than a right σ leaves (χ²/m ≥ 1 − ν/m within its noise, ν ≤ the unknowns):
-            # σ is likely overestimated, which the ladder would take every decade to prove.  χ²/m rises with λ,
-            # so one solve at the top of the range proves it; where it does not, the ladder reuses that solve
-            # (docs/accuracy.md, *The given σ's overestimate proved at the top of the range*)
+        if not estimate_scale and not climbed and _likely_overestimated(run, e, target):
+            # χ²/m rises with λ: one solve at the top of the range proves σ overestimated, which the ladder
+            # would take every decade to prove; where it does not, the ladder reuses that solve
             known[top] = solve(top, e.theta)
             if g(known[top]) < 0:
                 e, target, note, met = redo(first, {top: known[top]})
