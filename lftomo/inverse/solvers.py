@@ -246,8 +246,7 @@ CHUNK = 10
 #: ``progress=None`` shows a progress bar when the operator has more nonzeros
 #: than this (24³ with sub-voxel quadrature 2: 26 M, about 8 min on 2 cores).
 PROGRESS_MIN_NNZ = 5_000_000
-#: ... or when it fits at least this many unknowns (dense steps cost ~n³: 12³ takes about a minute and a
-#: half, 16³ about six on 2 cores).
+#: ... or when it fits at least this many unknowns (a dense step costs ~n³; times in docs/accuracy.md).
 PROGRESS_MIN_UNKNOWNS = 1000
 
 
