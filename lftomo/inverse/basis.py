@@ -100,6 +100,12 @@ class TemperatureBasis(ABC):
     def bounds(self) -> np.ndarray:
         return np.tile([-np.inf, np.inf], (self.n_params, 1))
 
+    def bound_hint(self, name: str, side: str) -> str:
+        """What a posterior pressed against coefficient ``name``'s ``side``
+        (``"lower"`` or ``"upper"``) bound says about the model; "" when nothing
+        more than that the data ask for values outside it."""
+        return ""
+
     # ------------------------------------------------------------------ helpers
     def _coeffs(self, c: Any, name: str = "c") -> tuple[np.ndarray, bool]:
         """Return ``c`` as (W, K) and whether the input was a single vector."""
@@ -403,6 +409,12 @@ class ParametricFlame(TemperatureBasis):
     @property
     def bounds(self) -> np.ndarray:
         return self._bounds.copy()
+
+    def bound_hint(self, name: str, side: str) -> str:
+        if name == "width_base" and side == "lower":
+            return ("the plume is narrower than half a voxel, which the field's voxel-centre values cannot "
+                    "resolve: use a finer grid for the basis")
+        return ""
 
     def _parts(self, C: np.ndarray):
         Tp, xc, zc, hp, wb, wg = (C[:, k : k + 1] for k in range(6))

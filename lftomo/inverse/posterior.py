@@ -1123,7 +1123,9 @@ def sample_posterior(
     -----
     UserWarning
         When the chain after burn-in is shorter than 50 integrated
-        autocorrelation times, or the importance ESS is low (and ``strict`` is False).
+        autocorrelation times, or the importance ESS is low (and ``strict`` is False);
+        when a coefficient's posterior mean lies within ``BOUND_PILEUP_STDS``
+        posterior standard deviations of one of the basis' finite bounds.
     """
     logpost, chain = _sampling_model(posterior, basis, chain, moved)
     basis = logpost.basis
@@ -1151,6 +1153,7 @@ def sample_posterior(
     mean_c = w @ samples
     Dc = samples - mean_c
     cov_c = (Dc.T * w) @ Dc / max(1.0 - float(w @ w), 1e-12)
+    _warn_at_bounds(basis, mean_c, np.sqrt(np.clip(np.diag(np.atleast_2d(cov_c)), 0.0, None)))
     T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, samples, level, rng, chain.max_field_elements, weights)
     return Posterior(
         basis=basis, names=tuple(basis.names), samples=samples, log_prob=log_prob, chain=sampler.get_chain(),
@@ -1162,6 +1165,33 @@ def sample_posterior(
         burn=chain.burn_steps, thin=chain.thin, seed=seed, elapsed_s=elapsed, likelihood=likelihood,
         weights=weights, importance_ess=ess, likelihood_note=note,
     )
+
+
+#: A coefficient whose posterior mean lies within this many posterior standard deviations of one of
+#: the basis' finite bounds is reported: a posterior cut by a bound has its mean within about 1.3
+#: (a half-normal's mean over its standard deviation), one clear of the bound lies many away.
+BOUND_PILEUP_STDS = 2.0
+
+
+def _warn_at_bounds(basis: Any, mean: np.ndarray, std: np.ndarray) -> None:
+    """Warn where a coefficient's posterior is pressed against a finite bound of ``basis``."""
+    bounds = np.asarray(basis.bounds, dtype=np.float64)
+    names = tuple(basis.names)
+    pressed, hints = [], []
+    for k, (lo, hi) in enumerate(bounds):
+        for side, b in (("lower", lo), ("upper", hi)):
+            if np.isfinite(b) and std[k] > 0 and abs(mean[k] - b) < BOUND_PILEUP_STDS * std[k]:
+                pressed.append(f"{names[k]} = {mean[k]:.6g} ± {std[k]:.3g} at its {side} bound {b:.6g}")
+                hints += [h for h in [basis.bound_hint(names[k], side)] if h]
+    if pressed:
+        warnings.warn(
+            "the posterior is pressed against the basis' bounds (" + "; ".join(pressed) + "): the data ask "
+            f"for values the {type(basis).__name__} does not allow, so the means and credible intervals there "
+            "are set by the bounds, not by the data, and the model may not represent the field"
+            + "".join(f"; {h}" for h in hints),
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _sampling_model(posterior: Any, basis: Any, chain: Any, moved: dict[str, Any]) -> tuple[LogPosterior, Any]:

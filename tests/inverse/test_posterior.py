@@ -288,6 +288,40 @@ def test_parametric_flame_laplace_recovers_truth_from_planck_data():
     assert np.all(np.abs(lap.c_map - FLAME_C) < 5.0 * lap.std), (lap.c_map - FLAME_C) / lap.std
 
 
+def _flame_data(c, seed):
+    """400 random Planck rows of the ParametricFlame field of ``c`` on the 7 x 8 x 7 grid, 0.1 % noise."""
+    g = _flame_grid()
+    A = sp.random(400, g.n_voxels, density=0.2, random_state=11, format="csr") * 1e-8
+    y0 = A @ lt.planck(ParametricFlame(g).T(c), WL)
+    sigma = np.full(400, 1e-3 * y0.mean())
+    return LinearProblem(A, y0 + sigma * np.random.default_rng(seed).standard_normal(400), sigma, g, wavelength=WL)
+
+
+def _bound_warnings(prob):
+    flame = ParametricFlame(prob.grid)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        post = sample_posterior(prob, basis=flame, bounds=(250.0, 3000.0), chain=EnsembleChain(n_steps=600),
+                                seed=1, progress=False)
+    return post, flame, [str(w.message) for w in caught if "pressed against" in str(w.message)]
+
+
+def test_posterior_pressed_against_a_basis_bound_is_reported():
+    # a plume 1 mm wide at its base, below ParametricFlame's lower bound (half a 7.1 mm voxel): the
+    # data ask for a width the basis does not allow, and only width_base is cut by its bound
+    c_narrow = FLAME_C * [1, 1, 1, 1, 0.25, 1]
+    post, flame, msgs = _bound_warnings(_flame_data(c_narrow, 13))
+    lo = flame.bounds[4, 0]
+    assert c_narrow[4] < lo
+    assert len(msgs) == 1 and "width_base" in msgs[0] and "lower bound" in msgs[0], msgs
+    assert "T_peak" not in msgs[0] and "x_axis" not in msgs[0] and "finer grid" in msgs[0]
+    assert abs(post.coeff_mean[4] - lo) < 2.0 * post.coeff_std[4]
+    # the same model with the data's plume inside the bounds: nothing reported
+    post, _, msgs = _bound_warnings(_flame_data(FLAME_C, 13))
+    assert msgs == [], msgs
+    assert np.all(np.abs(post.coeff_mean - FLAME_C) < 6.0 * post.coeff_std), (post.coeff_mean - FLAME_C) / post.coeff_std
+
+
 # ------------------------------------------------------------------ bad input
 def test_bad_input_raises_value_error(planck_case):
     g = _grid()
