@@ -1311,7 +1311,7 @@ class Discrepancy(LambdaRule):
         tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
         starts = [theta0]
         if first is not None:
-            target, tol, scale_note, _ = estimated_target(path, first, self.safety, tol)
+            target, tol, scale_note = _estimated_scale(path, first, self.safety, tol)
             # where the walk from the start gives way, once more from that converged fit: the estimated target
             # sits only ν/(m − ν) above its χ²/m (1e-3 on the README tour's 16³ fit), which the projected
             # linearisation at a start far from the fit can put out of reach at every λ (docs/accuracy.md,
