@@ -412,8 +412,9 @@ class ParametricFlame(TemperatureBasis):
 
     def bound_hint(self, name: str, side: str) -> str:
         if name == "width_base" and side == "lower":
-            return ("the plume is narrower than half a voxel, which the field's voxel-centre values cannot "
-                    "resolve: use a finer grid for the basis")
+            return ("the data ask for a plume narrower than half a voxel, which voxel-centre values cannot "
+                    "resolve: a sign that the grid is too coarse for the flame (a model error), not a measured "
+                    "width; use a finer grid for the basis")
         return ""
 
     def _parts(self, C: np.ndarray):
