@@ -1182,7 +1182,9 @@ def _warn_at_bounds(basis: Any, mean: np.ndarray, std: np.ndarray) -> None:
         for side, b in (("lower", lo), ("upper", hi)):
             if np.isfinite(b) and std[k] > 0 and abs(mean[k] - b) < BOUND_PILEUP_STDS * std[k]:
                 pressed.append(f"{names[k]} = {mean[k]:.6g} ± {std[k]:.3g} at its {side} bound {b:.6g}")
-                hints += [h for h in [basis.bound_hint(names[k], side)] if h]
+                hint = basis.bound_hint(names[k], side)
+                if hint:
+                    hints.append(hint)
     if pressed:
         warnings.warn(
             "the posterior is pressed against the basis' bounds (" + "; ".join(pressed) + "): the data ask "
