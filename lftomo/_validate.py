@@ -119,6 +119,17 @@ def require_bounds(bounds: Any) -> tuple[float, float]:
     return lo, hi
 
 
+def require_flag(name: str, value: Any, *, allow_none: bool = False) -> bool | None:
+    """``True`` or ``False`` (numpy bools too), or None where ``allow_none``; strings and numbers are refused,
+    not read as true."""
+    if value is None and allow_none:
+        return None
+    if not isinstance(value, (bool, np.bool_)):
+        allowed = "True, False or None" if allow_none else "True or False"
+        raise LftomoError(f"{name} must be {allowed}, got {value!r}")
+    return bool(value)
+
+
 def require_seed(name: str, value: Any) -> int:
     """A random seed: an integer in ``[0, MAX_SEED]``."""
     return require_int(name, value, minimum=0, maximum=MAX_SEED)
@@ -168,6 +179,44 @@ def resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
             f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
         )
     return tuple(float(a) for a in arr)
+
+
+def require_views(views: Any, views_shape: tuple[int, int]) -> list[tuple[int, int]]:
+    """A list of distinct ``(v, u)`` views of a ``(n_v, n_u)`` views grid, in the order given.
+
+    Raises
+    ------
+    LftomoError
+        On a non-sequence, an empty list, an entry that is not a pair of integers
+        (bools, floats and strings are refused, not truncated), a view outside the
+        grid, or a view listed twice.
+    """
+    nv, nu = views_shape
+    if isinstance(views, (str, bytes)):
+        raise LftomoError(f"views must be a list of (v, u) pairs, got {views!r}")
+    try:
+        items = list(views)
+    except TypeError:
+        raise LftomoError(f"views must be a list of (v, u) pairs, got {views!r}") from None
+    if not items:
+        raise LftomoError("views must name at least one (v, u) view, got an empty list")
+    out = []
+    for k, vu in enumerate(items):
+        try:
+            pair = tuple(vu)
+        except TypeError:
+            raise LftomoError(f"views[{k}] must be a (v, u) pair, got {vu!r}") from None
+        if len(pair) != 2 or not all(isinstance(a, (numbers.Integral, np.integer)) and not isinstance(a, bool)
+                                      for a in pair):
+            raise LftomoError(f"views[{k}] must be a pair of integers (v, u), got {vu!r}")
+        v, u = int(pair[0]), int(pair[1])
+        if not (0 <= v < nv and 0 <= u < nu):
+            raise LftomoError(f"views[{k}] = (v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
+        out.append((v, u))
+    if len(set(out)) != len(out):
+        dup = sorted({x for x in out if out.count(x) > 1})
+        raise LftomoError(f"views lists some views more than once: {dup}")
+    return out
 
 
 def require_instance(name: str, value: Any, kind: type | tuple[type, ...], what: str) -> Any:

@@ -100,6 +100,12 @@ WEIGHTS_CASES = {
     "wl-str": (dict(wavelength="blue"), "wavelength must be a wavelength"),
     "memory-neg": (dict(memory_limit=-1), "memory_limit must be a positive"),
     "views-range": (dict(views=[(99, 0)]), r"views\[0\]"),
+    "views-float": (dict(views=[(1.5, 1)]), r"views\[0\] must be a pair of integers \(v, u\), got \(1.5, 1\)"),
+    "views-float-array": (dict(views=np.array([[1.7, 1.2]])), r"views\[0\] must be a pair of integers"),
+    "views-bool": (dict(views=[(True, 1)]), r"views\[0\] must be a pair of integers"),
+    "views-str": (dict(views=[("1", "1")]), r"views\[0\] must be a pair of integers"),
+    "views-empty": (dict(views=[]), "views must name at least one"),
+    "views-twice": (dict(views=[(1, 1), (1, 1)]), r"views lists some views more than once: \[\(1, 1\)\]"),
     "surfaces-int": (dict(surfaces=3), "surfaces must be None"),
 }
 
@@ -143,6 +149,12 @@ OBJECT_CASES = {
                       r"angles_deg\[1\] must be finite"),
     "rig-camera": (lambda: lt.rig_around({}, (0, 0, 1), [0]), "camera must be an lftomo.Camera, got dict"),
     "reconstruct-types": (lambda: lt.reconstruct("m", "w"), "measurement must be an lftomo.Measurement, got str"),
+    "chain-thin": (lambda: lt.EnsembleChain(n_steps=10, burn=0, thin=100),
+                   "thin must be <= the 10 steps kept after burn-in"),
+    "chain-moves-str": (lambda: lt.EnsembleChain(moves="stretch"), "moves must be an emcee move"),
+    "chain-moves-int": (lambda: lt.EnsembleChain(moves=3), "moves must be an emcee move"),
+    "chain-moves-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), -1.0)]),
+                           r"moves must be .*\(move, weight > 0\)"),
     "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
                                                  {}), "camera must be an lftomo.Camera, got dict"),
     "forward-bundles": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
@@ -194,6 +206,42 @@ def test_reconstruct_bounds_must_be_two_numbers(lf):
     for bad in ("300,3000", (300.0,), None):
         with pytest.raises(ValueError, match=r"bounds must be \(T_min, T_max\) in K, two numbers, got"):
             lt.reconstruct(m, tiny_weights(), bounds=bad)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(seed=-1), "seed must be an integer >= 0, got -1"),
+    (dict(seed=0.5), "seed must be an integer"),
+    (dict(seed="a"), "seed must be an integer"),
+    (dict(optimize="no"), "optimize must be True or False, got 'no'"),
+    (dict(progress="yes"), "progress must be True or False, got 'yes'"),
+])
+def test_sample_posterior_flags_and_seed_are_checked_first(lf, kw, match):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    problem = lt.Problem.from_data(m, tiny_weights())
+    with pytest.raises(LftomoError, match=match):
+        lt.sample_posterior(problem, basis=lt.DCTBasis(problem.grid, (2, 2, 2)), **kw)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda m, W: lt.laplace_posterior(m, W, seed=-1), "seed must be an integer >= 0, got -1"),
+    (lambda m, W: lt.laplace_posterior(m, W, progress="x"), "progress must be True, False or None, got 'x'"),
+    (lambda m, W: lt.reconstruct(m, W, progress="yes"), "progress must be True, False or None, got 'yes'"),
+])
+def test_posterior_and_reconstruct_flags_are_checked_before_the_fit(lf, call, match):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    with pytest.raises(LftomoError, match=match):
+        call(m, tiny_weights())
+
+
+def test_bounds_in_kilokelvin_are_refused_where_planck_underflows(lf, cam, grid):
+    # (0.3, 3.0): temperatures typed in kK; at 650 nm I_b(1.65 K) is 0 in double precision
+    lf650 = lt.render(lt.Scene(medium=lt.phantoms.gaussian_blob(grid, width=0.006, T_peak=1800.0, T_ambient=1000.0,
+                                                                sigma_a_peak=20.0)),
+                      cam, rays_per_pixel=1, seed=0, wavelengths=(650e-9,), progress=False)
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf650, relative_std=0.01, seed=1))
+    W = lt.weights(cam, grid, sigma_a=5.0, wavelength=650e-9, rays_per_pixel=1, seed=0, progress=False)
+    with pytest.raises(LftomoError, match=r"bounds = \(0.3, 3.0\) K: the blackbody emission .* bounds are in kelvin"):
+        lt.reconstruct(m, W, bounds=(0.3, 3.0))
 
 
 def test_fewer_data_than_unknowns_warns():

@@ -21,7 +21,8 @@ import numpy as np
 import numba
 
 from ..errors import LftomoError
-from .._validate import check_allocation, require_instance, require_rays, require_seed, resolve_wavelengths
+from .._validate import (check_allocation, require_flag, require_instance, require_rays, require_seed,
+                         resolve_wavelengths)
 from ..progress import progress_bar
 from .chunks import ChunkSizer, interruptible
 from .sampler import DEFAULT_SAMPLER, SAMPLERS
@@ -79,8 +80,7 @@ def render(
     require_instance("camera", camera, Camera, "an lftomo.Camera")
     n_rays = require_rays("rays_per_pixel", rays_per_pixel, n_pixels=camera.sensor_shape[0] * camera.sensor_shape[1])
     seed = require_seed("seed", seed)
-    if progress is not None and not isinstance(progress, (bool, np.bool_)):
-        raise LftomoError(f"progress must be True, False or None, got {progress!r}")
+    require_flag("progress", progress, allow_none=True)
     wl = resolve_wavelengths(wavelengths)
     scene.check_visible_from(camera)
     n_ch = 1 if wl is None else len(wl)

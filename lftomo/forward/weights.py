@@ -107,7 +107,7 @@ import scipy.sparse as sp
 from numba import njit, prange
 
 from ..errors import LftomoError
-from .._validate import require_int, require_positive, require_rays, require_seed
+from .._validate import require_int, require_positive, require_rays, require_seed, require_views
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
@@ -701,15 +701,12 @@ def _select_rows(camera, views, lightfield):
         sel = views & (vidx >= 0)
         desc = f"pixel mask with {int(sel.sum())} pixels"
     else:
-        try:
-            pairs = [tuple(int(a) for a in vu) for vu in views]
-        except (TypeError, ValueError):
+        if isinstance(views, np.ndarray) and views.ndim != 2:
             raise LftomoError(f"views must be None, a boolean mask of shape {shape} or a list of (v, u) "
-                             f"pairs, got {views!r}") from None
+                             f"pairs, got an array of shape {views.shape} and dtype {views.dtype}")
+        pairs = require_views(views, (nv, nu))
         sel = np.zeros(shape, bool)
-        for k, vu in enumerate(pairs):
-            if len(vu) != 2 or not (0 <= vu[0] < nv and 0 <= vu[1] < nu):
-                raise LftomoError(f"views[{k}] = {vu!r} is not a view (v, u) with 0 <= v < {nv}, 0 <= u < {nu}")
+        for vu in pairs:
             sel[vu] = vmask[vu]
         desc = [list(vu) for vu in sorted(set(pairs))]
     flat = np.flatnonzero(sel.ravel())

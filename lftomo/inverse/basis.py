@@ -413,8 +413,8 @@ class ParametricFlame(TemperatureBasis):
     def bound_hint(self, name: str, side: str) -> str:
         if name == "width_base" and side == "lower":
             return ("the data ask for a plume narrower than half a voxel, which voxel-centre values cannot "
-                    "resolve: a sign that the grid is too coarse for the flame (a model error), not a measured "
-                    "width; use a finer grid for the basis")
+                    "resolve: read it as a model error (the flame, grid or W does not represent the data), not "
+                    "as a measured width")
         return ""
 
     def _parts(self, C: np.ndarray):

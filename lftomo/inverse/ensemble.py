@@ -30,6 +30,24 @@ DEFINITION_KEYWORDS = ("prior_mean", "prior_std", "prior", "regularization", "L"
                        "emission", "dense_max")
 
 
+def _check_moves(moves: Any) -> None:
+    """emcee's ``moves``: None, a move, or a list of moves or of ``(move, weight > 0)`` pairs."""
+    if moves is None:
+        return
+    items = moves if isinstance(moves, (list, tuple)) and not hasattr(moves, "propose") else [moves]
+    ok = len(items) > 0
+    for item in items:
+        if isinstance(item, tuple) and len(item) == 2 and not hasattr(item, "propose"):
+            move, weight = item
+            ok = ok and isinstance(weight, (int, float)) and not isinstance(weight, bool) and weight > 0
+        else:
+            move = item
+        ok = ok and callable(getattr(move, "propose", None))
+    if not ok:
+        raise LftomoError(f"moves must be an emcee move (e.g. emcee.moves.DEMove()), a list of them or a list of "
+                          f"(move, weight > 0) pairs, got {moves!r}")
+
+
 @dataclass(frozen=True)
 class EnsembleChain:
     """How the affine-invariant ensemble runs (Goodman & Weare 2010, with emcee).
@@ -83,7 +101,11 @@ class EnsembleChain:
         n_steps = require_int("n_steps", self.n_steps, minimum=2)
         if self.burn is not None and require_int("burn", self.burn, minimum=0) >= n_steps:
             raise LftomoError(f"burn must be < n_steps = {n_steps}, got {self.burn}")
-        require_int("thin", self.thin, minimum=1)
+        kept = n_steps - (n_steps // 4 if self.burn is None else int(self.burn))
+        if require_int("thin", self.thin, minimum=1) > kept:
+            raise LftomoError(f"thin must be <= the {kept} steps kept after burn-in (n_steps - burn), got {self.thin}: "
+                              "no sample would be kept")
+        _check_moves(self.moves)
         require_positive("init_scale", self.init_scale)
         require_int("n_importance", self.n_importance, minimum=10)
         require_positive("max_field_elements", self.max_field_elements)

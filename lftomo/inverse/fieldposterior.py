@@ -58,7 +58,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import ndtri
 
-from .._validate import require_bounds, require_int, require_positive
+from .._validate import require_bounds, require_flag, require_int, require_positive, require_seed
 from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
@@ -500,6 +500,9 @@ def laplace_posterior(
             raise LftomoError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
         problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights
     T_start = temperature_start(start, problem.grid)
+    require_flag("progress", progress, allow_none=True)
+    if seed is not None:
+        require_seed("seed", seed)
     ring = resolve_symmetry(symmetry, problem.grid)
     if ring is not None:
         problem = ring.apply(problem)

@@ -23,7 +23,6 @@ per-pixel), so the raw covariance is diagonal, ``Σ = diag(noise_std²)``.
 from __future__ import annotations
 
 import dataclasses
-import numbers
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -31,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import require_array, require_int, require_nonnegative, require_positive
+from .._validate import require_array, require_int, require_nonnegative, require_positive, require_views
 
 __all__ = ["SensorModel", "add_noise", "saturated_mask", "Measurement", "DATA_KINDS"]
 
@@ -437,31 +436,7 @@ def saturated_mask(lf) -> np.ndarray:
 
 def _check_views(views: Any, lf) -> list[tuple[int, int]]:
     """Validate a list of (v, u) pairs; return them sorted in (v, u) order."""
-    nv, nu = lf.camera.views_shape[:2]
-    if isinstance(views, (str, bytes)):
-        raise LftomoError(f"views must be a list of (v, u) pairs, got {views!r}")
-    try:
-        items = list(views)
-    except TypeError:
-        raise LftomoError(f"views must be a list of (v, u) pairs, got {views!r}") from None
-    if not items:
-        raise LftomoError("views must name at least one (v, u) view, got an empty list")
-    out = []
-    for k, vu in enumerate(items):
-        try:
-            pair = tuple(vu)
-        except TypeError:
-            raise LftomoError(f"views[{k}] must be a (v, u) pair, got {vu!r}") from None
-        if len(pair) != 2 or not all(isinstance(a, (numbers.Integral, np.integer)) and not isinstance(a, bool)
-                                      for a in pair):
-            raise LftomoError(f"views[{k}] must be a pair of integers (v, u), got {vu!r}")
-        v, u = int(pair[0]), int(pair[1])
-        if not (0 <= v < nv and 0 <= u < nu):
-            raise LftomoError(f"views[{k}] = (v, u) = ({v}, {u}) is outside the views grid 0..{nv - 1} x 0..{nu - 1}")
-        out.append((v, u))
-    if len(set(out)) != len(out):
-        dup = sorted({x for x in out if out.count(x) > 1})
-        raise LftomoError(f"views lists some views more than once: {dup}")
+    out = require_views(views, lf.camera.views_shape[:2])
     lit = lf.view_mask.any(axis=(2, 3))
     dark = [vu for vu in out if not lit[vu]]
     if dark:

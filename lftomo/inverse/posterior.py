@@ -61,9 +61,11 @@ from .._validate import (
     check_allocation,
     require_array,
     require_finite_scalar,
+    require_flag,
     require_int,
     require_nonnegative,
     require_positive,
+    require_seed,
 )
 from ..interrupt import check_interrupt, stop_between_steps
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
@@ -1127,6 +1129,10 @@ def sample_posterior(
         when a coefficient's posterior mean lies within ``BOUND_PILEUP_STDS``
         posterior standard deviations of one of the basis' finite bounds.
     """
+    require_flag("optimize", optimize)
+    require_flag("progress", progress)
+    if seed is not None:
+        require_seed("seed", seed)
     logpost, chain = _sampling_model(posterior, basis, chain, moved)
     basis = logpost.basis
     K = basis.n_params

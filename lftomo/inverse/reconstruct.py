@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import require_flag
 from ..errors import LftomoError
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
@@ -355,8 +356,8 @@ def reconstruct(
     if fit == "T" and method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
         raise LftomoError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
                          f"unknowns='T', got {method!r}")
-    if progress is not None:
-        options["progress"] = progress
+    if require_flag("progress", progress, allow_none=True) is not None:
+        options["progress"] = bool(progress)
     t0 = time.perf_counter()
     problem = measurement if given else Problem.from_data(measurement, weights, unknowns=what, symmetry=symmetry,
                                                           grid=grid)

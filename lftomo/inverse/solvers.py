@@ -436,6 +436,10 @@ def _make_setup(problem, *, bounds, prior, penalize, tv_eps, T_ref) -> _Setup:
     nnz_row = np.diff(A.indptr)
     used = nnz_row > 0
     I_scale = float(blackbody(np.float64(T_ref), wl))
+    if not I_scale > 0.0:  # Planck's law underflows: temperatures given in kK, or far too cold to see
+        raise LftomoError(
+            f"bounds = ({tmin!r}, {tmax!r}) K: the blackbody emission at T = {T_ref:.4g} K, mid-range, is 0 in "
+            f"double precision at the wavelength {wl!r} m; bounds are in kelvin (e.g. (300, 3000))")
     T_scale = tmax - tmin
     I_reg = float(dblackbody_dT(np.float64(T_ref), wl)) * T_scale
     row_scale = w[used] * I_scale
