@@ -28,7 +28,10 @@ def require_finite_scalar(name: str, value: Any) -> float:
     """Return ``value`` as float; raise if it is not a finite real scalar."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
         raise LftomoError(f"{name} must be a real number, got {_fmt(value)}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond the largest double
+        raise LftomoError(f"{name} must be finite, got an integer of {len(str(abs(int(value))))} digits") from None
     if not np.isfinite(v):
         raise LftomoError(f"{name} must be finite, got {v!r}")
     return v
@@ -171,7 +174,11 @@ def resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
         return None
     if isinstance(wavelengths, str):
         raise LftomoError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, got {wavelengths!r}")
-    arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
+    try:
+        arr = np.atleast_1d(np.asarray(wavelengths, dtype=float))
+    except (TypeError, ValueError, OverflowError):
+        raise LftomoError(f"wavelengths must be 'gray', a wavelength in m or a sequence of them, "
+                          f"got {_fmt(wavelengths)}") from None
     if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise LftomoError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
     if np.any(arr > 1e-3):
@@ -179,6 +186,14 @@ def resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
             f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
         )
     return tuple(float(a) for a in arr)
+
+
+def require_wavelength(name: str, value: Any) -> float:
+    """One wavelength in metres, in ``(0, 1e-3]`` (nanometres passed as metres are refused)."""
+    v = require_positive(name, value)
+    if v > 1e-3:
+        raise LftomoError(f"{name} must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
+    return v
 
 
 def require_views(views: Any, views_shape: tuple[int, int]) -> list[tuple[int, int]]:
@@ -250,7 +265,7 @@ def memory_limit(value: Any = None) -> int:
             raise LftomoError(f"environment variable LFTOMO_MEMORY_LIMIT_GB must be a number > 0, got {env!r}")
         return int(gb * 1e9)
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.integer, np.floating)) \
-            or not (np.isfinite(float(value)) and value > 0):
+            or not (np.isfinite(float(value)) and value > 0) or float(value) >= 2.0**63:
         raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
                           f"got {_fmt(value)}")
     return int(value)
@@ -286,6 +301,8 @@ def require_vector(name: str, value: Any, length: int) -> tuple[float, ...]:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise LftomoError(f"{name} must be a sequence of {length} numbers, got {_fmt(value)}") from None
+    except OverflowError:  # an integer beyond the largest double
+        raise LftomoError(f"{name} must be finite, got an integer beyond the largest double") from None
     if arr.shape != (length,):
         raise LftomoError(f"{name} must have {length} components, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):

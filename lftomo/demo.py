@@ -1268,6 +1268,8 @@ def _matching_channel(lf, wl: float | None, channel: int | None) -> int:
     if lf.wavelengths is None:
         if wl is not None:
             raise LftomoError(f"--weights: built for {name(wl)} but the --lightfield is gray")
+        if channel is not None and int(channel) != 0:
+            raise LftomoError(f"--channel must be in 0..0 (a gray light field has one channel), got {int(channel)}")
         return 0
     match = [k for k, w in enumerate(lf.wavelengths) if wl is not None and abs(w - wl) <= 1e-12]
     if channel is not None:

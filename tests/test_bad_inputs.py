@@ -149,6 +149,19 @@ OBJECT_CASES = {
                       r"angles_deg\[1\] must be finite"),
     "rig-camera": (lambda: lt.rig_around({}, (0, 0, 1), [0]), "camera must be an lftomo.Camera, got dict"),
     "reconstruct-types": (lambda: lt.reconstruct("m", "w"), "measurement must be an lftomo.Measurement, got str"),
+    "dct-grid-str": (lambda: lt.DCTBasis("g"), "grid must be an lftomo.Grid, got str"),
+    "bspline-grid-str": (lambda: lt.BSplineBasis("g"), "grid must be an lftomo.Grid, got str"),
+    "flame-basis-grid-str": (lambda: lt.ParametricFlame("g"), "grid must be an lftomo.Grid, got str"),
+    "laplace-measurement-str": (lambda: lt.laplace_posterior("m", None),
+                                "measurement must be an lftomo.Measurement, Problem or LinearProblem, got str"),
+    "grid-int-overflow": (lambda: lt.Grid((1, 1, 1), (10**400, 0, 0), (1, 1, 1)),
+                          "lower must be finite, got an integer beyond the largest double"),
+    "scalar-int-overflow": (lambda: lt.SootRule(650e-9, 10**400), "alpha must be finite, got an integer of 401 digits"),
+    "soot-nm": (lambda: lt.SootRule(650, 1.38), "reference_wavelength must be in metres .* got 650.0"),
+    "flame-nm": (lambda: lt.phantoms.axisymmetric_flame(tiny_grid(), reference_wavelength=650),
+                 "reference_wavelength must be in metres"),
+    "render-wl-complex": (lambda: lt.render(lt.Scene(), tiny_camera(), wavelengths=650e-9 + 0j),
+                          r"wavelengths must be 'gray', a wavelength in m .* got \(6.5e-07\+0j\)"),
     "chain-thin": (lambda: lt.EnsembleChain(n_steps=10, burn=0, thin=100),
                    "thin must be <= the 10 steps kept after burn-in"),
     "chain-moves-str": (lambda: lt.EnsembleChain(moves="stretch"), "moves must be an emcee move"),
@@ -242,6 +255,26 @@ def test_bounds_in_kilokelvin_are_refused_where_planck_underflows(lf, cam, grid)
     W = lt.weights(cam, grid, sigma_a=5.0, wavelength=650e-9, rays_per_pixel=1, seed=0, progress=False)
     with pytest.raises(LftomoError, match=r"bounds = \(0.3, 3.0\) K: the blackbody emission .* bounds are in kelvin"):
         lt.reconstruct(m, W, bounds=(0.3, 3.0))
+
+
+def test_basis_on_another_box_is_refused(lf):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    problem = lt.Problem.from_data(m, tiny_weights())
+    g = problem.grid
+    moved = lt.Grid(g.shape, tuple(a + 0.01 for a in g.lower), tuple(a + 0.01 for a in g.upper))
+    with pytest.raises(LftomoError, match=r"problem\[0\] grid box .* does not match the basis grid box"):
+        lt.sample_posterior(problem, basis=lt.DCTBasis(moved, (2, 2, 2)))
+
+
+def test_gray_light_field_refuses_a_channel_other_than_0():
+    from types import SimpleNamespace
+
+    from lftomo.demo import _matching_channel
+
+    gray = SimpleNamespace(wavelengths=None, n_channels=1)
+    assert _matching_channel(gray, None, None) == 0 and _matching_channel(gray, None, 0) == 0
+    with pytest.raises(LftomoError, match=r"--channel must be in 0..0 \(a gray light field has one channel\), got 3"):
+        _matching_channel(gray, None, 3)
 
 
 def test_fewer_data_than_unknowns_warns():

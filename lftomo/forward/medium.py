@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_finite_scalar, require_positive, require_regular_file
+from .._validate import require_finite_scalar, require_positive, require_regular_file, require_wavelength
 from ..radiation import blackbody_intensity
 from .grid import Grid
 
@@ -53,7 +53,7 @@ class SootRule:
 
     def __post_init__(self) -> None:
         object.__setattr__(
-            self, "reference_wavelength", require_positive("reference_wavelength", self.reference_wavelength)
+            self, "reference_wavelength", require_wavelength("reference_wavelength", self.reference_wavelength)
         )
         object.__setattr__(self, "alpha", require_finite_scalar("alpha", self.alpha))
 

@@ -29,7 +29,8 @@ import numpy as np
 import scipy.optimize as so
 
 from ..errors import LftomoError
-from .._validate import require_array, require_finite_scalar, require_int, require_positive
+from .._validate import require_array, require_finite_scalar, require_instance, require_int, require_positive
+from ..forward.grid import Grid
 from .parameterize import bspline_design
 
 __all__ = [
@@ -198,7 +199,7 @@ class LinearBasis(TemperatureBasis):
     is_linear = True
 
     def __init__(self, grid: Any, matrix: Any, names: Any = None) -> None:
-        self.grid = grid
+        self.grid = require_instance("grid", grid, Grid, "an lftomo.Grid")
         B = require_array("matrix", matrix, ndim=2)
         if B.shape[0] != grid.n_voxels:
             raise LftomoError(
@@ -268,6 +269,7 @@ class DCTBasis(LinearBasis):
     """
 
     def __init__(self, grid: Any, n_coeffs: Any = (3, 4, 3)) -> None:
+        require_instance("grid", grid, Grid, "an lftomo.Grid")
         k = _per_axis("n_coeffs", n_coeffs, grid)
         _check_n_params(int(np.prod(k)), f"n_coeffs={k}")
         Bx, By, Bz = (_dct_1d(n, kk) for n, kk in zip(grid.shape, k))
@@ -316,6 +318,7 @@ class BSplineBasis(LinearBasis):
     """
 
     def __init__(self, grid: Any, n_coeffs: Any = (3, 4, 3), *, degree: int = 3) -> None:
+        require_instance("grid", grid, Grid, "an lftomo.Grid")
         deg = require_int("degree", degree, minimum=0)
         if deg > 3:
             raise LftomoError(f"degree must be 0, 1, 2 or 3, got {deg}")
@@ -382,7 +385,7 @@ class ParametricFlame(TemperatureBasis):
         axial_order: float = 2.0,
         T_peak_max: float = 4000.0,
     ) -> None:
-        self.grid = grid
+        self.grid = require_instance("grid", grid, Grid, "an lftomo.Grid")
         self.T_ambient = require_positive("T_ambient", T_ambient)
         self.y_base = float(grid.lower[1]) if y_base is None else require_finite_scalar("y_base", y_base)
         self.axial_order = require_positive("axial_order", axial_order)

@@ -63,6 +63,7 @@ from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
 from .problem import LinearProblem
+from .measurement import Measurement
 from .fitproblem import Problem, as_problem, problem_on_grid, temperature_start
 from .result import symmetry_name, temperature_errors
 from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options, with_default_noise_scale
@@ -496,6 +497,9 @@ def laplace_posterior(
             raise LftomoError("weights must be None when measurement is a LinearProblem (it has its operator)")
         problem = measurement
     else:
+        if not isinstance(measurement, Measurement):
+            raise LftomoError(f"measurement must be an lftomo.Measurement, Problem or LinearProblem, got "
+                              f"{type(measurement).__name__}")
         if weights is None:
             raise LftomoError("weights (a WeightMatrix on the reconstruction grid) is required with a Measurement")
         problem, _ = problem_on_grid(measurement, weights, grid)  # validates data against the weights

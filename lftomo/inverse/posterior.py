@@ -559,6 +559,12 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
                 f"problem[{i}] grid shape {tuple(p.grid.shape)} (A with {p.A.shape[1]} columns) does not match "
                 f"the basis grid shape {tuple(basis.grid.shape)}"
             )
+        if not (np.allclose(p.grid.lower, basis.grid.lower, rtol=0.0, atol=1e-9 * np.max(p.grid.size))
+                and np.allclose(p.grid.upper, basis.grid.upper, rtol=0.0, atol=1e-9 * np.max(p.grid.size))):
+            raise LftomoError(
+                f"problem[{i}] grid box {tuple(p.grid.lower)}..{tuple(p.grid.upper)} m does not match the basis "
+                f"grid box {tuple(basis.grid.lower)}..{tuple(basis.grid.upper)} m; build the basis on the problem's grid"
+            )
     return probs
 
 
