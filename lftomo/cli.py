@@ -439,6 +439,13 @@ def _int_in(text: str, lo: int, hi: int) -> int:
     return v
 
 
+def _output(text: str) -> str:
+    """An output path: not empty (an empty -o would write into the current folder unasked)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a file or folder name, got {text!r}")
+    return text
+
+
 def _nonneg_int(text: str) -> int:
     return _int_in(text, 0, 2**31 - 1)
 
@@ -552,7 +559,7 @@ def _add_series_parser(sub) -> None:
                          "in time order; and one SCENE.toml among them, whose camera and [medium] give the weight "
                          "matrix (or --weights)")
     sr.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
-    sr.add_argument("-o", "--output", default="lftomo-series", help="output directory (a rerun resumes there)")
+    sr.add_argument("-o", "--output", type=_output, default="lftomo-series", help="output directory (a rerun resumes there)")
     sr.add_argument("--scheduler", default=None, help="address of a Dask scheduler, e.g. tcp://host:8786 "
                                                       "(default: a local cluster)")
     sr.add_argument("--workers", type=_pos_int, default=None,
@@ -606,7 +613,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_camera)
     r = sub.add_parser("render", help="render the raw light field, views and a focal stack")
     r.add_argument("scene", nargs="?", default=None, help="TOML scene file (default: built-in target scene)")
-    r.add_argument("-o", "--output", default="lftomo-render", help="output directory")
+    r.add_argument("-o", "--output", type=_output, default="lftomo-render", help="output directory")
     r.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     r.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(r, "override render.sampler")
@@ -615,7 +622,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_render)
     w = sub.add_parser("weights", help="build the ray-voxel weight matrix of the scene's medium grid (.npz)")
     w.add_argument("scene", help="TOML scene file with a [medium]")
-    w.add_argument("-o", "--output", default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
+    w.add_argument("-o", "--output", type=_output, default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
     w.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     w.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(w, "override render.sampler (the rays are those of lftomo render with the same seed and sampler)")
@@ -626,7 +633,7 @@ def build_parser() -> argparse.ArgumentParser:
     w.set_defaults(func=cmd_weights)
     d = sub.add_parser("demo", help="the whole story on the built-in flame: render, weights, reconstruction, "
                                      "posterior, refocus vs views; writes an HTML report")
-    d.add_argument("-o", "--output", default="lftomo-demo", help="report directory (default lftomo-demo)")
+    d.add_argument("-o", "--output", type=_output, default="lftomo-demo", help="report directory (default lftomo-demo)")
     d.add_argument("--quick", action="store_true", help="small camera and grids, short chain (~1 min on 2 cores with a warm numba cache)")
     d.add_argument("--seed", type=_seed, default=0, help="base seed (render s, noise s+1, weights s+2, "
                                                                "posterior s+3)")
@@ -639,7 +646,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "or give --lightfield and --weights")
     rc.add_argument("--lightfield", default=None, help="light field .npz (lftomo render / LightField.save)")
     rc.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
-    rc.add_argument("-o", "--output", default="lftomo-reconstruct", help="output directory")
+    rc.add_argument("-o", "--output", type=_output, default="lftomo-reconstruct", help="output directory")
     rc.add_argument("--noise", type=_pos_float, default=None,
                     help="relative Gaussian noise added to a noise-free light field (default 0.01)")
     rc.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
@@ -715,7 +722,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--scene", default=None, help="scene TOML whose camera will reconstruct these frames: says "
                      "whether its microlens lattice is the calibrated one, else prints the [camera.mla] and "
                      "[camera.sensor] keys that make it so")
-    cal.add_argument("-o", "--output", default="calibration.npz", help="output .npz (a .png figure beside it)")
+    cal.add_argument("-o", "--output", type=_output, default="calibration.npz", help="output .npz (a .png figure beside it)")
     cal.set_defaults(func=cmd_calibrate)
     from .designcli import add_design_parser
 

@@ -162,6 +162,9 @@ OBJECT_CASES = {
                  "reference_wavelength must be in metres"),
     "render-wl-complex": (lambda: lt.render(lt.Scene(), tiny_camera(), wavelengths=650e-9 + 0j),
                           r"wavelengths must be 'gray', a wavelength in m .* got \(6.5e-07\+0j\)"),
+    "focus-far": (lambda: lt.Camera.seed(1e8), "focus_distance must be <= 100000 m, got 100000000.0"),
+    "sequence-huge": (lambda: lt.phantoms.precessing_flame_sequence(tiny_grid(), 10**9),
+                      "1000000000 frames of .* voxels needs an estimated"),
     "chain-thin": (lambda: lt.EnsembleChain(n_steps=10, burn=0, thin=100),
                    "thin must be <= the 10 steps kept after burn-in"),
     "chain-moves-str": (lambda: lt.EnsembleChain(moves="stretch"), "moves must be an emcee move"),
@@ -275,6 +278,14 @@ def test_gray_light_field_refuses_a_channel_other_than_0():
     assert _matching_channel(gray, None, None) == 0 and _matching_channel(gray, None, 0) == 0
     with pytest.raises(LftomoError, match=r"--channel must be in 0..0 \(a gray light field has one channel\), got 3"):
         _matching_channel(gray, None, 3)
+
+
+@pytest.mark.parametrize("command", ["render", "weights", "demo", "reconstruct", "series", "calibrate"])
+def test_empty_output_path_is_refused(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([command, "-o", ""])
+    assert exc.value.code == 2
+    assert "argument -o/--output: expected a file or folder name, got ''" in capsys.readouterr().err
 
 
 def test_fewer_data_than_unknowns_warns():

@@ -106,6 +106,11 @@ def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: f
 BYTES_PER_PIXEL = 64
 
 
+#: The farthest focus :meth:`Camera.focused` takes (m).  The best-focus plane of the seed lens moves by
+#: 5 nm between 1e4 and 1e5 m; beyond 1e6 m the traced fan degenerates (1e7 m gave a plane 13 mm off).
+MAX_FOCUS_DISTANCE = 1e5
+
+
 @dataclass(frozen=True)
 class MainLens:
     """Thick spherical main lens with an aperture stop in front of it.
@@ -486,6 +491,10 @@ class Camera:
                 f"focus_distance ({fd!r} m) is inside the main-lens focal length ({f:.6g} m): no real "
                 "image; it must be larger"
             )
+        if fd > MAX_FOCUS_DISTANCE:
+            raise LftomoError(f"focus_distance must be <= {MAX_FOCUS_DISTANCE:g} m, got {fd!r}: farther, the "
+                              "best-focus search's ray fan is too thin to trace in double precision, and the "
+                              "camera is already focused at infinity there")
         z_best = best_focus_z(main_lens, fd)
         mla_front = z_best + mla.front_principal_plane
         return cls(

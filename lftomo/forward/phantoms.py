@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_finite_scalar, require_in_range, require_nonnegative, require_positive, require_vector
+from .._validate import (check_allocation, require_finite_scalar, require_in_range, require_nonnegative,
+                         require_positive, require_vector)
 from .grid import Grid
 from .medium import Medium, SootRule
 
@@ -513,7 +514,12 @@ def precessing_flame_sequence(grid: Grid, n_frames: int, *, frame_rate: float = 
     if n != n_frames or n < 1:
         raise LftomoError(f"n_frames must be an integer >= 1, got {n_frames!r}")
     fr = require_positive("frame_rate", frame_rate)
-    return [precessing_flame(grid, k / fr, **kw) for k in range(n)]
+    _require_grid(grid)
+    # every frame holds its fields (T, sigma_a, sigma_s, g: 4 doubles a voxel): refuse a list past the memory limit
+    check_allocation(f"{n} frames of {grid.n_voxels} voxels", 32.0 * n * grid.n_voxels,
+                     hint="use fewer frames, or make them one at a time with precessing_flame")
+    first = precessing_flame(grid, 0.0, **kw)  # checks kw before the loop
+    return [first] + [precessing_flame(grid, k / fr, **kw) for k in range(1, n)]
 
 
 # ---------------------------------------------------------------------- reference cases
