@@ -416,8 +416,8 @@ class ParametricFlame(TemperatureBasis):
     def bound_hint(self, name: str, side: str) -> str:
         if name == "width_base" and side == "lower":
             return ("the data ask for a plume narrower than half a voxel, which voxel-centre values cannot "
-                    "resolve: read it as a model error (the flame, grid or W does not represent the data), not "
-                    "as a measured width")
+                    "resolve: read it as a model error (the flame, the grid, W or the data's σ does not represent "
+                    "the data; dim pixels' σ below their Monte Carlo error is one cause), not as a measured width")
         return ""
 
     def _parts(self, C: np.ndarray):
