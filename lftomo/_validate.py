@@ -181,18 +181,23 @@ def resolve_wavelengths(wavelengths) -> tuple[float, ...] | None:
                           f"got {_fmt(wavelengths)}") from None
     if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise LftomoError(f"wavelengths must be positive finite values in m, got {wavelengths!r}")
-    if np.any(arr > 1e-3):
-        raise LftomoError(
-            f"wavelengths must be in metres (e.g. 650e-9), got {arr.tolist()}; did you pass nanometres?"
-        )
+    _refuse_nanometres("wavelengths", arr, arr.tolist())
     return tuple(float(a) for a in arr)
+
+
+#: Largest wavelength accepted (m); a larger value is taken for nanometres passed as metres.
+MAX_WAVELENGTH = 1e-3
+
+
+def _refuse_nanometres(name: str, values: Any, shown: Any) -> None:
+    if np.any(np.asarray(values) > MAX_WAVELENGTH):
+        raise LftomoError(f"{name} must be in metres (e.g. 650e-9), got {shown!r}; did you pass nanometres?")
 
 
 def require_wavelength(name: str, value: Any) -> float:
     """One wavelength in metres, in ``(0, 1e-3]`` (nanometres passed as metres are refused)."""
     v = require_positive(name, value)
-    if v > 1e-3:
-        raise LftomoError(f"{name} must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
+    _refuse_nanometres(name, v, v)
     return v
 
 
@@ -264,8 +269,11 @@ def memory_limit(value: Any = None) -> int:
         if not (np.isfinite(gb) and gb > 0):
             raise LftomoError(f"environment variable LFTOMO_MEMORY_LIMIT_GB must be a number > 0, got {env!r}")
         return int(gb * 1e9)
-    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.integer, np.floating)) \
-            or not (np.isfinite(float(value)) and value > 0) or float(value) >= 2.0**63:
+    try:
+        v = float(value) if isinstance(value, (numbers.Real, np.integer, np.floating)) else float("nan")
+    except OverflowError:  # an integer beyond the largest double
+        v = float("inf")
+    if isinstance(value, bool) or not (np.isfinite(v) and v > 0) or v >= 2.0**63:
         raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
                           f"got {_fmt(value)}")
     return int(value)

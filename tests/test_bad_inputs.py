@@ -99,6 +99,7 @@ WEIGHTS_CASES = {
     "wl-nm": (dict(wavelength=650), "wavelength must be in metres"),
     "wl-str": (dict(wavelength="blue"), "wavelength must be a wavelength"),
     "memory-neg": (dict(memory_limit=-1), "memory_limit must be a positive"),
+    "memory-huge-int": (dict(memory_limit=10**400), "memory_limit must be a positive"),  # was OverflowError
     "views-range": (dict(views=[(99, 0)]), r"views\[0\]"),
     "views-float": (dict(views=[(1.5, 1)]), r"views\[0\] must be a pair of integers \(v, u\), got \(1.5, 1\)"),
     "views-float-array": (dict(views=np.array([[1.7, 1.2]])), r"views\[0\] must be a pair of integers"),
@@ -171,6 +172,8 @@ OBJECT_CASES = {
     "chain-moves-int": (lambda: lt.EnsembleChain(moves=3), "moves must be an emcee move"),
     "chain-moves-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), -1.0)]),
                            r"moves must be .*\(move, weight > 0\)"),
+    "chain-moves-nan-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), float("nan"))]),
+                               r"moves must be .*\(move, weight > 0\)"),
     "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
                                                  {}), "camera must be an lftomo.Camera, got dict"),
     "forward-bundles": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
@@ -841,3 +844,11 @@ def test_calibrate_grid_names_a_bad_option_before_searching_the_lattice(option, 
     white = np.random.default_rng(0).uniform(100.0, 200.0, size=(64, 64))
     with pytest.raises(LftomoError, match=match):
         lt.calibrate_grid(white, **option)
+
+
+def test_ensemble_moves_take_numpy_weights():
+    # a weight is any real number > 0: numpy's float32 from an array of weights was refused
+    import emcee
+
+    chain = lt.EnsembleChain(moves=[(emcee.moves.DEMove(), np.float32(0.8)), (emcee.moves.StretchMove(), np.int64(1))])
+    assert len(chain.moves) == 2

@@ -81,7 +81,8 @@ the nearest surface hit, and ``background[i]`` is the signal of row ``i`` with
 Memory
 ------
 Before building, a pilot trace of about 1 % of the rows estimates nnz and
-bytes; a build past ``memory_limit`` (default half of the physical memory) is
+bytes; a build past ``memory_limit`` (default ``LFTOMO_MEMORY_LIMIT_GB``, else half
+the physical memory) is
 refused.  The build runs in chunks of rows (one bounded scratch buffer) into
 arrays pre-sized from the estimate, so the peak stays near the final size.
 CSR arrays: float64 values and int32 column indices (12 bytes per non-zero).
@@ -107,6 +108,7 @@ import scipy.sparse as sp
 from numba import njit, prange
 
 from ..errors import LftomoError
+from .._validate import memory_limit as memory_limit_bytes
 from .._validate import require_int, require_positive, require_rays, require_seed, require_views
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
@@ -572,23 +574,6 @@ def _compact_values(buf_off, out_cnt, dest_off, src_val, dst_val):
 # ===========================================================================
 # input handling
 # ===========================================================================
-
-
-def _default_memory_limit() -> int:
-    """Half of the physical memory (bytes)."""
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2)
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
-        return 8 * 2**30
-
-
-def _memory_limit(value) -> int:
-    if value is None:
-        return _default_memory_limit()
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not value > 0:
-        raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
-                         f"got {value!r}")
-    return int(value)
 
 
 def _check_rebuild_memory(est: int, limit: int) -> None:
@@ -1518,7 +1503,8 @@ def weights(
         camera's geometric decode.
     memory_limit : float, optional
         Refuse to build when the estimate exceeds this many bytes (default:
-        half the physical memory).
+        the environment variable ``LFTOMO_MEMORY_LIMIT_GB``, else half the
+        physical memory).
     progress : bool, optional
         tqdm progress bar (default: for large builds).
     max_bounces : int
@@ -1556,7 +1542,7 @@ def weights(
     if np.any(np.abs(gg) >= 1.0):
         raise LftomoError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
     wl = _wavelength(wavelength)
-    limit = _memory_limit(memory_limit)
+    limit = memory_limit_bytes(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
     require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
@@ -1751,7 +1737,7 @@ class RaySegments:
         n_rows = self.n_rows
         seg_per_row = self.ray_ptr[self.row_ray_ptr[1:]] - self.ray_ptr[self.row_ray_ptr[:-1]]
         bound = int(seg_per_row.sum())
-        limit = _memory_limit(memory_limit)
+        limit = memory_limit_bytes(memory_limit)
         two = mode == 1  # a second value array
         if mode == 4:
             bound = 0  # the signal only: nothing stored
@@ -1907,7 +1893,7 @@ class RaySegments:
         ib = _field_flat("Ib", Ib, self._grid_like, minimum=None)
         sa = self._sigma(sigma_a)
         # slots, pattern and two value arrays, at most
-        _check_rebuild_memory(self.n_segments * (4 + 4 + 8 + 8) + self.n_rows * 32, _memory_limit(memory_limit))
+        _check_rebuild_memory(self.n_segments * (4 + 4 + 8 + 8) + self.n_rows * 32, memory_limit_bytes(memory_limit))
         pattern = self._row_pattern
         sig, J, W = linearized_rows(self.row_ray_ptr, self.ray_ptr, self.ray_weight, self.ray_radiance, self.voxel,
                                     self.length, pattern, self.rays_per_pixel, sa, ib)
@@ -1987,7 +1973,7 @@ def ray_segments(
     :meth:`RaySegments.forward_jax`.  Arguments as in :func:`weights`.
 
     Memory: 12 bytes per segment (int32 voxel, float64 length) plus 36 bytes
-    per ray; refused past ``memory_limit`` (default half the physical memory)
+    per ray; refused past ``memory_limit`` (default ``LFTOMO_MEMORY_LIMIT_GB``, else half the physical memory)
     from a pilot estimate.  Time: refused above ``max_seconds`` from the
     pilot's estimate (``metadata["estimate"]["seconds"]``), as in :func:`weights`.
 
@@ -2000,7 +1986,7 @@ def ray_segments(
     seed = require_seed("seed", seed)
     max_seconds = _max_seconds(max_seconds)
     wl = _wavelength(wavelength)
-    limit = _memory_limit(memory_limit)
+    limit = memory_limit_bytes(memory_limit)
     surf, tex, surf_summary = _pack_surfaces(surfaces, wl)
     pixel_index, view_pixel, view_ptr, views_desc = _select_rows(camera, views, lightfield)
     require_rays("rays_per_pixel", n_rays, n_pixels=int(pixel_index.size))
