@@ -417,7 +417,8 @@ class ParametricFlame(TemperatureBasis):
         if name == "width_base" and side == "lower":
             return ("the data ask for a plume narrower than half a voxel, which voxel-centre values cannot "
                     "resolve: read it as a model error (the flame, the grid, W or the data's σ does not represent "
-                    "the data; dim pixels' σ below their Monte Carlo error is one cause), not as a measured width")
+                    "the data; a plume about one voxel wide, sampled at voxel centres, is one cause), not as a "
+                    "measured width")
         return ""
 
     def _parts(self, C: np.ndarray):

@@ -69,6 +69,13 @@ def effective_truth(medium, dst: Grid, wavelength: float | None):
 #: How :func:`monte_carlo_std` uses its per-view floor.
 MC_FLOORS = ("bound", "prior", "calibrated")
 
+#: Size (v, u, y, x) of the light-field neighbourhood whose largest signal sets
+#: :func:`monte_carlo_floor`: 3 × 3 pixels in the pixel's own view ...
+FLOOR_OWN_VIEW = (1, 1, 3, 3)
+#: ... and, for a pixel that reads within the Monte Carlo error of zero, also in
+#: each adjacent view.
+FLOOR_NEIGHBOURHOOD = (3, 3, 3, 3)
+
 
 def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, floor: str = "bound") -> np.ndarray:
     """Standard deviation of ``data − W I_b`` due to Monte Carlo, per raw pixel.
@@ -83,14 +90,16 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     ``se_d²`` is a sample variance from few hits: a pixel whose rays all missed
     the flame reports ``se_d = 0`` although the other estimate may not vanish
     there.  It is combined with a floor, ``ρ`` × the largest signal among the
-    pixel and its 3 × 3 neighbours in the same sub-aperture view (``ρ`` the
-    median relative standard error of the view's lit pixels; rim views,
-    partly vignetted, have larger ones; :func:`monte_carlo_floor`):
+    pixel and its 3 × 3 neighbours in its view (``ρ`` the median relative
+    standard error of the view's lit pixels; rim views, partly vignetted, have
+    larger ones; :func:`monte_carlo_floor`):
 
-    * ``floor="bound"`` (default): ``max(se_d, floor)``.  It overestimates the
-      Monte Carlo variance itself several times over, mostly at the flame's
-      edges, and in doing so allows for the model error of uniform voxels
-      there.
+    * ``floor="bound"`` (default): ``max(se_d, floor)``, the floor taken over
+      the adjacent views too where the pixel reads within the Monte Carlo
+      error of zero (its rays may all have missed what its neighbours see).
+      It overestimates the Monte Carlo variance itself several times over,
+      mostly at the flame's edges, and in doing so allows for the model error
+      of uniform voxels there.
     * ``floor="prior"``: the posterior mean of the pixel's variance with a
       scaled-inverse-χ² prior of scale ``floor`` worth one ray (conjugate
       normal model, Gelman et al., *Bayesian Data Analysis*, 3rd ed., §3.3),
@@ -136,7 +145,7 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     if floor not in MC_FLOORS:
         raise LftomoError(f"floor must be one of {MC_FLOORS}, got {floor!r}")
     se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
-    fl = monte_carlo_floor(lf).reshape(lf.n_channels, -1)
+    fl = monte_carlo_floor(lf, covering=floor == "bound").reshape(lf.n_channels, -1)
     if floor == "bound":
         out = np.maximum(se, fl)
     else:  # scaled-inverse-χ² posterior: the render's sample variance (ν dof), the floor a prior worth one ray
@@ -163,11 +172,27 @@ def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int:
     return max(int(rays_per_pixel) - 1, 0)
 
 
-def monte_carlo_floor(lf) -> np.ndarray:
-    """The prior scale of :func:`monte_carlo_std`, per raw pixel: ``ρ`` × the
-    largest signal among the pixel and its 3 × 3 neighbours in the same
-    sub-aperture view, ``ρ`` the median relative standard error of the view's
-    lit pixels (0 outside the views).  Shape of ``lf.raw``."""
+def monte_carlo_floor(lf, *, covering: bool = True) -> np.ndarray:
+    """The floor of :func:`monte_carlo_std`, per raw pixel: ``ρ`` × the
+    largest signal near the pixel, ``ρ`` the median relative standard error of
+    the view's lit pixels (0 outside the views).  Shape of ``lf.raw``.
+
+    "Near" is the pixel and its 3 × 3 neighbours in its own view
+    (:data:`FLOOR_OWN_VIEW`).  With ``covering`` (the floor of
+    ``floor="bound"``), a pixel that reads less than ``ρ`` ×
+    the largest signal of its 4D neighbourhood: 3 × 3 pixels in its own view
+    and in each adjacent view (:data:`FLOOR_NEIGHBOURHOOD`, (v, u, y, x)),
+    which see the same scene points through the neighbouring parts of the
+    main-lens aperture.  Such a reading is within the Monte Carlo error of
+    zero, as if its rays had all missed what its neighbours see (a compact
+    bright region, a rim pixel that few rays pass), and its dark neighbours
+    in its own view would set the floor near zero.  Its floor follows the
+    4D neighbourhood instead.  Pixels that read more keep the floor of their
+    own view.  Without ``covering`` (the prior scale of ``"prior"`` and
+    ``"calibrated"``) every pixel takes its own view's: the 4D neighbourhood's
+    largest signal overstates the error of most dark pixels beside a sharp
+    edge, which the variance's total would then carry.
+    """
     from scipy.ndimage import maximum_filter
 
     raw = np.asarray(lf.raw, dtype=float).reshape(lf.n_channels, -1)
@@ -183,8 +208,12 @@ def monte_carlo_floor(lf) -> np.ndarray:
         for v, u in np.ndindex(*rho.shape):
             lit = (vals[v, u] > 0) & (svals[v, u] > 0)
             rho[v, u] = np.median(svals[v, u][lit] / vals[v, u][lit]) if lit.any() else 0.0
-        local = maximum_filter(vals, size=(1, 1, 3, 3), mode="constant")
-        out[c, idx[mask]] = (rho[:, :, None, None] * local)[mask]
+        rho = rho[:, :, None, None]
+        local = maximum_filter(vals, size=FLOOR_OWN_VIEW, mode="constant")
+        if covering:
+            around = maximum_filter(vals, size=FLOOR_NEIGHBOURHOOD, mode="constant")
+            local = np.where(vals < rho * around, around, local)
+        out[c, idx[mask]] = (rho * local)[mask]
     return out.reshape(np.shape(lf.raw))
 
 

@@ -85,6 +85,57 @@ def test_monte_carlo_std_explains_the_difference_of_two_renders(sampler, min_pri
         monte_carlo_std(a, weights_rays_per_pixel=0, rays_per_pixel=16)
 
 
+def test_monte_carlo_floor_follows_the_adjacent_views():
+    """A pixel dark in its own 3 x 3 neighbourhood gets ρ × the largest signal at the same position in the
+    adjacent views; a pixel that reads more keeps ρ × its own view's (both computed here from the views)."""
+    import dataclasses
+
+    from lftomo.inverse.compare import monte_carlo_floor
+
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    box = dict(lower=(-0.004, -0.004, 0.996), upper=(0.004, 0.004, 1.004))
+    flame = lt.phantoms.gaussian_blob(lt.Grid(shape=(8, 8, 8), **box), center=(0.0, 0.0, 1.0), width=0.003,
+                                      T_peak=1800.0, sigma_a_peak=20.0)
+    lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=16, seed=1, wavelengths="gray", progress=False)
+    idx, mask = lf.view_index, lf.view_mask
+    v, u = idx.shape[0] // 2, idx.shape[1] // 2
+    y, x = idx.shape[2] // 2, idx.shape[3] // 2
+    assert mask[v - 1:v + 2, u - 1:u + 2, y - 1:y + 2, x - 1:x + 2].all()
+    raw, se = lf.raw.copy().ravel(), lf.std_error.copy().ravel()
+    raw[idx[v, u, y - 1:y + 2, x - 1:x + 2]] = 0.0  # the rays of these 9 pixels all missed
+    se[idx[v, u, y - 1:y + 2, x - 1:x + 2]] = 0.0
+    dark = dataclasses.replace(lf, raw=raw.reshape(lf.raw.shape), std_error=se.reshape(lf.raw.shape))
+    views = raw[idx[v, u]], se[idx[v, u]]
+    lit = mask[v, u] & (views[0] > 0) & (views[1] > 0)
+    rho = np.median(views[1][lit] / views[0][lit])
+    want = rho * raw[idx[v - 1:v + 2, u - 1:u + 2, y - 1:y + 2, x - 1:x + 2]].max()
+    floor = monte_carlo_floor(dark).ravel()
+    assert want > 0 and floor[idx[v, u, y, x]] == pytest.approx(want, rel=1e-12)
+    # the brightest pixel of the view reads more than rho x its 4D neighbourhood: its own view sets the floor
+    yb, xb = np.unravel_index(np.argmax(np.where(mask[v, u], views[0][...], 0.0)), mask.shape[2:])
+    own = raw[idx[v, u, max(yb - 1, 0):yb + 2, max(xb - 1, 0):xb + 2]].max()
+    assert floor[idx[v, u, yb, xb]] == pytest.approx(rho * own, rel=1e-12)
+
+
+def test_monte_carlo_noise_covers_every_pixel_of_another_render():
+    """The noise model of lt.with_monte_carlo_noise explains an independent render of the same scene in every
+    pixel: |noisy data − other render| / σ stays below 6 (a normal deviate passes 6 once in 5·10⁸; the
+    "bound" floor overestimates σ).  The README tour's flame at 16³: rim pixels whose few passing rays all
+    missed the flame core read 0 where the other render reads 0.2 of the brightest pixel; a floor from the
+    pixel's own view alone (3 x 3) left them at σ = 10⁻⁵ of the brightest, 50 to 20 000 σ off."""
+    cam = lt.Camera.seed(focus_distance=1.0)
+    flame = lt.phantoms.axisymmetric_flame(lt.phantoms.default_flame_grid((16, 16, 16)))
+    scene = lt.Scene(medium=flame)
+    for seed in (0, 4):
+        a, b = (lt.render(scene, cam, rays_per_pixel=16, seed=s, wavelengths=(650e-9,), progress=False)
+                for s in (seed, seed + 1))
+        noisy = lt.with_monte_carlo_noise(lt.add_noise(a, relative_std=0.01, seed=2), a, rays_per_pixel=16,
+                                          weights_rays_per_pixel=16)
+        m = lt.Measurement.from_lightfield(noisy, data="subaperture")
+        z = np.abs(m.y - b.raw.ravel()[m.raw_index]) / m.sigma
+        assert m.size > 100_000 and z.max() < 6.0, (seed, z.max(), int(np.sum(z > 6.0)))
+
+
 def test_comparison_with_sub_voxel_emission_uses_the_sub_voxel_model():
     """Weights on a quadrature grid: both fits interpolate T (grid=recon_grid) and the spectra are those of
     Σ^{-1/2} A diag(I_b'(E T)) E, computed here densely and independently."""
