@@ -122,6 +122,10 @@ def test_weights_arguments(cam, grid, case):
 
 OBJECT_CASES = {
     "grid-zero": (lambda: lt.Grid((0, 1, 1), (0, 0, 1), (1, 1, 2)), r"shape\[0\] must be an integer >= 1"),
+    "texture-nan": (lambda: lt.uniform(float("nan")), "value must be finite, got nan"),  # was a NaN texture
+    "texture-str": (lambda: lt.checkerboard(high="x"), "high must be a real number, got 'x'"),
+    "voxels-str": (lambda: lt.Voxels("g"), "grid must be an lftomo Grid, got str"),  # failed later
+    "camera-dict-empty": (lambda: lt.Camera.from_dict({}), "camera description lacks the key 'main_lens'"),
     "grid-2d": (lambda: lt.Grid((2, 2), (0, 0, 1), (1, 1, 2)), "shape must have 3 components"),
     "grid-upper": (lambda: lt.Grid((2, 2, 2), (0, 0, 2), (1, 1, 1)), "upper must exceed lower"),
     "grid-nan": (lambda: lt.Grid((2, 2, 2), (0, float("nan"), 1), (1, 1, 2)), "lower must be finite"),
@@ -233,12 +237,18 @@ def test_reconstruct_bounds_must_be_two_numbers(lf):
     (dict(seed="a"), "seed must be an integer"),
     (dict(optimize="no"), "optimize must be True or False, got 'no'"),
     (dict(progress="yes"), "progress must be True or False, got 'yes'"),
+    (dict(T_start="hot"), "T_start must be a temperature field .* got 'hot'"),  # was a numpy ValueError
+    (dict(T_start=np.full(5, 1500.0)), r"T_start must have the grid shape .* got \(5,\)"),
+    (dict(T_start=np.full(64, -1.0)), "T_start must be > 0 everywhere"),
 ])
 def test_sample_posterior_flags_and_seed_are_checked_first(lf, kw, match):
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
     problem = lt.Problem.from_data(m, tiny_weights())
     with pytest.raises(LftomoError, match=match):
         lt.sample_posterior(problem, basis=lt.DCTBasis(problem.grid, (2, 2, 2)), **kw)
+    if "T_start" in kw:
+        with pytest.raises(LftomoError, match=match):
+            lt.laplace_approximation(problem, basis=lt.DCTBasis(problem.grid, (2, 2, 2)), **kw)
 
 
 @pytest.mark.parametrize("call, match", [

@@ -1103,7 +1103,10 @@ class Camera:
                 focus_distance=None if d.get("focus_distance") is None else float(d["focus_distance"]),
                 pose=None if d.get("pose") is None else Pose.from_dict(d["pose"]),
             )
-        except (KeyError, TypeError) as exc:
+        except KeyError as exc:
+            raise LftomoError(f"camera description lacks the key {exc}; it needs main_lens, mla, sensor, "
+                              "mla_distance and sensor_gap (Camera.to_dict() writes them)") from None
+        except TypeError as exc:
             raise LftomoError(f"camera description is malformed: {exc}") from None
 
     def __hash__(self) -> int:  # cached_property-friendly identity hash of the parameters

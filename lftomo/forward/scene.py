@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_array, require_positive, require_vector, require_int
+from .._validate import require_array, require_finite_scalar, require_positive, require_vector, require_int
 from .surfaces import SURF_NCOL
 
 
@@ -26,13 +26,14 @@ def checkerboard(n_squares: int | tuple[int, int] = 8, *, low: float = 0.0, high
         nr, nc = (require_int("n_squares", n, minimum=1) for n in n_squares)
     else:
         nr = nc = require_int("n_squares", n_squares, minimum=1)
+    high, low = require_finite_scalar("high", high), require_finite_scalar("low", low)
     ii, jj = np.indices((nr, nc))
-    return np.where((ii + jj) % 2 == 0, float(high), float(low))
+    return np.where((ii + jj) % 2 == 0, high, low)
 
 
 def uniform(value: float = 1.0) -> np.ndarray:
     """Uniform texture (a 1 x 1 array)."""
-    return np.full((1, 1), float(value))
+    return np.full((1, 1), require_finite_scalar("value", value))
 
 
 def _orthonormal_frame(normal: Sequence[float], up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

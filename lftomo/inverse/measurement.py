@@ -726,7 +726,7 @@ class Measurement:
             sensor = tuple(getattr(W_raw, "sensor_shape", ()))
             if sensor != tuple(self.camera.sensor_shape):
                 raise LftomoError(
-                    f"W_raw was made for a sensor of shape {sensor}, the measurement for "
+                    f"the weight matrix was made for a sensor of shape {sensor}, the measurement for "
                     f"{tuple(self.camera.sensor_shape)}"
                 )
             wl_w = W_raw.metadata.get("wavelength", "unknown")
@@ -735,7 +735,7 @@ class Measurement:
                 or (wl_w is not None and not np.isclose(float(wl_w), float(self.wavelength), rtol=1e-9))
             ):
                 raise LftomoError(
-                    f"W_raw was made for wavelength {wl_w!r} m, the measurement is at {self.wavelength!r} m"
+                    f"the weight matrix was made for wavelength {wl_w!r} m, the measurement is at {self.wavelength!r} m"
                 )
             pix = np.asarray(W_raw.pixel_index, dtype=np.int64)
             pix_u, first = np.unique(pix, return_index=True)
@@ -743,7 +743,7 @@ class Measurement:
             missing = np.setdiff1d(used, pix_u, assume_unique=True)
             if missing.size:
                 raise LftomoError(
-                    f"W_raw has no row for {missing.size} raw pixel(s) that the data use "
+                    f"the weight matrix has no row for {missing.size} raw pixel(s) that the data use "
                     f"(e.g. raw index {int(missing[0])}); build the weights for all the views the data use"
                 )
             S = sp.csr_matrix((np.ones(pix_u.size), (pix_u, first)), shape=(self.n_raw, W_raw.n_rows))
@@ -753,12 +753,12 @@ class Measurement:
             return Wr, bg
         if not sp.issparse(W_raw):
             raise LftomoError(
-                f"W_raw must be a scipy sparse matrix (n_raw, n_voxels) or an lftomo WeightMatrix, "
+                f"the weight matrix must be a scipy sparse matrix (n_raw, n_voxels) or an lftomo WeightMatrix, "
                 f"got {type(W_raw).__name__}"
             )
         if W_raw.shape[0] != self.n_raw:
             raise LftomoError(
-                f"W_raw has {W_raw.shape[0]} rows but must have one per raw pixel ({self.n_raw}, sensor "
+                f"the weight matrix has {W_raw.shape[0]} rows but must have one per raw pixel ({self.n_raw}, sensor "
                 f"{tuple(self.camera.sensor_shape)}); rows are flat raw indices r * n_cols + c"
             )
         return sp.csr_matrix(W_raw, dtype=np.float64), None

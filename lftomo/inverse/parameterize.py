@@ -215,6 +215,10 @@ class Voxels(Parameterization):
 
     grid: Grid
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.grid, Grid):
+            raise LftomoError(f"grid must be an lftomo Grid, got {type(self.grid).__name__}")
+
     @functools.cached_property
     def expansion(self) -> sp.csr_matrix:
         return sp.identity(self.grid.n_voxels, format="csr")

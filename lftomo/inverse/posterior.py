@@ -691,6 +691,20 @@ def build_log_posterior(
     )
 
 
+def _check_T_start(T_start: Any, basis: Any) -> np.ndarray | None:
+    """``T_start`` as a positive finite field (n_voxels,) of the basis' grid, or None."""
+    if T_start is None:
+        return None
+    if isinstance(T_start, (str, bytes)):
+        raise LftomoError(f"T_start must be a temperature field (K) of shape {tuple(basis.grid.shape)}, "
+                          f"got {T_start!r}")
+    T = require_array("T_start", T_start, strictly_positive=True)
+    if T.shape not in (tuple(basis.grid.shape), (basis.n_voxels,)):
+        raise LftomoError(f"T_start must have the grid shape {tuple(basis.grid.shape)} or ({basis.n_voxels},), "
+                          f"got {T.shape}")
+    return T.ravel()
+
+
 def _initial_coefficients(logpost: LogPosterior, T_start: Any, n_best: int = 1) -> np.ndarray:
     """Starting coefficients, shape (n_starts, K): the fit of ``T_start``, else the
     ``n_best`` best of the basis' candidate designs at a few temperature levels."""
@@ -834,7 +848,7 @@ def laplace_approximation(
         raise LftomoError("basis is required when the posterior is given as problems")
     else:
         logpost = build_log_posterior(problem, basis=basis, **posterior_kwargs)
-    return _laplace(logpost, T_start, c_start, max_iter, tol)
+    return _laplace(logpost, _check_T_start(T_start, logpost.basis), c_start, max_iter, tol)
 
 
 def _basis_is_linear(logpost: LogPosterior) -> bool:
@@ -1141,6 +1155,7 @@ def sample_posterior(
         require_seed("seed", seed)
     logpost, chain = _sampling_model(posterior, basis, chain, moved)
     basis = logpost.basis
+    T_start = _check_T_start(T_start, basis)
     K = basis.n_params
     n_walkers, level = _check_sampling_options(logpost, basis, chain=chain, credible_level=credible_level,
                                                likelihood=likelihood)
