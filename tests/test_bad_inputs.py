@@ -255,6 +255,7 @@ def test_sample_posterior_flags_and_seed_are_checked_first(lf, kw, match):
     (lambda m, W: lt.laplace_posterior(m, W, seed=-1), "seed must be an integer >= 0, got -1"),
     (lambda m, W: lt.laplace_posterior(m, W, progress="x"), "progress must be True, False or None, got 'x'"),
     (lambda m, W: lt.reconstruct(m, W, progress="yes"), "progress must be True, False or None, got 'yes'"),
+    (lambda m, W: lt.reconstruct([], W), "measurement is an empty sequence"),  # said "0 measurements needs ..."
 ])
 def test_posterior_and_reconstruct_flags_are_checked_before_the_fit(lf, call, match):
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))

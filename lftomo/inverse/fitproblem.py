@@ -126,14 +126,14 @@ def _paired_temperature_channels(measurement, weights) -> tuple[tuple, tuple]:
             raise LftomoError(f"weights is a sequence of {len(weights)} but measurement is one Measurement: give one "
                              "measurement per weight matrix (one per camera)")
         return (measurement,), (weights,)
+    if len(measurement) == 0:
+        raise LftomoError("measurement is an empty sequence: give at least one Measurement")
     if not isinstance(weights, (list, tuple)) or len(weights) != len(measurement):
         n_w = len(weights) if isinstance(weights, (list, tuple)) else 1
         raise LftomoError(
             f"unknowns='T' with {len(measurement)} measurements needs one weight matrix per measurement (the "
             f"camera that took it), got {n_w}; several wavelengths of one camera are fitted with "
             "unknowns='T+sigma_a'")
-    if len(measurement) == 0:
-        raise LftomoError("measurement is an empty sequence: give at least one Measurement")
     for k, (m, w) in enumerate(zip(measurement, weights)):
         if not taken_by_camera_of(m, w):
             raise LftomoError(f"weights[{k}] was built for another camera (or pose) than the one that took "
