@@ -274,7 +274,8 @@ def memory_limit(value: Any = None) -> int:
     except OverflowError:  # an integer beyond the largest double
         v = float("inf")
     if isinstance(value, bool) or not (np.isfinite(v) and v > 0) or v >= 2.0**63:
-        raise LftomoError(f"memory_limit must be a positive number of bytes or None (half the machine's memory), "
+        raise LftomoError(f"memory_limit must be a positive number of bytes below 2**63, or None "
+                          f"(LFTOMO_MEMORY_LIMIT_GB, else half the machine's memory), "
                           f"got {_fmt(value)}")
     return int(value)
 

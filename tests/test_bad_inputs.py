@@ -239,7 +239,7 @@ def test_reconstruct_bounds_must_be_two_numbers(lf):
     (dict(progress="yes"), "progress must be True or False, got 'yes'"),
     (dict(T_start="hot"), "T_start must be a temperature field .* got 'hot'"),  # was a numpy ValueError
     (dict(T_start=np.full(5, 1500.0)), r"T_start must have the grid shape .* got \(5,\)"),
-    (dict(T_start=np.full(64, -1.0)), "T_start must be > 0 everywhere"),
+    (dict(T_start=np.full(64, np.nan)), "T_start must be finite"),
 ])
 def test_sample_posterior_flags_and_seed_are_checked_first(lf, kw, match):
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))

@@ -1104,8 +1104,8 @@ class Camera:
                 pose=None if d.get("pose") is None else Pose.from_dict(d["pose"]),
             )
         except KeyError as exc:
-            raise LftomoError(f"camera description lacks the key {exc}; it needs main_lens, mla, sensor, "
-                              "mla_distance and sensor_gap (Camera.to_dict() writes them)") from None
+            raise LftomoError(f"camera description lacks the key {exc} (Camera.to_dict() writes a complete "
+                              "one)") from None
         except TypeError as exc:
             raise LftomoError(f"camera description is malformed: {exc}") from None
 

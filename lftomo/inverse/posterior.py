@@ -692,13 +692,13 @@ def build_log_posterior(
 
 
 def _check_T_start(T_start: Any, basis: Any) -> np.ndarray | None:
-    """``T_start`` as a positive finite field (n_voxels,) of the basis' grid, or None."""
+    """``T_start`` as a finite field (n_voxels,) of the basis' grid, or None (its range is the bounds')."""
     if T_start is None:
         return None
     if isinstance(T_start, (str, bytes)):
         raise LftomoError(f"T_start must be a temperature field (K) of shape {tuple(basis.grid.shape)}, "
                           f"got {T_start!r}")
-    T = require_array("T_start", T_start, strictly_positive=True)
+    T = require_array("T_start", T_start)
     if T.shape not in (tuple(basis.grid.shape), (basis.n_voxels,)):
         raise LftomoError(f"T_start must have the grid shape {tuple(basis.grid.shape)} or ({basis.n_voxels},), "
                           f"got {T.shape}")

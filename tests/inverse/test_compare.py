@@ -86,8 +86,8 @@ def test_monte_carlo_std_explains_the_difference_of_two_renders(sampler, min_pri
 
 
 def test_monte_carlo_floor_follows_the_adjacent_views():
-    """A pixel dark in its own 3 x 3 neighbourhood gets ρ × the largest signal at the same position in the
-    adjacent views; a pixel that reads more keeps ρ × its own view's (both computed here from the views)."""
+    """A pixel dark in its own 3 x 3 neighbourhood gets ρ × the largest signal of its 3 x 3 x 3 x 3 (v, u, y, x)
+    neighbourhood; a pixel that reads more keeps ρ × its own view's 3 x 3 (both computed here from the views)."""
     import dataclasses
 
     from lftomo.inverse.compare import monte_carlo_floor
