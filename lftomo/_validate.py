@@ -356,7 +356,8 @@ def require_array(
 # and say what is allowed; they never coerce strings or truncate floats.
 
 
-def _is_real(value: Any) -> bool:
+def is_real(value: Any) -> bool:
+    """Whether ``value`` is a real number (Python, numpy or ``numbers.Real``), not a bool."""
     return not isinstance(value, (bool, np.bool_)) and isinstance(value, (numbers.Real, np.integer, np.floating))
 
 
@@ -394,7 +395,7 @@ def toml_int(where: str, value: Any, *, minimum: int | None = None, maximum: int
     """
     allowed = "an integer" + ("" if minimum is None else f" >= {minimum}")
     v: int | None = None
-    if _is_real(value):
+    if is_real(value):
         if isinstance(value, (numbers.Integral, np.integer)):
             v = int(value)
         elif np.isfinite(float(value)) and float(value).is_integer():
@@ -442,7 +443,7 @@ def toml_number(
     """
     rule = _rule(gt, ge, le)
     allowed = "a number" + (f" {rule}" if rule else "") + (f" ({unit})" if unit else "")
-    ok = _is_real(value)
+    ok = is_real(value)
     if ok:
         v = float(value)
         ok = not np.isnan(v) and (allow_inf or np.isfinite(v))
@@ -494,7 +495,7 @@ def toml_numbers(
     ok = isinstance(value, (list, tuple)) and (length is None or len(value) == length)
     if ok:
         for x in value:
-            if not _is_real(x) or not np.isfinite(float(x)):
+            if not is_real(x) or not np.isfinite(float(x)):
                 ok = False
             elif (gt is not None and not float(x) > gt) or (ge is not None and not float(x) >= ge):
                 ok = False

@@ -176,6 +176,11 @@ OBJECT_CASES = {
     "chain-moves-int": (lambda: lt.EnsembleChain(moves=3), "moves must be an emcee move"),
     "chain-moves-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), -1.0)]),
                            r"moves must be .*\(move, weight > 0\)"),
+    "chain-moves-bool-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), True)]),
+                                r"moves must be .*\(move, weight > 0\)"),
+    "basis-fit-text": (lambda: lt.DCTBasis(tiny_grid(), 2).fit("1500"),
+                       "T_field must be a temperature field .* got '1500'"),  # numpy reads '1500' as a number
+    "basis-fit-shape": (lambda: lt.DCTBasis(tiny_grid(), 2).fit(np.ones(3)), r"T_field must have the grid shape"),
     "chain-moves-nan-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), float("nan"))]),
                                r"moves must be .*\(move, weight > 0\)"),
     "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),

@@ -140,13 +140,20 @@ class TemperatureBasis(ABC):
         T = self.T(c)
         return T.reshape(T.shape[:-1] + tuple(self.grid.shape))
 
-    def _field_vector(self, T_field: Any) -> np.ndarray:
-        T = np.asarray(T_field, dtype=np.float64)
+    def field_vector(self, T_field: Any, name: str = "T_field") -> np.ndarray:
+        """A temperature field (K) of shape ``grid.shape`` or (n_voxels,) as a finite (n_voxels,) vector.
+
+        Raises :class:`LftomoError` naming ``name`` for text, a wrong shape or non-finite values.
+        """
+        if isinstance(T_field, (str, bytes)):
+            raise LftomoError(f"{name} must be a temperature field (K) of shape {tuple(self.grid.shape)}, "
+                              f"got {T_field!r}")
+        T = require_array(name, T_field)
         if T.shape not in (tuple(self.grid.shape), (self.n_voxels,)):
             raise LftomoError(
-                f"T_field must have the grid shape {tuple(self.grid.shape)} or ({self.n_voxels},), got {T.shape}"
+                f"{name} must have the grid shape {tuple(self.grid.shape)} or ({self.n_voxels},), got {T.shape}"
             )
-        return require_array("T_field", T.ravel())
+        return T.ravel()
 
     # ------------------------------------------------------------------ interface
     @abstractmethod
@@ -235,7 +242,7 @@ class LinearBasis(TemperatureBasis):
 
     def fit(self, T_field: Any) -> np.ndarray:
         """Least-squares coefficients ``argmin ||B c - T||²``, shape (K,)."""
-        T = self._field_vector(T_field)
+        T = self.field_vector(T_field)
         return np.linalg.solve(self._R, self._Q.T @ T)
 
 
@@ -518,7 +525,7 @@ class ParametricFlame(TemperatureBasis):
             Fitted parameters (a local minimum; trust-region reflective,
             analytic Jacobian).
         """
-        T = self._field_vector(T_field)
+        T = self.field_vector(T_field)
         start = self._moment_guess(T) if x0 is None else np.asarray(require_array("x0", x0, shape=(6,)))
         b = self._bounds
         lo = b[:, 0]

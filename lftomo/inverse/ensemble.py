@@ -17,12 +17,11 @@ Foreman-Mackey, D., Hogg, D. W., Lang, D. & Goodman, J. (2013). emcee: the MCMC 
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, fields
 from typing import Any
 
 from ..errors import LftomoError
-from .._validate import require_int, require_positive
+from .._validate import is_real, require_int, require_positive
 from .fitoptions import moved_options
 
 __all__ = ["EnsembleChain", "DEFINITION_KEYWORDS", "SAMPLING_MOVED", "moved_sampling_options"]
@@ -41,7 +40,7 @@ def _check_moves(moves: Any) -> None:
     for item in items:
         if isinstance(item, tuple) and len(item) == 2 and not hasattr(item, "propose"):
             move, weight = item
-            ok = ok and isinstance(weight, numbers.Real) and not isinstance(weight, bool) and math.isfinite(float(weight)) and weight > 0
+            ok = ok and is_real(weight) and math.isfinite(float(weight)) and weight > 0
         else:
             move = item
         ok = ok and callable(getattr(move, "propose", None))

@@ -693,16 +693,7 @@ def build_log_posterior(
 
 def _check_T_start(T_start: Any, basis: Any) -> np.ndarray | None:
     """``T_start`` as a finite field (n_voxels,) of the basis' grid, or None (its range is the bounds')."""
-    if T_start is None:
-        return None
-    if isinstance(T_start, (str, bytes)):
-        raise LftomoError(f"T_start must be a temperature field (K) of shape {tuple(basis.grid.shape)}, "
-                          f"got {T_start!r}")
-    T = require_array("T_start", T_start)
-    if T.shape not in (tuple(basis.grid.shape), (basis.n_voxels,)):
-        raise LftomoError(f"T_start must have the grid shape {tuple(basis.grid.shape)} or ({basis.n_voxels},), "
-                          f"got {T.shape}")
-    return T.ravel()
+    return None if T_start is None else basis.field_vector(T_start, name="T_start")
 
 
 def _initial_coefficients(logpost: LogPosterior, T_start: Any, n_best: int = 1) -> np.ndarray:
