@@ -69,6 +69,25 @@ def relative_errors(cam, medium, pix, n, reps, sampler):
     return est.std(axis=1, ddof=1) / est.mean(axis=1)
 
 
+def pixel_classes(cam, medium, n_pixels, seed=0):
+    """Bright pixels of ``medium``'s render drawn at random: ``{"inner": (n, 2), "rim": (n, 2)}``.
+
+    Bright: a 64-ray render above 5 % of its maximum; inner: étendue (a 256-ray render of a white
+    plane at 1 m) above 97 % of its 99.9th percentile, rim: the other bright pixels."""
+    white = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.2, 0.2), radiance=1.0)])
+    etendue = lt.render(white, cam, rays_per_pixel=256, seed=7, sampler="stratified", progress=False).raw
+    image = lt.render(lt.Scene(medium=medium), cam, rays_per_pixel=64, seed=3, sampler="stratified",
+                      progress=False).raw
+    frac = etendue / np.percentile(etendue, 99.9)
+    bright = image > 0.05 * image.max()
+    rng = np.random.default_rng(seed)
+    classes = {}
+    for name, mask in (("inner", bright & (frac > 0.97)), ("rim", bright & (frac <= 0.97))):
+        cand = np.argwhere(mask)
+        classes[name] = cand[rng.choice(len(cand), min(n_pixels, len(cand)), replace=False)].astype(np.int64)
+    return classes
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rays", default="64,256,1024")
@@ -80,17 +99,7 @@ def main() -> None:
     grid = lt.phantoms.default_flame_grid((32, 32, 32))
     medium = lt.phantoms.axisymmetric_flame(grid)
     t0 = time.perf_counter()
-    white = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.2, 0.2), radiance=1.0)])
-    etendue = lt.render(white, cam, rays_per_pixel=256, seed=7, sampler="stratified", progress=False).raw
-    image = lt.render(lt.Scene(medium=medium), cam, rays_per_pixel=64, seed=3, sampler="stratified",
-                      progress=False).raw
-    frac = etendue / np.percentile(etendue, 99.9)
-    bright = image > 0.05 * image.max()
-    rng = np.random.default_rng(0)
-    classes = {}
-    for name, mask in (("inner", bright & (frac > 0.97)), ("rim", bright & (frac <= 0.97))):
-        cand = np.argwhere(mask)
-        classes[name] = cand[rng.choice(len(cand), min(a.pixels, len(cand)), replace=False)].astype(np.int64)
+    classes = pixel_classes(cam, medium, a.pixels)
     print(f"standard flame 32³, seed camera at 1 m; {a.reps} seeds per N; pixels: "
           + ", ".join(f"{k} {len(v)}" for k, v in classes.items()) + f"  (set-up {time.perf_counter() - t0:.0f} s)")
     print(f"{'sampler':12s} {'class':6s} " + " ".join(f"{'N=' + str(n):>8s}" for n in rays) + "   exponent a")
