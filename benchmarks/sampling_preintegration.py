@@ -39,8 +39,8 @@ from lftomo.forward.dda import integrate_rays
 from lftomo.forward.surfaces import SURF_NCOL
 
 # inverse CDF of the semicircle law on [-1, 1], tabulated: a uniform disc point's height
-_S = np.linspace(-1.0, 1.0, 20001)
-_F = 0.5 + (_S * np.sqrt(1.0 - _S**2) + np.arcsin(_S)) / math.pi
+SEMICIRCLE_HEIGHT = np.linspace(-1.0, 1.0, 20001)
+SEMICIRCLE_CDF = 0.5 + (SEMICIRCLE_HEIGHT * np.sqrt(1.0 - SEMICIRCLE_HEIGHT**2) + np.arcsin(SEMICIRCLE_HEIGHT)) / math.pi
 
 # (name, separable lenslet map, preintegrated dimensions, randomizations K)
 VARIANTS = (
@@ -53,7 +53,7 @@ VARIANTS = (
 
 
 @numba.njit(cache=True)
-def _ray(row, col, u1, u2, a1, a2, chord, optics, sampler, mli, cdf, height):
+def sample_ray(row, col, u1, u2, a1, a2, chord, optics, sampler, mli, cdf, height):
     """Object-space ray of the pixel's sample (u1, u2, a1, a2): ``(ok, ox, oy, oz, dx, dy, dz, w)``."""
     sp = optics[lo.O_S_PITCH]
     i, j = lo.own_lenslet(row, col, optics)
@@ -87,11 +87,11 @@ def _ray(row, col, u1, u2, a1, a2, chord, optics, sampler, mli, cdf, height):
 
 
 @numba.njit(cache=True, parallel=True)
-def _rays(pix, pts, chord, optics, sampler, mli, cdf, height, o, d, w):
+def sample_rays(pix, pts, chord, optics, sampler, mli, cdf, height, o, d, w):
     n = pts.shape[1]
     for p in numba.prange(pix.shape[0]):
         for m in range(n):
-            ok, ox, oy, oz, dx, dy, dz, ww = _ray(pix[p, 0], pix[p, 1], pts[p, m, 0], pts[p, m, 1], pts[p, m, 2],
+            ok, ox, oy, oz, dx, dy, dz, ww = sample_ray(pix[p, 0], pix[p, 1], pts[p, m, 0], pts[p, m, 1], pts[p, m, 2],
                                                   pts[p, m, 3], chord, optics, sampler, mli, cdf, height)
             k = p * n + m
             o[k, 0], o[k, 1], o[k, 2] = ox, oy, oz
@@ -123,7 +123,7 @@ def estimates(cam, medium, pix, n_outer, dims, inner, k_groups, chord, rng):
     packed, mli = cam.sampler_arrays("stratified", n_outer)
     n = pts.shape[1]
     o, d, w = np.zeros((len(pix) * n, 3)), np.zeros((len(pix) * n, 3)), np.zeros(len(pix) * n)
-    _rays(pix, pts, chord, cam.packed, packed, mli, _F, _S, o, d, w)
+    sample_rays(pix, pts, chord, cam.packed, packed, mli, SEMICIRCLE_CDF, SEMICIRCLE_HEIGHT, o, d, w)
     p = medium.packed((650e-9,))
     g = (*(float(v) for v in p["lower"]), *(float(v) for v in p["spacing"]), *(int(v) for v in p["shape"]))
     out = np.zeros((len(o), 1))
