@@ -25,7 +25,9 @@ def _fmt(value: Any) -> str:
 
 
 def require_finite_scalar(name: str, value: Any) -> float:
-    """Return ``value`` as float; raise if it is not a finite real scalar."""
+    """Return ``value`` as float; raise if it is not a finite real scalar (a 0-d real array counts)."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+        value = value[()]
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
         raise LftomoError(f"{name} must be a real number, got {_fmt(value)}")
     try:

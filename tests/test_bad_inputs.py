@@ -126,6 +126,10 @@ OBJECT_CASES = {
     "texture-str": (lambda: lt.checkerboard(high="x"), "high must be a real number, got 'x'"),
     "voxels-str": (lambda: lt.Voxels("g"), "grid must be an lftomo Grid, got str"),  # failed later
     "camera-dict-empty": (lambda: lt.Camera.from_dict({}), "camera description lacks the key 'main_lens'"),
+    "camera-dict-no-count": (lambda: lt.Camera.from_dict({**lt.Camera.seed(1.0).to_dict(),
+                                                          "mla": {k: v for k, v in lt.Camera.seed(1.0).to_dict()["mla"].items()
+                                                                  if k != "count"}}),
+                             "camera description lacks the key 'mla.count'"),
     "grid-2d": (lambda: lt.Grid((2, 2), (0, 0, 1), (1, 1, 2)), "shape must have 3 components"),
     "grid-upper": (lambda: lt.Grid((2, 2, 2), (0, 0, 2), (1, 1, 1)), "upper must exceed lower"),
     "grid-nan": (lambda: lt.Grid((2, 2, 2), (0, float("nan"), 1), (1, 1, 2)), "lower must be finite"),
@@ -868,3 +872,13 @@ def test_ensemble_moves_take_numpy_weights():
 
     chain = lt.EnsembleChain(moves=[(emcee.moves.DEMove(), np.float32(0.8)), (emcee.moves.StretchMove(), np.int64(1))])
     assert len(chain.moves) == 2
+
+
+def test_zero_dimensional_arrays_are_numbers():
+    """A 0-d real array (what ``np.asarray(x)`` of a number gives) is taken as that number; a 0-d bool or a
+    1-element array is not."""
+    assert lt.uniform(np.array(2.0))[0, 0] == 2.0
+    assert lt.checkerboard(2, high=np.array(3), low=np.float32(0.5)).tolist() == [[3.0, 0.5], [0.5, 3.0]]
+    for bad in (np.array(True), np.array([1.0]), np.array("1")):
+        with pytest.raises(lt.LftomoError, match="value must be a real number"):
+            lt.uniform(bad)

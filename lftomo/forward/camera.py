@@ -1091,6 +1091,13 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Camera":
+        hint = "(Camera.to_dict() writes a complete one)"
+        if isinstance(d, Mapping):
+            for key in ("main_lens", "mla", "sensor", "mla_distance", "sensor_gap"):
+                if key not in d:
+                    raise LftomoError(f"camera description lacks the key '{key}' {hint}")
+            if isinstance(d["mla"], Mapping) and "count" not in d["mla"]:
+                raise LftomoError(f"camera description lacks the key 'mla.count' {hint}")
         try:
             return cls(
                 main_lens=MainLens(**d["main_lens"]),
@@ -1104,8 +1111,7 @@ class Camera:
                 pose=None if d.get("pose") is None else Pose.from_dict(d["pose"]),
             )
         except KeyError as exc:
-            raise LftomoError(f"camera description lacks the key {exc} (Camera.to_dict() writes a complete "
-                              "one)") from None
+            raise LftomoError(f"camera description lacks the key {exc} {hint}") from None
         except TypeError as exc:
             raise LftomoError(f"camera description is malformed: {exc}") from None
 

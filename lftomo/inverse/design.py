@@ -436,7 +436,7 @@ def _linear_stage(ms, Ws, grid, T, lam, *, prior, bounds, hot, probes):
     from .problem import stack_problems
     from .reconstruct import problem_on_grid
 
-    problem = stack_problems([problem_on_grid(m, W, grid)[0] for m, W in zip(ms, Ws)])
+    problem = stack_problems([problem_on_grid(m, W, grid)[0] for m, W in zip(ms, Ws)], label="channels")
     J, Ls = precision_factors(problem, T, prior=prior, bounds=bounds)
     G, C, R, spread2, bias = _linear_predictions(J, Ls, lam, T.ravel())
     crb = cramer_rao_bound(G, T.ravel() > hot)

@@ -210,7 +210,8 @@ class Problem:
         g = grids.pop()
         ring = resolve_symmetry(symmetry, g)
         problem = cls(measurements=ms, forward=ws, unknowns=what, grid=g, parameterization=ring)
-        problem.__dict__["_linear_problem"] = stack_problems([p[0] for p in parts])  # the cached property's value
+        # the cached property's value
+        problem.__dict__["_linear_problem"] = stack_problems([p[0] for p in parts], label="channels")
         warn_underdetermined(problem.n_data, problem.n_unknowns)
         return problem
 
@@ -284,7 +285,7 @@ class Problem:
     @functools.cached_property
     def _linear_problem(self) -> LinearProblem:
         parts = [problem_on_grid(m, w, self.grid)[0] for m, w in zip(self.measurements, self.forward)]
-        return stack_problems(parts)
+        return stack_problems(parts, label="channels")
 
     def __repr__(self) -> str:
         par = "voxels" if self.parameterization is None else type(self.parameterization).__name__

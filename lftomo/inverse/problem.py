@@ -204,7 +204,7 @@ def taken_by_camera_of(measurement: Any, forward: Any) -> bool:
     return built_for is None or built_for == json.loads(json.dumps(measurement.camera.to_dict()))
 
 
-def stack_problems(problems: Sequence[LinearProblem]) -> LinearProblem:
+def stack_problems(problems: Sequence[LinearProblem], *, label: str = "problems") -> LinearProblem:
     """One problem from the channels of several cameras at one wavelength.
 
     The rows of the channels are stacked (``A = vstack(A_k)``, ``y``, ``sigma``
@@ -218,6 +218,10 @@ def stack_problems(problems: Sequence[LinearProblem]) -> LinearProblem:
     problems : sequence of LinearProblem
         Two or more; same reconstruction grid (shape and box), same
         wavelength, same interpolation (sub-voxel emission) if any.
+    label : str, optional
+        How errors name the k-th problem (``f"{label}[{k}]"``): the caller's
+        own argument, e.g. ``"forward"`` when the problems come from a list of
+        weight matrices.
 
     Returns
     -------
@@ -234,19 +238,19 @@ def stack_problems(problems: Sequence[LinearProblem]) -> LinearProblem:
     first = ps[0]
     for k, p in enumerate(ps):
         if not isinstance(p, LinearProblem):
-            raise LftomoError(f"problems[{k}] must be a LinearProblem, got {type(p).__name__}")
+            raise LftomoError(f"{label}[{k}] must be a LinearProblem, got {type(p).__name__}")
         if p.grid != first.grid:
-            raise LftomoError(f"problems[{k}] is on grid {p.grid!r}, problems[0] on {first.grid!r}: the cameras of "
+            raise LftomoError(f"{label}[{k}] is on grid {p.grid!r}, {label}[0] on {first.grid!r}: the cameras of "
                              "one fit must share the reconstruction grid")
         if p.wavelength != first.wavelength:
             raise LftomoError(
-                f"problems[{k}] is at wavelength {p.wavelength!r} m, problems[0] at {first.wavelength!r} m: a "
+                f"{label}[{k}] is at wavelength {p.wavelength!r} m, {label}[0] at {first.wavelength!r} m: a "
                 "temperature-only fit stacks channels of one wavelength (fit several wavelengths with "
                 "unknowns='T+sigma_a')")
         same_E = (p.interpolation is None) == (first.interpolation is None) and (
             p.interpolation is None or (p.interpolation != first.interpolation).nnz == 0)
         if not same_E:
-            raise LftomoError(f"problems[{k}] has a different sub-voxel interpolation than problems[0]: build every "
+            raise LftomoError(f"{label}[{k}] has a different sub-voxel interpolation than {label}[0]: build every "
                              "camera's weights on the same quadrature grid")
     if len(ps) == 1:
         return first

@@ -1,5 +1,7 @@
 """lt.Problem: the data, forward models, unknowns and parameterisation of a fit, checked once."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -43,6 +45,13 @@ def test_problem_holds_the_checked_pieces_of_a_temperature_fit(blob):
     rig = lt.Problem.from_data([m, m], [W, W])
     _same_operator(rig.linear_problem(), stack_problems([ref, ref]))
     assert rig.n_data == 2 * ref.y.size
+    # errors name the caller's argument
+    other = dataclasses.replace(ref, wavelength=900e-9)
+    assert ref.wavelength != other.wavelength
+    with pytest.raises(lt.LftomoError, match=r"channels\[1\] is at wavelength .* channels\[0\] at"):
+        stack_problems([ref, other], label="channels")
+    with pytest.raises(lt.LftomoError, match=r"problems\[1\] is at wavelength"):
+        stack_problems([ref, other])
 
 
 @pytest.mark.parametrize("symmetry", [None, "axisymmetric"])
