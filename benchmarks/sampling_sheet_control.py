@@ -123,6 +123,7 @@ def estimates(cam, medium, pix, n, k_groups, rng):
     g = (*(float(v) for v in p["lower"]), *(float(v) for v in p["spacing"]), *(int(v) for v in p["shape"]))
     kappa, ib = np.ascontiguousarray(p["sigma_a"][0]), np.ascontiguousarray(p["Ib"][0])
     t0 = time.perf_counter()
+    n = pts.shape[1]  # k_groups · (n // k_groups)
     total = len(pix) * n
     o, d, w = np.zeros((total, 3)), np.zeros((total, 3)), np.zeros(total)
     sample_rays(pix, pts, True, cam.packed, packed, mli, SEMICIRCLE_CDF, SEMICIRCLE_HEIGHT, o, d, w)

@@ -37,7 +37,8 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import LftomoError
-from .._validate import check_allocation, require_finite_scalar, require_instance, require_int, require_positive
+from .._validate import (check_allocation, is_real, require_finite_scalar, require_instance, require_int,
+                         require_positive)
 from . import optics as _o
 from . import sampler as _sampler
 from .sampler import DEFAULT_SAMPLER
@@ -68,6 +69,27 @@ def _sag(curv: float, r: float) -> float:
     if curv == 0.0:
         return 0.0
     return curv * r * r / (1.0 + math.sqrt(max(0.0, 1.0 - (curv * r) ** 2)))
+
+
+
+def _store_floats(obj: Any, prefix: str, names: tuple[str, ...], radii: tuple[str, ...] = ()) -> None:
+    """Store the dataclass fields ``names`` of ``obj`` as Python floats (numpy scalars and 0-d arrays
+    included), so that the camera's JSON description and hash work whatever numbers it was given.
+    ``radii`` may be ±inf (a plane); every other field must be finite."""
+    for name in names:
+        value = getattr(obj, name)
+        if name in radii:
+            if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+                value = value[()]
+            if not is_real(value):
+                raise LftomoError(f"{prefix}.{name} must be a radius in m (inf for a plane), got {value!r}")
+            try:
+                v = float(value)
+            except OverflowError:  # an integer beyond the largest double: as good as a plane
+                v = math.copysign(math.inf, value)
+        else:
+            v = require_finite_scalar(f"{prefix}.{name}", value)
+        object.__setattr__(obj, name, v)
 
 
 def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: float, index: float) -> None:
@@ -146,6 +168,8 @@ class MainLens:
     ideal: bool = False
 
     def __post_init__(self) -> None:
+        _store_floats(self, "main_lens", ("r1", "r2", "thickness", "diameter", "index", "stop_diameter",
+                                          "stop_to_vertex"), radii=("r1", "r2"))
         _check_lens("main_lens", self.r1, self.r2, self.thickness, self.diameter, self.index)
         require_positive("main_lens.stop_diameter", self.stop_diameter)
         if self.stop_diameter > self.diameter:
@@ -209,6 +233,7 @@ class MicrolensArray:
         except (TypeError, ValueError):
             raise LftomoError(f"mla.count must be two integers (nx, ny), got {self.count!r}") from None
         object.__setattr__(self, "count", (require_int("mla.count[0]", cx, minimum=1), require_int("mla.count[1]", cy, minimum=1)))
+        _store_floats(self, "mla", ("pitch", "diameter", "r1", "r2", "thickness", "index"), radii=("r1", "r2"))
         require_positive("mla.pitch", self.pitch)
         rot = require_finite_scalar("mla.rotation", self.rotation)
         if abs(rot) > math.pi / 8:
@@ -275,7 +300,7 @@ class Sensor:
     shape: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
-        require_positive("sensor.pixel_pitch", self.pixel_pitch)
+        object.__setattr__(self, "pixel_pitch", require_positive("sensor.pixel_pitch", self.pixel_pitch))
         if self.shape is not None:
             try:
                 r, c = self.shape
@@ -441,6 +466,8 @@ class Camera:
                          n_px * BYTES_PER_PIXEL, hint="use fewer microlenses (mla.count)")
         d = require_positive("mla_distance", self.mla_distance)
         g = require_finite_scalar("sensor_gap", self.sensor_gap)
+        object.__setattr__(self, "mla_distance", d)
+        object.__setattr__(self, "sensor_gap", g)
         if g <= 0.0:
             raise LftomoError(
                 f"sensor_gap must be > 0 (the sensor lies behind the MLA), got {g!r} m: the MLA would be "
@@ -456,7 +483,7 @@ class Camera:
                 f"{rear_extent!r} m behind the stop; it must be larger"
             )
         if self.focus_distance is not None:
-            require_positive("focus_distance", self.focus_distance)
+            object.__setattr__(self, "focus_distance", require_positive("focus_distance", self.focus_distance))
         object.__setattr__(self, "_ppl", ppl)
         object.__setattr__(self, "_pitch_px", pitch_px)
         object.__setattr__(self, "_sensor_shape", shape)

@@ -219,9 +219,8 @@ def stack_problems(problems: Sequence[LinearProblem], *, label: str = "problems"
         Two or more; same reconstruction grid (shape and box), same
         wavelength, same interpolation (sub-voxel emission) if any.
     label : str, optional
-        How errors name the k-th problem (``f"{label}[{k}]"``): the caller's
-        own argument, e.g. ``"forward"`` when the problems come from a list of
-        weight matrices.
+        How errors name the k-th problem (``f"{label}[{k}]"``), e.g.
+        ``"channels"`` for the channels of one fit.
 
     Returns
     -------
