@@ -70,7 +70,7 @@ from .fitoptions import MOVED_OPTIONS, fit_keywords, moved_options, with_default
 from .lambdarules import Evidence, Fixed, LambdaRule, resolve_rule
 from .regularizers import prior_operator, resolve_prior
 from .solverchoice import LevenbergMarquardt
-from .solvers import PROGRESS_MIN_UNKNOWNS, temperature_fit
+from .solvers import shows_progress, temperature_fit
 from .symmetry import resolve_symmetry
 
 _METHODS = ("auto", "dense", "sampled")
@@ -518,8 +518,7 @@ def laplace_posterior(
         options = with_default_noise_scale(options, options.get("rule"), reduced=ring is not None,
                                            cameras=measurement.n_cameras if isinstance(measurement, Problem) else 1)
     # the solves show their bars as the posterior's progress says (lftomo demo --quiet printed them)
-    show = bool(progress) if progress is not None else (
-        grid.n_voxels if ring is None else ring.n_params) >= PROGRESS_MIN_UNKNOWNS
+    show = shows_progress(progress, unknowns=grid.n_voxels if ring is None else ring.n_params)
     run = _PosteriorRun(problem, prior=prior, bounds=bounds, options={**options, "progress": show},
                         method=method, n_samples=cov.n_samples, rng=np.random.default_rng(seed),
                         cg_rtol=cov.cg_rtol, cg_max_iter=cov.cg_max_iter)

@@ -250,6 +250,15 @@ PROGRESS_MIN_NNZ = 5_000_000
 PROGRESS_MIN_UNKNOWNS = 1000
 
 
+def shows_progress(progress: bool | None, *, unknowns: int, nnz: int = 0) -> bool:
+    """Whether a fit shows its progress bar: as ``progress`` says, or by default (None) when its operator
+    has more than :data:`PROGRESS_MIN_NNZ` non-zeros or it fits at least :data:`PROGRESS_MIN_UNKNOWNS`
+    unknowns."""
+    if progress is not None:
+        return bool(progress)
+    return nnz > PROGRESS_MIN_NNZ or unknowns >= PROGRESS_MIN_UNKNOWNS
+
+
 # --------------------------------------------------------------------------- results
 @dataclass(frozen=True, eq=False)
 class TemperatureSolution:
@@ -1165,9 +1174,8 @@ def _solve_checked(problem: LinearProblem, *, regularization, prior, bounds, T0,
     s = _make_setup(problem, bounds=bounds, prior=prior_model, penalize=penalize, tv_eps=tv_eps, T_ref=T_ref)
     run = _Runner(s, method=method, rtol=rtol, atol=atol, max_steps=max_steps,
                   linear_rtol=linear_rtol, linear_max_steps=linear_max_steps)
-    show = progress if progress is not None else (s.A_s.nnz > PROGRESS_MIN_NNZ
-                                                   or s.A_s.shape[1] >= PROGRESS_MIN_UNKNOWNS)
-    run.bar = progress_bar(None, bool(show), "reconstruct T", unit="step")
+    show = shows_progress(progress, unknowns=s.A_s.shape[1], nnz=s.A_s.nnz)
+    run.bar = progress_bar(None, show, "reconstruct T", unit="step")
     try:
         with stop_between_steps("the reconstruction"):  # Ctrl-C: between two steps (lftomo.interrupt)
             return _solve_with(run, s, problem, lam_fixed, rule, T0_arr=T0_arr, T0_mode=T0_mode, bounds=bounds,

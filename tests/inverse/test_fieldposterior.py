@@ -281,7 +281,6 @@ def test_progress_false_silences_the_reconstructions(case, monkeypatch, capsys):
     """``progress=False`` (``lftomo demo --quiet``) prints nothing, although the solver would show its bar on a
     problem this size by default; ``progress=True`` shows the bars and the evidence iterations, and so does
     the default from ``PROGRESS_MIN_UNKNOWNS`` unknowns (a 16³ posterior runs for minutes)."""
-    import lftomo.inverse.fieldposterior as fieldposterior
     import lftomo.inverse.solvers as solvers
 
     problem, _ = case
@@ -294,7 +293,7 @@ def test_progress_false_silences_the_reconstructions(case, monkeypatch, capsys):
     laplace_posterior(problem, progress=True, **kw)
     out = capsys.readouterr()
     assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
-    monkeypatch.setattr(fieldposterior, "PROGRESS_MIN_UNKNOWNS", problem.grid.n_voxels)
+    monkeypatch.setattr(solvers, "PROGRESS_MIN_UNKNOWNS", problem.grid.n_voxels)
     laplace_posterior(problem, **kw)
     out = capsys.readouterr()
     assert "evidence iteration 0" in out.out and "reconstruct" in out.err, out
