@@ -471,3 +471,45 @@ def test_multichannel_sensors_and_channel_selection(cam, lf0, tmp_path):
     # the saturation flags survive save/load
     back = lt.LightField.load(noisy.save(tmp_path / "noisy.npz"))
     assert np.array_equal(saturated_mask(back), sat)
+
+
+def test_expected_noise_std_is_selected_propagated_and_saved(lf_noisy, grid, tmp_path):
+    """Where noise_std is partly a bound, noise_std_expected (≤ it) follows the data: the sub-aperture
+    data take it pixel by pixel, the focal stack propagates it as σ is propagated (diag(R diag(e²) Rᵀ),
+    computed densely here), the file keeps it, and the problem's chi2_expected is mean((e/σ)²)."""
+    rng = np.random.default_rng(5)
+    expected = lf_noisy.noise_std * rng.uniform(0.3, 1.0, size=lf_noisy.noise_std.shape)
+    lf = dataclasses.replace(lf_noisy, noise_std_expected=expected)
+    sub = Measurement.from_lightfield(lf)
+    np.testing.assert_array_equal(sub.sigma_expected, expected.ravel()[sub.raw_index])
+    c = np.mean((expected.ravel()[sub.raw_index] / sub.sigma) ** 2)
+    assert sub.chi2_expected == pytest.approx(c, rel=1e-12) and 0.1 < c < 0.9
+    W = sp.random(lf.raw.size, grid.n_voxels, density=0.05, random_state=0, format="csr")
+    assert sub.problem(W, grid).chi2_expected == pytest.approx(c, rel=1e-12)
+    st = Measurement.from_lightfield(lf, data="refocus", depths=DEPTHS)
+    Rd = st.operator.toarray()
+    np.testing.assert_allclose(st.sigma_expected**2, (Rd**2) @ expected.ravel() ** 2, rtol=1e-12)
+    assert st.chi2_expected == pytest.approx(np.mean(st.sigma_expected**2 / st.sigma**2), rel=1e-12)
+    # without it, σ is the estimate itself
+    assert Measurement.from_lightfield(lf_noisy).chi2_expected == 1.0
+    assert Measurement.from_lightfield(lf_noisy).problem(W, grid).chi2_expected == 1.0
+    back = lt.LightField.load(lf.save(tmp_path / "lf.npz"))
+    np.testing.assert_array_equal(back.noise_std_expected, expected)
+    assert lt.LightField.load(lf_noisy.save(tmp_path / "lf0.npz")).noise_std_expected is None
+
+
+def test_expected_noise_std_above_the_bound_is_refused(lf0, lf_noisy):
+    with pytest.raises(ValueError, match="noise_std_expected must be <= noise_std .* 1 pixel"):
+        e = lf_noisy.noise_std.copy()
+        e.ravel()[7] *= 1.01
+        dataclasses.replace(lf_noisy, noise_std_expected=e)
+    with pytest.raises(ValueError, match="noise_std_expected needs noise_std"):
+        dataclasses.replace(lf0, noise_std_expected=np.zeros_like(lf0.raw))
+    with pytest.raises(ValueError, match="noise_std_expected"):
+        dataclasses.replace(lf_noisy, noise_std_expected=np.zeros(3))
+    m = Measurement.from_lightfield(lf_noisy)
+    with pytest.raises(ValueError, match="sigma_expected must be <= sigma"):
+        dataclasses.replace(m, sigma_expected=m.sigma * 1.5)
+    with pytest.raises(ValueError, match=r"chi2_expected must be in \(0, 1\]"):
+        LinearProblem(sp.eye(m.size, 27, format="csr"), m.y, m.sigma,
+                      lt.Grid((3, 3, 3), (-0.01, -0.01, 0.99), (0.01, 0.01, 1.01)), chi2_expected=1.2)
