@@ -241,16 +241,7 @@ class LightField:
     centers : ndarray, shape (n_y, n_x, 2), optional
         Microlens-image centres (row, col) in pixels; geometric by default.
     noise_std : ndarray, optional
-        Per-pixel noise standard deviation of a noisy measurement: the σ that
-        weights each datum in a fit.
-    noise_std_expected : ndarray, optional
-        Where ``noise_std`` is an upper bound rather than an estimate (a Monte
-        Carlo floor above the render's own error,
-        :func:`lftomo.inverse.compare.monte_carlo_std`), the standard deviation
-        the pixel's error is expected to have, ``≤ noise_std``.  The
-        discrepancy rule aims at the χ² the truth is expected to reach,
-        ``Σ (noise_std_expected / noise_std)²``, not at one per datum.  None:
-        ``noise_std`` is itself the estimate.
+        Per-pixel noise standard deviation of a noisy measurement.
     signal : ndarray, optional
         Noise-free signal kept beside a noisy ``raw``.
     metadata : dict
@@ -267,7 +258,6 @@ class LightField:
     signal: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
     min_etendue_fraction: float = 0.05
-    noise_std_expected: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         cam = self.camera
@@ -285,9 +275,6 @@ class LightField:
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, require_array(name, v, shape=shape))
-        if self.noise_std_expected is not None:
-            object.__setattr__(self, "noise_std_expected", _check_expected_std(self.noise_std_expected,
-                                                                               self.noise_std, shape))
         if self.etendue is None:
             object.__setattr__(self, "etendue", cam.etendue_map)
         else:
@@ -419,7 +406,7 @@ class LightField:
 
         path = npz_output_path(path, what="light-field file")
         arrays = {"raw": self.raw, "etendue": self.etendue, "centers": self.centers}
-        for name in ("std_error", "noise_std", "signal", "noise_std_expected"):
+        for name in ("std_error", "noise_std", "signal"):
             if getattr(self, name) is not None:
                 arrays[name] = getattr(self, name)
         meta = {
@@ -550,22 +537,8 @@ def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr
     return (sp.diags(inv) @ M).tocsr()
 
 
-def _check_expected_std(expected: Any, noise_std: Any, shape: tuple) -> np.ndarray:
-    """``noise_std_expected`` checked against ``noise_std``, the bound it may not exceed."""
-    if noise_std is None:
-        raise LftomoError("noise_std_expected needs noise_std (the σ it is the expected part of); got noise_std=None")
-    e = require_array("noise_std_expected", expected, shape=shape, minimum=0.0)
-    above = e > noise_std * (1.0 + 1e-12)
-    if above.any():
-        k = int(np.flatnonzero(above.ravel())[0])
-        raise LftomoError(f"noise_std_expected must be <= noise_std at every pixel (noise_std is the bound), got "
-                          f"{int(above.sum())} pixel(s) above it, e.g. flat index {k}: "
-                          f"{float(e.ravel()[k])!r} > {float(np.ravel(noise_std)[k])!r}")
-    return e
-
-
 # ---- validation of saved light fields ------------------------------------------
-_LF_ARRAYS = ("raw", "etendue", "centers", "std_error", "noise_std", "signal", "noise_std_expected")
+_LF_ARRAYS = ("raw", "etendue", "centers", "std_error", "noise_std", "signal")
 
 
 def _check_lightfield_meta(data: dict, path) -> dict:
@@ -636,7 +609,5 @@ def _check_lightfield_arrays(data: dict, meta: dict, camera, wl, path) -> dict:
         "std_error": check_member(data, "std_error", shape=shape, minimum=0.0, required=False, **kw),
         "noise_std": check_member(data, "noise_std", shape=shape, minimum=0.0, required=False, **kw),
         "signal": check_member(data, "signal", shape=shape, required=False, **kw),
-        "noise_std_expected": check_member(data, "noise_std_expected", shape=shape, minimum=0.0, required=False,
-                                           **kw),
     }
     return out

@@ -316,15 +316,12 @@ def with_model_error(lf: LightField, W: Any) -> LightField:
     r = np.zeros(lf.raw.size)
     r[np.asarray(W.pixel_index, np.int64)] = rel
     r = r.reshape(lf.raw.shape)
-    add = (r * lf.raw) ** 2
-    std = np.sqrt(lf.noise_std**2 + add)
-    # an estimate, not a bound: it adds to the expected part as well (where the light field has one)
-    expected = None if lf.noise_std_expected is None else np.minimum(np.sqrt(lf.noise_std_expected**2 + add), std)
+    std = np.sqrt(lf.noise_std**2 + (r * lf.raw) ** 2)
     meta = dict(lf.metadata)
     meta["noise"] = {**meta.get("noise", {}), "model_error": "weight matrix Monte Carlo error, "
                      "row_std_error/row_sum x |signal| in quadrature",
                      "model_error_rel_median": float(np.median(rel[s > 0])) if np.any(s > 0) else 0.0}
-    return dataclasses.replace(lf, noise_std=std, noise_std_expected=expected, metadata=meta)
+    return dataclasses.replace(lf, noise_std=std, metadata=meta)
 
 
 class RawFrameConverter:

@@ -90,7 +90,7 @@ def draw_row(d, reg, lf, W, a, ctx):
     e["chi2_point"] = problem.chi2(T_point)
     row = {"draw": d, **e, "lambda": rec.regularization, "lambda_rule": rec.lambda_rule,
            "lambda_note": getattr(getattr(rec.details, "lambda_choice", None), "note", ""), "chi2": rec.chi2,
-           "chi2_truth": chi2_true, "chi2_expected": problem.chi2_expected, "seconds": dt, "converged": rec.converged}
+           "chi2_truth": chi2_true, "seconds": dt, "converged": rec.converged}
     return row, rec.T
 
 

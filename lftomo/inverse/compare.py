@@ -239,13 +239,7 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
     Returns
     -------
     LightField
-        ``noise_std = sqrt(noise_std² + monte_carlo_std²)``.  With
-        ``floor="bound"`` the floor makes σ an upper bound on the Monte Carlo
-        part; ``noise_std_expected = sqrt(noise_std² + (1 + R/R_W) se_d²)``
-        then keeps what the error is expected to be (the render's own
-        standard error, unbiased in variance), from which the discrepancy
-        rule takes the χ²/m the truth is expected to reach
-        (:func:`lftomo.inverse.lambdarules.given_target`).
+        ``noise_std = sqrt(noise_std² + monte_carlo_std²)``.
     """
     if min_etendue_fraction is not None:
         min_etendue_fraction = require_in_range("min_etendue_fraction", min_etendue_fraction, 0.0, 1.0,
@@ -254,17 +248,7 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
         noisy = dataclasses.replace(noisy, min_etendue_fraction=float(min_etendue_fraction))
     mc = monte_carlo_std(lf, weights_rays_per_pixel=weights_rays_per_pixel, rays_per_pixel=rays_per_pixel,
                          floor=floor)
-    before = noisy.noise_std if noisy.noise_std_expected is None else noisy.noise_std_expected
-    expected = None
-    if floor == "bound":  # the render's own error, scaled as monte_carlo_std scales it, without the floor
-        se2 = np.asarray(lf.std_error, dtype=float) ** 2 * (1.0 + rays_per_pixel / weights_rays_per_pixel)
-        expected = np.sqrt(before**2 + se2)
-    elif noisy.noise_std_expected is not None:
-        expected = np.sqrt(before**2 + mc**2)
-    std = np.sqrt(noisy.noise_std**2 + mc**2)
-    if expected is not None:
-        expected = np.minimum(expected, std)  # (rounding: se_d ≤ the bound by construction)
-    return dataclasses.replace(noisy, noise_std=std, noise_std_expected=expected)
+    return dataclasses.replace(noisy, noise_std=np.sqrt(noisy.noise_std**2 + mc**2))
 
 
 @dataclass(frozen=True, eq=False)

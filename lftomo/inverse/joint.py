@@ -536,8 +536,6 @@ class JointModel:
         self.L = to_bcoo(self.L_sp)
         self.whiten = [sp.diags((r >= 0) / np.asarray(m.sigma, float)) for m, r in zip(ms, self.rows)]
         self.m_total = sum(m.y.size for m in ms)
-        # the χ²/m the truth is expected to reach under the channels' σ (below 1 where σ is partly a bound)
-        self.chi2_expected = sum(m.size * m.chi2_expected for m in ms) / self.m_total
         self.fns = _residual_functions(space.space == "log")
         # every array the residual reads, passed as an argument (never closed over): the cached residual
         # functions are then traced and compiled once per problem shape, not once per fit or per λ
@@ -659,7 +657,6 @@ class _JointPath:
     def __init__(self, model: JointModel, max_steps: int):
         self.model, self.max_steps = model, max_steps
         self.m_total, self.n_unknowns = model.m_total, 2 * model.n_u
-        self.chi2_expected = model.chi2_expected
         self.evals: list[Eval] = []
         self.bar = NoBar()
 

@@ -10,9 +10,7 @@ which rules their paths support.
 Rules (:data:`RULE_CLASSES`; the string names select them):
 
 * :class:`Discrepancy` (``"discrepancy"``), both fits: Morozov's principle, the
-  λ with ``χ²/m = target``, target ``(1 + safety) c`` with the noise scale given
-  (``c`` the χ²/m the truth is expected to reach, :func:`given_target`: 1
-  unless σ is partly an upper bound), or
+  λ with ``χ²/m = target``, target 1 + safety with the noise scale given, or
   ``(1 + safety) s²`` with it estimated (``s² = χ²/(m − ν)`` of the
   least-regularized fit).  By default λ is chosen on the fit linearised at
   each Gauss–Newton iterate (:func:`projected_discrepancy_search`), then one
@@ -180,11 +178,6 @@ class SolvePath(Protocol):
         Number of unknowns (for the estimated noise scale's check m > n).
     evals : list of Eval
         Every solve so far, in the order solved.
-    chi2_expected : float, optional
-        The χ²/m the truth is expected to reach under the given σ (1 where σ is
-        an estimate; below 1 where part of it is an upper bound,
-        :attr:`lftomo.inverse.problem.LinearProblem.chi2_expected`).  A path
-        without it is taken as 1 (:func:`given_target`).
     """
 
     m_total: int
@@ -352,20 +345,6 @@ def out_of_reach(gap: float, falls: list[float], decades_left: float, tol: float
     return gap > max(falls[-1], 0.0) * decades_left + tol
 
 
-def given_target(run: Any, safety: float) -> float:
-    """The discrepancy target with the noise scale given: ``χ²/m = (1 + safety) · c``.
-
-    ``c = run.chi2_expected`` (1 where the path has none) is the χ²/m the truth
-    is expected to reach under the given σ: 1 where σ is an estimate of the
-    data's error, ``mean((σ_expected/σ)²)`` where σ is partly an upper bound
-    (a Monte Carlo floor, :func:`lftomo.inverse.compare.monte_carlo_std`).
-    Aiming at 1 there would ask the fit to misfit the data by more than the
-    truth does, and over-smooth (docs/accuracy.md, *The given-σ target where
-    σ is a bound*).
-    """
-    return (1.0 + safety) * float(getattr(run, "chi2_expected", 1.0))
-
-
 def _likely_overestimated(run: Any, e: Eval, target: float) -> bool:
     """Whether the least-regularized fit ``e``'s χ²/m lies below ``target`` by more than a right σ leaves.
 
@@ -405,7 +384,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     Factor-10 bracketing from ``λ_ref · 1e-2`` (within ``λ_ref · [1e-10, 1e4]``),
     then Brent's method on ``log(χ²/m / target)`` against ``log λ`` (:func:`bracketed_root`); the L-curve
     corner of the structured branch (:func:`branch_corner`) when no λ attains the target.  When χ²/m stays
-    below the given target (:func:`given_target`) at every λ (σ overestimated) or above it (σ underestimated, or a model error) and
+    below ``1 + safety`` at every λ (σ overestimated) or above it (σ underestimated, or a model error) and
     there are more data than unknowns, the search is redone with ``estimate_scale`` (``met`` then True
     below, False above: the target asked for was not met); the descent then stops as soon as
     :func:`out_of_reach` says the target is out of its reach.  Where the least-regularized fit's χ²/m lies
@@ -421,7 +400,7 @@ def discrepancy_search(run: Any, theta0, lam_ref: float, safety: float, search_s
     fallbacks (a corner, the smallest or largest λ: no λ attains the target).  (The algorithm is
     described in :mod:`lftomo.inverse.solvers`.)
     """
-    target = given_target(run, safety)
+    target = 1.0 + safety
     lo_lim, hi_lim = lam_ref * 1e-10, lam_ref * 1e4
     m = run.m_total
     # the root of g (increasing) in log λ, to the precision of the
@@ -1035,7 +1014,7 @@ def bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_min: float, 
     (``path.evals`` may hold earlier ones, e.g. of a search against another target).
     """
     n_before = len(path.evals)
-    state = {"target": given_target(path, 0.0), "scale_info": None, "n_before": n_before}
+    state = {"target": 1.0, "scale_info": None, "n_before": n_before}
 
     def at(lam: float) -> bool:
         return _ladder_solve(path, theta0, lam, state, estimate_scale)
@@ -1096,7 +1075,7 @@ def projected_bracket_search(path: Any, theta0: Any, *, lam_start: float, lam_mi
     then dropped from ``path.evals``).
     """
     n_before, m = len(path.evals), path.m_total
-    target, scale_info, note = given_target(path, 0.0), None, ""
+    target, scale_info, note = 1.0, None, ""
     tol = min(max(math.sqrt(2.0 / m), 1e-3), 1e-2)
     start, lam_ref = theta0, lam_start
 
@@ -1204,8 +1183,7 @@ class Fixed(LambdaRule):
 
 class Discrepancy(LambdaRule):
     """Morozov's discrepancy principle, one rule for both fits: the λ with ``χ²/m`` at the target,
-    ``(1 + safety) c`` (``noise_scale="given"``, ``c`` from :func:`given_target`) or ``(1 + safety) s²``
-    (``"estimated"``).
+    ``1 + safety`` (``noise_scale="given"``) or ``(1 + safety) s²`` (``"estimated"``).
 
     χ²/m of the regularized solution rises with λ, so the root of ``χ²/m = target``
     and the largest λ with ``χ²/m ≤ target`` are the same λ; each fit searches
@@ -1230,8 +1208,7 @@ class Discrepancy(LambdaRule):
         ring cells), estimated for the joint fit where there are more data than
         unknowns.
     safety : float
-        Target ``χ²/m = (1 + safety) c`` (``c`` the χ²/m the truth is expected to reach, 1 unless σ is
-        partly a bound: :func:`given_target`; ``s²`` instead of ``c`` when estimated), ≥ 0
+        Target ``χ²/m = 1 + safety`` (times ``s²`` when estimated), ≥ 0
         (T-only fits; the joint fit's target has no safety margin).
     search_steps : int, optional
         Nonlinear step cap of each candidate solve (default the solver's
@@ -1330,7 +1307,7 @@ class Discrepancy(LambdaRule):
         (its solves then dropped from ``path.evals``: the root search runs as if alone).  The walk starts
         at ``theta0``; with ``first``, where that gives way, once more at ``first.theta``."""
         n_before = len(path.evals)
-        target, scale_note = given_target(path, self.safety), ""
+        target, scale_note = 1.0 + self.safety, ""
         tol = min(max(math.sqrt(2.0 / path.m_total), 1e-3), 1e-2)
         starts = [theta0]
         if first is not None:

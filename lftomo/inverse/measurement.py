@@ -361,7 +361,7 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
     if lf.signal is not None or lf.noise_std is not None:
         raise LftomoError(
             "lf is already a noisy light field (it has signal/noise_std); pass the noise-free one, "
-            "e.g. dataclasses.replace(lf, raw=lf.signal, signal=None, noise_std=None, noise_std_expected=None)"
+            "e.g. dataclasses.replace(lf, raw=lf.signal, signal=None, noise_std=None)"
         )
     n_ch = lf.n_channels
     if relative_std is not None:
@@ -500,11 +500,6 @@ class Measurement:
         Per-pixel noise σ of the channel's raw image (for :meth:`covariance`).
     metadata : dict
         Provenance (noise model, number of saturated pixels left out, ...).
-    sigma_expected : ndarray, shape (m,), or None
-        Where ``sigma`` is partly an upper bound (a Monte Carlo floor), the
-        standard deviation each datum's error is expected to have, ``≤ sigma``
-        (from ``LightField.noise_std_expected``); None: ``sigma`` is itself
-        the estimate.  Sets :attr:`chi2_expected`.
     """
 
     y: np.ndarray
@@ -521,7 +516,6 @@ class Measurement:
     raw_index: np.ndarray | None = None
     raw_noise_std: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
-    sigma_expected: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in DATA_KINDS:
@@ -552,12 +546,6 @@ class Measurement:
         if self.raw_noise_std is not None:
             object.__setattr__(self, "raw_noise_std",
                                require_array("raw_noise_std", self.raw_noise_std, shape=(n_raw,), minimum=0.0))
-        if self.sigma_expected is not None:
-            e = require_array("sigma_expected", self.sigma_expected, shape=(m,), minimum=0.0)
-            if np.any(e > s * (1.0 + 1e-12)):
-                raise LftomoError(f"sigma_expected must be <= sigma at every datum (sigma is the bound), got "
-                                  f"{int(np.sum(e > s * (1.0 + 1e-12)))} datum/data above it")
-            object.__setattr__(self, "sigma_expected", e)
         object.__setattr__(self, "operator", op)
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "sigma", s)
@@ -653,7 +641,6 @@ class Measurement:
         n_raw = shape2[0] * shape2[1]
         raw = lf.raw.reshape((lf.n_channels, n_raw))[ch]
         std = lf.noise_std.reshape((lf.n_channels, n_raw))[ch]
-        std_exp = None if lf.noise_std_expected is None else lf.noise_std_expected.reshape((lf.n_channels, n_raw))[ch]
         sat = saturated_mask(lf).reshape((lf.n_channels, n_raw))[ch]
         wl = None if lf.wavelengths is None else lf.wavelengths[ch]
         meta = {"noise": lf.metadata.get("noise"), "n_saturated_raw": int(sat.sum())}
@@ -681,8 +668,7 @@ class Measurement:
             meta["n_saturated_dropped"] = int((lf.view_mask & keep_view[:, :, None, None]).sum() - m)
             return cls(y=y, sigma=sigma, operator=P, kind=data, mask=mask, data_shape=(nv, nu, ny, nx),
                        camera=lf.camera, channel=ch, wavelength=wl, depths=None, views=tuple(sel),
-                       raw_index=raw_index, raw_noise_std=std, metadata=meta,
-                       sigma_expected=None if std_exp is None else std_exp[raw_index])
+                       raw_index=raw_index, raw_noise_std=std, metadata=meta)
 
         # ---- refocus ----
         R = sp.vstack([lf.refocus_operator_at(d) for d in dep]).tocsr()
@@ -707,26 +693,15 @@ class Measurement:
         mask = np.zeros(len(dep) * ny * nx, bool)
         mask[rows] = True
         meta["n_rows_dropped"] = int(mask.size - rows.size)
-        # the expected part propagates as σ does (independent raw pixels)
-        sig_exp = None if std_exp is None else np.sqrt(np.minimum(R.multiply(R) @ (std_exp**2), var))
         return cls(y=R @ raw, sigma=np.sqrt(var), operator=R, kind=data, mask=mask.reshape(len(dep), ny, nx),
                    data_shape=(len(dep), ny, nx), camera=lf.camera, channel=ch, wavelength=wl, depths=dep,
-                   views=None, raw_index=None, raw_noise_std=std, metadata=meta, sigma_expected=sig_exp)
+                   views=None, raw_index=None, raw_noise_std=std, metadata=meta)
 
     # ---- properties -------------------------------------------------------------
     @property
     def size(self) -> int:
         """Number of data ``m``."""
         return int(self.y.size)
-
-    @property
-    def chi2_expected(self) -> float:
-        """χ²/m the truth is expected to reach under ``sigma``: ``mean((sigma_expected / sigma)²)``, 1
-        without ``sigma_expected``.  The discrepancy rule's given-σ target
-        (:func:`lftomo.inverse.lambdarules.given_target`)."""
-        if self.sigma_expected is None:
-            return 1.0
-        return float(np.mean((self.sigma_expected / self.sigma) ** 2))
 
     @property
     def n_raw(self) -> int:
@@ -825,7 +800,7 @@ class Measurement:
         meta = {"kind": self.kind, "channel": self.channel, "depths": self.depths,
                 "n_views": None if self.views is None else len(self.views)}
         return LinearProblem(A=A, y=self.y, sigma=self.sigma, grid=grid, wavelength=self.wavelength,
-                             background=bg, metadata=meta, chi2_expected=self.chi2_expected)
+                             background=bg, metadata=meta)
 
     def to_images(self, vector: Any, *, fill: float = 0.0) -> np.ma.MaskedArray:
         """Scatter a data-space vector into images, for plotting.

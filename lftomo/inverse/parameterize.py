@@ -176,7 +176,7 @@ class Parameterization(ABC):
             raise LftomoError(f"{type(self).__name__}'s expansion is not convex (rows >= 0 summing to 1): "
                              "temperature bounds on its unknowns would not bound the field")
         keep = dict(y=problem.y, sigma=problem.sigma, grid=self.unknowns_grid, wavelength=problem.wavelength,
-                    background=problem.background, metadata=problem.metadata, chi2_expected=problem.chi2_expected)
+                    background=problem.background, metadata=problem.metadata)
         if problem.interpolation is not None:
             return LinearProblem(A=problem.A, interpolation=(problem.interpolation @ self.expansion).tocsr(), **keep)
         if self.is_selection:

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import require_array, require_finite_scalar
+from .._validate import require_array
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,11 +51,6 @@ class LinearProblem:
         Sub-voxel emission: ``A`` then has ``n_q`` columns (the quadrature
         grid's voxels) and the temperature is interpolated by this matrix
         before Planck's law (:func:`lftomo.interpolation_matrix`).
-    chi2_expected : float
-        χ²/m the true field is expected to reach under ``sigma``, in (0, 1]:
-        1 where ``sigma`` estimates the data's error, below 1 where part of it
-        is an upper bound (:attr:`lftomo.inverse.measurement.Measurement.chi2_expected`).
-        The discrepancy rule's target with the noise scale given.
     """
 
     A: Any
@@ -66,7 +61,6 @@ class LinearProblem:
     background: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
     interpolation: Any = None
-    chi2_expected: float = 1.0
 
     def __post_init__(self) -> None:
         if not sp.issparse(self.A):
@@ -97,10 +91,6 @@ class LinearProblem:
         bg = np.zeros(m) if self.background is None else require_array("background", self.background, shape=(m,))
         if self.wavelength is not None and not (np.isfinite(self.wavelength) and 0 < self.wavelength < 1e-3):
             raise LftomoError(f"wavelength must be in m (e.g. 650e-9) or None for gray, got {self.wavelength!r}")
-        c = require_finite_scalar("chi2_expected", self.chi2_expected)
-        if not 0.0 < c <= 1.0:
-            raise LftomoError(f"chi2_expected must be in (0, 1] (the truth's χ²/m under sigma), got {c!r}")
-        object.__setattr__(self, "chi2_expected", c)
         object.__setattr__(self, "A", A)
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "sigma", s)
@@ -156,7 +146,7 @@ class LinearProblem:
         if self.interpolation is None:
             return self
         return LinearProblem(A=A, y=self.y, sigma=self.sigma, grid=self.grid, wavelength=self.wavelength,
-                             background=self.background, metadata=self.metadata, chi2_expected=self.chi2_expected)
+                             background=self.background, metadata=self.metadata)
 
     @functools.cached_property
     def _linear_operator(self) -> sp.csr_matrix:
@@ -268,5 +258,4 @@ def stack_problems(problems: Sequence[LinearProblem], *, label: str = "problems"
     return LinearProblem(A=sp.vstack([p.A for p in ps], format="csr"), y=np.concatenate([p.y for p in ps]),
                          sigma=np.concatenate([p.sigma for p in ps]),
                          background=np.concatenate([p.background for p in ps]), grid=first.grid,
-                         wavelength=first.wavelength, metadata=meta, interpolation=first.interpolation,
-                         chi2_expected=float(sum(p.A.shape[0] * p.chi2_expected for p in ps) / bounds[-1]))
+                         wavelength=first.wavelength, metadata=meta, interpolation=first.interpolation)

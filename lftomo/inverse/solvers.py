@@ -707,11 +707,6 @@ class _Runner:
         return self.s.m_total
 
     @property
-    def chi2_expected(self) -> float:
-        """χ²/m the truth is expected to reach under the problem's σ (:attr:`LinearProblem.chi2_expected`)."""
-        return self.s.problem.chi2_expected
-
-    @property
     def n_unknowns(self) -> int:
         return self.s.A_s.shape[1]
 
@@ -1330,7 +1325,7 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
 
 def _surrogate_misses_target(surrogate: LinearProblem, options: dict) -> float | None:
     """χ²/m the surrogate cannot go below (:meth:`LinearProblem.least_chi2`) where it lies above the discrepancy
-    rule's given target ((1 + ``discrepancy_safety``) · ``chi2_expected``) by more than :data:`SURROGATE_FLOOR_MARGIN`, else None.
+    rule's given target (1 + ``discrepancy_safety``) by more than :data:`SURROGATE_FLOOR_MARGIN`, else None.
 
     Checked only where it decides the question, the discrepancy rule with the noise scale given, and
     where the dense normal equations fit in memory: at most :data:`LEAST_CHI2_MAX_UNKNOWNS` unknowns,
@@ -1342,7 +1337,7 @@ def _surrogate_misses_target(surrogate: LinearProblem, options: dict) -> float |
         floor = surrogate.least_chi2()
     except np.linalg.LinAlgError:  # not positive definite even with the ridge: leave it to the search
         return None
-    target = (1.0 + float(options.get("discrepancy_safety") or 0.0)) * surrogate.chi2_expected
+    target = 1.0 + float(options.get("discrepancy_safety") or 0.0)
     return floor if floor > target * (1.0 + SURROGATE_FLOOR_MARGIN) else None
 
 
