@@ -321,6 +321,16 @@ def require_vector(name: str, value: Any, length: int) -> tuple[float, ...]:
     return tuple(float(a) for a in arr)
 
 
+def _is_text_array(value: Any) -> bool:
+    """Whether a list or tuple holds text anywhere (numpy would make a text array of it)."""
+    if not isinstance(value, (list, tuple)):
+        return False
+    try:
+        return np.asarray(value).dtype.kind in "SU"
+    except (TypeError, ValueError):  # ragged: the float conversion reports it
+        return False
+
+
 def require_array(
     name: str,
     value: Any,
@@ -331,7 +341,11 @@ def require_array(
     maximum: float | None = None,
     strictly_positive: bool = False,
 ) -> np.ndarray:
-    """Return ``value`` as a float64 array after checking shape, finiteness and range."""
+    """Return ``value`` as a float64 array after checking shape, finiteness and range.  Text is refused,
+    although numpy would read ``"1500"`` or ``["1", "2"]`` as numbers."""
+    if isinstance(value, (str, bytes)) or (not isinstance(value, np.ndarray) and _is_text_array(value)) or (
+            isinstance(value, np.ndarray) and value.dtype.kind in "SU"):
+        raise LftomoError(f"{name} must be numeric, got text {_fmt(value)}")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):

@@ -185,6 +185,11 @@ OBJECT_CASES = {
     "basis-fit-text": (lambda: lt.DCTBasis(tiny_grid(), 2).fit("1500"),
                        "T_field must be a temperature field .* got '1500'"),  # numpy reads '1500' as a number
     "basis-fit-shape": (lambda: lt.DCTBasis(tiny_grid(), 2).fit(np.ones(3)), r"T_field must have the grid shape"),
+    # numpy reads numeric text as numbers; an array argument given as text is refused by name
+    "planck-text": (lambda: lt.planck("1500", 650e-9), "T must be numeric, got text '1500'"),
+    "planck-text-list": (lambda: lt.planck(["1500", "1600"], 650e-9), r"T must be numeric, got text \['1500'"),
+    "lightfield-text-array": (lambda: lt.LightField(raw=np.full(tiny_camera().sensor_shape, "1"), camera=tiny_camera()),
+                              "raw must be numeric, got text array"),
     "chain-moves-nan-weight": (lambda: lt.EnsembleChain(moves=[(__import__("emcee").moves.DEMove(), float("nan"))]),
                                r"moves must be .*\(move, weight > 0\)"),
     "forward-camera": (lambda: lt.render_forward(lt.Scene(surfaces=[lt.PlanarEmitter(center=(0, 0, 1), size=(1, 1), radiance=1.0)]),
@@ -231,6 +236,12 @@ def test_refocus_arguments(lf, case):
     call, match = REFOCUS_CASES[case]
     with pytest.raises(LftomoError, match=match):
         call(lf)
+
+
+def test_reconstruct_start_given_as_text_is_refused(lf):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    with pytest.raises(ValueError, match="start must be 'uniform', a temperature .* got '1500'"):
+        lt.reconstruct(m, tiny_weights(), start="1500")  # numpy had read it as 1500 K
 
 
 def test_reconstruct_bounds_must_be_two_numbers(lf):

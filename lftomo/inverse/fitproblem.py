@@ -341,8 +341,8 @@ def check_start_fields(problem: Problem, T0: Any, sigma_a0: Any, bounds: tuple[f
             continue
         what = "a temperature (K)" if is_T else "an absorption coefficient (1/m)"
         extra = "'uniform', " if is_T and not joint else ""
-        try:
-            arr = np.asarray(value, dtype=np.float64)
+        try:  # (text refused: numpy would read "1500" as a number)
+            arr = None if isinstance(value, (str, bytes)) else np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
             arr = None
         if arr is None or (arr.ndim > 0 and arr.shape not in shapes):
