@@ -156,6 +156,23 @@ def _finish_row(out_idx, out_val, o, cnt, pos):
         pos[out_idx[o + q]] = -1
 
 
+@njit(cache=True, inline="always")
+def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, pos):
+    """Finish row ``k``: sorted entries, background and row-sum variance; or, on ``overflow``, mark it
+    abandoned (``out_cnt[k] = -1``).  Either way ``pos`` is reset for the row's voxels."""
+    if overflow:
+        for q in range(cnt):
+            pos[out_idx[o + q]] = -1
+        out_cnt[k] = -1
+        out_bg[k] = 0.0
+        out_var[k] = 0.0
+    else:
+        _finish_row(out_idx, out_val, o, cnt, pos)
+        out_cnt[k] = cnt
+        out_bg[k] = bg
+        out_var[k] = _smp.mean_variance(gs, sq, n_rays, sampler)
+
+
 @njit(cache=True, parallel=True)
 def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos):
@@ -229,17 +246,7 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
             score = w * (1.0 - T)  # Σ_j of this ray's W_ij terms, times N
             gs[ray % k_groups] += score
             sq += score * score
-        if overflow:
-            for q in range(cnt):
-                p[out_idx[o + q]] = -1
-            out_cnt[k] = -1
-            out_bg[k] = 0.0
-            out_var[k] = 0.0
-        else:
-            _finish_row(out_idx, out_val, o, cnt, p)
-            out_cnt[k] = cnt
-            out_bg[k] = bg
-            out_var[k] = _smp.mean_variance(gs, sq, n_rays, sampler)
+        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p)
 
 
 @njit(cache=True, parallel=True)
@@ -368,17 +375,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
             score = path_sum * n_rays
             gs[ray % k_groups] += score
             sq += score * score
-        if overflow:
-            for q in range(cnt):
-                p[out_idx[o + q]] = -1
-            out_cnt[k] = -1
-            out_bg[k] = 0.0
-            out_var[k] = 0.0
-        else:
-            _finish_row(out_idx, out_val, o, cnt, p)
-            out_cnt[k] = cnt
-            out_bg[k] = bg
-            out_var[k] = _smp.mean_variance(gs, sq, n_rays, sampler)
+        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p)
 
 
 @njit(cache=True, parallel=True)

@@ -556,6 +556,24 @@ def test_refocus_weights_equal_refocused_render(cam, W_blob, lf_blob, blob):
         weights_refocus(W_blob.select([W_blob.views[0]]), cam, [1.0])
 
 
+@pytest.mark.parametrize("sigma_s", [0.0, 20.0])
+def test_weight_rows_beyond_the_pilot_capacity_are_rebuilt_whole(cam, monkeypatch, sigma_s):
+    """W rows with more entries than the capacity (no pilot: 64) are abandoned and recomputed with the bound,
+    absorbing and scattering: the matrix, background and row errors equal the pilot-sized build's."""
+    from lftomo.forward import weights as wmod
+
+    grid = box_grid(n=12)
+    kw = dict(sigma_a=5.0, sigma_s=sigma_s, g=0.3, rays_per_pixel=NRAYS, seed=5, progress=False)
+    ref = weights(cam, grid, **kw)
+    monkeypatch.setattr(wmod, "_pilot_rows", lambda n_rows: np.zeros(0, np.int64))
+    redo = weights(cam, grid, **kw)
+    assert np.diff(ref.matrix.indptr).max() > 64  # the overflow path did run
+    for name in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(ref.matrix, name), getattr(redo.matrix, name), err_msg=name)
+    np.testing.assert_array_equal(ref.background, redo.background)
+    np.testing.assert_array_equal(ref.row_std_error, redo.row_std_error)
+
+
 def test_ray_segments_rows_beyond_the_pilot_capacity_are_rebuilt_whole(cam, monkeypatch):
     """Rows with more segments than the pilot's capacity are recomputed with the bound; the table is the same
     as when the pilot sized the capacity (no pilot: capacity 64 segments, far below a row's ~16 rays x 12 voxels)."""
