@@ -64,7 +64,8 @@ import scipy.sparse as sp
 
 from .errors import LftomoError
 from .version import __version__
-from ._validate import require_array, require_in_range, require_nonnegative, require_npz_file, require_positive
+from ._validate import (check_allocation, require_array, require_finite_scalar, require_in_range, require_int,
+                        require_nonnegative, require_npz_file, require_positive, require_wavelength)
 from .radiation import dplanck_dT, planck
 from .io import atomic_path, check_output_file, npz_output_path
 
@@ -526,11 +527,13 @@ def decode_operator(grid: MicrolensGrid, *, n_views: int | None = None, valid: A
     """
     if not isinstance(grid, MicrolensGrid):
         raise LftomoError(f"grid must be a MicrolensGrid (lftomo.calibrate_grid), got {type(grid).__name__}")
-    n = int(round(min(grid.pitch))) if n_views is None else int(n_views)
-    if n < 1:
-        raise LftomoError(f"n_views must be an integer >= 1, got {n_views!r}")
     rows, cols = grid.image_shape
     ny, nx = grid.shape
+    # more views per axis than 4 per pixel of the lenslet image would only interpolate
+    n_max = max(1, int(4 * max(grid.pitch)))
+    n = int(round(min(grid.pitch))) if n_views is None else require_int("n_views", n_views, minimum=1, maximum=n_max)
+    check_allocation(f"the decoding operator of {n} x {n} views of {ny} x {nx} lenslets", 4.0 * 40 * n * n * ny * nx,
+                     hint="fewer views (n_views)")
     a, b = grid.basis
     k = (np.arange(n) - 0.5 * (n - 1)) / n
     # positions in (k, l, i, j) order, then flipped to (v, u, iy, ix)
@@ -573,6 +576,8 @@ def decode_views(image: Any, grid: MicrolensGrid, *, n_views: int | None = None,
     numpy.ma.MaskedArray, shape (n_v, n_u, n_y, n_x)
         Same layout and orientation as :attr:`lftomo.LightField.views`.
     """
+    if not isinstance(grid, MicrolensGrid):
+        raise LftomoError(f"grid must be a MicrolensGrid (lftomo.calibrate_grid), got {type(grid).__name__}")
     img = require_array("image", image, ndim=2)
     if img.shape != tuple(grid.image_shape):
         raise LftomoError(f"shape of image {img.shape} does not match the calibrated grid's image shape "
@@ -609,7 +614,7 @@ def refocus_views(views: Any, shift: float) -> np.ma.MaskedArray:
     yy, xx = np.indices((ny, nx), dtype=float)
     num = np.zeros((ny, nx))
     den = np.zeros((ny, nx))
-    s = float(shift)
+    s = require_finite_scalar("shift", shift)
     for v in range(nv):
         for u in range(nu):
             if not w[v, u].any():
@@ -761,11 +766,16 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
     else:
         bb = require_array(name, blackbody, ndim=2)
         if bit_depth is not None:
-            max_count = 2 ** int(bit_depth) - 1
+            max_count = 2 ** require_int("bit_depth", bit_depth, minimum=1, maximum=32) - 1
             sat = bb >= max_count
     T = require_positive("temperature", temperature)
     sT = require_nonnegative("temperature_std", temperature_std)
-    lam = require_positive("wavelength", wavelength)
+    lam = require_wavelength("wavelength", wavelength)
+    with np.errstate(all="ignore"):
+        Ib = float(planck(T, lam))
+    if not (Ib > 0.0 and np.isfinite(Ib)):
+        raise LftomoError(f"temperature = {T!r} K: the blackbody radiance at {lam * 1e9:.4g} nm is {Ib!r} in double "
+                          "precision; the source temperature is in kelvin (e.g. 1500)")
     g = require_positive("gain", gain)
     eps = require_positive("emissivity", emissivity)
     if eps > 1:
@@ -777,21 +787,22 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
         _check_saturation(sat, lit, src, max_count)
     n_dark = 0
     if dark is not None:
-        dk = np.asarray(dark.counts if isinstance(dark, RawFrame) else dark, float)
-        dk = require_array("dark", dk) if dk.ndim == 0 else require_array("dark", dk, shape=bb.shape)
+        dk = dark.counts if isinstance(dark, RawFrame) else dark
+        dk = require_array("dark", dk) if np.ndim(dk) == 0 else require_array("dark", dk, shape=bb.shape)
         signal = bb - dk
-        n_dark = int(dark_frames)
-        if n_dark < 1:
-            raise LftomoError(f"dark_frames must be an integer >= 1, got {dark_frames!r}")
+        n_dark = require_int("dark_frames", dark_frames, minimum=1, maximum=10**9)
     else:
         signal = bb
     sr = require_nonnegative("read_noise", read_noise)
     extra = 1.0 + (1.0 / n_dark if n_dark else 0.0)
-    var = np.maximum(signal, 0.0) / g + (sr / g) ** 2 * extra + extra / 12.0
+    with np.errstate(over="ignore"):
+        var = np.maximum(signal, 0.0) / g + (np.float64(sr) / g) ** 2 * extra + extra / 12.0
+    if not np.all(np.isfinite(var)):
+        raise LftomoError(f"read_noise = {sr!r} e- with gain = {g!r} e-/count gives an infinite noise variance; "
+                          "read noise is in electrons (typically 1-100), gain in electrons per count")
     valid = lit & (signal >= require_nonnegative("min_snr", min_snr) * np.sqrt(var))
     if not valid.any():
         raise LftomoError(f"{src} has no pixel with signal above {min_snr} x its noise where the etendue is > 0")
-    Ib = float(planck(T, lam))
     with np.errstate(divide="ignore", invalid="ignore"):
         rad = np.where(valid, eps * Ib / signal, np.nan)
         rel = np.where(valid, np.sqrt(var) / signal, np.nan)
@@ -815,6 +826,19 @@ def save_calibration(path: str | Path, grid: MicrolensGrid, *, radiometric: Radi
     ``valid`` (rows, cols); the grid's scalars, the radiometric scalars and
     ``metadata`` as JSON in ``meta``.  No pickle.
     """
+    if not isinstance(grid, MicrolensGrid):
+        raise LftomoError(f"grid must be an lftomo.MicrolensGrid (from calibrate_grid), got {type(grid).__name__}")
+    if radiometric is not None and not isinstance(radiometric, RadiometricCalibration):
+        raise LftomoError(f"radiometric must be None or an lftomo.RadiometricCalibration (from "
+                          f"radiometric_calibration), got {type(radiometric).__name__}")
+    if metadata is not None:
+        if not isinstance(metadata, dict):
+            raise LftomoError(f"metadata must be None or a dict of JSON values, got {type(metadata).__name__}")
+        try:
+            json.dumps(metadata)
+        except (TypeError, ValueError) as exc:
+            raise LftomoError(f"metadata must hold JSON values only (str, numbers, bools, None, lists, dicts): "
+                              f"{exc}") from None
     p = npz_output_path(path, what="calibration file")
     meta = {"format": FORMAT, "lftomo_version": __version__,
             "grid": {"pitch": list(grid.pitch), "rotation": grid.rotation, "offset": list(grid.offset),
@@ -858,18 +882,11 @@ def load_calibration(path: str | Path) -> tuple[MicrolensGrid, RadiometricCalibr
         raise LftomoError(f"calibration file {str(p)!r}: metadata is not JSON: {exc}") from None
     _expect(isinstance(meta, dict) and meta.get("format") == FORMAT, p,
             f"format {meta.get('format') if isinstance(meta, dict) else None!r}, expected {FORMAT!r}")
-    try:
-        g = meta["grid"]
-        rows, cols = (int(v) for v in g["image_shape"])
-        ny, nx = (int(v) for v in g["shape"])
-        scal = dict(pitch=tuple(float(v) for v in g["pitch"]), rotation=float(g["rotation"]),
-                    offset=tuple(float(v) for v in g["offset"]), center_index=tuple(int(v) for v in g["center_index"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise LftomoError(f"calibration file {str(p)!r}: bad grid metadata ({exc})") from None
-    _expect(len(scal["pitch"]) == 2 and min(scal["pitch"]) > 0 and np.isfinite(scal["rotation"]), p,
-            f"pitch {scal['pitch']} must be two numbers > 0")
+    rows, cols, ny, nx, scal = _grid_meta(meta.get("grid"), p)
+    radio = _radiometric_meta(meta.get("radiometric"), p)
+    md = meta.get("metadata", {})
+    _expect(isinstance(md, dict), p, f"'metadata' must be a JSON object, got {md!r}")
     shapes = {"devignetting": (rows, cols), "measured": (ny, nx, 2)}
-    radio = meta.get("radiometric")
     if radio is not None:
         shapes.update({k: (rows, cols) for k in _RADIO_ARRAYS})
     for k, shp in shapes.items():
@@ -877,14 +894,75 @@ def load_calibration(path: str | Path) -> tuple[MicrolensGrid, RadiometricCalibr
         _expect(data[k].shape == shp, p, f"array {k!r} has shape {data[k].shape}, expected {shp}")
         kinds = "b" if k == "valid" else "f"
         _expect(data[k].dtype.kind in kinds, p, f"array {k!r} has dtype {data[k].dtype}")
-    grid = MicrolensGrid(shape=(ny, nx), image_shape=(rows, cols), devignetting=data["devignetting"],
-                         measured=data["measured"], **scal)
+    dv = data["devignetting"]
+    _expect(bool(np.all(np.isfinite(dv) & (dv >= 0))), p, "array 'devignetting' must be finite and >= 0")
+    _expect(not np.isinf(data["measured"]).any(), p, "array 'measured' must be finite or NaN (lenslet not measured)")
+    grid = MicrolensGrid(shape=(ny, nx), image_shape=(rows, cols), devignetting=dv, measured=data["measured"], **scal)
     rc = None
     if radio is not None:
-        rc = RadiometricCalibration(**{k: data[k] for k in _RADIO_ARRAYS},
-                                    **{k: float(radio[k]) for k in ("rel_std_temperature", "temperature",
-                                                                    "temperature_std", "wavelength", "emissivity")})
-    return grid, rc, meta.get("metadata", {})
+        v = data["valid"]
+        _expect(bool(v.any()), p, "array 'valid' has no valid pixel")
+        for k in ("factor", "radiance_factor", "rel_std_noise"):
+            a = data[k][v]
+            _expect(bool(np.all(np.isfinite(a) & (a >= 0))), p, f"array {k!r} must be finite and >= 0 where 'valid'")
+        rc = RadiometricCalibration(**{k: data[k] for k in _RADIO_ARRAYS}, **radio)
+    return grid, rc, md
+
+
+def _meta_ints(g: dict, key: str, p: Path, minimum: int | None = None) -> tuple[int, int]:
+    v = g.get(key)
+    ok = isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool) for x in v)
+    _expect(ok and (minimum is None or min(v) >= minimum), p,
+            f"grid '{key}' must be two integers{'' if minimum is None else f' >= {minimum}'}, got {v!r}")
+    return int(v[0]), int(v[1])
+
+
+def _meta_floats(g: dict, key: str, p: Path, n: int) -> tuple[float, ...]:
+    v = g.get(key)
+    vals = v if isinstance(v, list) else [v]
+    ok = len(vals) == n and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+                                for x in vals)
+    _expect(ok, p, f"grid '{key}' must be {'a finite number' if n == 1 else f'{n} finite numbers'}, got {v!r}")
+    return tuple(float(x) for x in vals)
+
+
+def _grid_meta(g: Any, p: Path) -> tuple[int, int, int, int, dict]:
+    """The lattice's scalars from a calibration file's ``meta["grid"]``, checked."""
+    _expect(isinstance(g, dict), p, f"'grid' must be a JSON object, got {g!r}")
+    rows, cols = _meta_ints(g, "image_shape", p, minimum=1)
+    ny, nx = _meta_ints(g, "shape", p, minimum=1)
+    _expect(ny <= rows and nx <= cols, p, f"grid 'shape' {[ny, nx]} has more lenslets than the image "
+            f"{[rows, cols]} has pixels")
+    pitch = _meta_floats(g, "pitch", p, 2)
+    _expect(1.0 <= min(pitch) and max(pitch) <= max(rows, cols), p,
+            f"grid 'pitch' must be two numbers in [1, {max(rows, cols)}] px, got {list(pitch)}")
+    (rotation,) = _meta_floats(g, "rotation", p, 1)
+    offset = _meta_floats(g, "offset", p, 2)
+    _expect(max(abs(offset[0]), abs(offset[1])) <= max(rows, cols), p,
+            f"grid 'offset' must lie within the image ({max(rows, cols)} px), got {list(offset)}")
+    ci = _meta_ints(g, "center_index", p, minimum=0)
+    _expect(ci[0] < ny and ci[1] < nx, p, f"grid 'center_index' {list(ci)} must index the {[ny, nx]} lenslets")
+    return rows, cols, ny, nx, dict(pitch=pitch, rotation=rotation, offset=offset, center_index=ci)
+
+
+def _radiometric_meta(r: Any, p: Path) -> dict | None:
+    """The radiometric scalars from ``meta["radiometric"]`` (None: grid only), checked."""
+    if r is None:
+        return None
+    keys = ("rel_std_temperature", "temperature", "temperature_std", "wavelength", "emissivity")
+    _expect(isinstance(r, dict) and set(keys) <= set(r), p,
+            f"'radiometric' must be null or an object with {list(keys)}, got {r!r}")
+    out = {}
+    for k in keys:
+        v = r[k]
+        _expect(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0, p,
+                f"radiometric {k!r} must be a finite number >= 0, got {v!r}")
+        out[k] = float(v)
+    _expect(out["temperature"] > 0, p, f"radiometric 'temperature' must be > 0 K, got {out['temperature']!r}")
+    _expect(0 < out["wavelength"] <= 1e-3, p, f"radiometric 'wavelength' must be in (0, 1e-3] m, got "
+            f"{out['wavelength']!r}")
+    _expect(0 < out["emissivity"] <= 1, p, f"radiometric 'emissivity' must be in (0, 1], got {out['emissivity']!r}")
+    return out
 
 
 # ---- figure ----------------------------------------------------------------------------

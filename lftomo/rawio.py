@@ -25,6 +25,7 @@ per frame (a filtered monochrome sensor, as in flame pyrometry).
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +34,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import LftomoError
-from ._validate import toml_int, toml_number, toml_numbers
+from ._validate import check_allocation, require_flag, toml_int, toml_number, toml_numbers
 from .io import atomic_path, check_output_file
 
 __all__ = ["RawFrame", "read_raw", "write_raw", "subtract_dark", "CameraDescription", "load_camera_description",
@@ -80,27 +81,62 @@ class RawFrame:
         return tuple(self.counts.shape)
 
 
+def _npy_header(path: Path) -> None:
+    """Refuse an ``.npy`` file whose header promises more bytes than the file holds, or an object array."""
+    with open(path, "rb") as fh:
+        if fh.read(6) != b"\x93NUMPY":
+            raise LftomoError(f"raw file {str(path)!r} is not an .npy file (numpy.save)")
+        fh.seek(0)
+        reader = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+        try:
+            version = np.lib.format.read_magic(fh)
+            if version not in reader:
+                raise LftomoError(f"raw file {str(path)!r} has .npy format version {version}; lftomo reads 1.0 "
+                                  "and 2.0")
+            shape, _, dtype = reader[version](fh)
+        except LftomoError:
+            raise
+        except ValueError as exc:
+            raise LftomoError(f"raw file {str(path)!r} has a bad .npy header: {exc}") from None
+        data_bytes = path.stat().st_size - fh.tell()
+    if dtype.hasobject:
+        raise LftomoError(f"raw file {str(path)!r} holds Python objects (dtype {dtype}); counts are integers")
+    needed = math.prod(shape) * dtype.itemsize
+    if needed > data_bytes:
+        raise LftomoError(f"raw file {str(path)!r}: its header says shape {shape} of {dtype} ({needed} bytes) but "
+                          f"the file holds {data_bytes} bytes of data (truncated or not a frame)")
+
+
+def _read_png(path: Path) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            if im.format != "PNG":
+                raise LftomoError(f"raw file {str(path)!r} is a {im.format} image, not a PNG")
+            if im.mode in ("P", "PA"):
+                raise LftomoError(f"raw file {str(path)!r} is a palette (indexed-colour) image: its values are "
+                                  "colour indices, not counts; give a grayscale frame")
+            check_allocation(f"raw file {str(path)!r} ({im.size[0]} x {im.size[1]} px)",
+                             8.0 * im.size[0] * im.size[1], hint="the file is corrupt or not a frame")
+            return np.asarray(im)
+    except Image.DecompressionBombError as exc:
+        raise LftomoError(f"raw file {str(path)!r} declares too many pixels to be a frame ({exc})") from None
+    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+        raise LftomoError(f"raw file {str(path)!r} is not a readable PNG: {exc}") from None
+
+
 def _read_array(path: Path) -> tuple[np.ndarray, int | None]:
     """The array stored in ``path`` and the bits per sample the file declares (None if unknown)."""
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        with open(path, "rb") as fh:
-            if fh.read(6) != b"\x93NUMPY":
-                raise LftomoError(f"raw file {str(path)!r} is not an .npy file (numpy.save)")
+        _npy_header(path)
         try:
             return np.load(path, allow_pickle=False), None
         except ValueError as exc:
             raise LftomoError(f"cannot read {str(path)!r} without pickle: {exc}") from None
     if suffix == ".png":
-        from PIL import Image, UnidentifiedImageError
-
-        try:
-            with Image.open(path) as im:
-                if im.format != "PNG":
-                    raise LftomoError(f"raw file {str(path)!r} is a {im.format} image, not a PNG")
-                return np.asarray(im), None
-        except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-            raise LftomoError(f"raw file {str(path)!r} is not a readable PNG: {exc}") from None
+        return _read_png(path), None
     import tifffile
 
     try:
@@ -109,6 +145,9 @@ def _read_array(path: Path) -> tuple[np.ndarray, int | None]:
                 raise LftomoError(f"raw file {str(path)!r} has {len(tf.pages)} pages (a stack); expected one "
                                  "frame per file")
             page = tf.pages[0]
+            check_allocation(f"raw file {str(path)!r} (shape {tuple(page.shape)})",
+                             float(math.prod(page.shape)) * page.dtype.itemsize,
+                             hint="the file is corrupt or not a frame")
             return page.asarray(), int(page.bitspersample)
     except (tifffile.TiffFileError, OSError, ValueError) as exc:
         if isinstance(exc, ValueError) and str(path) in str(exc):
@@ -146,6 +185,9 @@ def read_raw(path: str | Path, *, bit_depth: int | None = None, allow_float: boo
         other than unsigned/non-negative integers, a bit depth that does not
         fit the container, values above ``2**bit_depth - 1``.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise LftomoError(f"{what} must be a path (str or os.PathLike), got {type(path).__name__}")
+    allow_float = require_flag("allow_float", allow_float)
     p = Path(path)
     if not p.is_file():
         raise LftomoError(f"{what} {str(p)!r} does not exist")
@@ -194,13 +236,20 @@ def write_raw(path: str | Path, counts: Any, *, bit_depth: int) -> Path:
     bit_depth : int
         1..16; stored LSB-aligned in uint8 (<= 8 bits) or uint16.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise LftomoError(f"path must be a path (str or os.PathLike), got {type(path).__name__}")
     p = Path(path)
     bits = toml_int("bit_depth", bit_depth, minimum=1)
     if bits > 16:
         raise LftomoError(f"bit_depth must be 1..16 for write_raw, got {bits}")
-    a = np.asarray(counts)
+    try:
+        a = np.asarray(counts)
+    except ValueError:  # a ragged list
+        raise LftomoError("counts must be a 2-D integer array, got a ragged sequence") from None
     if a.ndim != 2 or a.dtype.kind not in "iu":
         raise LftomoError(f"counts must be a 2-D integer array, got shape {a.shape}, dtype {a.dtype}")
+    if a.size == 0:
+        raise LftomoError(f"counts is empty (shape {a.shape}); a frame has at least one pixel")
     if a.size and (a.min() < 0 or a.max() > 2**bits - 1):
         raise LftomoError(f"counts must lie in 0..{2**bits - 1} for bit_depth {bits}, got {a.min()}..{a.max()}")
     a = a.astype(np.uint8 if bits <= 8 else np.uint16)
@@ -230,6 +279,10 @@ def subtract_dark(frame: RawFrame, dark: RawFrame | None) -> np.ndarray:
     LftomoError
         If the shapes or bit depths of the two frames differ (naming both files).
     """
+    if not isinstance(frame, RawFrame):
+        raise LftomoError(f"frame must be an lftomo.RawFrame (read_raw), got {type(frame).__name__}")
+    if dark is not None and not isinstance(dark, RawFrame):
+        raise LftomoError(f"dark must be None or an lftomo.RawFrame (read_raw), got {type(dark).__name__}")
     counts = np.asarray(frame.counts, dtype=np.float64)
     if dark is None:
         return counts

@@ -73,7 +73,7 @@ def test_bad_files_give_clear_errors(tmp_path):
     np.save(tmp_path / "float.npy", np.zeros((5, 6)))
     err(tmp_path / "float.npy", r"float.npy' has dtype float64; allowed: uint8, uint16, .*\(counts\)")
     np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
-    err(tmp_path / "obj.npy", r"cannot read .*obj.npy' without pickle")
+    err(tmp_path / "obj.npy", r"obj.npy' holds Python objects \(dtype object\)")
     np.save(tmp_path / "neg.npy", np.array([[-1, 2]], np.int16))
     err(tmp_path / "neg.npy", r"neg.npy' has negative counts \(minimum -1\)")
     lt.write_raw(tmp_path / "f16.tif", np.array([[0, 65535]]), bit_depth=16)
@@ -88,6 +88,45 @@ def test_bad_files_give_clear_errors(tmp_path):
         lt.write_raw(tmp_path / "x.png", np.zeros(2), bit_depth=12)
     assert not list(tmp_path.glob("x.png*")) and not list(tmp_path.glob(".x.png*"))
 
+
+
+def _png_declaring(path, width, height):
+    """A valid 1 x 1 PNG whose header (IHDR, CRC fixed) declares ``width x height`` pixels."""
+    import struct
+    import zlib
+
+    Image.fromarray(np.zeros((1, 1), np.uint8)).save(path)
+    b = bytearray(path.read_bytes())
+    b[16:24] = struct.pack(">II", width, height)
+    b[29:33] = struct.pack(">I", zlib.crc32(bytes(b[12:29])) & 0xFFFFFFFF)
+    path.write_bytes(bytes(b))
+    return path
+
+
+def test_files_that_promise_more_than_a_frame_are_refused_before_reading(tmp_path):
+    """A header shape of 1e6 x 1e6 had reached np.load (MemoryError: 1.82 TiB), a 30000 x 30000 PNG PIL's
+    DecompressionBombError, a palette PNG had given its colour indices as counts, read_raw(None) a TypeError."""
+    p = tmp_path / "huge.npy"
+    np.save(p, np.zeros((2, 2), np.uint16))
+    header = np.lib.format.header_data_from_array_1_0(np.zeros((2, 2), np.uint16))
+    header["shape"] = (1000000, 1000000)
+    with open(p, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, header)
+        fh.write(np.zeros((2, 2), np.uint16).tobytes())
+    with pytest.raises(ValueError, match=r"huge.npy': its header says shape \(1000000, 1000000\) of uint16 "
+                                         r"\(2000000000000 bytes\) but the file holds 8 bytes"):
+        lt.read_raw(p)
+    with pytest.raises(ValueError, match=r"bomb.png' declares too many pixels to be a frame"):
+        lt.read_raw(_png_declaring(tmp_path / "bomb.png", 30000, 30000))
+    Image.fromarray(np.arange(12, dtype=np.uint8).reshape(3, 4)).convert("P").save(tmp_path / "pal.png")
+    with pytest.raises(ValueError, match=r"pal.png' is a palette \(indexed-colour\) image"):
+        lt.read_raw(tmp_path / "pal.png")
+    with pytest.raises(ValueError, match=r"raw frame must be a path \(str or os.PathLike\), got NoneType"):
+        lt.read_raw(None)
+    lt.write_raw(tmp_path / "ok.png", np.array([[0, 4095]]), bit_depth=12)
+    with pytest.raises(ValueError, match=r"allow_float must be True or False, got 'no'"):
+        lt.read_raw(tmp_path / "ok.png", allow_float="no")
+    assert lt.read_raw(tmp_path / "ok.png").shape == (1, 2)
 
 CAMERA = """
 [sensor]
