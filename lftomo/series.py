@@ -616,6 +616,25 @@ def _model_fingerprint(forward: Any) -> str:
     return fingerprint(fields)
 
 
+def _check_option_names(options: dict) -> None:
+    """Refuse a keyword that :func:`lftomo.reconstruct` does not take before any cluster starts (each frame
+    would otherwise fail on it, and the manifest record it)."""
+    import difflib
+    import inspect
+
+    from .inverse.fitoptions import MOVED_OPTIONS
+    from .inverse.reconstruct import reconstruct
+
+    named = [k for k, p in inspect.signature(reconstruct).parameters.items()
+             if p.kind is p.KEYWORD_ONLY and k != "progress"]
+    for name in options:
+        if name not in named and name not in MOVED_OPTIONS:
+            near = difflib.get_close_matches(name, named + list(MOVED_OPTIONS), n=1)
+            raise LftomoError(f"{name}={options[name]!r}: not an option of lftomo.reconstruct"
+                              + (f" (did you mean {near[0]!r}?)" if near else "")
+                              + f"; its options are {named}")
+
+
 def reconstruct_series(
     frames: Sequence[Any],
     forward: Any,
@@ -720,6 +739,7 @@ def reconstruct_series(
         raise LftomoError(f"seed must be an integer >= 0, got {seed!r}")
     if noise is not None and not (isinstance(noise, (int, float)) and np.isfinite(noise) and noise > 0):
         raise LftomoError(f"noise must be a relative std > 0 or None, got {noise!r}")
+    _check_option_names(reconstruct_options)
     out = check_output_dir(out, what="out")
     fwd = _check_forward(forward)
     raw, raw_settings = None, None

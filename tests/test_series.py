@@ -208,6 +208,11 @@ def test_bad_arguments_are_refused_by_name(gray_blob, tmp_path):
         reconstruct_series([lf], W, out=tmp_path, scheduler="localhost")
     with pytest.raises(lt.LftomoError, match="noise must be"):
         reconstruct_series([lf], W, out=tmp_path, noise=-1.0)
+    # a misspelt reconstruct option: refused before a cluster starts or the folder is written (each frame had
+    # failed on it, and the manifest recorded it)
+    with pytest.raises(lt.LftomoError, match=r"max_step=3: not an option of lftomo.reconstruct \(did you mean "):
+        reconstruct_series([lf], W, out=tmp_path / "typo", workers=1, max_step=3)
+    assert not (tmp_path / "typo").exists()
 
 
 def test_precessing_flame_is_periodic_mirrored_at_half_period_with_fixed_absorption():
