@@ -726,7 +726,8 @@ def build_parser() -> argparse.ArgumentParser:
     cal.set_defaults(func=cmd_calibrate)
     from .designcli import add_design_parser
 
-    add_design_parser(sub, positive_int=_pos_int, positive_float=_pos_float, add_allow_outside=_add_allow_outside)
+    add_design_parser(sub, positive_int=_pos_int, nonneg_int=_nonneg_int, positive_float=_pos_float, output=_output,
+                      add_allow_outside=_add_allow_outside)
     return p
 
 

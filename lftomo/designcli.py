@@ -17,19 +17,19 @@ from .errors import LftomoError
 __all__ = ["add_design_parser", "run_design"]
 
 
-def add_design_parser(sub: Any, *, positive_int, positive_float, add_allow_outside) -> None:
+def add_design_parser(sub: Any, *, positive_int, nonneg_int, positive_float, output, add_allow_outside) -> None:
     """The ``design`` sub-command on an argparse sub-parser collection."""
     from .inverse.design import DESIGN_QUADRATURE
 
     d = sub.add_parser("design", help="experiment design: predicted posterior std, resolution and Cramér–Rao bound "
                                       "of the scene's camera(s) on its flame; --compare for a table of rigs")
     d.add_argument("scene", metavar="SCENE.toml", help="scene file with [camera] (or [[camera]] tables) and [medium]")
-    d.add_argument("-o", "--output", default="lftomo-design", help="output directory (default lftomo-design)")
+    d.add_argument("-o", "--output", type=output, default="lftomo-design", help="output directory (default lftomo-design)")
     d.add_argument("--n", type=positive_int, default=16, help="voxels per axis of the reconstruction grid (<= 16)")
     d.add_argument("--noise", type=positive_float, default=0.01, help="relative measurement noise (default 0.01)")
     d.add_argument("--rays", type=positive_int, default=64, help="rays per pixel of the weights (default 64)")
     d.add_argument("--wavelength", type=positive_float, default=650e-9, help="m (default 650e-9)")
-    d.add_argument("--seed", type=int, default=0, help="seed of the renders and noise (default 0)")
+    d.add_argument("--seed", type=nonneg_int, default=0, help="seed of the renders and noise (default 0)")
     d.add_argument("--compare", action="store_true",
                    help="also design the standard configurations (1, 2 at 90°, 3 at 60° cameras; stop; focus; "
                         "900 nm; pixels per microlens) around the first camera and write a comparison table")

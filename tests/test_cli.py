@@ -218,3 +218,14 @@ def test_the_executable_prints_warnings_as_one_line():
     assert run.returncode == 0, run.stderr
     assert run.stderr.splitlines() == ["lftomo: warning: the model shares the data's rays",
                                        "lftomo: warning (DeprecationWarning): old keyword"]
+
+
+def test_python_dash_m_runs_the_command():
+    """``python -m lftomo`` is the ``lftomo`` command (there was no ``lftomo.__main__``)."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "lftomo", "camera", "--help"], capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("usage: lftomo camera")
