@@ -3,6 +3,7 @@ argument, its value and what is allowed; size estimates with a memory limit."""
 
 from __future__ import annotations
 
+import math
 import numbers
 import os
 import stat
@@ -347,8 +348,12 @@ def require_array(
             isinstance(value, np.ndarray) and value.dtype.kind in "SU"):
         raise LftomoError(f"{name} must be numeric, got text {_fmt(value)}")
     try:
+        if np.iscomplexobj(value):
+            raise LftomoError(f"{name} must be real, got complex values")
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError) as exc:
+        if isinstance(exc, LftomoError):
+            raise
         raise LftomoError(f"{name} must be numeric, got {_fmt(value)}") from None
     if ndim is not None and arr.ndim != ndim:
         raise LftomoError(f"{name} must be {ndim}-D, got shape {arr.shape}")
@@ -571,3 +576,31 @@ def require_inside(path: Path, base: Path, *, where: str, allow_outside: bool) -
                           f"(to {str(resolved)!r}); move the file into that folder, or allow it explicitly "
                           "(--allow-outside-paths, allow_outside=True)")
     return resolved
+
+
+def json_differences(a: Any, b: Any, prefix: str = "") -> list[str]:
+    """Human-readable differences between two JSON-like values (e.g. two ``Camera.to_dict()``).
+
+    Numbers equal to 1e-12 relative count as equal.  Returns one ``"key.path: a vs b"`` line per
+    difference; an empty list when the values agree.
+    """
+    out: list[str] = []
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            key = f"{prefix}.{k}" if prefix else str(k)
+            if k not in a or k not in b:
+                out.append(f"{key}: {a.get(k, '<missing>')!r} vs {b.get(k, '<missing>')!r}")
+            else:
+                out.extend(json_differences(a[k], b[k], key))
+        return out
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b):
+        for k, (x, y) in enumerate(zip(a, b)):
+            out.extend(json_differences(x, y, f"{prefix}[{k}]"))
+        return out
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        if a == b or (math.isfinite(a) and math.isfinite(b) and abs(a - b) <= 1e-12 * max(abs(a), abs(b))):
+            return out
+    elif a == b:
+        return out
+    out.append(f"{prefix or 'value'}: {a!r} vs {b!r}")
+    return out

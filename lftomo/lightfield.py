@@ -45,7 +45,7 @@ import scipy.sparse as sp
 
 from .errors import LftomoError
 from .version import __version__
-from ._validate import check_allocation, require_array, require_finite_scalar, require_int
+from ._validate import check_allocation, require_array, require_finite_scalar, require_int, resolve_wavelengths
 from .forward.camera import Camera, best_focus_z, view_displacements
 from .forward.sampler import SAMPLERS
 
@@ -263,10 +263,10 @@ class LightField:
         cam = self.camera
         if not isinstance(cam, Camera):
             raise LftomoError(f"camera must be an lftomo.Camera, got {type(cam).__name__}")
-        wl = self.wavelengths
-        if wl is not None:
-            wl = tuple(float(w) for w in np.atleast_1d(wl))
-            object.__setattr__(self, "wavelengths", wl)
+        wl = resolve_wavelengths(self.wavelengths)
+        object.__setattr__(self, "wavelengths", wl)
+        if not isinstance(self.metadata, dict):
+            raise LftomoError(f"metadata must be a dict, got {type(self.metadata).__name__}")
         n_ch = 1 if wl is None else len(wl)
         shape = cam.sensor_shape if n_ch == 1 else (n_ch,) + cam.sensor_shape
         raw = require_array("raw", self.raw, shape=shape)
@@ -274,7 +274,8 @@ class LightField:
         for name in ("std_error", "noise_std", "signal"):
             v = getattr(self, name)
             if v is not None:
-                object.__setattr__(self, name, require_array(name, v, shape=shape))
+                low = None if name == "signal" else 0.0
+                object.__setattr__(self, name, require_array(name, v, shape=shape, minimum=low))
         if self.etendue is None:
             object.__setattr__(self, "etendue", cam.etendue_map)
         else:
@@ -454,6 +455,7 @@ class LightField:
 
     def mosaic(self, *, channel: int = 0, fill: float = 0.0) -> np.ndarray:
         """All views tiled as ``views[v, u]`` blocks: (n_v*n_y, n_u*n_x), unlit = ``fill``."""
+        channel = require_int("channel", channel, minimum=0, maximum=self.n_channels - 1)
         v = self.views
         if self.n_channels > 1:
             v = v[channel]

@@ -201,6 +201,44 @@ OBJECT_CASES = {
 }
 
 
+def _lightfield(**kw):
+    cam = tiny_camera()
+    return lt.LightField(camera=cam, **{"raw": np.zeros(cam.sensor_shape), **kw})
+
+
+def _emitter(**kw):
+    return lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), **{"radiance": 1.0, **kw})
+
+
+# accepted before (silently wrong, or a numpy/Python error naming nothing)
+OBJECT_CASES.update({
+    "lightfield-nanometres": (lambda: _lightfield(wavelengths=(650,)), "did you pass nanometres"),
+    "lightfield-nan-wavelength": (lambda: _lightfield(wavelengths=(float("nan"), 650e-9)),
+                                  "wavelengths must be positive finite values in m"),
+    "lightfield-metadata-text": (lambda: _lightfield(metadata="x"), "metadata must be a dict, got str"),
+    "lightfield-negative-noise": (lambda: _lightfield(noise_std=-np.ones(tiny_camera().sensor_shape)),
+                                  "noise_std must be >= 0.0 everywhere"),
+    "lightfield-complex-raw": (lambda: _lightfield(raw=np.zeros(tiny_camera().sensor_shape, complex)),
+                               "raw must be real, got complex values"),
+    "mosaic-channel": (lambda: _lightfield().mosaic(channel=5), "channel must be an integer <= 0, got 5"),
+    "emitter-transparent-text": (lambda: _emitter(transparent_back="no"),
+                                 "transparent_back must be True or False, got 'no'"),  # 'no' was truthy
+    "emitter-complex-radiance": (lambda: _emitter(radiance=1j * np.ones((2, 2))), "radiance must be real"),
+    "planck-huge-integer": (lambda: lt.planck(10**400, 650e-9), "T must be numeric"),
+    "grid-index-outside": (lambda: tiny_grid().flat_index(5, 0, 0), r"ix must be in 0..\d+, got 5"),
+    "grid-index-fraction": (lambda: tiny_grid().flat_index(0.5, 0, 0), "ix must be an integer voxel index"),
+    "grid-unravel-outside": (lambda: tiny_grid().unravel(10**6), r"flat must be in 0..\d+, got 1000000"),
+    "grid-from-none": (lambda: lt.Grid.from_dict(None), "a grid description must be a dict"),
+    "grid-from-int-shape": (lambda: lt.Grid.from_dict({"shape": 3, "lower": (0, 0, 0), "upper": (1, 1, 1)}),
+                            "shape must be a sequence of 3 integers"),
+    "grid-box-overflow": (lambda: lt.Grid((2, 2, 2), (-1e308,) * 3, (1e308,) * 3), "the box is too large"),
+    "medium-nanometre-key": (lambda: lt.Medium(tiny_grid(), sigma_a={650: 1.0}, T=1500.0),
+                             "wavelength key of sigma_a must be in metres"),
+    "medium-text-key": (lambda: lt.Medium(tiny_grid(), sigma_a={"abc": 1.0}, T=1500.0),
+                        "wavelength key of sigma_a must be a real number"),
+})
+
+
 @pytest.mark.parametrize("case", list(OBJECT_CASES))
 def test_object_arguments(case):
     make, match = OBJECT_CASES[case]
@@ -242,6 +280,18 @@ def test_reconstruct_start_given_as_text_is_refused(lf):
     m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
     with pytest.raises(ValueError, match="start must be 'uniform', a temperature .* got '1500'"):
         lt.reconstruct(m, tiny_weights(), start="1500")  # numpy had read it as 1500 K
+
+
+def test_weights_of_another_camera_are_refused(lf, grid):
+    """A weight matrix of a camera focused elsewhere had been accepted (only the sensor shape and the
+    wavelength were compared): the fit would have run on the wrong optics."""
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    other = lt.weights(lt.Camera.seed(1.01, mla={"count": lf.camera.mla.count}), grid, sigma_a=5.0,
+                       wavelength="gray", rays_per_pixel=1, seed=0, progress=False)
+    with pytest.raises(ValueError, match=r"built for another camera .* focus_distance: 1.01 vs 1.0"):
+        lt.reconstruct(m, other)
+    with pytest.raises(ValueError, match=r"built for another camera"):
+        m.problem(other, grid)
 
 
 def test_reconstruct_bounds_must_be_two_numbers(lf):
@@ -292,6 +342,13 @@ def test_bounds_in_kilokelvin_are_refused_where_planck_underflows(lf, cam, grid)
     W = lt.weights(cam, grid, sigma_a=5.0, wavelength=650e-9, rays_per_pixel=1, seed=0, progress=False)
     with pytest.raises(LftomoError, match=r"bounds = \(0.3, 3.0\) K: the blackbody emission .* bounds are in kelvin"):
         lt.reconstruct(m, W, bounds=(0.3, 3.0))
+    # the posterior had sampled T ~ 3 K in silence, and taken text bounds
+    problem = lt.Problem.from_data(m, W)
+    for bad, match in (((0.3, 3.0), r"bounds = \(0.3, 3.0\) K: the blackbody emission at T = 1.65 K \(650 nm\) is 0.0"),
+                       ((300.0, 1e300), r"the blackbody emission at T = 5e\+299 K \(650 nm\) is inf"),
+                       (("300", "3000"), r"bounds must be \(T_min, T_max\) in K, two numbers, or None")):
+        with pytest.raises(LftomoError, match=match):
+            lt.build_log_posterior(problem, basis=lt.DCTBasis(grid, 2), bounds=bad)
 
 
 def test_basis_on_another_box_is_refused(lf):
@@ -314,7 +371,7 @@ def test_gray_light_field_refuses_a_channel_other_than_0():
         _matching_channel(gray, None, 3)
 
 
-@pytest.mark.parametrize("command", ["render", "weights", "demo", "reconstruct", "series", "calibrate"])
+@pytest.mark.parametrize("command", ["render", "weights", "demo", "reconstruct", "series", "calibrate", "design"])
 def test_empty_output_path_is_refused(command, capsys):
     with pytest.raises(SystemExit) as exc:
         main([command, "-o", ""])
@@ -913,3 +970,11 @@ def test_camera_from_numpy_numbers_has_a_json_description():
     assert type(cam.main_lens.r1) is float and type(cam.sensor.pixel_pitch) is float
     assert cam.main_lens.index == float(np.float32(d["main_lens"]["index"]))
     assert cam.mla.pitch == ref.mla.pitch and cam.mla_distance == ref.mla_distance
+
+
+def test_measurement_built_directly_has_a_repr(lf):
+    """A Measurement made by its constructor (no views given) raised TypeError in repr."""
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    mm = lt.Measurement(y=m.y, sigma=m.sigma, operator=m.operator, kind="subaperture", mask=m.mask,
+                        data_shape=m.data_shape, camera=m.camera, wavelength=m.wavelength)
+    assert repr(mm) == f"Measurement('subaperture', m={m.size}, channel=0, ? views)"

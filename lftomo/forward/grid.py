@@ -66,6 +66,9 @@ class Grid:
                     f"upper must exceed lower on every axis; on axis {'xyz'[i]} got "
                     f"lower={lo!r}, upper={hi!r}"
                 )
+            if not np.isfinite(hi - lo):
+                raise LftomoError(f"the box is too large: on axis {'xyz'[i]} upper - lower overflows "
+                                  f"(lower={lo!r}, upper={hi!r} m)")
         n = shape[0] * shape[1] * shape[2]
         if n > MAX_VOXELS:
             raise LftomoError(f"shape {shape} has {n} voxels, more than the {MAX_VOXELS} that flat voxel indices "
@@ -118,10 +121,26 @@ class Grid:
 
         Raises ``LftomoError`` for indices out of range.
         """
-        return np.ravel_multi_index((ix, iy, iz), self.shape)
+        idx = []
+        for axis, (name, v) in enumerate(zip(("ix", "iy", "iz"), (ix, iy, iz))):
+            a = np.asarray(v)
+            if a.dtype.kind not in "iu":
+                raise LftomoError(f"{name} must be an integer voxel index (or an array of them), got {v!r}")
+            if a.size and (a.min() < 0 or a.max() >= self.shape[axis]):
+                raise LftomoError(f"{name} must be in 0..{self.shape[axis] - 1}, got {v!r}")
+            idx.append(a)
+        return np.ravel_multi_index(tuple(idx), self.shape)
 
     def unravel(self, flat: Any) -> tuple[Any, Any, Any]:
-        """Inverse of :meth:`flat_index`: ``(ix, iy, iz)`` for C-order flat index/indices."""
+        """Inverse of :meth:`flat_index`: ``(ix, iy, iz)`` for C-order flat index/indices.
+
+        Raises ``LftomoError`` for indices out of ``0 .. n_voxels - 1``.
+        """
+        a = np.asarray(flat)
+        if a.dtype.kind not in "iu":
+            raise LftomoError(f"flat must be an integer voxel index (or an array of them), got {flat!r}")
+        if a.size and (a.min() < 0 or a.max() >= self.n_voxels):
+            raise LftomoError(f"flat must be in 0..{self.n_voxels - 1}, got {flat!r}")
         return np.unravel_index(flat, self.shape)
 
     def _as_points(self, points: Any) -> np.ndarray:
@@ -203,7 +222,9 @@ class Grid:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Grid:
         """Inverse of :meth:`to_dict`."""
+        if not isinstance(d, dict):
+            raise LftomoError(f"a grid description must be a dict with shape, lower, upper; got {type(d).__name__}")
         missing = [k for k in ("shape", "lower", "upper") if k not in d]
         if missing:
             raise LftomoError(f"grid description lacks key(s) {missing}; needs shape, lower, upper")
-        return cls(tuple(d["shape"]), tuple(d["lower"]), tuple(d["upper"]))
+        return cls(d["shape"], d["lower"], d["upper"])

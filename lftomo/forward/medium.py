@@ -145,8 +145,9 @@ class Medium:
                     f"got {self.sigma_a_rule!r}"
                 )
             sa: Any = {}
-            for lam, val in sorted(self.sigma_a.items(), key=lambda kv: float(kv[0])):
-                lam_f = require_positive("wavelength key of sigma_a", lam)
+            keys = {lam: require_wavelength("wavelength key of sigma_a", lam) for lam in self.sigma_a}
+            for lam, val in sorted(self.sigma_a.items(), key=lambda kv: keys[kv[0]]):
+                lam_f = keys[lam]
                 arr = _field(f"sigma_a[{lam_f!r}]", val, grid)
                 _check_min(f"sigma_a[{lam_f!r}]", arr, strict=False)
                 sa[lam_f] = arr

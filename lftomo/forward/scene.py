@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_array, require_finite_scalar, require_positive, require_vector, require_int
+from .._validate import require_array, require_finite_scalar, require_flag, require_int, require_positive, require_vector
 from .surfaces import SURF_NCOL
 
 
@@ -97,6 +97,7 @@ class PlanarEmitter:
         if np.linalg.norm(self.normal) == 0:
             raise LftomoError("normal must be a non-zero vector, got (0, 0, 0)")
         _orthonormal_frame(self.normal, self.up)
+        object.__setattr__(self, "transparent_back", require_flag("transparent_back", self.transparent_back))
         if (self.radiance is None) == (self.temperature is None):
             raise LftomoError("give exactly one of radiance (W m^-2 sr^-1 [m^-1]) or temperature (K)")
         if self.radiance is not None:

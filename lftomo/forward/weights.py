@@ -109,7 +109,7 @@ from numba import njit, prange
 
 from ..errors import LftomoError
 from .._validate import memory_limit as memory_limit_bytes
-from .._validate import require_int, require_positive, require_rays, require_seed, require_views
+from .._validate import json_differences, require_int, require_positive, require_rays, require_seed, require_views
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
@@ -664,7 +664,7 @@ def _decode(camera, lightfield):
         raise LftomoError(f"lightfield must be an lftomo.LightField or None, got {type(lightfield).__name__}")
     elif lightfield.camera.to_dict() != camera.to_dict():
         raise LftomoError("lightfield was decoded for another camera than the one given; "
-                         f"differences: {_dict_diff(camera.to_dict(), lightfield.camera.to_dict())}")
+                         f"differences: {json_differences(camera.to_dict(), lightfield.camera.to_dict())}")
     return lightfield.view_index, lightfield.view_mask
 
 
@@ -696,30 +696,6 @@ def _select_rows(camera, views, lightfield):
     per_view = sel.reshape(nv * nu, -1).sum(axis=1)
     view_ptr = np.concatenate([[0], np.cumsum(per_view)]).astype(np.int64)
     return pixel_index, flat.astype(np.int64), view_ptr, desc
-
-
-def _dict_diff(a: Any, b: Any, prefix: str = "") -> list[str]:
-    """Human-readable differences between two JSON-like values."""
-    out: list[str] = []
-    if isinstance(a, dict) and isinstance(b, dict):
-        for k in sorted(set(a) | set(b)):
-            key = f"{prefix}.{k}" if prefix else str(k)
-            if k not in a or k not in b:
-                out.append(f"{key}: {a.get(k, '<missing>')!r} vs {b.get(k, '<missing>')!r}")
-            else:
-                out.extend(_dict_diff(a[k], b[k], key))
-        return out
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b):
-        for k, (x, y) in enumerate(zip(a, b)):
-            out.extend(_dict_diff(x, y, f"{prefix}[{k}]"))
-        return out
-    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
-        if a == b or (math.isfinite(a) and math.isfinite(b) and abs(a - b) <= 1e-12 * max(abs(a), abs(b))):
-            return out
-    elif a == b:
-        return out
-    out.append(f"{prefix or 'value'}: {a!r} vs {b!r}")
-    return out
 
 
 def _grid_args(grid):
@@ -1365,15 +1341,15 @@ def _check_weights_meta(arrays: dict, path):
 
 def _check_weights_for(meta: dict, path, camera, grid, wavelength) -> None:
     """The file's camera, grid (and wavelength) must be those in use."""
-    diffs = _dict_diff(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
+    diffs = json_differences(meta.get("camera"), json.loads(json.dumps(camera.to_dict())))
     if diffs:
         raise LftomoError(f"{str(path)!r} was built for another camera (file vs camera in use): " + "; ".join(diffs))
-    diffs = _dict_diff(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
+    diffs = json_differences(meta.get("grid"), json.loads(json.dumps(grid.to_dict())))
     if diffs:
         raise LftomoError(f"{str(path)!r} was built for another grid (file vs grid in use): " + "; ".join(diffs))
     if not (isinstance(wavelength, str) and wavelength == "any"):
         wl = _wavelength(wavelength)
-        if _dict_diff(meta.get("wavelength"), wl):
+        if json_differences(meta.get("wavelength"), wl):
             raise LftomoError(f"{str(path)!r} was built for wavelength {meta.get('wavelength')!r} m, not {wl!r} m")
 
 
@@ -2191,7 +2167,7 @@ def weights_refocus(W: WeightMatrix, lightfield_or_camera, depths: Sequence[floa
     else:
         raise LftomoError(f"lightfield_or_camera must be a LightField or a Camera, "
                          f"got {type(lightfield_or_camera).__name__}")
-    diffs = _dict_diff(W.metadata.get("camera"), json.loads(json.dumps(lf.camera.to_dict())))
+    diffs = json_differences(W.metadata.get("camera"), json.loads(json.dumps(lf.camera.to_dict())))
     if diffs:
         raise LftomoError("W was built for another camera than the light field's: " + "; ".join(diffs))
     try:

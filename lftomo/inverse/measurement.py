@@ -23,6 +23,7 @@ per-pixel), so the raw covariance is diagonal, ``Σ = diag(noise_std²)``.
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -30,7 +31,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import require_array, require_int, require_nonnegative, require_positive, require_views
+from .._validate import (json_differences, require_array, require_int, require_nonnegative, require_positive,
+                         require_views)
 
 __all__ = ["SensorModel", "add_noise", "saturated_mask", "Measurement", "DATA_KINDS"]
 
@@ -729,6 +731,14 @@ class Measurement:
                     f"the weight matrix was made for a sensor of shape {sensor}, the measurement for "
                     f"{tuple(self.camera.sensor_shape)}"
                 )
+            built_for = W_raw.metadata.get("camera")
+            if built_for is not None:
+                diffs = json_differences(built_for, json.loads(json.dumps(self.camera.to_dict())))
+                if diffs:
+                    raise LftomoError(
+                        "the weight matrix was built for another camera (or pose) than the measurement's (weight "
+                        "matrix vs measurement): " + "; ".join(diffs[:4]) + (" ..." if len(diffs) > 4 else "")
+                    )
             wl_w = W_raw.metadata.get("wavelength", "unknown")
             if wl_w != "unknown" and (
                 (wl_w is None) != (self.wavelength is None)
@@ -830,5 +840,8 @@ class Measurement:
         return np.ma.MaskedArray(out.reshape(lead + self.data_shape), mask=mask.copy())
 
     def __repr__(self) -> str:
-        extra = f"depths={list(self.depths)}" if self.kind == "refocus" else f"{len(self.views)} views"
+        if self.kind == "refocus":
+            extra = f"depths={list(self.depths) if self.depths is not None else None}"
+        else:
+            extra = f"{len(self.views) if self.views is not None else '?'} views"
         return f"Measurement({self.kind!r}, m={self.size}, channel={self.channel}, {extra})"

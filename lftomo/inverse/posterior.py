@@ -568,17 +568,33 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
     return probs
 
 
-def _check_bounds(bounds: Any, emission_kinds: list[str]) -> tuple[float, float]:
+def _check_bounds(bounds: Any, channels: list) -> tuple[float, float]:
+    """``(T_min, T_max)`` in K; with Planck or gray emission, one whose emission is finite and not 0 (kK refused)."""
     if bounds is None:
         return (-np.inf, np.inf)
+    bad = LftomoError(f"bounds must be (T_min, T_max) in K, two numbers, or None, got {bounds!r}")
     try:
-        lo, hi = (float(v) for v in bounds)
+        items = list(bounds)
+        lo, hi = (float(v) for v in items)
     except (TypeError, ValueError):
-        raise LftomoError(f"bounds must be (T_min, T_max) in K or None, got {bounds!r}") from None
+        raise bad from None
+    if any(isinstance(v, (str, bytes, bool)) for v in items):
+        raise bad
     if np.isnan(lo) or np.isnan(hi) or not lo < hi:
         raise LftomoError(f"bounds must satisfy T_min < T_max (K), got {bounds!r}")
-    if any(k != "linear" for k in emission_kinds) and hi <= 0:
+    emitting = [ch for ch in channels if ch.kind != "linear"]
+    if emitting and hi <= 0:
         raise LftomoError(f"bounds must allow T > 0 K for Planck/gray emission, got {bounds!r}")
+    if emitting and np.isfinite(lo) and np.isfinite(hi):
+        mid = 0.5 * (max(lo, 0.0) + hi)
+        with np.errstate(all="ignore"):
+            values = [(float(ch.f(np.float64(T))), T, ch) for ch in emitting for T in (mid, hi)]
+        for v, T, ch in values:
+            if not (np.isfinite(v) and v > 0.0):
+                where = "gray" if ch.wavelength is None else f"{ch.wavelength * 1e9:.4g} nm"
+                raise LftomoError(
+                    f"bounds = {bounds!r} K: the blackbody emission at T = {T:.4g} K ({where}) is {v!r} in double "
+                    "precision; bounds are in kelvin (e.g. (300, 3000))")
     return (lo, hi)
 
 
@@ -650,7 +666,7 @@ def build_log_posterior(
     for p in probs:
         f, df, kind = _emission(emission, p.wavelength)
         channels.append(_Channel(sufficient_statistics(p, dense_max=dense_max), f, df, kind, p.wavelength))
-    T_bounds = _check_bounds(bounds, [ch.kind for ch in channels])
+    T_bounds = _check_bounds(bounds, channels)
     prec = mean = None
     if prior_std is not None:
         s = np.asarray(prior_std, dtype=np.float64)
