@@ -347,6 +347,8 @@ def require_array(
     if isinstance(value, (str, bytes)) or (not isinstance(value, np.ndarray) and _is_text_array(value)) or (
             isinstance(value, np.ndarray) and value.dtype.kind in "SU"):
         raise LftomoError(f"{name} must be numeric, got text {_fmt(value)}")
+    if isinstance(value, (bool, np.bool_)):
+        raise LftomoError(f"{name} must be a number or an array of numbers, got {value!r}")
     try:
         if np.iscomplexobj(value):
             raise LftomoError(f"{name} must be real, got complex values")

@@ -175,12 +175,12 @@ def _prepare_white(white: Any, dark: Any) -> np.ndarray:
     img = require_array("white", white, ndim=2)
     if min(img.shape) < 16:
         raise LftomoError(f"white image must be at least 16 x 16 pixels, got shape {img.shape}")
+    peak = float(np.max(np.abs(img)))
+    if not 1e-100 < peak < 1e100:
+        raise LftomoError(f"white image values reach {peak:.3g}: not counts (its power spectrum would underflow or "
+                          "overflow); give the raw counts")
     if dark is not None:
-        d = np.asarray(dark, dtype=float)
-        if d.ndim == 0:
-            d = require_array("dark", d)
-        else:
-            d = require_array("dark", d, shape=img.shape)
+        d = require_array("dark", dark) if np.ndim(dark) == 0 else require_array("dark", dark, shape=img.shape)
         img = img - d
     else:  # no dark frame: the darkest pixels (gaps between lenslet images) as the floor
         img = img - np.percentile(img, 0.5)

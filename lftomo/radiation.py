@@ -59,6 +59,8 @@ C1 = 2.0 * _c.h * _c.c**2
 #: Second radiation constant, h c / k (m·K).
 C2 = _c.h * _c.c / _c.k
 _SIGMA = _c.Stefan_Boltzmann
+#: Shortest wavelength accepted (m): thermal emission there is 0, and a far shorter one overflows λ⁻⁵.
+MIN_WAVELENGTH = 1e-12
 
 
 def _out(x: np.ndarray) -> Any:
@@ -76,7 +78,17 @@ def _wavelength(wavelength: Any) -> np.ndarray:
     if np.any(lam > 1.0):  # 650 for 650 nm: a unit slip, not a radio wave
         raise LftomoError(f"wavelength must be in m, at most 1 m (e.g. 650e-9 for 650 nm), got maximum "
                          f"{float(np.max(lam))!r}")
+    if np.any(lam < MIN_WAVELENGTH):  # λ⁻⁵ would overflow (NaN radiance)
+        raise LftomoError(f"wavelength must be in m, at least {MIN_WAVELENGTH} m, got minimum {float(np.min(lam))!r}")
     return lam
+
+
+def _broadcast(a: np.ndarray, a_name: str, b: np.ndarray, b_name: str) -> None:
+    try:
+        np.broadcast_shapes(a.shape, b.shape)
+    except ValueError:
+        raise LftomoError(f"{a_name} of shape {a.shape} and {b_name} of shape {b.shape} do not broadcast "
+                          "together (give one of them as a scalar, or matching shapes)") from None
 
 
 def planck(T: Any, wavelength: Any) -> Any:
@@ -108,6 +120,7 @@ def planck(T: Any, wavelength: Any) -> Any:
     """
     T = _temperature(T)
     lam = _wavelength(wavelength)
+    _broadcast(T, "T", lam, "wavelength")
     x = C2 / (lam * T)
     return _out(C1 / lam**5 * np.exp(-x) / (-np.expm1(-x)))
 
@@ -141,6 +154,7 @@ def planck_inverse(I: Any, wavelength: Any) -> Any:
     """
     I = require_array("I", I, minimum=0.0)
     lam = _wavelength(wavelength)
+    _broadcast(I, "I", lam, "wavelength")
     with np.errstate(divide="ignore"):
         arg = C1 / (lam**5 * I)  # inf where I == 0
         T = C2 / (lam * np.log1p(arg))  # log1p(inf) = inf -> T = 0
@@ -166,6 +180,7 @@ def dplanck_dT(T: Any, wavelength: Any) -> Any:
     """
     T = _temperature(T)
     lam = _wavelength(wavelength)
+    _broadcast(T, "T", lam, "wavelength")
     x = C2 / (lam * T)
     one_minus = -np.expm1(-x)
     Ib = C1 / lam**5 * np.exp(-x) / one_minus

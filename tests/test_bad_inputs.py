@@ -225,6 +225,10 @@ OBJECT_CASES.update({
                                  "transparent_back must be True or False, got 'no'"),  # 'no' was truthy
     "emitter-complex-radiance": (lambda: _emitter(radiance=1j * np.ones((2, 2))), "radiance must be real"),
     "planck-huge-integer": (lambda: lt.planck(10**400, 650e-9), "T must be numeric"),
+    "planck-bool": (lambda: lt.planck(True, 650e-9), "T must be a number or an array of numbers, got True"),
+    "planck-shapes": (lambda: lt.planck(np.full(3, 1500.0), np.full(2, 650e-9)),
+                      r"T of shape \(3,\) and wavelength of shape \(2,\) do not broadcast together"),
+    "planck-tiny-wavelength": (lambda: lt.planck(1500.0, 1e-300), "wavelength must be in m, at least 1e-12 m"),
     "grid-index-outside": (lambda: tiny_grid().flat_index(5, 0, 0), r"ix must be in 0..\d+, got 5"),
     "grid-index-fraction": (lambda: tiny_grid().flat_index(0.5, 0, 0), "ix must be an integer voxel index"),
     "grid-unravel-outside": (lambda: tiny_grid().unravel(10**6), r"flat must be in 0..\d+, got 1000000"),
@@ -978,3 +982,21 @@ def test_measurement_built_directly_has_a_repr(lf):
     mm = lt.Measurement(y=m.y, sigma=m.sigma, operator=m.operator, kind="subaperture", mask=m.mask,
                         data_shape=m.data_shape, camera=m.camera, wavelength=m.wavelength)
     assert repr(mm) == f"Measurement('subaperture', m={m.size}, channel=0, ? views)"
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(camera=None), "camera must be an lftomo.Camera, got NoneType"),  # was an AttributeError
+    (dict(data_shape="abc"), r"data_shape\[0\] must be an integer, got 'a'"),
+    (dict(channel="x"), "channel must be an integer, got 'x'"),
+])
+def test_measurement_constructor_names_its_arguments(lf, change, match):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    fields = dict(y=m.y, sigma=m.sigma, operator=m.operator, kind="subaperture", mask=m.mask,
+                  data_shape=m.data_shape, camera=m.camera, wavelength=m.wavelength)
+    with pytest.raises(LftomoError, match=match):
+        lt.Measurement(**{**fields, **change})
+
+
+def test_refocus_depths_given_as_text_are_refused(lf):
+    with pytest.raises(LftomoError, match="depths must be a sequence of depths in m, got '1.0'"):
+        lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="refocus", depths="1.0")

@@ -167,3 +167,15 @@ def test_raw_frame_helpers_name_their_arguments(tmp_path):
     with pytest.raises(LftomoError, match="path must be a path"):
         lt.write_raw(None, np.zeros((2, 2), np.uint16), bit_depth=12)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.png"]
+
+
+@pytest.mark.parametrize("scale, dark, match", [
+    (1e300, 100.0, "white image values reach [0-9.]+e\\+30[0-9]: not counts"),  # min() of an empty sequence
+    (1e-320, 100.0, "white image values reach .*: not counts"),
+    (1.0, "100", "dark must be numeric, got text '100'"),
+    (1.0, {}, "dark must be numeric"),  # a TypeError
+])
+def test_calibrate_grid_arguments(frames, scale, dark, match):
+    counts, _ = frames
+    with pytest.raises(LftomoError, match=match):
+        lt.calibrate_grid(counts.astype(float) * scale, dark=dark)

@@ -447,6 +447,8 @@ def _check_views(views: Any, lf) -> list[tuple[int, int]]:
 
 
 def _check_depths(depths: Any) -> tuple[float, ...]:
+    if depths is None or isinstance(depths, (str, bytes)):
+        raise LftomoError(f"depths must be a sequence of depths in m, got {depths!r}")
     try:
         arr = np.atleast_1d(np.asarray(depths, dtype=float))
     except (TypeError, ValueError):
@@ -524,6 +526,11 @@ class Measurement:
             raise LftomoError(f"kind must be one of {DATA_KINDS}, got {self.kind!r}")
         if not sp.issparse(self.operator):
             raise LftomoError(f"operator must be a scipy sparse matrix, got {type(self.operator).__name__}")
+        from ..forward.camera import Camera
+
+        if not isinstance(self.camera, Camera):
+            raise LftomoError(f"camera must be an lftomo.Camera, got {type(self.camera).__name__}")
+        object.__setattr__(self, "channel", require_int("channel", self.channel, minimum=0))
         op = sp.csr_matrix(self.operator, dtype=np.float64)
         m, n_raw = op.shape
         exp_raw = int(np.prod(self.camera.sensor_shape))
@@ -534,14 +541,20 @@ class Measurement:
             )
         y = require_array("y", self.y, shape=(m,))
         s = require_array("sigma", self.sigma, shape=(m,), strictly_positive=True)
-        data_shape = tuple(int(a) for a in self.data_shape)
+        try:
+            data_shape = tuple(require_int(f"data_shape[{k}]", a, minimum=0) for k, a in enumerate(self.data_shape))
+        except TypeError:
+            raise LftomoError(f"data_shape must be a sequence of integers, got {self.data_shape!r}") from None
         mask = np.asarray(self.mask, dtype=bool)
         if mask.shape != data_shape:
             raise LftomoError(f"shape of mask {mask.shape} does not match data_shape {data_shape}")
         if int(mask.sum()) != m:
             raise LftomoError(f"mask has {int(mask.sum())} True entries but there are {m} data")
         if self.raw_index is not None:
-            ri = np.asarray(self.raw_index, dtype=np.int64)
+            ri = np.asarray(self.raw_index)
+            if ri.dtype.kind not in "iu":
+                raise LftomoError(f"raw_index must be integer indices, got dtype {ri.dtype}")
+            ri = ri.astype(np.int64)
             if ri.shape != (m,) or (m and (ri.min() < 0 or ri.max() >= n_raw)):
                 raise LftomoError(f"raw_index must be {m} indices in 0..{n_raw - 1}, got shape {ri.shape}")
             object.__setattr__(self, "raw_index", ri)
