@@ -756,6 +756,28 @@ def main(argv=None) -> int:
     (Ctrl-C), with every output file either as before or complete.
     """
     args = build_parser().parse_args(argv)
+    out = getattr(args, "output", None)
+    fresh = isinstance(out, str) and not Path(out).exists()
+    status = 2
+    try:
+        status = _run_command(args)
+    finally:
+        if fresh and status != 0:
+            _remove_if_empty(Path(out))
+    return status
+
+
+def _remove_if_empty(folder: Path) -> None:
+    """Remove an output folder this run made and left empty (a run refused after making it)."""
+    try:
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+    except OSError:
+        pass
+
+
+def _run_command(args) -> int:
+    """``args.func(args)``, with the errors a user can cause turned into an exit status and one line."""
     try:
         return args.func(args)
     except KeyboardInterrupt:

@@ -847,7 +847,7 @@ def test_cli_last_guard(tmp_path, cli_files, capsys, monkeypatch, exc):
     assert code == (130 if exc == "interrupt" else 2)
     last = err.strip().splitlines()[-1]
     assert last.startswith("lftomo: interrupted" if exc == "interrupt" else "lftomo: error: ") and "Traceback" not in err
-    assert [p.name for p in out.iterdir()] == []  # nothing half-written
+    assert not out.exists()  # nothing half-written, and the folder the run made, left empty, is gone
 
 
 def test_cli_allow_outside_paths(tmp_path, cli_files, capsys):
@@ -1000,3 +1000,23 @@ def test_measurement_constructor_names_its_arguments(lf, change, match):
 def test_refocus_depths_given_as_text_are_refused(lf):
     with pytest.raises(LftomoError, match="depths must be a sequence of depths in m, got '1.0'"):
         lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="refocus", depths="1.0")
+
+
+def test_a_refused_run_leaves_no_empty_output_folder(tmp_path, capsys):
+    """lftomo design made its folder, then refused the grid (--n 2 does not refine the 3^3 medium) and left the
+    folder empty; a folder that existed before is kept."""
+    scene = tmp_path / "s.toml"
+    scene.write_text(SCENE_MEDIUM)
+    out = tmp_path / "design-out"
+    assert main(["design", str(scene), "--n", "2", "-o", str(out), "--quiet"]) == 2
+    assert "must be an integer refinement" in capsys.readouterr().err
+    assert not out.exists()
+    out.mkdir()
+    assert main(["design", str(scene), "--n", "2", "-o", str(out), "--quiet"]) == 2
+    assert out.is_dir()
+
+
+def test_relative_noise_is_bounded(lf):
+    """relative_std=1e300 (or --noise 1e300) reached a 'noise_std must be finite' that named neither."""
+    with pytest.raises(LftomoError, match=r"relative_std must be <= 10.0 .* got 1e\+300"):
+        lt.add_noise(lf, relative_std=1e300, seed=0)

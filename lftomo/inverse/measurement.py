@@ -310,6 +310,10 @@ def _rng_from_seed(seed: Any) -> tuple[np.random.Generator, Any]:
     return np.random.default_rng(s), s
 
 
+#: Largest relative noise standard deviation accepted by :func:`add_noise` (1000 %).
+MAX_RELATIVE_STD = 10.0
+
+
 def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed: Any):
     """Noisy copy of a noise-free light field.
 
@@ -368,6 +372,9 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
     n_ch = lf.n_channels
     if relative_std is not None:
         rel = require_positive("relative_std", relative_std)
+        if rel > MAX_RELATIVE_STD:
+            raise LftomoError(f"relative_std must be <= {MAX_RELATIVE_STD} (a relative standard deviation: 0.01 "
+                              f"is 1 %), got {rel!r}")
     else:
         sensors = [sensor] * n_ch if isinstance(sensor, SensorModel) else sensor
         try:
