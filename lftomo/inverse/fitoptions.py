@@ -100,7 +100,11 @@ def moved_options(given: dict[str, Any], function: str = "reconstruct",
     allowed = tuple(table) if allowed is None else allowed
     unknown = sorted(set(given) - set(allowed))
     if unknown:
-        raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}")
+        import difflib
+
+        near = difflib.get_close_matches(unknown[0], list(allowed), n=1)
+        raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}"
+                        + (f" (did you mean {near[0]!r}? it moved: pass {table[near[0]]})" if near else ""))
     for name in given:
         warnings.warn(f"{function}({name}=...) is deprecated: pass {table[name]}", DeprecationWarning,
                       stacklevel=stacklevel)

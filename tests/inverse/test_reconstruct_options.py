@@ -82,7 +82,8 @@ def test_start_from_a_coarser_reconstruction_is_its_interpolated_temperature(blo
 
 def test_bad_options_are_refused_before_any_work(blob):
     grid, flame, m, W = blob
-    with pytest.raises(TypeError, match="unexpected keyword argument 'max_step'"):
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'max_step' \(did you mean 'max_steps'\? it "
+                                        r"moved: pass solver=lt.LevenbergMarquardt\(max_steps=...\)"):
         reconstruct(m, W, max_step=3)
     with pytest.raises(ValueError, match="unknowns must be 'T', 'T\\+sigma_a'"):
         reconstruct(m, W, unknowns="T+soot")
