@@ -350,13 +350,13 @@ def require_array(
     if isinstance(value, (bool, np.bool_)):
         raise LftomoError(f"{name} must be a number or an array of numbers, got {value!r}")
     try:
-        if np.iscomplexobj(value):
-            raise LftomoError(f"{name} must be real, got complex values")
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError) as exc:
-        if isinstance(exc, LftomoError):
-            raise
+        arr = np.asarray(value)
+        if arr.dtype.kind != "c":  # converted once; a complex array would lose its imaginary part
+            arr = arr.astype(np.float64, copy=False)
+    except (TypeError, ValueError, OverflowError):
         raise LftomoError(f"{name} must be numeric, got {_fmt(value)}") from None
+    if arr.dtype.kind == "c":
+        raise LftomoError(f"{name} must be real, got complex values")
     if ndim is not None and arr.ndim != ndim:
         raise LftomoError(f"{name} must be {ndim}-D, got shape {arr.shape}")
     if shape is not None and arr.shape != tuple(shape):

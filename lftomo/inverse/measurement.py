@@ -23,7 +23,6 @@ per-pixel), so the raw covariance is diagonal, ``Σ = diag(noise_std²)``.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -31,8 +30,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import (json_differences, require_array, require_int, require_nonnegative, require_positive,
-                         require_views)
+from .._validate import require_array, require_int, require_nonnegative, require_positive, require_views
+from ..forward.camera import Camera
+from .problem import camera_differences
 
 __all__ = ["SensorModel", "add_noise", "saturated_mask", "Measurement", "DATA_KINDS"]
 
@@ -533,8 +533,6 @@ class Measurement:
             raise LftomoError(f"kind must be one of {DATA_KINDS}, got {self.kind!r}")
         if not sp.issparse(self.operator):
             raise LftomoError(f"operator must be a scipy sparse matrix, got {type(self.operator).__name__}")
-        from ..forward.camera import Camera
-
         if not isinstance(self.camera, Camera):
             raise LftomoError(f"camera must be an lftomo.Camera, got {type(self.camera).__name__}")
         object.__setattr__(self, "channel", require_int("channel", self.channel, minimum=0))
@@ -751,14 +749,12 @@ class Measurement:
                     f"the weight matrix was made for a sensor of shape {sensor}, the measurement for "
                     f"{tuple(self.camera.sensor_shape)}"
                 )
-            built_for = W_raw.metadata.get("camera")
-            if built_for is not None:
-                diffs = json_differences(built_for, json.loads(json.dumps(self.camera.to_dict())))
-                if diffs:
-                    raise LftomoError(
-                        "the weight matrix was built for another camera (or pose) than the measurement's (weight "
-                        "matrix vs measurement): " + "; ".join(diffs[:4]) + (" ..." if len(diffs) > 4 else "")
-                    )
+            diffs = camera_differences(self.camera, W_raw)
+            if diffs:
+                raise LftomoError(
+                    "the weight matrix was built for another camera (or pose) than the measurement's (weight "
+                    "matrix vs measurement): " + "; ".join(diffs[:4]) + (" ..." if len(diffs) > 4 else "")
+                )
             wl_w = W_raw.metadata.get("wavelength", "unknown")
             if wl_w != "unknown" and (
                 (wl_w is None) != (self.wavelength is None)

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import require_array
+from .._validate import json_differences, require_array
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,12 +196,21 @@ class LinearProblem:
         return sp.diags(w) @ self.A, w * (self.y - self.background)
 
 
-def taken_by_camera_of(measurement: Any, forward: Any) -> bool:
-    """Whether ``forward`` (weight matrix or ray-segment table) was built for the camera, with its pose,
-    that took ``measurement`` (True when ``forward`` does not record its camera)."""
+def camera_differences(camera: Any, forward: Any) -> list[str]:
+    """How the camera ``forward`` (weight matrix or ray-segment table) was built for differs from ``camera``
+    (:func:`lftomo._validate.json_differences` of their descriptions, pose included); empty when they agree
+    or ``forward`` does not record its camera."""
     meta = getattr(forward, "metadata", None)
     built_for = meta.get("camera") if isinstance(meta, dict) else None
-    return built_for is None or built_for == json.loads(json.dumps(measurement.camera.to_dict()))
+    if built_for is None:
+        return []
+    return json_differences(built_for, json.loads(json.dumps(camera.to_dict())))
+
+
+def taken_by_camera_of(measurement: Any, forward: Any) -> bool:
+    """Whether ``forward`` was built for the camera, with its pose, that took ``measurement``
+    (True when ``forward`` does not record its camera)."""
+    return not camera_differences(measurement.camera, forward)
 
 
 def stack_problems(problems: Sequence[LinearProblem], *, label: str = "problems") -> LinearProblem:
