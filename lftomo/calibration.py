@@ -509,7 +509,8 @@ def decode_operator(grid: MicrolensGrid, *, n_views: int | None = None, valid: A
     ----------
     grid : MicrolensGrid
     n_views : int, optional
-        Views per axis (default ``round(min(pitch))``: about one sample per pixel).
+        Views per axis, ``1 .. 4 × max(pitch)`` (default ``round(min(pitch))``:
+        about one sample per pixel).
     valid : array_like of bool, shape (rows, cols), optional
         Usable raw pixels (e.g. ``~frame.saturated``); a view pixel touching an
         unusable one is masked.
