@@ -55,6 +55,10 @@ def run_design(args: Any) -> int:
         raise LftomoError(f"{args.scene} has no [medium]: the design needs the expected flame")
     cams = tuple(getattr(scene, "cameras", None) or (scene.camera,))
     box = flame.grid
+    if any(k % args.n for k in box.shape):
+        fits = [n for n in range(1, 17) if all(k % n == 0 for k in box.shape)]
+        raise LftomoError(f"--n {args.n}: the reconstruction grid must divide the scene's medium grid "
+                          f"{tuple(box.shape)} on every axis; allowed: {', '.join(map(str, fits))}")
     grid = Grid(shape=(args.n,) * 3, lower=tuple(box.lower), upper=tuple(box.upper))
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)

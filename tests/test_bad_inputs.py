@@ -1003,17 +1003,36 @@ def test_refocus_depths_given_as_text_are_refused(lf):
 
 
 def test_a_refused_run_leaves_no_empty_output_folder(tmp_path, capsys):
-    """lftomo design made its folder, then refused the grid (--n 2 does not refine the 3^3 medium) and left the
-    folder empty; a folder that existed before is kept."""
+    """lftomo design made its folder, then refused the wavelength (650: nm, not m) and left the folder empty; a
+    folder that existed before is kept."""
+    scene = tmp_path / "s.toml"
+    scene.write_text(SCENE_MEDIUM)
+    out = tmp_path / "design-out"
+    assert main(["design", str(scene), "--n", "3", "--wavelength", "650", "-o", str(out), "--quiet"]) == 2
+    assert "wavelength must be in m" in capsys.readouterr().err
+    assert not out.exists()
+    out.mkdir()
+    assert main(["design", str(scene), "--n", "3", "--wavelength", "650", "-o", str(out), "--quiet"]) == 2
+    assert out.is_dir()
+
+
+def test_design_names_n_when_it_does_not_divide_the_medium_grid(tmp_path, capsys):
+    """--n 2 on a 3^3 medium said 'source grid (3, 3, 3) must be an integer refinement of (2, 2, 2)', naming
+    neither --n nor the values that work; it is now refused before any folder is made."""
     scene = tmp_path / "s.toml"
     scene.write_text(SCENE_MEDIUM)
     out = tmp_path / "design-out"
     assert main(["design", str(scene), "--n", "2", "-o", str(out), "--quiet"]) == 2
-    assert "must be an integer refinement" in capsys.readouterr().err
+    assert "--n 2: the reconstruction grid must divide the scene's medium grid (3, 3, 3) on every axis; " \
+           "allowed: 1, 3" in capsys.readouterr().err
     assert not out.exists()
-    out.mkdir()
-    assert main(["design", str(scene), "--n", "2", "-o", str(out), "--quiet"]) == 2
-    assert out.is_dir()
+
+
+def test_design_refuses_a_grid_that_does_not_divide_the_flames():
+    flame = lt.phantoms.axisymmetric_flame(lt.phantoms.default_flame_grid((6, 6, 6)))
+    grid = lt.Grid(shape=(4, 4, 4), lower=flame.grid.lower, upper=flame.grid.upper)
+    with pytest.raises(LftomoError, match=r"grid \(4, 4, 4\) must divide the flame's grid \(6, 6, 6\)"):
+        lt.inverse.design.design(lt.Camera.seed(1.0), grid, flame, rays_per_pixel=1)
 
 
 def test_relative_noise_is_bounded(lf):
