@@ -34,6 +34,7 @@ the views that contribute to it.  It is linear in ``raw``:
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -153,7 +154,8 @@ def view_shift_field(camera: Camera, centers: np.ndarray, depth: float, *, n_ray
     D + J @ offset, with the lenslet axes flipped into view order."""
     D, J = view_displacements(camera, depth, jacobian=True, n_rays=n_rays)
     off = lenslet_offsets(camera, centers)[::-1, ::-1]  # (iy, ix, 2) in view order
-    return D[:, :, None, None, :] + np.einsum("vuab,yxb->vuyxa", np.nan_to_num(J), off)
+    J = np.nan_to_num(J)[:, :, None, None]  # (n_v, n_u, 1, 1, 2, 2); J @ off written out: 5x faster than einsum
+    return D[:, :, None, None, :] + (J[..., 0] * off[:, :, 0, None] + J[..., 1] * off[:, :, 1, None])
 
 
 def _image_plane_z(camera: Camera, depth: float) -> float:
@@ -378,11 +380,14 @@ class LightField:
         """Image refocused with Ng's parameter ``alpha`` (1 = focus plane)."""
         return self.refocus_at(self.depth_of_alpha(alpha))
 
-    def focal_stack(self, depths: Sequence[float]) -> np.ndarray:
+    def focal_stack(self, depths: Sequence[float], *, progress: bool | None = None) -> np.ndarray:
         """Refocused images at several depths (m), shape (n_depths, n_y, n_x) [channel axis after depth].
 
         The size of the stack is checked against the memory limit before any
-        image is made (:func:`lftomo._validate.check_allocation`).
+        image is made (:func:`lftomo._validate.check_allocation`).  Each depth
+        traces its own view shifts (about 0.1 s on the seed camera), so a long
+        stack shows a progress bar: ``progress`` None shows one when stderr is
+        a terminal.
         """
         try:
             d = np.asarray(depths, dtype=float)
@@ -393,7 +398,20 @@ class LightField:
         n_y, n_x = (int(a) for a in self.camera.views_shape[2:])
         check_allocation(f"a focal stack of {d.size} depths x {n_y} x {n_x} pixels x {self.n_channels} channel(s)",
                          2.0 * d.size * n_y * n_x * self.n_channels * 8, hint="use fewer depths")
-        return np.stack([self.refocus_at(float(x)) for x in d])
+        for k, x in enumerate(d):  # every depth checked before the first image is made
+            check_refocus_depth(self.camera, float(x), name=f"depths[{k}]")
+        from .progress import progress_bar
+
+        bar = progress_bar(d.size, sys.stderr.isatty() if progress is None else bool(progress), "focal stack",
+                           unit="depth")
+        try:
+            images = []
+            for x in d:
+                images.append(self.refocus_at(float(x)))
+                bar.update(1)
+        finally:
+            bar.close()
+        return np.stack(images)
 
     # ---- persistence -------------------------------------------------------
     def save(self, path: str | Path) -> Path:

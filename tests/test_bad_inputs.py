@@ -256,7 +256,7 @@ REFOCUS_CASES = {
     "negative": (lambda lf: lf.refocus_at(-1.0), "depth must be > 0"),
     "string": (lambda lf: lf.refocus_at("1"), "depth must be a real number"),
     "nan": (lambda lf: lf.refocus_at(float("nan")), "depth must be finite"),
-    "stack": (lambda lf: lf.focal_stack([1.0, 0.2]), "depth = 0.2 m"),
+    "stack": (lambda lf: lf.focal_stack([1.0, 0.2]), r"depths\[1\] = 0.2 m"),
     "operator": (lambda lf: lf.refocus_operator_at(0.05), "depth = 0.05 m"),
     "uv": (lambda lf: lf.subaperture(99, 0), r"\(u, v\) = \(99, 0\)"),
     "uv-type": (lambda lf: lf.subaperture("a", 0), "u must be an integer, got 'a'"),
@@ -995,6 +995,31 @@ def test_measurement_constructor_names_its_arguments(lf, change, match):
                   data_shape=m.data_shape, camera=m.camera, wavelength=m.wavelength)
     with pytest.raises(LftomoError, match=match):
         lt.Measurement(**{**fields, **change})
+
+
+def test_a_focal_stack_checks_every_depth_before_its_first_image(lf, monkeypatch):
+    """A bad depth late in a long stack had been found only after every image before it was made."""
+    made = []
+    monkeypatch.setattr(type(lf), "refocus_at", lambda self, d: made.append(d))
+    with pytest.raises(LftomoError, match=r"depths\[2\] = 0.1 m is inside or too close to the main-lens focal"):
+        lf.focal_stack([1.0, 0.99, 0.1])
+    assert made == []
+
+
+def test_refocus_data_check_every_depth_before_the_first_operator(lf, monkeypatch):
+    noisy = lt.add_noise(lf, relative_std=0.01, seed=1)
+    made = []
+    monkeypatch.setattr(type(lf), "refocus_operator_at", lambda self, d: made.append(d))
+    with pytest.raises(LftomoError, match=r"depths\[1\] = 0.1 m is inside or too close"):
+        lt.Measurement.from_lightfield(noisy, data="refocus", depths=[1.0, 0.1])
+    assert made == []
+
+
+def test_a_focal_stack_shows_its_progress(lf, capsys):
+    stack = lf.focal_stack([0.99, 1.0], progress=True)
+    assert stack.shape == (2, *lf.camera.views_shape[2:])
+    assert "focal stack" in capsys.readouterr().err
+    np.testing.assert_array_equal(stack[1], lf.refocus_at(1.0))
 
 
 def test_refocus_depths_given_as_text_are_refused(lf):

@@ -32,6 +32,7 @@ import scipy.sparse as sp
 from ..errors import LftomoError
 from .._validate import require_array, require_int, require_nonnegative, require_positive, require_views
 from ..forward.camera import Camera
+from ..lightfield import check_refocus_depth
 from .problem import camera_differences
 
 __all__ = ["SensorModel", "add_noise", "saturated_mask", "Measurement", "DATA_KINDS"]
@@ -656,6 +657,8 @@ class Measurement:
                     f"views selects sub-aperture data; data='refocus' uses every lit view, got views={views!r}"
                 )
             dep = _check_depths(depths)
+            for k, d in enumerate(dep):  # each depth's operator is traced: refuse a bad one before the first
+                check_refocus_depth(lf.camera, d, name=f"depths[{k}]")
             sel = None
         shape2 = lf.camera.sensor_shape
         n_raw = shape2[0] * shape2[1]
