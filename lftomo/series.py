@@ -619,20 +619,14 @@ def _model_fingerprint(forward: Any) -> str:
 def _check_option_names(options: dict) -> None:
     """Refuse a keyword that :func:`lftomo.reconstruct` does not take before any cluster starts (each frame
     would otherwise fail on it, and the manifest record it)."""
-    import difflib
     import inspect
 
-    from .inverse.fitoptions import MOVED_OPTIONS
+    from .inverse.fitoptions import check_option_names
     from .inverse.reconstruct import reconstruct
 
-    named = [k for k, p in inspect.signature(reconstruct).parameters.items()
-             if p.kind is p.KEYWORD_ONLY and k != "progress"]
-    for name in options:
-        if name not in named and name not in MOVED_OPTIONS:
-            near = difflib.get_close_matches(name, named + list(MOVED_OPTIONS), n=1)
-            raise LftomoError(f"{name}={options[name]!r}: not an option of lftomo.reconstruct"
-                              + (f" (did you mean {near[0]!r}?)" if near else "")
-                              + f"; its options are {named}")
+    own = [k for k, p in inspect.signature(reconstruct).parameters.items()
+           if p.kind is p.KEYWORD_ONLY and k != "progress"]
+    check_option_names(options, own)
 
 
 def reconstruct_series(

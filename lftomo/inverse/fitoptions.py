@@ -111,6 +111,39 @@ def moved_options(given: dict[str, Any], function: str = "reconstruct",
     return dict(given)
 
 
+def check_option_names(given: dict[str, Any], own: list[str], function: str = "lftomo.reconstruct",
+                       table: dict[str, str] | None = None) -> None:
+    """Refuse, before any work, a keyword that is neither one of a fit front end's own nor a moved one.
+
+    Unlike :func:`moved_options` it does not warn: it runs where the keywords are stored to be passed
+    on later (:func:`lftomo.reconstruct_series`), and the fit itself warns when it receives them.
+
+    Parameters
+    ----------
+    given : dict
+        The keywords to check.
+    own : list of str
+        The front end's own keyword names.
+    function : str
+        The front end's name, for the message.
+    table : dict, optional
+        Moved keywords (default :data:`MOVED_OPTIONS`).
+
+    Raises
+    ------
+    LftomoError
+        Naming the keyword, its value, the nearest known name and the front end's own names.
+    """
+    import difflib
+
+    known = list(own) + list(MOVED_OPTIONS if table is None else table)
+    for name in given:
+        if name not in known:
+            near = difflib.get_close_matches(name, known, n=1)
+            raise LftomoError(f"{name}={given[name]!r}: not an option of {function}"
+                              + (f" (did you mean {near[0]!r}?)" if near else "") + f"; its options are {list(own)}")
+
+
 def fold_unknowns(unknowns: Any, what: Unknowns, options: dict[str, Any]) -> tuple[Unknowns, dict[str, Any]]:
     """Add the unknowns object's parameters to the fit keywords.  Its parameters given the old way
     (as keywords) build the object when ``unknowns`` is a name, and are refused next to an object."""

@@ -188,3 +188,18 @@ def test_temperature_and_joint_fits_report_the_same_fields():
     assert same.regularization == fits["joint auto"].regularization and same.lambda_rule == "discrepancy"
     assert dataclasses.is_dataclass(fits["T auto"]) and fits["T auto"].lambda_note == \
         fits["T auto"].details.lambda_choice.note
+
+
+def test_stored_fit_options_are_checked_without_warning():
+    """reconstruct_series stores reconstruct's keywords for later: a misspelt one is refused at once with the
+    nearest name, an own or moved one passes without a DeprecationWarning (the fit warns when it runs)."""
+    from lftomo.inverse.fitoptions import check_option_names
+
+    own = [k for k, p in inspect.signature(reconstruct).parameters.items() if p.kind is p.KEYWORD_ONLY]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_option_names({"rule": None, "max_steps": 3, "T0": 1500.0}, own)
+    with pytest.raises(lt.LftomoError, match=r"solvr=1: not an option of lftomo.reconstruct \(did you mean 'solver'\?\)"):
+        check_option_names({"solvr": 1}, own)
+    with pytest.raises(lt.LftomoError, match=r"zzz=1: not an option of f; its options are \['a'\]"):
+        check_option_names({"zzz": 1}, ["a"], "f", table={})
