@@ -171,6 +171,11 @@ class MicrolensGrid:
 
 # ---- estimation ----------------------------------------------------------------
 
+def _checked_dark(dark: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """A dark level (a number) or dark frame (``shape``) as a float array, checked."""
+    return require_array("dark", dark) if np.ndim(dark) == 0 else require_array("dark", dark, shape=shape)
+
+
 def _prepare_white(white: Any, dark: Any) -> np.ndarray:
     img = require_array("white", white, ndim=2)
     if min(img.shape) < 16:
@@ -180,8 +185,7 @@ def _prepare_white(white: Any, dark: Any) -> np.ndarray:
         raise LftomoError(f"white image values reach {peak:.3g}: not counts (its power spectrum would underflow or "
                           "overflow); give the raw counts")
     if dark is not None:
-        d = require_array("dark", dark) if np.ndim(dark) == 0 else require_array("dark", dark, shape=img.shape)
-        img = img - d
+        img = img - _checked_dark(dark, img.shape)
     else:  # no dark frame: the darkest pixels (gaps between lenslet images) as the floor
         img = img - np.percentile(img, 0.5)
     if not np.any(img > 0) or float(np.ptp(img)) == 0.0:
@@ -788,9 +792,7 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
         _check_saturation(sat, lit, src, max_count)
     n_dark = 0
     if dark is not None:
-        dk = dark.counts if isinstance(dark, RawFrame) else dark
-        dk = require_array("dark", dk) if np.ndim(dk) == 0 else require_array("dark", dk, shape=bb.shape)
-        signal = bb - dk
+        signal = bb - _checked_dark(dark.counts if isinstance(dark, RawFrame) else dark, bb.shape)
         n_dark = require_int("dark_frames", dark_frames, minimum=1, maximum=10**9)
     else:
         signal = bb
