@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LftomoError
+from .._validate import require_array
 from ..forward.grid import Grid
 from .measurement import Measurement
 from .parameterize import Parameterization, SubVoxel, require_selection
@@ -341,16 +342,18 @@ def check_start_fields(problem: Problem, T0: Any, sigma_a0: Any, bounds: tuple[f
             continue
         what = "a temperature (K)" if is_T else "an absorption coefficient (1/m)"
         extra = "'uniform', " if is_T and not joint else ""
-        try:  # (text refused: numpy would read "1500" as a number)
-            arr = None if isinstance(value, (str, bytes)) else np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            arr = None
+        numeric = not isinstance(value, (str, bytes))  # (text refused: numpy would read "1500" as a number)
+        if numeric:
+            try:
+                np.asarray(value, dtype=np.complex128)
+            except (TypeError, ValueError):
+                numeric = False
+        # require_array: text arrays, bools, complex and non-finite values refused by name
+        arr = require_array(name, value) if numeric else None
         if arr is None or (arr.ndim > 0 and arr.shape not in shapes):
             got = f"shape {arr.shape}" if arr is not None else repr(value) if isinstance(value, str) else (
                 type(value).__name__)
             raise LftomoError(f"{name} must be {extra}{what} or a field of shape {allowed}, got {got}")
-        if not np.all(np.isfinite(arr)):
-            raise LftomoError(f"{name} must be finite, got {int(np.sum(~np.isfinite(arr)))} NaN or inf value(s)")
         low, high = (float(bounds[0]), float(bounds[1])) if is_T else (0.0, np.inf)
         if arr.min() < low or arr.max() > high:
             allowed_range = f"within bounds {tuple(bounds)} K" if is_T else "non-negative"

@@ -61,7 +61,9 @@ def test_reconstruct_refuses_bad_input(setup):
                                                     r"shape \(5, 5, 5\) or \(125,\) on the reconstruction grid, "
                                                     r"got shape \(4, 4, 4\)"),
                        ("hot", "start must be 'uniform'.*got 'hot'"),
-                       (np.full(grid.shape, np.nan), "start must be finite, got 125 NaN"),
+                       (np.full(grid.shape, np.nan), r"start must be finite, got 125 non-finite value\(s\)"),
+                       (np.full(grid.shape, 1500.0 + 1j), "start must be real, got complex values"),  # was cast
+                       (True, "start must be a number or an array of numbers, got True"),
                        (np.full(grid.shape, 200.0), r"start must be within bounds \(300.0, 3000.0\) K")):
         with pytest.raises(lt.LftomoError, match=msg):
             reconstruct(m, W, start=start, **fast)
