@@ -275,13 +275,13 @@ def _check_arguments(grid, flame, noise, wavelength, rays_per_pixel, data_rays, 
     if not (regularization == "auto" or (isinstance(regularization, (int, float)) and regularization > 0)):
         raise LftomoError(f"regularization must be 'auto' or a float > 0, got {regularization!r}")
     require_positive("hot", hot)
-    if any(k % n for k, n in zip(flame.grid.shape, grid.shape)):
-        raise LftomoError(f"grid {tuple(grid.shape)} must divide the flame's grid {tuple(flame.grid.shape)} on every "
-                          "axis (the expected flame is averaged onto it)")
     if grid.n_voxels > dense_max:
         raise LftomoError(
             f"grid has {grid.n_voxels} voxels {tuple(grid.shape)}; design forms dense {grid.n_voxels}² matrices "
             f"and handles at most dense_max={dense_max} (16³): use a coarser reconstruction grid")
+    if any(k % n for k, n in zip(flame.grid.shape, grid.shape)):
+        raise LftomoError(f"grid {tuple(grid.shape)} must divide the flame's grid {tuple(flame.grid.shape)} on every "
+                          "axis (the expected flame is averaged onto it)")
     if bias not in ("nonlinear", "linear"):
         raise LftomoError(f"bias must be 'nonlinear' or 'linear', got {bias!r}")
     if sampler not in SAMPLERS:
