@@ -56,7 +56,8 @@ class EnsembleChain:
     Parameters
     ----------
     n_walkers : int, optional
-        Walkers, >= 2 K for K coefficients; default ``2 · max(K + 1, 8)``.
+        Walkers, >= max(4, 2 K) for K coefficients (the differential-evolution move draws two walkers
+        from the other half of the ensemble); default ``2 · max(K + 1, 8)``.
     n_steps : int
         Steps per walker including burn-in, >= 2.
     burn : int, optional
@@ -98,7 +99,7 @@ class EnsembleChain:
 
     def __post_init__(self) -> None:
         if self.n_walkers is not None:
-            require_int("n_walkers", self.n_walkers, minimum=2)
+            require_int("n_walkers", self.n_walkers, minimum=4)
         n_steps = require_int("n_steps", self.n_steps, minimum=2)
         if self.burn is not None and require_int("burn", self.burn, minimum=0) >= n_steps:
             raise LftomoError(f"burn must be < n_steps = {n_steps}, got {self.burn}")

@@ -1272,8 +1272,9 @@ def _check_sampling_options(logpost: Any, basis: Any, *, chain: EnsembleChain, c
     (the chain's own ranges are checked when it is made)."""
     K = basis.n_params
     n_walkers = 2 * max(K + 1, 8) if chain.n_walkers is None else int(chain.n_walkers)
-    if n_walkers < 2 * K:
-        raise LftomoError(f"n_walkers must be >= 2 K = {2 * K} for K = {K} coefficients, got {n_walkers}")
+    if n_walkers < max(4, 2 * K):
+        raise LftomoError(f"n_walkers must be >= max(4, 2 K) = {max(4, 2 * K)} for K = {K} coefficients, got "
+                          f"{n_walkers}")
     # emcee allocates the whole chain and its log-posterior up front; the results copy them
     check_allocation(f"a chain of n_steps = {chain.n_steps} x n_walkers = {n_walkers} x {K} coefficients",
                      2.0 * chain.n_steps * n_walkers * (K + 1) * 8, hint="use fewer n_steps or n_walkers")
@@ -1299,7 +1300,9 @@ def _chain_summary(sampler: Any, logpost: Any, target: Any, likelihood: str, *, 
     tau = np.asarray(sampler.get_autocorr_time(discard=burn, quiet=True, tol=0), dtype=np.float64)
     kept = n_steps - burn
     tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.inf
-    converged = bool(np.all(np.isfinite(tau)) and kept >= 50.0 * tau_max)
+    if not tau_max > 0.0:  # an estimate of 0: too few steps kept to measure any correlation
+        tau_max = np.inf
+    converged = bool(np.all(np.isfinite(tau) & (tau > 0.0)) and kept >= 50.0 * tau_max)
     if not converged:
         _not_converged(
             f"the chain after burn-in ({kept} steps) is shorter than 50 integrated autocorrelation times "

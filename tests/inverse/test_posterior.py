@@ -334,7 +334,7 @@ def test_bad_input_raises_value_error(planck_case):
         DCTBasis(g, (5, 1, 1))
     with pytest.raises(ValueError, match="40"):
         LinearBasis(_flame_grid(), np.random.default_rng(0).random((_flame_grid().n_voxels, 41)))
-    with pytest.raises(ValueError, match="n_walkers must be >= 2 K = 16.*got 10"):
+    with pytest.raises(ValueError, match=r"n_walkers must be >= max\(4, 2 K\) = 16.*got 10"):
         sample_posterior(prob, basis=basis, chain=EnsembleChain(n_walkers=10, n_steps=10), seed=0, progress=False)
     with pytest.raises(ValueError, match="T_min < T_max"):
         build_log_posterior(prob, basis=basis, bounds=(3000.0, 300.0))
