@@ -30,7 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import require_array, require_int, require_nonnegative, require_positive, require_views
+from .._validate import (require_array, require_int, require_nonnegative, require_positive, require_views,
+                         require_wavelength)
 from ..forward.camera import Camera
 from ..lightfield import check_refocus_depth
 from .problem import camera_differences
@@ -160,7 +161,7 @@ class SensorModel:
             already band-integrated powers (W, the gray band); the photon
             energy is then taken at the effective ``wavelength``.
         wavelength : float
-            Centre (or effective) wavelength, m, in (0, 1e-3).
+            Centre (or effective) wavelength, m, in (0, 1e-3].
         **kwargs
             The other :class:`SensorModel` parameters (``gain``,
             ``read_noise``, ``bit_depth``, ``full_well``, ``dark_current``,
@@ -175,9 +176,7 @@ class SensorModel:
         if qe > 1.0:
             raise LftomoError(f"quantum_efficiency must be in (0, 1], got {qe!r}")
         bw = 1.0 if bandwidth is None else require_positive("bandwidth", bandwidth)
-        wl = require_positive("wavelength", wavelength)
-        if wl >= 1e-3:
-            raise LftomoError(f"wavelength must be in m (e.g. 650e-9), got {wl!r}; did you pass nanometres?")
+        wl = require_wavelength("wavelength", wavelength)
         if "responsivity" in kwargs:
             raise LftomoError("responsivity is computed by from_exposure; do not pass it")
         return cls(responsivity=bw * t * qe * wl / (_H * _C), **kwargs)

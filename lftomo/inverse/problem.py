@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import json_differences, require_array
+from .._validate import json_differences, require_array, require_wavelength
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,8 +89,12 @@ class LinearProblem:
         y = require_array("y", self.y, shape=(m,))
         s = require_array("sigma", self.sigma, shape=(m,), strictly_positive=True)
         bg = np.zeros(m) if self.background is None else require_array("background", self.background, shape=(m,))
-        if self.wavelength is not None and not (np.isfinite(self.wavelength) and 0 < self.wavelength < 1e-3):
-            raise LftomoError(f"wavelength must be in m (e.g. 650e-9) or None for gray, got {self.wavelength!r}")
+        if self.wavelength is not None:
+            require_wavelength("wavelength", self.wavelength)  # None: the gray band
+        if A.nnz == 0 or not np.any(A.data):
+            raise LftomoError(f"A ({m} data x {n} unknowns) has no non-zero entry: no datum depends on any voxel "
+                              "(e.g. weights built with sigma_a = 0, where nothing emits), so the data cannot "
+                              "determine the temperature")
         object.__setattr__(self, "A", A)
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "sigma", s)

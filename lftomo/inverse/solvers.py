@@ -1237,6 +1237,28 @@ def _check_T0(T0: Any, grid, bounds: tuple[float, float]) -> tuple[np.ndarray | 
     return T0_arr, T0_mode
 
 
+#: A given start whose model data fall below this fraction of the measured signal is refused: Planck's law
+#: varies as exp(−c₂/λT), so the fit's gradient vanishes with the signal and the solver cannot leave the start.
+START_SIGNAL_FLOOR = 1e-6
+
+
+def _check_start_emits(problem: LinearProblem, T0: np.ndarray) -> None:
+    """Refuse a given start temperature at which the model's data are negligible against the measured signal."""
+    from .. import radiation as rad
+
+    T = problem.model_temperature(T0)
+    Ib = rad.planck(T, problem.wavelength) if problem.wavelength is not None else rad.gray_intensity(T)
+    model = float(np.sum(np.abs(problem.A @ np.asarray(Ib).ravel())))
+    measured = float(np.sum(np.abs(problem.y - problem.background)))
+    if measured > 0.0 and model < START_SIGNAL_FLOOR * measured:
+        where = f" at {problem.wavelength * 1e9:.0f} nm" if problem.wavelength is not None else ""
+        raise LftomoError(
+            f"the start temperature (start= or T0=, {T.min():.6g}-{T.max():.6g} K) predicts {model / measured:.3g} of "
+            f"the measured signal{where}: emission there is too faint for the fit to move from it (Planck's law "
+            "falls as exp(-c2/(lambda T))); leave start out (a start from the data) or give a start near the "
+            "flame's temperature")
+
+
 def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule, *, T0_arr, T0_mode, bounds,
                 safety, search_steps, search_rtol, lr, n_lambda, gcv_probes, seed, method, prior, penalize,
                 t_start, estimate_scale=False, discrepancy_search="projected") -> TemperatureSolution:
@@ -1247,6 +1269,8 @@ def _solve_with(run: _Runner, s: _Setup, problem: LinearProblem, lam_fixed, rule
     # ---- initial guess
     if T0_arr is None:
         T0_arr = _initial_from_baseline(s)
+    elif T0_mode == "given":
+        _check_start_emits(problem, T0_arr)
     theta0 = _theta_of_T(T0_arr, bounds[0], bounds[1])
     T0_clipped = run.T_of(theta0)
     lam_ref = _balanced_lambda(s, T0_clipped)
