@@ -131,6 +131,9 @@ BYTES_PER_PIXEL = 64
 #: The farthest focus :meth:`Camera.focused` takes (m).  The best-focus plane of the seed lens moves by
 #: 5 nm between 1e4 and 1e5 m; beyond 1e6 m the traced fan degenerates (1e7 m gave a plane 13 mm off).
 MAX_FOCUS_DISTANCE = 1e5
+#: The nearest focus or refocus depth, in main-lens focal lengths beyond the stop (nearer, the image
+#: lies more than 51 focal lengths behind the lens).
+NEAREST_FOCUS_FACTOR = 1.02
 
 
 @dataclass(frozen=True)
@@ -518,6 +521,12 @@ class Camera:
                 f"focus_distance ({fd!r} m) is inside the main-lens focal length ({f:.6g} m): no real "
                 "image; it must be larger"
             )
+        nearest = NEAREST_FOCUS_FACTOR * f + main_lens.stop_to_vertex
+        if fd <= nearest:  # the light field could not be refocused at its own focus (lightfield.refocus_at)
+            raise LftomoError(f"focus_distance ({fd!r} m) is too close to the main-lens focal length ({f:.6g} m): "
+                              f"it must be > {nearest:.6g} m ({NEAREST_FOCUS_FACTOR} f beyond the stop); nearer, the image "
+                              "lies more than 51 focal lengths behind the lens and the light field could not be "
+                              "refocused at its own focus")
         if fd > MAX_FOCUS_DISTANCE:
             raise LftomoError(f"focus_distance must be <= {MAX_FOCUS_DISTANCE:g} m, got {fd!r}: farther, the "
                               "best-focus search's ray fan is too thin to trace in double precision, and the "

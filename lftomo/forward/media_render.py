@@ -39,7 +39,8 @@ from . import sampler as _smp
 from .chunks import ChunkSizer, interruptible
 from .dda import integrate_emission, ray_box, transmittance
 from .rng import rng_init, rng_uniform
-from .scattering import hg_phase_kernel, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance
+from .scattering import (hg_phase_kernel, majorant_grid, sample_free_path, sample_hg_direction, trace_radiance,
+                         warn_if_diffusive)
 from .surfaces import surfaces_hit
 
 MAX_BOUNCES = 1000
@@ -224,6 +225,8 @@ def medium_row_kernel(medium, wavelengths, camera):
             _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
                             x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["Ib"], mean, var)
     else:
+        warn_if_diffusive(p["sigma_s"], (nx, ny, nz), (hx, hy, hz), MAX_BOUNCES)
+
         def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
             _rows_scattering(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
                              x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["sigma_s"], p["g"], p["Ib"],

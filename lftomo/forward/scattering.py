@@ -59,6 +59,7 @@ expected path length of (nearly) conservative media.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -415,6 +416,42 @@ def _voxel_in_cell(x, lo, h, n, b, icell):
 # ---------------------------------------------------------------------------
 # Radiance estimator
 # ---------------------------------------------------------------------------
+
+
+def warn_if_diffusive(sigma_s, shape, spacing, max_bounces: int) -> float:
+    """Warn when a medium scatters so much that paths need far more events than ``max_bounces`` to leave it.
+
+    A random walk crosses a scattering optical thickness τ_s in about τ_s² events; beyond ``max_bounces``
+    the Russian roulette halves a path's survival at every event.  The estimator stays unbiased, but
+    nearly every path ends before it scores, so a finite render reads about 0 with a standard error of
+    about 0 where light does leave the medium.
+
+    Parameters
+    ----------
+    sigma_s : array_like, shape (n_ch, n_voxels) or (n_voxels,)
+        Scattering coefficient (m⁻¹), C order over ``shape``.
+    shape : tuple of 3 int
+        Grid shape (nx, ny, nz).
+    spacing : sequence of 3 float
+        Voxel size (m).
+    max_bounces : int
+        The cap (scattering events) of the roulette.
+
+    Returns
+    -------
+    float
+        The largest τ_s along a grid line of voxels (any axis, any channel).
+    """
+    ss = np.asarray(sigma_s, dtype=np.float64).reshape(-1, *tuple(int(n) for n in shape)).max(axis=0)
+    tau = max(float(ss.sum(axis=a).max()) * float(spacing[a]) for a in range(3)) if ss.size else 0.0
+    if tau * tau > max_bounces:
+        warnings.warn(f"the medium's scattering optical thickness reaches {tau:.3g} along a line of voxels: light "
+                      f"needs about {tau * tau:.3g} scattering events to cross it, beyond max_bounces = "
+                      f"{max_bounces}, where Russian roulette halves a path's survival at each event. The estimate "
+                      "stays unbiased, but almost every path ends before it scores, so pixels (and their "
+                      "std_error) can read 0 where light does pass; such a medium is diffusive (a diffusion "
+                      "approximation suits it)", stacklevel=3)
+    return tau
 
 
 @njit(cache=True)

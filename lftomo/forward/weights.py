@@ -117,7 +117,7 @@ from .sampler import DEFAULT_SAMPLER
 from .segmentrows import linearized_rows, row_pattern
 from .dda import max_segments, ray_box, traverse
 from .rng import rng_init, rng_uniform, rng_uniform_open
-from .scattering import RR_DEPTH, roulette_survival, sample_hg_direction
+from .scattering import RR_DEPTH, roulette_survival, sample_hg_direction, warn_if_diffusive
 from .surfaces import SURF_NCOL, surfaces_hit
 
 __all__ = [
@@ -1538,6 +1538,7 @@ def weights(
         estimator = "exact DDA per ray (same rays as render)"
     else:
         cap_max = n_vox  # paths may scatter anywhere
+        warn_if_diffusive(ss, tuple(grid.shape), tuple(grid.spacing), max_bounces)
 
         def call(pix, buf_off, oi, ov, oc, ob, var, pos):
             _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi,
