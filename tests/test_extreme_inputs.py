@@ -87,7 +87,7 @@ def test_a_fit_far_outside_its_noise_model_or_pressed_on_its_upper_bound_warns(b
     lf, W = blob["lf"], blob["W"]
     tiny = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=1e-12, seed=2))
     rec, messages = _fit_warnings(tiny, W)
-    assert rec.chi2 > 1e20 and any("with the given sigma: the noise model is about" in s for s in messages)
+    assert rec.chi2 > 1e20 and any("with the given sigma: the misfit is about" in s for s in messages)
     hot = blob["flame"].with_temperature(np.full(blob["grid"].shape, 5000.0))
     lf_hot = lt.render(lt.Scene(medium=hot), blob["cam"], rays_per_pixel=8, seed=0, progress=False)
     m_hot = lt.Measurement.from_lightfield(lt.with_monte_carlo_noise(

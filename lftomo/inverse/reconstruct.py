@@ -348,12 +348,7 @@ def reconstruct(
     regularization, method, rule, options = fit_keywords(
         fit, regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
-    try:
-        lo, hi = (float(b) for b in bounds)
-    except (TypeError, ValueError):
-        raise LftomoError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
-        raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+    lo, hi = _temperature_bounds(bounds)
     if fit == "T" and method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
         raise LftomoError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
                          f"unknowns='T', got {method!r}")
@@ -374,6 +369,17 @@ def reconstruct(
     return rec
 
 
+def _temperature_bounds(bounds: Any) -> tuple[float, float]:
+    """``(T_min, T_max)`` of :func:`reconstruct`'s ``bounds``, checked (K)."""
+    try:
+        lo, hi = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        raise LftomoError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
+        raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+    return lo, hi
+
+
 #: χ²/m (with the given σ) above which a fit warns that its noise model is far too small: σ off tenfold.
 CHI2_WARNING = 100.0
 
@@ -387,7 +393,7 @@ def _warn_on_fit(rec: Reconstruction, T_max: float) -> None:
         warnings.warn(f"{at_top} of {T.size} voxels sit at the upper bound T_max = {T_max:g} K: the data may call for "
                       "a hotter field than bounds allow; widen bounds=(T_min, T_max)", stacklevel=3)
     if np.isfinite(rec.chi2) and rec.chi2 > CHI2_WARNING:
-        warnings.warn(f"chi²/m = {rec.chi2:.3g} with the given sigma: the noise model is about "
-                      f"{np.sqrt(rec.chi2):.3g} times too small for these data (sigma too small, or the Monte Carlo "
-                      "error of the render and weights left out: lt.with_monte_carlo_noise), so the data's weights, "
-                      "and the result, are unreliable", stacklevel=3)
+        warnings.warn(f"chi²/m = {rec.chi2:.3g} with the given sigma: the misfit is about {np.sqrt(rec.chi2):.3g} "
+                      "times sigma (sigma too small, or the Monte Carlo error of the render and weights left out: "
+                      "lt.with_monte_carlo_noise). An estimated noise scale absorbs a common factor; a misfit that "
+                      "is not a multiple of sigma weights the data, and so the result, wrongly", stacklevel=3)
