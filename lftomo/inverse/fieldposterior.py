@@ -691,7 +691,7 @@ def _evidence_iterations(run: _PosteriorRun, T_start, *, lambda0, max_iter, lamb
             raise LftomoError(f"the evidence rule's fixed point broke down at lambda={lam:g} (gamma={gamma:g} "
                               f"well-determined parameters, |L T/T_s|^2={R2:g}, beta={beta:g}): the data determine "
                               "no smoothness to weigh, e.g. a start where no voxel emits or bounds that leave the "
-                              "field no room; give start='uniform' and wider bounds, or rule=lt.Fixed(λ)")
+                              "field no room; leave start out (the linear baseline), give wider bounds, or rule=lt.Fixed(λ)")
         step = math.log(gamma / (beta * R2) / lam)
         noise = lam * st.trace_se / gamma  # std of the step from the trace's sampling error
         if abs(step) <= max(lambda_rtol, 2.0 * noise):
