@@ -385,10 +385,10 @@ class LightField:
         """Refocused images at several depths (m), shape (n_depths, n_y, n_x) [channel axis after depth].
 
         The size of the stack is checked against the memory limit before any
-        image is made (:func:`lftomo._validate.check_allocation`).  Each depth
-        traces its own view shifts (about 0.1 s on the seed camera), so a long
-        stack shows a progress bar: ``progress`` None shows one when stderr is
-        a terminal.
+        image is made (:func:`lftomo._validate.check_allocation`), and every
+        depth is checked before the first is refocused.  Each depth traces its
+        own view shifts, so a long stack shows a progress bar: ``progress``
+        None shows one when stderr is a terminal.
         """
         try:
             d = np.asarray(depths, dtype=float)
