@@ -65,20 +65,6 @@ def csr_matvec(indptr, indices, data, x, out):
         out[i] = acc
 
 
-@njit(cache=True, parallel=True)
-def csr_weighted_norms(indptr, indices, data, w, X, out):
-    """``out[j] = Σ_i w_i (M X[j])_i²`` for the CSR arrays of ``M`` and rows ``X`` (W, n) (rows of X in parallel)."""
-    for j in prange(X.shape[0]):
-        x = X[j]
-        acc = 0.0
-        for i in range(indptr.shape[0] - 1):
-            v = 0.0
-            for k in range(indptr[i], indptr[i + 1]):
-                v += data[k] * x[indices[k]]
-            acc += w[i] * v * v
-        out[j] = acc
-
-
 #: Fixed row blocks of the kernels that scatter rows into per-column sums (:func:`rows_column_sq_norms`,
 #: :func:`lftomo.inverse.hostsegments.pair_rmatvec`): at least a workstation's threads, and the same for any
 #: thread count, so that the sums (and a fit's path) do not depend on it.
@@ -117,6 +103,51 @@ def rows_column_sq_norms(indptr, indices, a, b, rows, row_w2, out_a, out_b):
     sum_row_blocks(acc, out_a, out_b)
 
 
+@njit(cache=True, parallel=True)
+def csr_weighted_norms(indptr, indices, data, w, XT, out):
+    """``out[j] = Σ_i w_i (M XT[:, j])_i²`` for the CSR arrays of ``M`` and columns ``XT`` (n, W), W >= 2.
+
+    ``M`` is read once for all W columns.  The rows are cut into :data:`ROW_BLOCKS` fixed blocks (in
+    parallel) whose sums are added in block order, and each column's sums run in the same order for any W
+    (and in :func:`csr_weighted_norm` for one): the result does not depend on the thread count or on which
+    other columns are computed with it."""
+    m, nw = indptr.shape[0] - 1, XT.shape[1]
+    acc = np.zeros((ROW_BLOCKS, nw))
+    for blk in prange(ROW_BLOCKS):
+        v = np.empty(nw)
+        for i in range(m * blk // ROW_BLOCKS, m * (blk + 1) // ROW_BLOCKS):
+            v[:] = 0.0
+            for k in range(indptr[i], indptr[i + 1]):
+                a, r = data[k], indices[k]
+                for j in range(nw):
+                    v[j] += a * XT[r, j]
+            wi = w[i]
+            for j in range(nw):
+                acc[blk, j] += wi * v[j] * v[j]
+    for j in range(nw):
+        total = 0.0
+        for blk in range(ROW_BLOCKS):
+            total += acc[blk, j]
+        out[j] = total
+
+
+@njit(cache=True, parallel=True)
+def csr_weighted_norm(indptr, indices, data, w, x):
+    """``Σ_i w_i (M x)_i²`` for one field ``x`` (n,): the sums of :func:`csr_weighted_norms` in its order."""
+    m = indptr.shape[0] - 1
+    acc = np.zeros(ROW_BLOCKS)
+    for blk in prange(ROW_BLOCKS):
+        for i in range(m * blk // ROW_BLOCKS, m * (blk + 1) // ROW_BLOCKS):
+            v = 0.0
+            for k in range(indptr[i], indptr[i + 1]):
+                v += data[k] * x[indices[k]]
+            acc[blk] += w[i] * v * v
+    total = 0.0
+    for blk in range(ROW_BLOCKS):
+        total += acc[blk]
+    return total
+
+
 def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
     """``M x`` (float64) by :func:`csr_matvec` under the module's lock."""
     check_interrupt()  # Ctrl-C: ends the JAX computation that called back here (lftomo.interrupt)
@@ -127,11 +158,16 @@ def csr_product(M: sp.csr_matrix, x: Any) -> np.ndarray:
 
 
 def csr_weighted_sq_norms(M: sp.csr_matrix, w: np.ndarray, X: Any) -> np.ndarray:
-    """``Σ_i w_i (M x)_i²`` for every row ``x`` of ``X`` (W, n), by :func:`csr_weighted_norms` under the lock."""
-    X = np.ascontiguousarray(X, dtype=np.float64)
+    """``Σ_i w_i (M x)_i²`` for every row ``x`` of ``X`` (W, n), by :func:`csr_weighted_norms` (or
+    :func:`csr_weighted_norm` for one row) under the lock."""
+    X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+    w = np.ascontiguousarray(w, dtype=np.float64)
     out = np.empty(X.shape[0], dtype=np.float64)
     with SCIPY_LOCK:
-        csr_weighted_norms(M.indptr, M.indices, M.data, w, X, out)
+        if X.shape[0] == 1:
+            out[0] = csr_weighted_norm(M.indptr, M.indices, M.data, w, np.ascontiguousarray(X[0]))
+        else:
+            csr_weighted_norms(M.indptr, M.indices, M.data, w, np.ascontiguousarray(X.T), out)
     return out
 
 
