@@ -57,6 +57,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
+from ..forward.grid import Grid
 from .._validate import (
     check_allocation,
     require_array,
@@ -71,6 +72,7 @@ from ..interrupt import check_interrupt, stop_between_steps
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
 from .basis import MAX_COEFFS, TemperatureBasis
 from .ensemble import EnsembleChain, moved_sampling_options
+from .problem import LinearProblem
 from .hostsparse import csr_weighted_sq_norms
 
 __all__ = [
@@ -552,12 +554,15 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
         for attr in ("A", "y", "sigma", "grid"):
             if not hasattr(p, attr):
                 raise LftomoError(f"problem[{i}] must be a LinearProblem, got {type(p).__name__}")
+        quad = None
         if getattr(p, "interpolation", None) is not None:
-            probs[i] = p = p.uniform_emission()   # the statistics are linear in the voxels' I_b
+            quad = _quadrature_grid(p)
+            p = probs[i] = _emission_problem(p, quad, basis)   # the statistics are linear in the voxels' I_b
         if tuple(p.grid.shape) != tuple(basis.grid.shape) or p.A.shape[1] != basis.n_voxels:
+            also = "" if quad is None else f" or its quadrature grid's {tuple(quad.shape)}"
             raise LftomoError(
                 f"problem[{i}] grid shape {tuple(p.grid.shape)} (A with {p.A.shape[1]} columns) does not match "
-                f"the basis grid shape {tuple(basis.grid.shape)}"
+                f"the basis grid shape {tuple(basis.grid.shape)}; build the basis on the problem's grid{also}"
             )
         if not (np.allclose(p.grid.lower, basis.grid.lower, rtol=0.0, atol=1e-9 * np.max(p.grid.size))
                 and np.allclose(p.grid.upper, basis.grid.upper, rtol=0.0, atol=1e-9 * np.max(p.grid.size))):
@@ -566,6 +571,36 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
                 f"grid box {tuple(basis.grid.lower)}..{tuple(basis.grid.upper)} m; build the basis on the problem's grid"
             )
     return probs
+
+
+def _quadrature_grid(problem: Any) -> Any:
+    """The quadrature grid of a sub-voxel problem (``metadata["quadrature_grid"]``), or None where not recorded."""
+    q = problem.metadata.get("quadrature_grid") if isinstance(problem.metadata, dict) else None
+    try:
+        g = None if q is None else Grid.from_dict(q)
+    except (LftomoError, TypeError, ValueError):
+        return None
+    return g if g is not None and g.n_voxels == problem.A.shape[1] else None
+
+
+def _emission_problem(problem: Any, quad: Any, basis: TemperatureBasis) -> Any:
+    """A sub-voxel problem as the statistics need it: linear in the I_b of the basis' voxels.
+
+    A basis on the problem's quadrature grid describes the quadrature voxels themselves: the problem's own
+    ``A``, without the interpolation (the basis' form is evaluated where ``A``'s columns emit).  Otherwise the
+    basis is on the reconstruction grid and each of its voxels emits uniformly
+    (:meth:`~lftomo.inverse.problem.LinearProblem.uniform_emission`), which averages ``A``'s variation inside
+    a voxel away: a form narrower than a few voxels is then biased (docs/accuracy.md, *The six-parameter
+    posterior's z-scores*).
+    """
+    g = basis.grid
+    if quad is not None and tuple(quad.shape) == tuple(g.shape) and np.allclose(
+            quad.lower, g.lower, rtol=0.0, atol=1e-9 * np.max(g.size)) and np.allclose(
+            quad.upper, g.upper, rtol=0.0, atol=1e-9 * np.max(g.size)):
+        return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=quad,
+                             wavelength=problem.wavelength, background=problem.background,
+                             metadata=problem.metadata)
+    return problem.uniform_emission()
 
 
 def _check_bounds(bounds: Any, channels: list) -> tuple[float, float]:
@@ -618,7 +653,10 @@ def build_log_posterior(
     Parameters
     ----------
     problem : LinearProblem, T-only Problem, or sequence of them
-        One problem per wavelength channel, all on the basis grid.
+        One problem per wavelength channel, all on the basis grid.  A problem with sub-voxel emission
+        (weights on a finer quadrature grid) takes a basis on either grid: on its quadrature grid the
+        basis' form is evaluated where the weights' columns emit; on its reconstruction grid each voxel
+        emits uniformly (the weights summed over its quadrature voxels).
     basis : TemperatureBasis
         Reduced parameterisation, K <= 40.
     prior_mean : array_like, shape (K,), optional

@@ -303,3 +303,27 @@ def test_least_chi2_is_the_unbounded_least_squares_misfit():
                          upper=(1, 1, 1)), wavelength=None, interpolation=sp.csr_matrix(np.ones((8, 1))))
     with pytest.raises(ValueError, match="surrogate"):
         q.least_chi2()
+
+
+def test_a_basis_on_the_quadrature_grid_is_evaluated_where_the_weights_emit(subvoxel_blob):
+    """A basis built on a sub-voxel problem's quadrature grid takes the quadrature grid's own A (no uniform
+    emission per reconstruction voxel): its log-likelihood is -½ χ² computed here from that A with the basis'
+    field at the quadrature voxels.  A basis on a third grid is refused, naming both grids it could be on."""
+    cam, grid, quad, flame, m, W_q = subvoxel_blob
+    problem, _ = problem_on_grid(m, W_q, grid)
+    basis = lt.ParametricFlame(quad)
+    lp = lt.build_log_posterior(problem, basis=basis, bounds=None)
+    c0 = basis.initial_guess()
+    for k, factor in enumerate((1.0, 0.8, 1.2)):
+        c = c0.copy()
+        c[0] = 300.0 + factor * (c0[0] - 300.0)
+        c[4] = c0[4] * (1.0 + 0.1 * k)
+        x = lt.gray_intensity(basis.T(c))
+        chi2 = np.sum(((problem.A @ x + problem.background - problem.y) / problem.sigma) ** 2)
+        assert lp(c) == pytest.approx(-0.5 * chi2, rel=1e-9)
+    # the same form on the reconstruction grid: uniform emission per voxel, a different likelihood
+    coarse = lt.build_log_posterior(problem, basis=lt.ParametricFlame(grid), bounds=None)
+    assert abs(coarse(c0) - lp(c0)) > 1e-6 * abs(lp(c0))
+    third = lt.Grid(shape=(7, 7, 7), lower=grid.lower, upper=grid.upper)
+    with pytest.raises(lt.LftomoError, match=r"\(5, 5, 5\).*\(10, 10, 10\)"):
+        lt.build_log_posterior(problem, basis=lt.ParametricFlame(third), bounds=None)
