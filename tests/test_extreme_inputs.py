@@ -83,7 +83,7 @@ def test_an_empty_weight_matrix_is_refused(blob):
 
 def test_a_fit_far_outside_its_noise_model_or_pressed_on_its_upper_bound_warns(blob):
     """σ of 1e-12 relative (the Monte Carlo error left out) gave χ²/m 6e23, and data from a 5000 K field a
-    uniform 3000 K field, both converged=True with no warning."""
+    uniform 3000 K field, both converged=True with no warning (from lt.reconstruct and lt.solve_temperature)."""
     lf, W = blob["lf"], blob["W"]
     tiny = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=1e-12, seed=2))
     rec, messages = _fit_warnings(tiny, W)
@@ -96,6 +96,13 @@ def test_a_fit_far_outside_its_noise_model_or_pressed_on_its_upper_bound_warns(b
     assert any("27 of 27 voxels sit at the upper bound T_max = 3000 K" in s for s in messages)
     rec, messages = _fit_warnings(blob["m"], W)  # a sound fit: neither
     assert not messages and rec.chi2 < 10.0
+    # the lower-level front end warns alike (it had returned both results in silence)
+    for m, what in ((tiny, "with the given sigma: the misfit is about"), (m_hot, "27 of 27 voxels sit at the upper")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            lt.solve_temperature(lt.Problem.from_data(m, W))
+        assert any(what in str(w.message) for w in caught)
+        assert all(w.filename == __file__ for w in caught if what in str(w.message))   # points at the caller
 
 
 def test_wavelengths_up_to_a_millimetre_are_accepted_everywhere(blob):

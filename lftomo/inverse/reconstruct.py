@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import warnings
 from typing import Any
 
 import numpy as np
@@ -365,7 +364,9 @@ def reconstruct(
         rec = _reconstruct_temperature(problem, regularization=regularization, prior=prior, bounds=bounds,
                                        method=method, rule=rule, options=options,
                                        t_assemble=time.perf_counter() - t0)
-    _warn_on_fit(rec, hi)
+    from .solvers import warn_on_fit
+
+    warn_on_fit(rec.T, rec.chi2, hi)
     return rec
 
 
@@ -380,20 +381,3 @@ def _temperature_bounds(bounds: Any) -> tuple[float, float]:
     return lo, hi
 
 
-#: χ²/m (with the given σ) above which a fit warns that its noise model is far too small: σ off tenfold.
-CHI2_WARNING = 100.0
-
-
-def _warn_on_fit(rec: Reconstruction, T_max: float) -> None:
-    """Warn where a finished fit is pressed against the upper temperature bound, or misfits its data by far more
-    than the given noise (both had passed in silence, with ``converged=True``)."""
-    T = np.asarray(rec.T, dtype=np.float64)
-    at_top = int(np.count_nonzero(T >= T_max * (1.0 - 1e-6)))
-    if at_top:
-        warnings.warn(f"{at_top} of {T.size} voxels sit at the upper bound T_max = {T_max:g} K: the data may call for "
-                      "a hotter field than bounds allow; widen bounds=(T_min, T_max)", stacklevel=3)
-    if np.isfinite(rec.chi2) and rec.chi2 > CHI2_WARNING:
-        warnings.warn(f"chi²/m = {rec.chi2:.3g} with the given sigma: the misfit is about {np.sqrt(rec.chi2):.3g} "
-                      "times sigma (sigma too small, or the Monte Carlo error of the render and weights left out: "
-                      "lt.with_monte_carlo_noise). An estimated noise scale absorbs a common factor; a misfit that "
-                      "is not a multiple of sigma weights the data, and so the result, wrongly", stacklevel=3)

@@ -155,6 +155,7 @@ import dataclasses
 import functools
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -951,10 +952,33 @@ def solve_temperature(
                           **temperature_defaults(regularization=regularization, prior=prior, rule=rule, options=options,
                                                  reduced=isinstance(getattr(problem, "grid", None), Parameterization),
                                                  cameras=cameras))
-    if par is None:
-        return sol
-    T = par.expand(sol.T)
-    return dataclasses.replace(sol, T=T, I_b=blackbody(T, problem.wavelength))
+    if par is not None:
+        T = par.expand(sol.T)
+        sol = dataclasses.replace(sol, T=T, I_b=blackbody(T, problem.wavelength))
+    warn_on_fit(sol.T, sol.chi2, float(bounds[1]))
+    return sol
+
+
+#: χ²/m (with the given σ) above which a fit warns that its noise model is far too small: σ off tenfold.
+CHI2_WARNING = 100.0
+
+
+def warn_on_fit(T: Any, chi2: float, T_max: float) -> None:
+    """Warn where a finished fit is pressed against the upper temperature bound ``T_max`` (K), or misfits its
+    data by far more than the given noise (χ²/m above :data:`CHI2_WARNING`): both pass with ``converged=True``.
+
+    Called by :func:`solve_temperature` and :func:`lftomo.reconstruct` on their result (the warnings point at
+    the caller of those)."""
+    T = np.asarray(T, dtype=np.float64)
+    at_top = int(np.count_nonzero(T >= T_max * (1.0 - 1e-6)))
+    if at_top:
+        warnings.warn(f"{at_top} of {T.size} voxels sit at the upper bound T_max = {T_max:g} K: the data may call for "
+                      "a hotter field than bounds allow; widen bounds=(T_min, T_max)", stacklevel=3)
+    if np.isfinite(chi2) and chi2 > CHI2_WARNING:
+        warnings.warn(f"chi²/m = {chi2:.3g} with the given sigma: the misfit is about {np.sqrt(chi2):.3g} "
+                      "times sigma (sigma too small, or the Monte Carlo error of the render and weights left out: "
+                      "lt.with_monte_carlo_noise). An estimated noise scale absorbs a common factor; a misfit that "
+                      "is not a multiple of sigma weights the data, and so the result, wrongly", stacklevel=3)
 
 
 def _fitted(problem: Any, T0: Any) -> tuple[Any, Parameterization | None, Any]:
