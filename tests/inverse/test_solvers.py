@@ -536,7 +536,8 @@ def test_optimistix_agrees_with_scipy_baseline_on_linear_case(gray_noisy):
 
 def test_bounds_respected(gray_clean):
     problem, T = gray_clean
-    sol = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1e-6), bounds=(900.0, 1600.0))
+    with pytest.warns(UserWarning, match=r"of 512 voxels sit at the upper bound T_max = 1600 K"):
+        sol = solve_temperature(problem, prior="gradient", rule=lt.Fixed(1e-6), bounds=(900.0, 1600.0))
     assert sol.T.min() >= 900.0 and sol.T.max() <= 1600.0
     assert sol.T.max() > 1590.0  # the hot core (2000 K) pushes against the upper bound
     b = solve_linear_baseline(problem, regularization=1.0, bounds=(900.0, 1600.0))
