@@ -30,6 +30,7 @@ from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: 
     DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
     moved_options, temperature_defaults)
 from .unknowns import resolve_unknowns
+from .solvers import warn_on_fit
 
 
 def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds, method, rule, options,
@@ -364,8 +365,6 @@ def reconstruct(
         rec = _reconstruct_temperature(problem, regularization=regularization, prior=prior, bounds=bounds,
                                        method=method, rule=rule, options=options,
                                        t_assemble=time.perf_counter() - t0)
-    from .solvers import warn_on_fit
-
     warn_on_fit(rec.T, rec.chi2, hi)
     return rec
 
