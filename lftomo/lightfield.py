@@ -47,7 +47,7 @@ import scipy.sparse as sp
 from .errors import LftomoError
 from .version import __version__
 from ._validate import check_allocation, require_array, require_finite_scalar, require_int, resolve_wavelengths
-from .forward.camera import NEAREST_FOCUS_FACTOR, Camera, best_focus_z, view_displacements
+from .forward.camera import Camera, best_focus_z, nearest_focus_distance, view_displacements
 from .forward.sampler import SAMPLERS
 
 FORMAT = "lftomo-lightfield-1"
@@ -182,8 +182,8 @@ def _alpha(camera: Camera, depth: float) -> float:
 
 def _nearest_refocus_depth(camera: Camera) -> float:
     """The nearest depth (m from the stop) refocusing accepts: 2 % beyond the main lens's front focal length
-    (:data:`lftomo.forward.camera.NEAREST_FOCUS_FACTOR`, which also bounds a camera's focus)."""
-    return camera.main_lens.focal_length * NEAREST_FOCUS_FACTOR + camera.main_lens.stop_to_vertex
+    (:func:`lftomo.forward.camera.nearest_focus_distance`, which also bounds a camera's focus)."""
+    return nearest_focus_distance(camera.main_lens)
 
 
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:

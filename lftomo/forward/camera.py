@@ -136,6 +136,12 @@ MAX_FOCUS_DISTANCE = 1e5
 NEAREST_FOCUS_FACTOR = 1.02
 
 
+def nearest_focus_distance(main_lens: Any) -> float:
+    """The nearest distance (m from the stop) a camera focuses at, or its light field refocuses to:
+    :data:`NEAREST_FOCUS_FACTOR` main-lens focal lengths beyond the stop."""
+    return NEAREST_FOCUS_FACTOR * main_lens.focal_length + main_lens.stop_to_vertex
+
+
 @dataclass(frozen=True)
 class MainLens:
     """Thick spherical main lens with an aperture stop in front of it.
@@ -521,7 +527,7 @@ class Camera:
                 f"focus_distance ({fd!r} m) is inside the main-lens focal length ({f:.6g} m): no real "
                 "image; it must be larger"
             )
-        nearest = NEAREST_FOCUS_FACTOR * f + main_lens.stop_to_vertex
+        nearest = nearest_focus_distance(main_lens)
         if fd <= nearest:  # the light field could not be refocused at its own focus (lightfield.refocus_at)
             raise LftomoError(f"focus_distance ({fd!r} m) is too close to the main-lens focal length ({f:.6g} m): "
                               f"it must be > {nearest:.6g} m ({NEAREST_FOCUS_FACTOR} f beyond the stop); nearer, the image "

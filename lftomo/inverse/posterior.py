@@ -564,13 +564,18 @@ def _prepare_problems(problem: Any, basis: TemperatureBasis) -> list[Any]:
                 f"problem[{i}] grid shape {tuple(p.grid.shape)} (A with {p.A.shape[1]} columns) does not match "
                 f"the basis grid shape {tuple(basis.grid.shape)}; build the basis on the problem's grid{also}"
             )
-        if not (np.allclose(p.grid.lower, basis.grid.lower, rtol=0.0, atol=1e-9 * np.max(p.grid.size))
-                and np.allclose(p.grid.upper, basis.grid.upper, rtol=0.0, atol=1e-9 * np.max(p.grid.size))):
+        if not _same_box(p.grid, basis.grid):
             raise LftomoError(
                 f"problem[{i}] grid box {tuple(p.grid.lower)}..{tuple(p.grid.upper)} m does not match the basis "
                 f"grid box {tuple(basis.grid.lower)}..{tuple(basis.grid.upper)} m; build the basis on the problem's grid"
             )
     return probs
+
+
+def _same_box(a: Grid, b: Grid) -> bool:
+    """Whether two grids span one box, to 1e-9 of the first's largest extent."""
+    tol = 1e-9 * np.max(a.size)
+    return bool(np.allclose(a.lower, b.lower, rtol=0.0, atol=tol) and np.allclose(a.upper, b.upper, rtol=0.0, atol=tol))
 
 
 def _quadrature_grid(problem: Any) -> Any:
@@ -593,10 +598,7 @@ def _emission_problem(problem: Any, quad: Any, basis: TemperatureBasis) -> Any:
     a voxel away: a form narrower than a few voxels is then biased (docs/accuracy.md, *The six-parameter
     posterior's z-scores*).
     """
-    g = basis.grid
-    if quad is not None and tuple(quad.shape) == tuple(g.shape) and np.allclose(
-            quad.lower, g.lower, rtol=0.0, atol=1e-9 * np.max(g.size)) and np.allclose(
-            quad.upper, g.upper, rtol=0.0, atol=1e-9 * np.max(g.size)):
+    if quad is not None and tuple(quad.shape) == tuple(basis.grid.shape) and _same_box(quad, basis.grid):
         return LinearProblem(A=problem.A, y=problem.y, sigma=problem.sigma, grid=quad,
                              wavelength=problem.wavelength, background=problem.background,
                              metadata=problem.metadata)

@@ -378,5 +378,3 @@ def _temperature_bounds(bounds: Any) -> tuple[float, float]:
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
     return lo, hi
-
-
