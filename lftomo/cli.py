@@ -681,8 +681,9 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--posterior", action="store_true",
                     help="also compute a posterior (see --posterior-basis)")
     rc.add_argument("--posterior-basis", choices=("flame", "dct", "field"), default=None,
-                    help="with --posterior: emcee on the 6-parameter flame (default) or 12 DCT modes, or 'field': "
-                         "the full-grid Laplace "
+                    help="with --posterior: emcee on the 6-parameter flame (default; with --quadrature > 1 "
+                         "evaluated on the weights' quadrature grid, the fields written on the reconstruction "
+                         "grid) or 12 DCT modes, or 'field': the full-grid Laplace "
                          "posterior with lambda by empirical Bayes (lftomo.laplace_posterior)")
     rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,

@@ -43,8 +43,8 @@ import numpy as np
 from ._validate import require_in_range
 from .errors import LftomoError
 from .forward.sampler import DEFAULT_SAMPLER
-from .inverse.reconstruct import (DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, problem_on_grid,
-                                  rule_from_names)
+from .inverse.fitproblem import problem_on_grid, weights_grid
+from .inverse.reconstruct import DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, rule_from_names
 
 #: Folder inside the report folder that keeps the long stages of an unfinished run.
 RESUME_DIR = ".lftomo-resume"
@@ -1373,24 +1373,40 @@ def _reconstruct_posterior(problem, rec, inp: _ReconstructInputs, *, basis_name,
             metrics["errors_T_gt_800K"] = post.errors(inp.T_true, hot=HOT)
         return post, metrics
     if basis_name == "flame":
-        basis = lt.ParametricFlame(inp.grid)
+        make_basis = lt.ParametricFlame
     elif basis_name == "dct":
-        basis = lt.DCTBasis(inp.grid, n_coeffs=(2, 3, 2))
+        def make_basis(g):
+            return lt.DCTBasis(g, n_coeffs=(2, 3, 2))
     else:
         raise LftomoError(f"--posterior-basis must be 'flame' or 'dct', got {basis_name!r}")
+    # With sub-voxel emission the flame form is evaluated where W's columns emit, on its quadrature grid: uniform
+    # emission per reconstruction voxel biases a narrow form; the summaries are then evaluated at the
+    # reconstruction grid's voxel centres.  The 12 smooth DCT modes gain nothing there (docs/accuracy.md,
+    # "lftomo reconstruct --posterior samples the form on the quadrature grid").
+    w_grid = weights_grid(inp.W)
+    quad = w_grid if basis_name == "flame" and tuple(w_grid.shape) != tuple(inp.grid.shape) else None
+    basis = make_basis(inp.grid if quad is None else quad)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         post = lt.sample_posterior(lt.build_log_posterior(problem, basis=basis, bounds=tuple(bounds)),
                                    chain=lt.EnsembleChain(n_steps=n_steps), seed=inp.posterior_seed,
                                    progress=progress)
+    if quad is not None:
+        post = post.on_basis(make_basis(inp.grid), seed=inp.posterior_seed)
     metrics = {
-        "basis": basis_name, "names": list(post.names), "mean": post.coeff_mean, "std": post.coeff_std,
+        "basis": basis_name, "basis_grid": list(basis.grid.shape),
+        "names": list(post.names), "mean": post.coeff_mean, "std": post.coeff_std,
         "acceptance_mean": float(np.mean(post.acceptance_fraction)), "tau": post.tau,
         "n_eff": post.n_eff, "converged": post.converged, "n_steps": post.n_steps, "n_walkers": post.n_walkers,
         "likelihood": post.likelihood, "likelihood_note": post.likelihood_note,
         "importance_ess": post.importance_ess,
         "warnings": [str(w.message) for w in caught if issubclass(w.category, UserWarning)],
     }
+    truth_grid = inp.metrics.get("truth_grid")
+    if truth_grid is not None and list(truth_grid["shape"]) == list(basis.grid.shape):
+        metrics["note"] = ("the basis grid is the scene's truth grid, where the form can match the truth voxel for "
+                           "voxel (an inverse crime): choose --recon-shape so that the quadrature grid differs from "
+                           "the [medium] shape for a posterior that carries the grid's model error")
     return post, metrics
 
 
@@ -1483,7 +1499,10 @@ def run_reconstruct(
     (:data:`lftomo.inverse.reconstruct.DEFAULT_PRIOR`, and with the discrepancy
     rule :data:`~lftomo.inverse.reconstruct.DEFAULT_NOISE_SCALE`).
     ``symmetry="axisymmetric"`` fits ring cells about the grid's vertical axis
-    (reconstruction and field posterior).  ``sampler`` (scene mode) is the
+    (reconstruction and field posterior).  With sub-voxel emission the
+    ``"flame"`` posterior basis is built on the weights' quadrature grid (the
+    form evaluated where W's columns emit) and its field summaries written on
+    the reconstruction grid (:meth:`~lftomo.inverse.posterior.Posterior.on_basis`).  ``sampler`` (scene mode) is the
     pixel sampler of the render and the weights (default the scene's
     ``[render] sampler``).  ``quadrature`` K > 1 turns on
     sub-voxel emission (:mod:`lftomo.inverse.subvoxel`): scene and raw mode build the

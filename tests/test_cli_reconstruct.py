@@ -142,7 +142,7 @@ def test_reconstruct_axisymmetric_with_field_posterior(tmp_path, capsys):
 
 def test_reconstruct_subvoxel_quadrature(tmp_path, capsys):
     """--quadrature 2: weights on the 8³ grid, T on 4³ interpolated to it; the field posterior follows; the
-    emcee basis posterior runs on uniform emission per 4³ voxel (the 8³ weights summed)."""
+    emcee basis posterior evaluates its form on the 8³ grid and reports the field on 4³."""
     scene = _scene(tmp_path)
     out = tmp_path / "rec"
     assert main(["reconstruct", str(scene), "-o", str(out), "--quadrature", "2", "--symmetry", "axisymmetric",
@@ -155,6 +155,16 @@ def test_reconstruct_subvoxel_quadrature(tmp_path, capsys):
                  "--posterior-steps", "40", *FAST]) == 0
     m2 = _check_outputs(out2, (4, 4, 4), truth=True, posterior=True)
     assert m2["posterior"]["basis"] == "flame" and len(m2["posterior"]["mean"]) == 6
+    # the form sampled where the weights emit (8³), its summaries written on the 4³ reconstruction grid
+    assert m2["posterior"]["basis_grid"] == [8, 8, 8]
+    f2 = np.load(out2 / "fields.npz")
+    assert f2["T_posterior_mean"].shape == f2["T_posterior_std"].shape == (4, 4, 4)
+    assert "inverse crime" in m2["posterior"]["note"]  # the 8³ quadrature grid is the scene's truth grid
+    out3 = tmp_path / "rec_flame_2"
+    assert main(["reconstruct", str(scene), "-o", str(out3), "--recon-shape", "2,2,2", "--posterior",
+                 "--posterior-steps", "40", *FAST]) == 0
+    m3 = json.loads((out3 / "metrics.json").read_text())
+    assert m3["posterior"]["basis_grid"] == [4, 4, 4] and "note" not in m3["posterior"]
 
 
 @pytest.fixture(scope="module")

@@ -50,7 +50,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -63,6 +63,7 @@ from .._validate import (
     require_array,
     require_finite_scalar,
     require_flag,
+    require_instance,
     require_int,
     require_nonnegative,
     require_positive,
@@ -1050,6 +1051,52 @@ class Posterior:
             return self.coeff_std / np.sqrt(max(self.n_eff, 1.0))
         n = self.n_walkers * (self.n_steps - self.burn)
         return self.coeff_std * np.sqrt(self.tau / n)
+
+    def on_basis(self, basis: TemperatureBasis, *, max_field_elements: float = 2e7,
+                 seed: int | None = 0) -> "Posterior":
+        """The same posterior with its temperature summaries evaluated by another basis.
+
+        The coefficients' samples, chain and statistics are kept; :attr:`T_mean`,
+        :attr:`T_std`, :attr:`T_lower` and :attr:`T_upper` are recomputed from
+        the samples with ``basis`` (and :attr:`basis` becomes it).  Use it to
+        report a posterior sampled with a basis on a sub-voxel problem's
+        quadrature grid on the reconstruction grid: the same form (same class
+        and fixed parameters) on the coarser grid of the same box, evaluated at
+        its voxel centres.  :attr:`laplace` keeps the sampling basis' grid.
+
+        Parameters
+        ----------
+        basis : TemperatureBasis
+            A basis with the same coefficient names, on a grid of the same box.
+        max_field_elements : float
+            At most this many temperatures (samples × voxels) for the quantiles.
+        seed : int or None
+            Seed of the quantiles' subsample.
+
+        Returns
+        -------
+        Posterior
+
+        Raises
+        ------
+        LftomoError
+            If ``basis`` is not a :class:`TemperatureBasis`, names other
+            coefficients or lies on another box.
+        """
+        require_instance("basis", basis, TemperatureBasis, "an lftomo TemperatureBasis")
+        if tuple(basis.names) != tuple(self.names):
+            raise LftomoError(f"basis must have the posterior's coefficients {tuple(self.names)}, "
+                              f"got {tuple(basis.names)}")
+        if not _same_box(self.basis.grid, basis.grid):
+            raise LftomoError(
+                f"basis grid box {tuple(basis.grid.lower)}..{tuple(basis.grid.upper)} m is not the posterior's "
+                f"{tuple(self.basis.grid.lower)}..{tuple(self.basis.grid.upper)} m")
+        require_positive("max_field_elements", max_field_elements)
+        T_mean, T_std, T_lo, T_hi, nq = _field_summaries(basis, self.samples, self.credible_level,
+                                                         np.random.default_rng(seed), max_field_elements,
+                                                         self.weights)
+        return replace(self, basis=basis, T_mean=T_mean, T_std=T_std, T_lower=T_lo, T_upper=T_hi,
+                       n_field_samples=nq)
 
     def T_samples(self, n: int | None = None, seed: int | None = 0) -> np.ndarray:
         """Temperature fields of ``n`` random samples (all when None), shape (n, nx, ny, nz).

@@ -327,3 +327,28 @@ def test_a_basis_on_the_quadrature_grid_is_evaluated_where_the_weights_emit(subv
     third = lt.Grid(shape=(7, 7, 7), lower=grid.lower, upper=grid.upper)
     with pytest.raises(lt.LftomoError, match=r"\(5, 5, 5\).*\(10, 10, 10\)"):
         lt.build_log_posterior(problem, basis=lt.ParametricFlame(third), bounds=None)
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # a short chain of a form the blob is not
+def test_a_quadrature_grid_posterior_is_reported_on_the_reconstruction_grid(subvoxel_blob):
+    """``Posterior.on_basis``: the chain sampled with the form on the quadrature grid, its temperature summaries
+    evaluated here from the samples with the same form at the reconstruction grid's voxel centres; the
+    coefficients' statistics unchanged.  Another basis' coefficients, or another box, are refused."""
+    cam, grid, quad, flame, m, W_q = subvoxel_blob
+    problem, _ = problem_on_grid(m, W_q, grid)
+    post = lt.sample_posterior(lt.build_log_posterior(problem, basis=lt.ParametricFlame(quad), bounds=None),
+                               chain=lt.EnsembleChain(n_steps=60, burn=20), seed=3, progress=False)
+    coarse = lt.ParametricFlame(grid)
+    on = post.on_basis(coarse)
+    assert on.basis is coarse and on.T_mean.shape == tuple(grid.shape) == on.T_std.shape == on.T_upper.shape
+    T = coarse.T(post.samples)                   # every sample's field at the 5³ voxel centres
+    np.testing.assert_allclose(on.T_mean.ravel(), T.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(on.T_std.ravel(), T.std(axis=0, ddof=1), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(on.T_lower.ravel(), np.quantile(T, 0.05, axis=0), rtol=1e-12)
+    np.testing.assert_array_equal(on.coeff_mean, post.coeff_mean)
+    assert post.T_mean.shape == tuple(quad.shape)  # the original is unchanged
+    with pytest.raises(lt.LftomoError, match="coefficients"):
+        post.on_basis(lt.DCTBasis(grid, n_coeffs=(2, 3, 1)))
+    moved = lt.Grid(shape=grid.shape, lower=np.add(grid.lower, 1e-3), upper=np.add(grid.upper, 1e-3))
+    with pytest.raises(lt.LftomoError, match="box"):
+        post.on_basis(lt.ParametricFlame(moved))
