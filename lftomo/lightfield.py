@@ -180,12 +180,6 @@ def _alpha(camera: Camera, depth: float) -> float:
     return (z_xp - _image_plane_z(camera, depth)) / (z_xp - z_h1)
 
 
-def _nearest_refocus_depth(camera: Camera) -> float:
-    """The nearest depth (m from the stop) refocusing accepts: 2 % beyond the main lens's front focal length
-    (:func:`lftomo.forward.camera.nearest_focus_distance`, which also bounds a camera's focus)."""
-    return nearest_focus_distance(camera.main_lens)
-
-
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
     """``depth`` (m from the stop) as float if the main lens images it behind itself.
 
@@ -196,7 +190,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
     from ._validate import require_positive
 
     d = require_positive(name, depth)
-    lo = _nearest_refocus_depth(camera)
+    lo = nearest_focus_distance(camera.main_lens)
     if d <= lo:
         raise LftomoError(f"{name} = {d!r} m is inside or too close to the main-lens focal length "
                           f"({camera.main_lens.focal_length:.4g} m): refocus depths must be > {lo:.4g} m "
@@ -207,7 +201,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
 def depth_of_alpha(camera: Camera, alpha: float) -> float:
     """Inverse of :func:`alpha_of_depth` (m)."""
     _require_camera(camera)
-    lo, hi = _nearest_refocus_depth(camera), 1e4 * camera.main_lens.focal_length
+    lo, hi = nearest_focus_distance(camera.main_lens), 1e4 * camera.main_lens.focal_length
     a = require_finite_scalar("alpha", alpha)
     g = lambda z: _alpha(camera, z) - a  # noqa: E731
     glo, ghi = g(lo), g(hi)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+import lftomo as lt
 from lftomo.demo import run_reconstruct
 
 SCENE = """
@@ -45,10 +46,12 @@ width_base = {width}
 
 
 def true_coefficients(truth_grid: dict, width_m: float) -> dict[str, float]:
-    """The scene flame's ParametricFlame coefficients (``axisymmetric_flame``'s defaults) on its box."""
-    lo, hi = np.asarray(truth_grid["lower"]), np.asarray(truth_grid["upper"])
-    return {"T_peak": 1900.0, "x_axis": float(lo[0] + hi[0]) / 2, "z_axis": float(lo[2] + hi[2]) / 2,
-            "height_peak": 0.35 * float(hi[1] - lo[1]), "width_base": width_m, "width_growth": 0.06}
+    """The scene flame's ParametricFlame coefficients: ``axisymmetric_flame``'s defaults on its box (which
+    :meth:`ParametricFlame.initial_guess` returns) with the scene's base width."""
+    flame = lt.ParametricFlame(lt.Grid.from_dict(truth_grid))
+    c = dict(zip(flame.names, (float(v) for v in flame.initial_guess())))
+    c["width_base"] = width_m
+    return c
 
 
 def one_run(out: Path, width_mm: float, seed: int, basis: str) -> dict:
