@@ -46,7 +46,8 @@ import scipy.sparse as sp
 
 from .errors import LftomoError
 from .version import __version__
-from ._validate import check_allocation, require_array, require_finite_scalar, require_int, resolve_wavelengths
+from ._validate import (check_allocation, require_array, require_finite_scalar, require_in_range, require_int,
+                        resolve_wavelengths)
 from .forward.camera import Camera, best_focus_z, nearest_focus_distance, view_displacements
 from .forward.sampler import SAMPLERS
 
@@ -102,13 +103,23 @@ def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float 
     white : ndarray, shape (rows, cols)
         Raw image of a uniform Lambertian plane filling the field.
     camera : Camera
+    min_fraction : float
+        Lenslets whose block sum is below this fraction of the median (over
+        lit blocks) are left out of the fit, in ``[0, 1]``.
 
     Returns
     -------
     ndarray, shape (n_y, n_x, 2)
         Fitted (row, col) centres in pixel coordinates.
+
+    Raises
+    ------
+    LftomoError
+        For a ``min_fraction`` outside ``[0, 1]``, a white image without signal,
+        or fewer than three lenslets (not in one line) left for the fit.
     """
     _require_camera(camera)
+    min_fraction = require_in_range("min_fraction", min_fraction, 0.0, 1.0, what="of the median block sum")
     if not camera.regular_grid:
         raise LftomoError("calibrate_centers refines a regular grid's lenslet blocks; this camera's microlens "
                           f"array is rotated, offset or {camera.lenslet_pitch_px:.4g} px in pitch: use "
@@ -128,6 +139,10 @@ def calibrate_centers(white: np.ndarray, camera: Camera, *, min_fraction: float 
     good = tot >= min_fraction * np.median(tot[tot > 0])
     ii, jj = np.indices((ny, nx))
     A = np.column_stack([np.ones(good.sum()), ii[good], jj[good]])
+    if np.linalg.matrix_rank(A) < 3:
+        raise LftomoError(f"only {int(good.sum())} lenslet(s) of {ny * nx} have at least min_fraction={min_fraction:g} "
+                          "of the median block sum, not enough (three, not in one line) to fit the centre lattice: "
+                          "use a white image that fills the field, or a smaller min_fraction")
     coef_r, *_ = np.linalg.lstsq(A, cr[good], rcond=None)
     coef_c, *_ = np.linalg.lstsq(A, cc[good], rcond=None)
     Afull = np.stack([np.ones(ii.size), ii.ravel(), jj.ravel()], axis=1)
@@ -215,6 +230,13 @@ def depth_of_alpha(camera: Camera, alpha: float) -> float:
 
 # ---- the light field --------------------------------------------------------
 
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    """A read-only copy of ``arr``."""
+    out = np.array(arr, dtype=np.float64, copy=True)
+    out.setflags(write=False)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class LightField:
     """Raw plenoptic image with its camera, decoded on demand.
@@ -266,13 +288,16 @@ class LightField:
             raise LftomoError(f"metadata must be a dict, got {type(self.metadata).__name__}")
         n_ch = 1 if wl is None else len(wl)
         shape = cam.sensor_shape if n_ch == 1 else (n_ch,) + cam.sensor_shape
-        raw = require_array("raw", self.raw, shape=shape)
-        object.__setattr__(self, "raw", raw)
+        require_in_range("min_etendue_fraction", self.min_etendue_fraction, 0.0, 1.0, high_open=True,
+                          what="of the largest pixel étendue")
+        object.__setattr__(self, "min_etendue_fraction", float(self.min_etendue_fraction))
+        # own read-only copies: the caller's arrays can no longer change a checked light field
+        object.__setattr__(self, "raw", _frozen(require_array("raw", self.raw, shape=shape)))
         for name in ("std_error", "noise_std", "signal"):
             v = getattr(self, name)
             if v is not None:
                 low = None if name == "signal" else 0.0
-                object.__setattr__(self, name, require_array(name, v, shape=shape, minimum=low))
+                object.__setattr__(self, name, _frozen(require_array(name, v, shape=shape, minimum=low)))
         if self.etendue is None:
             object.__setattr__(self, "etendue", cam.etendue_map)
         else:

@@ -99,7 +99,8 @@ def planck(T: Any, wavelength: Any) -> Any:
     T : float or array_like
         Temperature (K), finite and > 0.
     wavelength : float or array_like
-        Wavelength in vacuum (m), finite and > 0.  Broadcast against ``T``.
+        Wavelength in vacuum (m), in [1e-12, 1] m (650 for 650 nm is refused).  Broadcast
+        against ``T``.
 
     Returns
     -------
@@ -137,7 +138,7 @@ def planck_inverse(I: Any, wavelength: Any) -> Any:
     I : float or array_like
         Spectral radiance (W·m⁻²·sr⁻¹·m⁻¹), finite and >= 0.
     wavelength : float or array_like
-        Wavelength (m), finite and > 0.  Broadcast against ``I``.
+        Wavelength (m), in [1e-12, 1] m.  Broadcast against ``I``.
 
     Returns
     -------
@@ -171,7 +172,7 @@ def dplanck_dT(T: Any, wavelength: Any) -> Any:
     T : float or array_like
         Temperature (K), finite and > 0.
     wavelength : float or array_like
-        Wavelength (m), finite and > 0.
+        Wavelength (m), in [1e-12, 1] m.
 
     Returns
     -------
@@ -284,7 +285,7 @@ def planck_jax(T: Any, wavelength: Any) -> Any:
     T : array_like
         Temperature (K), > 0.
     wavelength : float or array_like
-        Wavelength in vacuum (m), > 0, broadcast against ``T``.
+        Wavelength in vacuum (m), in [1e-12, 1] m, broadcast against ``T``.
 
     Returns
     -------

@@ -1064,3 +1064,122 @@ def test_relative_noise_is_bounded(lf):
     """relative_std=1e300 (or --noise 1e300) reached a 'noise_std must be finite' that named neither."""
     with pytest.raises(LftomoError, match=r"relative_std must be <= 10.0 .* got 1e\+300"):
         lt.add_noise(lf, relative_std=1e300, seed=0)
+
+
+# accepted before, found by a review of the Python API (2026-12-04): silently wrong, or failing later
+# with a message naming something else
+OBJECT_CASES_2 = {
+    "lightfield-nan-cut": (lambda: _lightfield(min_etendue_fraction=float("nan")), "min_etendue_fraction must be finite"),
+    "lightfield-cut-above-1": (lambda: _lightfield(min_etendue_fraction=2.0), r"min_etendue_fraction must be in \[0, 1\)"),
+    "lightfield-cut-text": (lambda: _lightfield(min_etendue_fraction="0.1"), "min_etendue_fraction must be a real number"),
+    "thick-lens-zero-radius": (lambda: lt.thick_lens_focal_length(0.0, -0.2, 0.02, 1.5), "r1 must be a non-zero radius"),
+    "thick-lens-index-1": (lambda: lt.thick_lens_focal_length(0.2, -0.2, 0.02, 1.0), "index must be > 1"),
+    "aberration-depth-0": (lambda: lt.spherical_aberration(tiny_camera().main_lens, 0.0), "depth must be > 0"),
+    "aberration-inside-focus": (lambda: lt.spherical_aberration(tiny_camera().main_lens, 0.05), "has no real image"),
+    "aberration-camera": (lambda: lt.spherical_aberration(tiny_camera(), 1.0), "ml must be a MainLens"),
+    "flame-grid-int-shape": (lambda: lt.phantoms.default_flame_grid(4), "shape must be a sequence of 3 integers"),
+    "soot-rule-nanometres": (lambda: lt.SootRule(650e-9, 1.38).factor(650), "did you pass nanometres"),
+    "sensor-bandwidth-nanometres": (lambda: lt.SensorModel.from_exposure(1e-3, 0.6, 10, 650e-9),
+                                    "bandwidth must be in metres"),
+    "sensor-negative-seed": (lambda: lt.SensorModel(responsivity=1e12).expose(np.ones(3), -1), "rng must be an integer >= 0"),
+    "checkerboard-negative": (lambda: lt.checkerboard(4, low=-1.0), "low must be >= 0"),
+    "uniform-negative": (lambda: lt.uniform(-1.0), "value must be >= 0"),
+    "medium-twin-keys": (lambda: lt.Medium(tiny_grid(), sigma_a={650e-9: 1.0, 650e-9 * (1 + 1e-12): 2.0}, T=1500.0),
+                         "two wavelength keys"),
+    "flame-base-above-box": (lambda: lt.ParametricFlame(tiny_grid(), y_base=10.0), "y_base = 10.0 m must be below"),
+    "subvoxel-reversed": (lambda: lt.SubVoxel(tiny_grid().refined(2), tiny_grid()),
+                          "the grid grid .* must be at least as fine as the coarse grid"),
+    "rig-no-angles": (lambda: lt.rig_around(tiny_camera(), (0.0, 0.0, 1.0), ()), "angles_deg must list at least one"),
+    "calibrate-fraction": (lambda: lt.calibrate_centers(np.ones(tiny_camera().sensor_shape), tiny_camera(),
+                                                        min_fraction=2.0), r"min_fraction must be in \[0, 1\]"),
+}
+
+
+@pytest.mark.parametrize("case", list(OBJECT_CASES_2))
+def test_object_arguments_2(case):
+    make, match = OBJECT_CASES_2[case]
+    with pytest.raises(LftomoError, match=match):
+        make()
+
+
+def test_calibrate_centers_refuses_a_fit_without_lenslets():
+    """Every lenslet below the cut had given a least-squares fit of zero rows: all centres at (0, 0)."""
+    cam = tiny_camera()
+    white = np.zeros(cam.sensor_shape)
+    white[0, 0] = 1.0  # one lit lenslet: the rest are below any fraction of the median
+    with pytest.raises(LftomoError, match="not enough .* to fit the centre lattice"):
+        lt.calibrate_centers(white, cam)
+
+
+def test_light_field_owns_its_arrays():
+    cam = tiny_camera()
+    raw = np.ones(cam.sensor_shape)
+    lf = lt.LightField(raw=raw, camera=cam)
+    raw[:] = np.nan  # the caller's array changes after the checks
+    assert np.all(lf.raw == 1.0)
+    with pytest.raises(ValueError, match="read-only"):
+        lf.raw[0, 0] = 2.0
+
+
+def test_measurement_fields_are_checked(lf):
+    import dataclasses
+
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    cases = {
+        "operator": (dict(operator=m.operator * np.nan), "operator must be finite"),
+        "nanometres": (dict(wavelength=650.0), "did you pass nanometres"),
+        "tuple wavelength": (dict(wavelength=(650e-9,)), "wavelength must be a real number"),
+        "views text": (dict(views="all"), "views must be a list of"),
+        "depths on views": (dict(depths=(1.0,)), "depths is for data kind 'refocus'"),
+    }
+    for name, (change, match) in cases.items():
+        with pytest.raises(LftomoError, match=match):
+            dataclasses.replace(m, **change)
+    with pytest.raises(LftomoError, match="more than once"):
+        lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1), data="refocus", depths=[1.0, 1.0])
+
+
+def test_problem_and_fit_refuse_a_grid_or_matrix_they_cannot_check(lf, W, grid):
+    """``Measurement.problem`` took any grid of the right voxel count (columns silently reinterpreted);
+    ``reconstruct`` took a scipy matrix and failed reading its metadata; ``LinearProblem`` took NaN in A."""
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    flat = lt.Grid((1, 1, 27), grid.lower, grid.upper)
+    with pytest.raises(LftomoError, match="is not the grid the weight matrix was built on"):
+        m.problem(W, flat)
+    moved = lt.Grid(grid.shape, (0.0, 0.0, 5.0), (1.0, 1.0, 6.0))
+    with pytest.raises(LftomoError, match="is not the grid the weight matrix was built on"):
+        m.problem(W, moved)
+    with pytest.raises(LftomoError, match="got a scipy sparse matrix"):
+        lt.reconstruct(m, W.matrix)
+    lp = m.problem(W, grid)
+    A = lp.A.copy()
+    A.data[0] = np.nan
+    with pytest.raises(LftomoError, match="A must be finite"):
+        lt.LinearProblem(A=A, y=lp.y, sigma=lp.sigma, grid=grid, wavelength=None)
+    with pytest.raises(LftomoError, match="grid must be an lftomo Grid"):
+        lt.LinearProblem(A=lp.A, y=lp.y, sigma=lp.sigma, grid=(3, 3, 3), wavelength=None)
+    with pytest.raises(LftomoError, match=r"T must have the grid's shape \(3, 3, 3\) or \(27,\)"):
+        lp.chi2(np.full((9, 3), 1500.0))
+    assert np.isfinite(lp.chi2(np.full(27, 1500.0)))
+
+
+def test_monte_carlo_noise_arguments(lf):
+    noisy = lt.add_noise(lf, relative_std=0.01, seed=1)
+    with pytest.raises(LftomoError, match="noisy must be a light field with noise"):
+        lt.with_monte_carlo_noise(lf, noisy, rays_per_pixel=1, weights_rays_per_pixel=1)  # swapped
+    with pytest.raises(LftomoError, match="rendered with 1 rays per pixel"):
+        lt.with_monte_carlo_noise(noisy, lf, rays_per_pixel=64, weights_rays_per_pixel=1)
+
+
+@pytest.mark.filterwarnings("ignore:chi²/m")
+def test_error_summaries_refuse_a_non_finite_truth(lf, W):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    rec = lt.reconstruct(m, W, rule=lt.Fixed(1.0))
+    with pytest.raises(LftomoError, match="T_true must be finite"):
+        rec.errors(np.full(rec.T.shape, np.nan))
+
+
+@pytest.mark.parametrize("value", ["5", True, np.array(["5"])])
+def test_weights_refuse_text_and_bools_for_fields(cam, grid, value):
+    with pytest.raises(LftomoError, match="sigma_a must be"):
+        lt.weights(cam, grid, sigma_a=value, wavelength="gray", rays_per_pixel=1, seed=0, progress=False)

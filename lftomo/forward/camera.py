@@ -56,8 +56,21 @@ def thick_lens_focal_length(r1: float, r2: float, thickness: float, index: float
     """Effective focal length of a thick lens in air (lensmaker's equation).
 
     ``1/f = (n-1) [1/R1 - 1/R2 + (n-1) t / (n R1 R2)]`` (reference text eq. (1)).
-    Radii in m (``inf`` for a plane), thickness in m.
+    Radii in m (non-zero; ``inf`` for a plane), thickness in m (>= 0), index > 1.
+    Returns ``inf`` for a lens without power.
+
+    Raises
+    ------
+    LftomoError
+        For a zero or NaN radius, a negative or non-finite thickness, an index <= 1.
     """
+    for name, r in (("r1", r1), ("r2", r2)):
+        if not is_real(r) or not (math.isinf(r) or (math.isfinite(r) and r != 0.0)):
+            raise LftomoError(f"{name} must be a non-zero radius in m (inf for a plane), got {r!r}")
+    if require_finite_scalar("thickness", thickness) < 0.0:
+        raise LftomoError(f"thickness must be >= 0 (m), got {thickness!r}")
+    if require_finite_scalar("index", index) <= 1.0:
+        raise LftomoError(f"index must be > 1 (glass in air), got {index!r}")
     c1 = 0.0 if math.isinf(r1) else 1.0 / r1
     c2 = 0.0 if math.isinf(r2) else 1.0 / r2
     power = (index - 1.0) * (c1 - c2 + (index - 1.0) * thickness * c1 * c2 / index)
@@ -1376,7 +1389,20 @@ def spherical_aberration(ml: MainLens, depth: float) -> dict[str, float]:
     Returns ``{"paraxial": z_p, "marginal": z_m, "best": z_b,
     "longitudinal": z_p - z_m}`` from real-ray traces at a tiny pupil
     height, at the stop edge, and the RMS-optimal plane.
+
+    Parameters
+    ----------
+    ml : MainLens
+        The main lens (``camera.main_lens``).
+    depth : float
+        Object distance (m from the stop), beyond :func:`nearest_focus_distance`.
     """
+    require_instance("ml", ml, MainLens, "a MainLens (e.g. camera.main_lens)")
+    d = require_positive("depth", depth)
+    if d <= nearest_focus_distance(ml):
+        raise LftomoError(f"depth = {d!r} m has no real image: it must be > {nearest_focus_distance(ml):.4g} m "
+                          "from the aperture stop")
+    depth = d
     r = 0.5 * ml.stop_diameter
     rays = trace_axial_point(ml, depth, np.array([[1e-6 * r, 0.0], [r * (1 - 1e-9), 0.0]]))
     zp = _axis_crossing(rays[0])

@@ -59,7 +59,7 @@ class SootRule:
 
     def factor(self, wavelength: float) -> float:
         """Scale factor ``(λ_ref / λ)^alpha`` for ``wavelength`` (m)."""
-        lam = require_positive("wavelength", wavelength)
+        lam = require_wavelength("wavelength", wavelength)
         return float((self.reference_wavelength / lam) ** self.alpha)
 
     def to_dict(self) -> dict[str, float]:
@@ -146,6 +146,11 @@ class Medium:
                 )
             sa: Any = {}
             keys = {lam: require_wavelength("wavelength key of sigma_a", lam) for lam in self.sigma_a}
+            ordered = sorted(keys.values())
+            for a, b in zip(ordered, ordered[1:]):  # sigma_a_at matches a wavelength to a key within this tolerance
+                if b - a <= _WAVELENGTH_RTOL * b:
+                    raise LftomoError(f"sigma_a has two wavelength keys {a!r} and {b!r} m closer than a relative "
+                                      f"{_WAVELENGTH_RTOL:g}: one wavelength, two fields")
             for lam, val in sorted(self.sigma_a.items(), key=lambda kv: keys[kv[0]]):
                 lam_f = keys[lam]
                 arr = _field(f"sigma_a[{lam_f!r}]", val, grid)

@@ -61,7 +61,7 @@ def default_flame_grid(shape: tuple[int, int, int] = (32, 32, 32), focus_distanc
     f = require_positive("focus_distance", focus_distance)
     if f <= 0.025:
         raise LftomoError(f"focus_distance must be > 0.025 m so the box lies in object space z > 0, got {f!r}")
-    return Grid(tuple(shape), (-0.025, -0.030, f - 0.025), (0.025, 0.030, f + 0.025))
+    return Grid(shape, (-0.025, -0.030, f - 0.025), (0.025, 0.030, f + 0.025))  # Grid checks the shape
 
 
 def uniform_box(grid: Grid, *, T: float, sigma_a: float, sigma_s: float = 0.0, g: float = 0.0) -> Medium:

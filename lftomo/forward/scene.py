@@ -15,7 +15,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_array, require_finite_scalar, require_flag, require_int, require_positive, require_vector
+from .._validate import (require_array, require_flag, require_int, require_nonnegative,
+                         require_positive, require_vector)
 from .surfaces import SURF_NCOL
 
 
@@ -26,14 +27,14 @@ def checkerboard(n_squares: int | tuple[int, int] = 8, *, low: float = 0.0, high
         nr, nc = (require_int("n_squares", n, minimum=1) for n in n_squares)
     else:
         nr = nc = require_int("n_squares", n_squares, minimum=1)
-    high, low = require_finite_scalar("high", high), require_finite_scalar("low", low)
+    high, low = require_nonnegative("high", high), require_nonnegative("low", low)  # radiances
     ii, jj = np.indices((nr, nc))
     return np.where((ii + jj) % 2 == 0, high, low)
 
 
 def uniform(value: float = 1.0) -> np.ndarray:
-    """Uniform texture (a 1 x 1 array)."""
-    return np.full((1, 1), require_finite_scalar("value", value))
+    """Uniform texture (a 1 x 1 array) of radiance ``value`` (>= 0)."""
+    return np.full((1, 1), require_nonnegative("value", value))
 
 
 def _orthonormal_frame(normal: Sequence[float], up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

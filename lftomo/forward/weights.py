@@ -109,7 +109,8 @@ from numba import njit, prange
 
 from ..errors import LftomoError
 from .._validate import memory_limit as memory_limit_bytes
-from .._validate import json_differences, require_int, require_positive, require_rays, require_seed, require_views
+from .._validate import (json_differences, require_array, require_int, require_positive, require_rays, require_seed,
+                        require_views)
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
@@ -585,11 +586,11 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
     n = grid.n_voxels
     if value is None:
         raise LftomoError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), got None")
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise LftomoError(f"{name} must be a number or an array of shape {grid.shape} or ({n},), "
-                         f"got {type(value).__name__}") from None
+    if isinstance(value, (str, bytes, bool, np.bool_)) or (isinstance(value, np.ndarray) and value.dtype.kind in "bSU"):
+        got = f"a {value.dtype} array" if isinstance(value, np.ndarray) else repr(value)
+        raise LftomoError(f"{name} must be a number or an array of numbers of shape {grid.shape} or ({n},), "
+                          f"got {got}")
+    arr = require_array(name, value)  # text inside lists refused; complex refused
     if arr.ndim == 0:
         arr = np.full(n, float(arr))
     elif arr.shape == tuple(grid.shape) or arr.shape == (n,):
@@ -691,6 +692,9 @@ def _select_rows(camera, views, lightfield):
         for vu in pairs:
             sel[vu] = vmask[vu]
         desc = [list(vu) for vu in sorted(set(pairs))]
+    if not sel.any():
+        raise LftomoError(f"views selects no lit view pixel ({desc if isinstance(desc, str) else views!r}): a weight "
+                          "matrix without rows; select lit views (LightField.lit_views) or pixels")
     flat = np.flatnonzero(sel.ravel())
     pixel_index = vidx.ravel()[flat].astype(np.int64)
     per_view = sel.reshape(nv * nu, -1).sum(axis=1)

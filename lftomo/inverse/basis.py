@@ -374,7 +374,7 @@ class ParametricFlame(TemperatureBasis):
     T_ambient : float
         Fixed surrounding temperature (K), > 0; default 300.
     y_base : float, optional
-        Fixed height of the flame base (m); default ``grid.lower[1]``.
+        Fixed height of the flame base (m), below ``grid.upper[1]``; default ``grid.lower[1]``.
     axial_order : float
         Fixed exponent ``m`` > 0; default 2.
     T_peak_max : float
@@ -395,6 +395,9 @@ class ParametricFlame(TemperatureBasis):
         self.grid = require_instance("grid", grid, Grid, "an lftomo.Grid")
         self.T_ambient = require_positive("T_ambient", T_ambient)
         self.y_base = float(grid.lower[1]) if y_base is None else require_finite_scalar("y_base", y_base)
+        if self.y_base >= float(grid.upper[1]):  # a base below the box is a flame cropped by the field of view
+            raise LftomoError(f"y_base = {self.y_base!r} m must be below the grid's top, y < {float(grid.upper[1])!r} m "
+                              "(the flame's base; it may lie below the box)")
         self.axial_order = require_positive("axial_order", axial_order)
         self.T_peak_max = require_positive("T_peak_max", T_peak_max)
         if self.T_peak_max <= self.T_ambient:

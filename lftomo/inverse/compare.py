@@ -138,10 +138,8 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     -------
     ndarray, shape of ``lf.raw`` (signal units)
     """
-    if lf.std_error is None:
-        raise LftomoError("lf has no std_error (not a Monte Carlo render)")
-    if weights_rays_per_pixel < 1 or rays_per_pixel < 1:
-        raise LftomoError(f"rays per pixel must be >= 1, got {rays_per_pixel!r} and {weights_rays_per_pixel!r}")
+    _require_render(lf, "lf", rays_per_pixel)
+    require_int("weights_rays_per_pixel", weights_rays_per_pixel, minimum=1)
     if floor not in MC_FLOORS:
         raise LftomoError(f"floor must be one of {MC_FLOORS}, got {floor!r}")
     se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
@@ -159,6 +157,21 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
                     out[c] *= np.sqrt(float(np.sum(se[c][dec] ** 2)) / total)
     out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
     return out.reshape(np.shape(lf.raw))
+
+
+def _require_render(lf: Any, name: str, rays_per_pixel: Any) -> None:
+    """Refuse anything but a Monte Carlo render's light field, and a ray count other than its own."""
+    from ..lightfield import LightField
+
+    if not isinstance(lf, LightField):
+        raise LftomoError(f"{name} must be an lftomo.LightField (a Monte Carlo render), got {type(lf).__name__}")
+    if lf.std_error is None:
+        raise LftomoError(f"{name} has no std_error (not a Monte Carlo render)")
+    n = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
+    own = lf.metadata.get("rays_per_pixel")
+    if own is not None and int(own) != n:
+        raise LftomoError(f"rays_per_pixel={n!r} but {name} was rendered with {int(own)} rays per pixel "
+                          f"(its metadata): pass rays_per_pixel={int(own)}")
 
 
 def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int:
@@ -241,6 +254,13 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
     LightField
         ``noise_std = sqrt(noise_std² + monte_carlo_std²)``.
     """
+    from ..lightfield import LightField
+
+    if not isinstance(noisy, LightField) or noisy.noise_std is None:
+        got = type(noisy).__name__ if not isinstance(noisy, LightField) else "a light field without noise_std"
+        raise LftomoError(f"noisy must be a light field with noise (lftomo.add_noise of lf), got {got}; the "
+                          "arguments are (noisy, lf)")
+    _require_render(lf, "lf", rays_per_pixel)
     if min_etendue_fraction is not None:
         min_etendue_fraction = require_in_range("min_etendue_fraction", min_etendue_fraction, 0.0, 1.0,
                                                 high_open=True)

@@ -750,6 +750,8 @@ def rig_around(camera: Any, center: Sequence[float], angles_deg: Sequence[float]
     if isinstance(angles_deg, (str, bytes)) or not isinstance(angles_deg, Sequence | np.ndarray):
         raise LftomoError(f"angles_deg must be a sequence of angles in degrees, got {angles_deg!r}")
     angles = [require_finite_scalar(f"angles_deg[{k}]", a) for k, a in enumerate(angles_deg)]
+    if not angles:
+        raise LftomoError("angles_deg must list at least one angle (0 for camera itself), got an empty sequence")
     pose = camera.pose if camera.pose is not None else Pose.identity()
     eye0 = np.asarray(pose.position, dtype=float) - c
     out = []

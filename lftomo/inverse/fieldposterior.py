@@ -58,7 +58,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.special import ndtri
 
-from .._validate import require_bounds, require_flag, require_int, require_positive, require_seed
+from .._validate import (require_array, require_bounds, require_finite_scalar, require_flag, require_int,
+                         require_positive, require_seed)
 from ..errors import LftomoError
 from ..interrupt import stop_between_steps
 from ..radiation import dblackbody_dT
@@ -140,9 +141,8 @@ class FieldPosterior:
 
     def coverage(self, T_true: Any, *, hot: float = 800.0) -> float:
         """Fraction of the voxels with ``T_true > hot`` (K) whose credible interval contains ``T_true``."""
-        T_true = np.asarray(T_true, dtype=float)
-        if T_true.shape != self.T_mean.shape:
-            raise LftomoError(f"shape of T_true {T_true.shape} does not match the posterior {self.T_mean.shape}")
+        T_true = require_array("T_true", T_true, shape=self.T_mean.shape, strictly_positive=True)
+        hot = require_finite_scalar("hot", hot)
         sel = T_true > hot
         if not sel.any():
             raise LftomoError(f"no voxel of T_true exceeds hot = {hot} K")

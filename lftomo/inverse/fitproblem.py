@@ -114,7 +114,12 @@ def check_types(measurement: Any, weights: Any) -> None:
                          "RaySegments, or one per measurement), or give an lftomo.Problem alone")
     ws = list(weights) if isinstance(weights, (list, tuple)) else [weights]
     for w in ws:
-        if not isinstance(w, (WeightMatrix, RaySegments, RefocusWeights)) and not sp.issparse(w):
+        if sp.issparse(w):
+            raise LftomoError(f"weights must be an lftomo.WeightMatrix, RaySegments or RefocusWeights, got a scipy "
+                              f"sparse matrix ({type(w).__name__}), which carries neither its grid nor its camera: "
+                              "build it with lftomo.weights, or fit measurement.problem(matrix, grid) with "
+                              "lftomo.solve_temperature")
+        if not isinstance(w, (WeightMatrix, RaySegments, RefocusWeights)):
             raise LftomoError(f"weights must be an lftomo.WeightMatrix, RaySegments or RefocusWeights, got "
                               f"{type(w).__name__}")
 

@@ -30,8 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import (require_array, require_int, require_nonnegative, require_positive, require_views,
-                         require_wavelength)
+from .._validate import (require_array, require_int, require_nonnegative, require_positive, require_seed,
+                         require_views, require_wavelength)
 from ..forward.camera import Camera
 from ..lightfield import check_refocus_depth
 from .problem import camera_differences
@@ -156,7 +156,7 @@ class SensorModel:
         quantum_efficiency : float
             Photo-electrons per incident photon, in (0, 1].
         bandwidth : float or None
-            Spectral bandwidth of the channel's filter, m, > 0 (e.g. 10e-9),
+            Spectral bandwidth of the channel's filter, m, in (0, 1e-3] (e.g. 10e-9),
             for spectral signals in W/m.  ``None`` for signals that are
             already band-integrated powers (W, the gray band); the photon
             energy is then taken at the effective ``wavelength``.
@@ -175,7 +175,7 @@ class SensorModel:
         qe = require_positive("quantum_efficiency", quantum_efficiency)
         if qe > 1.0:
             raise LftomoError(f"quantum_efficiency must be in (0, 1], got {qe!r}")
-        bw = 1.0 if bandwidth is None else require_positive("bandwidth", bandwidth)
+        bw = 1.0 if bandwidth is None else require_wavelength("bandwidth", bandwidth)  # m: 10 (nm) is refused
         wl = require_wavelength("wavelength", wavelength)
         if "responsivity" in kwargs:
             raise LftomoError("responsivity is computed by from_exposure; do not pass it")
@@ -216,6 +216,8 @@ class SensorModel:
             at ``max_count``.
         """
         s = self._signal(signal)
+        if not (rng is None or isinstance(rng, (np.random.Generator, np.random.BitGenerator, np.random.SeedSequence))):
+            rng = require_seed("rng", rng)  # a seed: an integer >= 0
         rng = np.random.default_rng(rng)
         mu = self.responsivity * s + self.dark_current
         # Poisson draws above ~4 full wells all saturate; cap the mean so that
@@ -464,6 +466,9 @@ def _check_depths(depths: Any) -> tuple[float, ...]:
         raise LftomoError(f"depths must be a non-empty 1-D sequence of depths in m, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise LftomoError(f"depths must be finite and > 0 (m from the aperture stop), got {arr.tolist()}")
+    if np.unique(arr).size != arr.size:
+        dup = sorted({float(d) for d in arr if np.count_nonzero(arr == d) > 1})
+        raise LftomoError(f"depths lists some depths more than once (their data would count twice): {dup}")
     return tuple(float(d) for d in arr)
 
 
@@ -536,7 +541,13 @@ class Measurement:
         if not isinstance(self.camera, Camera):
             raise LftomoError(f"camera must be an lftomo.Camera, got {type(self.camera).__name__}")
         object.__setattr__(self, "channel", require_int("channel", self.channel, minimum=0))
+        if self.wavelength is not None:  # None: the gray band
+            object.__setattr__(self, "wavelength", require_wavelength("wavelength", self.wavelength))
+        self._check_selection()
         op = sp.csr_matrix(self.operator, dtype=np.float64)
+        if not np.all(np.isfinite(op.data)):
+            raise LftomoError(f"operator must be finite, got {int(np.count_nonzero(~np.isfinite(op.data)))} "
+                              "non-finite entries (NaN or inf)")
         m, n_raw = op.shape
         exp_raw = int(np.prod(self.camera.sensor_shape))
         if n_raw != exp_raw:
@@ -571,6 +582,24 @@ class Measurement:
         object.__setattr__(self, "sigma", s)
         object.__setattr__(self, "mask", mask)
         object.__setattr__(self, "data_shape", data_shape)
+
+    def _check_selection(self) -> None:
+        """``depths`` (refocus data only) and ``views`` (sub-aperture data only), checked and made tuples."""
+        if self.kind == "refocus":
+            if self.views is not None:
+                raise LftomoError(f"views is for data kind 'subaperture'; a 'refocus' measurement has views=None, "
+                                  f"got {self.views!r}")
+            dep = _check_depths(self.depths)
+            for k, d in enumerate(dep):
+                check_refocus_depth(self.camera, d, name=f"depths[{k}]")
+            object.__setattr__(self, "depths", dep)
+            return
+        if self.depths is not None:
+            raise LftomoError(f"depths is for data kind 'refocus'; a 'subaperture' measurement has depths=None, "
+                              f"got {self.depths!r}")
+        if self.views is not None:
+            views = require_views(self.views, tuple(self.camera.views_shape[:2]))
+            object.__setattr__(self, "views", tuple(views))
 
     # ---- construction ---------------------------------------------------------
     @classmethod
@@ -805,7 +834,8 @@ class Measurement:
             have a row for every raw pixel the data use, and its
             ``background`` becomes the default background.
         grid : Grid
-            Reconstruction grid, ``grid.n_voxels == n_voxels``.
+            Reconstruction grid, ``grid.n_voxels == n_voxels``; for a
+            WeightMatrix, the grid it was built on.
         background : array_like, shape (m,), optional
             Known additive signal in data space (map a raw-space background
             ``b`` with ``operator @ b``).  Default: zero, or the
@@ -817,8 +847,16 @@ class Measurement:
             ``A = operator @ W_raw`` (m, n_voxels), ``y``, ``sigma``, ``grid``,
             ``wavelength``.
         """
+        from ..forward.grid import Grid
         from .problem import LinearProblem
 
+        if not isinstance(grid, Grid):
+            raise LftomoError(f"grid must be an lftomo Grid (the reconstruction grid), got {type(grid).__name__}")
+        w_grid = getattr(W_raw, "metadata", {}).get("grid") if hasattr(W_raw, "pixel_index") else None
+        if w_grid is not None and Grid.from_dict(w_grid) != grid:
+            raise LftomoError(f"grid {grid!r} is not the grid the weight matrix was built on, "
+                              f"{Grid.from_dict(w_grid)!r}; pass that grid (for weights on a finer quadrature grid "
+                              "use lftomo.Problem.from_data(measurement, W, grid=...))")
         Wr, bg_raw = self._raw_weights(W_raw)
         if background is None:
             bg = None if bg_raw is None else self.operator @ bg_raw

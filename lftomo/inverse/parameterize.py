@@ -45,7 +45,7 @@ from scipy.interpolate import BSpline
 from ..errors import LftomoError
 from ..forward.grid import Grid
 from .problem import LinearProblem
-from .subvoxel import interpolation_matrix
+from .subvoxel import check_quadrature, interpolation_matrix
 
 __all__ = ["Parameterization", "Voxels", "Splines", "SubVoxel", "bspline_design", "require_selection"]
 
@@ -320,6 +320,9 @@ class SubVoxel(Parameterization):
 
     coarse: Grid
     grid: Grid
+
+    def __post_init__(self) -> None:
+        check_quadrature(self.coarse, self.grid, names=("coarse", "grid"))
 
     @functools.cached_property
     def expansion(self) -> sp.csr_matrix:

@@ -65,7 +65,12 @@ class LinearProblem:
     def __post_init__(self) -> None:
         if not sp.issparse(self.A):
             raise LftomoError(f"A must be a scipy sparse matrix, got {type(self.A).__name__}")
+        if not (hasattr(self.grid, "n_voxels") and hasattr(self.grid, "shape")):  # a Grid, or a parameterisation
+            raise LftomoError(f"grid must be an lftomo Grid (the reconstruction grid), got {type(self.grid).__name__}")
         A = sp.csr_matrix(self.A, dtype=np.float64)
+        if not np.all(np.isfinite(A.data)):
+            bad = int(np.count_nonzero(~np.isfinite(A.data)))
+            raise LftomoError(f"A must be finite, got {bad} non-finite entr{'y' if bad == 1 else 'ies'} (NaN or inf)")
         m, n = A.shape
         if self.interpolation is not None:
             E = self.interpolation
@@ -106,8 +111,18 @@ class LinearProblem:
         return (self.A.shape[0], self.grid.n_voxels)
 
     def model_temperature(self, T: Any) -> np.ndarray:
-        """The temperature where ``A``'s columns emit (flat, K): ``E @ T`` with an interpolation, else ``T``."""
-        T = np.asarray(T, dtype=np.float64).ravel()
+        """The temperature where ``A``'s columns emit (flat, K): ``E @ T`` with an interpolation, else ``T``.
+
+        Raises
+        ------
+        LftomoError
+            When ``T`` has neither the grid's shape nor ``(n_voxels,)``.
+        """
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape not in (tuple(self.grid.shape), (self.grid.n_voxels,)):
+            raise LftomoError(f"T must have the grid's shape {tuple(self.grid.shape)} or ({self.grid.n_voxels},), "
+                              f"got shape {T.shape}")
+        T = T.ravel()
         return T if self.interpolation is None else self.interpolation @ T
 
     def linear_operator(self) -> sp.csr_matrix:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LftomoError
+from .._validate import require_array, require_finite_scalar
 from ..forward.grid import Grid
 from .symmetry import RingGrid
 
@@ -130,7 +131,8 @@ def temperature_errors(T: np.ndarray, T_true: np.ndarray, *, hot: float = 800.0)
     when no voxel is that hot.
     """
     T = np.asarray(T, dtype=float)
-    T_true = np.asarray(T_true, dtype=float)
+    T_true = require_array("T_true", T_true, shape=T.shape, strictly_positive=True)
+    hot = require_finite_scalar("hot", hot)
     sel = T_true > hot
     if not sel.any():
         raise LftomoError(f"no voxel of T_true exceeds hot = {hot} K")

@@ -48,6 +48,28 @@ def _axis_weights(n_coarse: int, lower: float, h: float, x: np.ndarray) -> tuple
     return i0, i0 + 1, f
 
 
+def check_quadrature(grid: Grid, quadrature: Grid, names: tuple[str, str] = ("reconstruction", "quadrature")) -> None:
+    """Refuse a ``quadrature`` grid that is not a Grid inside ``grid``'s box (to 1e-9 of a voxel) and at
+    least as fine on every axis; ``names`` name the two arguments in the messages."""
+    for name, g in (("grid" if names[0] == "reconstruction" else names[0], grid), (names[1], quadrature)):
+        if not isinstance(g, Grid):
+            raise LftomoError(f"{name} must be an lftomo Grid, got {type(g).__name__}")
+    h = np.asarray(grid.spacing, dtype=np.float64)
+    lo, hi = np.asarray(grid.lower, float), np.asarray(grid.upper, float)
+    qlo, qhi = np.asarray(quadrature.lower, float), np.asarray(quadrature.upper, float)
+    tol = 1e-9 * h
+    if np.any(qlo < lo - tol) or np.any(qhi > hi + tol):
+        raise LftomoError(
+            f"the {names[1]} grid's box {format_vector(qlo)}..{format_vector(qhi)} m must lie inside the {names[0]} "
+            f"grid's box {format_vector(lo)}..{format_vector(hi)} m"
+        )
+    if np.any(np.asarray(quadrature.spacing) > h * (1 + 1e-9)):
+        raise LftomoError(
+            f"the {names[1]} grid (spacing {format_vector(quadrature.spacing)} m) must be at least as fine "
+            f"as the {names[0]} grid (spacing {format_vector(h)} m) on every axis"
+        )
+
+
 def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
     """Trilinear interpolation from ``grid``'s voxel centres to ``quadrature``'s.
 
@@ -75,23 +97,9 @@ def interpolation_matrix(grid: Grid, quadrature: Grid) -> sp.csr_matrix:
         When either argument is not a Grid, the quadrature box leaves the
         grid's box, or the quadrature grid is coarser on some axis.
     """
-    for name, g in (("grid", grid), ("quadrature", quadrature)):
-        if not isinstance(g, Grid):
-            raise LftomoError(f"{name} must be an lftomo Grid, got {type(g).__name__}")
+    check_quadrature(grid, quadrature)
     h = np.asarray(grid.spacing, dtype=np.float64)
-    lo, hi = np.asarray(grid.lower, float), np.asarray(grid.upper, float)
-    qlo, qhi = np.asarray(quadrature.lower, float), np.asarray(quadrature.upper, float)
-    tol = 1e-9 * h
-    if np.any(qlo < lo - tol) or np.any(qhi > hi + tol):
-        raise LftomoError(
-            f"the quadrature grid's box {format_vector(qlo)}..{format_vector(qhi)} m must lie inside the grid's box "
-            f"{format_vector(lo)}..{format_vector(hi)} m"
-        )
-    if np.any(np.asarray(quadrature.spacing) > h * (1 + 1e-9)):
-        raise LftomoError(
-            f"the quadrature grid (spacing {format_vector(quadrature.spacing)} m) must be at least as fine "
-            f"as the grid (spacing {format_vector(h)} m) on every axis"
-        )
+    lo = np.asarray(grid.lower, float)
     centres = quadrature.centers
     per_axis = [_axis_weights(int(grid.shape[a]), lo[a], h[a], np.asarray(centres[a], float)) for a in range(3)]
     (x0, x1, fx), (y0, y1, fy), (z0, z1, fz) = per_axis

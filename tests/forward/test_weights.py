@@ -256,11 +256,16 @@ def test_masked_pixels_are_excluded_consistently(cam, grid, blob, W_blob, lf_blo
     # the lit rows are the same rows as in the default selection
     lit = vm.ravel()[allpix.view_pixel]
     assert (allpix.matrix[np.flatnonzero(lit)] != W_blob.matrix).nnz == 0
-    # views outside the grid of views are refused, unlit views give no rows
+    # views outside the grid of views are refused; an unlit view gives no rows, and a selection of
+    # unlit views alone (a matrix without rows) is refused
     with pytest.raises(ValueError, match=r"views\[0\]"):
         weights(cam, grid, sigma_a=1.0, rays_per_pixel=1, seed=0, views=[(99, 0)])
-    corner = weights(cam, grid, sigma_a=1.0, rays_per_pixel=1, seed=0, views=[(0, 0)])
-    assert corner.n_rows == int(vm[0, 0].sum())
+    assert not vm[0, 0].any()
+    with pytest.raises(ValueError, match="no lit view pixel"):
+        weights(cam, grid, sigma_a=1.0, rays_per_pixel=1, seed=0, views=[(0, 0)])
+    lit_view = lf_blob.lit_views[0]
+    both = weights(cam, grid, sigma_a=1.0, rays_per_pixel=1, seed=0, views=[(0, 0), lit_view])
+    assert both.n_rows == int(vm[lit_view].sum()) > 0
 
 
 def test_save_load_round_trip(tmp_path, cam, grid, W_blob):

@@ -81,7 +81,7 @@ def test_monte_carlo_std_explains_the_difference_of_two_renders(sampler, min_pri
     assert 0.8 <= ratios["calibrated"] <= 1.25, ratios
     with pytest.raises(ValueError, match="floor must be one of"):
         monte_carlo_std(a, weights_rays_per_pixel=16, rays_per_pixel=16, floor="max")
-    with pytest.raises(ValueError, match="rays per pixel"):
+    with pytest.raises(ValueError, match="weights_rays_per_pixel"):
         monte_carlo_std(a, weights_rays_per_pixel=0, rays_per_pixel=16)
 
 

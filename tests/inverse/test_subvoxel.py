@@ -51,7 +51,7 @@ def test_interpolation_identity_and_bad_input():
     assert abs(interpolation_matrix(g, g) - sp.identity(g.n_voxels)).max() < 1e-15
     with pytest.raises(ValueError, match="at least as fine"):
         interpolation_matrix(g.refined(2), g)
-    with pytest.raises(ValueError, match="inside the grid's box"):
+    with pytest.raises(ValueError, match="inside the reconstruction grid's box"):
         interpolation_matrix(g, lt.Grid(shape=(6, 8, 10), lower=(0.0, 0.0, 0.0), upper=(1.2, 1.0, 1.0)))
     with pytest.raises(ValueError, match="quadrature must be an lftomo Grid"):
         interpolation_matrix(g, "fine")
