@@ -9,7 +9,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -33,7 +33,7 @@ def cmd_camera(args) -> int:
         print(json.dumps(out, indent=2))
         return 0
     units = {
-        "f_number": "", "px": "px", "views": "", "magnification": "", "per_metre": "px/m",
+        "f_number": "", "px": "px", "views": "", "magnification": "", "per_metre": "px/m", "_deg": "deg",
     }
     for name, d in zip(names, reports):
         print(f"camera of {cfg.source}" if name is None else f"camera {name!r} of {cfg.source}")
@@ -43,6 +43,8 @@ def cmd_camera(args) -> int:
             unit = next((u for key, u in units.items() if key in k), "m")
             if isinstance(v, float):
                 print(f"  {k:40s} {v:.6g} {unit}")
+            elif isinstance(v, list) and v and all(isinstance(a, float) for a in v):
+                print(f"  {k:40s} " + ", ".join(f"{a:.6g}" for a in v) + f" {unit}")
             else:
                 print(f"  {k:40s} {v}")
         for w in d["warnings"]:
@@ -63,7 +65,7 @@ def cmd_render(args) -> int:
     from .io import check_output_dir, staged_directory
 
     cfg = _load(args.scene, args)
-    out = check_output_dir(args.output, what="-o/--output")  # before the work, not after it
+    out = check_output_dir(args.output, what="-o/--output", command="render")  # before the work, not after it
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     sampler = cfg.sampler if args.sampler is None else args.sampler
@@ -71,7 +73,7 @@ def cmd_render(args) -> int:
 
     print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel, seed {seed}, {sampler} sampler"
           + (f", {len(cfg.cameras)} cameras: {', '.join(cfg.camera_names)})" if cfg.is_rig else ")"), file=sys.stderr)
-    with staged_directory(out) as stage:  # all files appear together, summary.json last
+    with staged_directory(out, command="render") as stage:  # all files appear together, summary.json last
         files: list[Path] = []
         per_camera = {}
         for cam, name in zip(cfg.cameras, cfg.camera_names):
@@ -154,13 +156,27 @@ def cmd_weights(args) -> int:
 
 def cmd_demo(args) -> int:
     from .demo import run_demo
+    from .io import check_output_dir
 
-    out = Path(args.output)
+    out = check_output_dir(args.output, what="-o/--output", command="demo")  # named as the user gave it
     print(f"lftomo demo: {'quick' if args.quick else 'default'} run, seed {args.seed} -> {out}/", file=sys.stderr)
     run_demo(out, quick=args.quick, seed=args.seed, progress=not args.quiet)
     if args.quiet:
         print(out / "index.html")
     return 0
+
+
+def _fit_rule(args) -> Any:
+    """The λ rule of ``--rule``, ``--regularization`` and ``--noise-scale``, checked before any work."""
+    from .inverse.reconstruct import rule_from_names
+
+    if args.rule is not None and args.regularization != "auto":
+        raise LftomoError(f"--rule {args.rule} chooses lambda; --regularization {args.regularization:g} fixes it: "
+                          "give one of them")
+    try:
+        return rule_from_names(args.rule or "discrepancy", args.regularization, args.noise_scale)
+    except ValueError as exc:
+        raise LftomoError(f"--rule/--regularization/--noise-scale: {exc}") from None
 
 
 def _refuse_given(args, names: tuple[str, ...], where: str) -> None:
@@ -175,12 +191,15 @@ def cmd_reconstruct(args) -> int:
 
     if not args.posterior:
         _refuse_given(args, ("posterior_steps", "posterior_basis"), "with --posterior")
-    if args.scene is None:
+    _fit_rule(args)  # refused before the render and the weights, not after them
+    if args.dark is None:
+        _refuse_given(args, ("dark_frames",), "with --dark")
+    if args.scene is None and args.raw is None:  # (--raw without a scene file is refused by name below)
         _refuse_given(args, ("recon_shape", "rays_per_pixel", "sampler"), "to scene mode (a TOML scene file); with "
                       "--lightfield and --weights the grid and rays are those of the files")
     m = run_reconstruct(
         args.output, scene=args.scene, lightfield=args.lightfield, weights=args.weights, noise=args.noise,
-        data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule,
+        data=args.data, depths=args.depths, regularization=args.regularization, rule=args.rule or "discrepancy",
         noise_scale=args.noise_scale, prior=args.prior,
         bounds=args.bounds, posterior=args.posterior, posterior_basis=args.posterior_basis or "flame",
         posterior_steps=args.posterior_steps or 500, recon_shape=args.recon_shape,
@@ -210,9 +229,10 @@ def cmd_reconstruct(args) -> int:
                   f"median std {p['median_std_K']:.0f} K" + (f", 90 % coverage {p['coverage_90']:.2f}"
                                                               if "coverage_90" in p else ""))
         else:
-            print(f"  posterior: acceptance {p['acceptance_mean']:.2f}, tau max "
-                  f"{max(t for t in p['tau'] if t is not None):.1f}, {'converged' if p['converged'] else 'NOT converged'}; "
-                  f"{p.get('likelihood_note', '')}")
+            taus = [t for t in p["tau"] if t is not None]
+            tau = f"tau max {max(taus):.1f}" if taus else "tau not estimated (chain too short)"
+            print(f"  posterior: acceptance {p['acceptance_mean']:.2f}, {tau}, "
+                  f"{'converged' if p['converged'] else 'NOT converged'}; {p.get('likelihood_note', '')}")
     print(f"wrote {Path(args.output)}/: " + ", ".join(m["files"]))
     return 0
 
@@ -225,6 +245,12 @@ def cmd_calibrate(args) -> int:
 
     if (args.blackbody is None) != (args.temperature is None):
         raise LftomoError("--blackbody and --temperature go together (the blackbody frame and its temperature in K)")
+    if args.blackbody is None:
+        _refuse_given(args, ("temperature_std",), "with --blackbody and --temperature")
+    if args.dark is None:
+        _refuse_given(args, ("dark_frames",), "with --dark")
+    args.temperature_std = 0.0 if args.temperature_std is None else args.temperature_std
+    args.dark_frames = 1 if args.dark_frames is None else args.dark_frames
     cam = load_camera_description(args.camera) if args.camera else None
     if args.blackbody is not None and cam is None:
         raise LftomoError("--blackbody needs --camera CAMERA.toml (wavelength, gain, f-number of the acquisition)")
@@ -309,17 +335,25 @@ def _series_forward(args, frames, out):
     from .forward.weights import WeightMatrix, weights
     from .lightfield import LightField
 
+    first = None
+    for k, f in enumerate(frames):  # the first readable frame: settings that apply to every frame are checked on it
+        try:
+            first = LightField.load(f)
+            break
+        except (ValueError, OSError):
+            continue
+    if first is not None:
+        if first.noise_std is None and args.noise is None:
+            raise LftomoError(f"FRAMES[{k}] {f!r} is noise-free (no noise_std, e.g. an lftomo render): give --noise "
+                              "(the relative noise to add, e.g. 0.01)")
+        if args.channel >= first.n_channels:
+            raise LftomoError(f"--channel {args.channel}: the frames have {first.n_channels} channel(s) "
+                              f"(FRAMES[{k}] {f!r}); allowed 0..{first.n_channels - 1}")
     if args.weights is not None:
-        cam = None
-        for f in frames:
-            try:
-                cam = LightField.load(f).camera
-                break
-            except (ValueError, OSError):
-                continue
-        if cam is None:
+        if first is None:
             raise LftomoError("no frame could be read (light-field .npz files written by lftomo render / "
                               "LightField.save): the camera of --weights is unknown")
+        cam = first.camera
         grid, _ = grid_of_weight_file(Path(args.weights))
         try:
             return WeightMatrix.load(args.weights, cam, grid)
@@ -354,6 +388,8 @@ def _series_raw_check(args) -> None:
     if args.noise is not None:
         raise LftomoError("--noise adds synthetic noise; raw frames are already noisy (their noise model comes "
                           "from the frame, the dark and the calibration): leave --noise out")
+    if args.dark is None:
+        _refuse_given(args, ("dark_frames",), "with --dark")
 
 
 def _series_raw_forward(args, out):
@@ -378,7 +414,7 @@ def _series_raw_forward(args, out):
 def cmd_series(args) -> int:
     """``lftomo series``: one reconstruction per frame on a Dask cluster, resumable; a summary figure."""
     from .io import check_output_dir
-    from .series import reconstruct_series, series_figure, series_strip
+    from .series import check_workers, reconstruct_series, series_figure, series_strip
 
     scenes = [f for f in args.frames if f.endswith(".toml")]
     frames = [f for f in args.frames if not f.endswith(".toml")]
@@ -389,6 +425,8 @@ def cmd_series(args) -> int:
         raise LftomoError("no FRAMES given: light-field .npz files (lftomo render / LightField.save)")
     if args.scheduler is not None and args.workers is not None:
         raise LftomoError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
+    if args.workers is not None:
+        check_workers(args.workers, name="--workers")
     args.scene = scenes[0] if scenes else None
     _series_raw_check(args)
     # a mistyped path is refused before the cluster starts; what a file holds is checked per frame (a bad frame
@@ -402,13 +440,9 @@ def cmd_series(args) -> int:
         W, raw_kw = _series_raw_forward(args, out)
     else:
         W = _series_forward(args, frames, out)
-    from .inverse.reconstruct import rule_from_names
     from .inverse.solverchoice import AutoSolver
 
-    try:
-        rule = rule_from_names(args.rule, args.regularization, args.noise_scale)
-    except ValueError as exc:
-        raise LftomoError(f"--rule/--regularization/--noise-scale: {exc}") from None
+    rule = _fit_rule(args)
     opts = {"rule": rule, "bounds": tuple(args.bounds), "solver": AutoSolver(max_steps=args.max_steps)}
     if args.prior is not None:
         opts["prior"] = args.prior
@@ -479,6 +513,20 @@ def _float_where(text: str, ok, allowed: str) -> float:
 
 def _pos_float(text: str) -> float:
     return _float_where(text, lambda v: v > 0, "a finite number > 0")
+
+
+def _steps(text: str) -> int:
+    from ._validate import MAX_SOLVER_STEPS
+
+    return _int_in(text, 1, MAX_SOLVER_STEPS)
+
+
+def _posterior_steps(text: str) -> int:
+    return _int_in(text, 2, 2**31 - 1)
+
+
+def _relative_noise(text: str) -> float:
+    return _float_where(text, lambda v: 0 < v <= 10, "a relative noise > 0 and <= 10")
 
 
 def _float_where_nonneg(text: str) -> float:
@@ -564,20 +612,21 @@ def _add_series_parser(sub) -> None:
                                                       "(default: a local cluster)")
     sr.add_argument("--workers", type=_pos_int, default=None,
                     help="processes of the local cluster, one thread each (default: the usable cores)")
-    sr.add_argument("--noise", type=_pos_float, default=None,
-                    help="relative Gaussian noise added to noise-free frames (seed --seed + frame index)")
+    sr.add_argument("--noise", type=_relative_noise, default=None,
+                    help="relative Gaussian noise added to noise-free frames (seed --seed + frame index); "
+                         "required for noise-free frames such as lftomo render's")
     sr.add_argument("--seed", type=_seed, default=0, help="base noise seed (default 0)")
     sr.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
     sr.add_argument("--depths", type=_depths, default=None, help="refocus depths in m, comma-separated")
     sr.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
-    sr.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
-                    help="lambda rule with --regularization auto")
+    sr.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default=None,
+                    help="lambda rule with --regularization auto (default discrepancy)")
     sr.add_argument("--prior", choices=("gradient", "laplacian", "tv", "curvature"), default=None,
                     help="smoothness prior (default: the library's, curvature)")
     sr.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
                     help="discrepancy rule: trust sigma (given, the default) or estimate its scale")
     sr.add_argument("--bounds", type=_bounds, default=(300.0, 3000.0), help="T_min,T_max in K (default 300,3000)")
-    sr.add_argument("--max-steps", type=_pos_int, default=None,
+    sr.add_argument("--max-steps", type=_steps, default=None,
                     help="nonlinear steps per solve (default the library's: 200 for T)")
     sr.add_argument("--channel", type=_nonneg_int, default=0, help="wavelength channel of the frames (default 0)")
     sr.add_argument("--frame-rate", type=_pos_float, default=None, help="frames per second, for the figure's time axis")
@@ -634,7 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="the whole story on the built-in flame: render, weights, reconstruction, "
                                      "posterior, refocus vs views; writes an HTML report")
     d.add_argument("-o", "--output", type=_output, default="lftomo-demo", help="report directory (default lftomo-demo)")
-    d.add_argument("--quick", action="store_true", help="small camera and grids, short chain (~1 min on 2 cores with a warm numba cache)")
+    d.add_argument("--quick", action="store_true", help="small camera and grids, short chain (3-4 min on 2 cores)")
     d.add_argument("--seed", type=_seed, default=0, help="base seed (render s, noise s+1, weights s+2, "
                                                                "posterior s+3)")
     d.add_argument("--quiet", action="store_true", help="no stage messages, progress bars or summary")
@@ -647,15 +696,15 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--lightfield", default=None, help="light field .npz (lftomo render / LightField.save)")
     rc.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
     rc.add_argument("-o", "--output", type=_output, default="lftomo-reconstruct", help="output directory")
-    rc.add_argument("--noise", type=_pos_float, default=None,
+    rc.add_argument("--noise", type=_relative_noise, default=None,
                     help="relative Gaussian noise added to a noise-free light field (default 0.01)")
     rc.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
     rc.add_argument("--depths", type=_depths, default=None,
                     help="refocus depths in m, comma-separated (with --data refocus; default the scene's "
                          "output.focal_stack_depths)")
     rc.add_argument("--regularization", type=_regularization, default="auto", help="'auto' or lambda >= 0")
-    rc.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default="discrepancy",
-                    help="lambda rule with --regularization auto")
+    rc.add_argument("--rule", choices=("discrepancy", "gcv", "lcurve"), default=None,
+                    help="lambda rule with --regularization auto (default discrepancy)")
     rc.add_argument("--noise-scale", choices=("given", "estimated"), default=None,
                     help="discrepancy rule: trust the noise model's sigma (given), or only its shape and estimate "
                          "its scale from the residual of the least-regularized fit (estimated); default given, "
@@ -666,7 +715,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--min-etendue-fraction", type=_fraction, default=0.2,
                     help="leave out view pixels of etendue below this fraction of the peak (rims of the microlens "
                          "images, default 0.2)")
-    rc.add_argument("--max-steps", type=_pos_int, default=None,
+    rc.add_argument("--max-steps", type=_steps, default=None,
                     help="nonlinear steps per solve (default the library's: 200 for T; fewer steps leave the "
                          "λ search's χ² unconverged)")
     rc.add_argument("--symmetry", choices=("none", "axisymmetric"), default="none",
@@ -685,7 +734,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "evaluated on the weights' quadrature grid, the fields written on the reconstruction "
                          "grid) or 12 DCT modes, or 'field': the full-grid Laplace "
                          "posterior with lambda by empirical Bayes (lftomo.laplace_posterior)")
-    rc.add_argument("--posterior-steps", type=_pos_int, default=None, help="emcee steps (default 500)")
+    rc.add_argument("--posterior-steps", type=_posterior_steps, default=None, help="emcee steps, >= 2 (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,
                     help="scene mode: reconstruction grid nx,ny,nz dividing the [medium] shape (default half)")
     rc.add_argument("--rays-per-pixel", type=_rays, default=None,
@@ -714,10 +763,10 @@ def build_parser() -> argparse.ArgumentParser:
                                            "white frame (and a blackbody frame): PNG, TIFF or .npy")
     cal.add_argument("white", help="white (flat-field) raw frame")
     cal.add_argument("--dark", default=None, help="dark frame (same exposure, lens capped)")
-    cal.add_argument("--dark-frames", type=_pos_int, default=1, help="frames averaged in --dark (default 1)")
+    cal.add_argument("--dark-frames", type=_pos_int, default=None, help="frames averaged in --dark (default 1)")
     cal.add_argument("--blackbody", default=None, help="raw frame of a blackbody source filling the view")
     cal.add_argument("--temperature", type=_pos_float, default=None, help="blackbody temperature, K")
-    cal.add_argument("--temperature-std", type=_float_where_nonneg, default=0.0,
+    cal.add_argument("--temperature-std", type=_float_where_nonneg, default=None,
                      help="standard uncertainty of the blackbody temperature, K (default 0)")
     cal.add_argument("--camera", default=None, help="camera/acquisition TOML (bit depth, wavelength, gain, f-number)")
     cal.add_argument("--scene", default=None, help="scene TOML whose camera will reconstruct these frames: says "
@@ -784,8 +833,12 @@ def _run_command(args) -> int:
     except KeyboardInterrupt:
         print("lftomo: interrupted; no output file was left half-written", file=sys.stderr)
         return 130
-    except ValueError as exc:  # LftomoError and the checks of numpy/scipy
+    except LftomoError as exc:  # lftomo's own checks: the message names the input
         print(f"lftomo: error: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:  # numpy's or scipy's checks: an input that slipped past lftomo's
+        print(f"lftomo: error: {exc} ({type(exc).__name__} from {_origin(exc)}: an input lftomo's checks let "
+              "through; please report this with the command line)", file=sys.stderr)
         return 2
     except OSError as exc:  # a file that cannot be read or written: not a bug of lftomo
         print(f"lftomo: error: {exc.strerror or exc}" + (f": {exc.filename!r}" if exc.filename else ""),
@@ -803,6 +856,14 @@ def _run_command(args) -> int:
         print(f"lftomo: error: a compiled kernel refused its input ({type(exc).__name__}: {first}); "
               "please report this with the command line", file=sys.stderr)
         return 2
+
+
+def _origin(exc: BaseException) -> str:
+    """The module where ``exc`` was raised (its innermost traceback frame)."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb.tb_frame.f_globals.get("__name__", "?") if tb is not None else "?"
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:

@@ -42,7 +42,7 @@ optional ``name`` (letters, digits, ``_``, ``-``; default ``camera1``,
     texture = "uniform"        # "uniform" | "checkerboard" | "file"
     radiance = 1.0             # value of uniform / bright checkerboard squares
     low = 0.0                  # dark checkerboard squares
-    squares = 8                # checkerboard squares per side
+    squares = 8                # checkerboard squares per side (at most 4096)
     path = "texture.npy"       # texture = "file": a 2-D .npy (no pickle)
     temperature = 1500.0       # instead of radiance: a blackbody surface
     emissivity = 1.0           #   of that blackbody surface, in (0, 1]
@@ -156,6 +156,8 @@ def _wavelengths(value: Any) -> Any:
         nm = (toml_number(where, value, gt=0, unit="nm"),)
     if any(a < 100 or a > 100000 for a in nm):
         raise LftomoError(f"{where} = {value!r} is outside 100-100000 nm; give nanometres")
+    if len(set(nm)) != len(nm):
+        raise LftomoError(f"{where} = {value!r} lists a wavelength more than once; give each channel once")
     return tuple(a * 1e-9 for a in nm)
 
 
@@ -179,13 +181,18 @@ def _texture_file(tab: str, path: Any, base: Path, allow_outside: bool = False) 
     return np.asarray(tex, float)
 
 
+#: Most checkerboard squares per side (one texel each): 4096² texels are 134 MB, far finer than any sensor sees.
+MAX_SQUARES = 4096
+
+
 def _squares(tab: str, value: Any) -> int | tuple[int, int]:
     where = f"{tab} squares"
     if isinstance(value, list):
         if len(value) != 2:
             raise LftomoError(f"{where} must be an integer >= 1 or a list of 2 integers >= 1 [rows, cols], got {value!r}")
-        return (toml_int(f"{where}[0]", value[0], minimum=1), toml_int(f"{where}[1]", value[1], minimum=1))
-    return toml_int(where, value, minimum=1)
+        return (toml_int(f"{where}[0]", value[0], minimum=1, maximum=MAX_SQUARES),
+                toml_int(f"{where}[1]", value[1], minimum=1, maximum=MAX_SQUARES))
+    return toml_int(where, value, minimum=1, maximum=MAX_SQUARES)
 
 
 def _surface(k: int, s: Any, base: Path, allow_outside: bool = False) -> PlanarEmitter:
@@ -450,6 +457,9 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     out = data.get("output", {})
     _check_keys("[output]", out, _OUTPUT)
     depths_t = out.get("focal_stack_depths", [])
+    if isinstance(depths_t, list) and not depths_t and "focal_stack_depths" in out:
+        raise LftomoError("[output] focal_stack_depths = [] lists no depth: leave the key out for the focus depth, "
+                          "or give depths (m), e.g. [0.95, 1.0, 1.05]")
     if not isinstance(depths_t, list):
         raise LftomoError(
             f"[output] focal_stack_depths must be a list of numbers > 0 (m), e.g. [0.95, 1.0, 1.05], got {depths_t!r}"

@@ -426,11 +426,11 @@ def run_demo(out_dir: str | Path = "lftomo-demo", *, quick: bool = False, seed: 
     from .io import check_output_dir, staged_directory
 
     seed = require_seed("seed", seed)
-    final = check_output_dir(out_dir, what="out_dir")
+    final = check_output_dir(out_dir, what="out_dir", command="demo")
     # the report is written in a staging folder and published complete: an
     # interrupted rerun leaves the previous report and its files as they were
     resume = final / RESUME_DIR
-    with staged_directory(final) as stage:
+    with staged_directory(final, command="demo") as stage:
         metrics = _demo_into(stage, quick=bool(quick), seed=seed, progress=progress, resume=resume)
     shutil.rmtree(resume, ignore_errors=True)  # the run is complete: nothing left to resume
     if progress:
@@ -1122,6 +1122,7 @@ def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, qua
     import lftomo as lt
     from .config import load_scene_file
     from .inverse.compare import effective_truth
+    from .lightfield import check_refocus_depth
 
     cfg = load_scene_file(scene, allow_outside=allow_outside)
     medium = _scene_medium(cfg, scene)
@@ -1140,6 +1141,9 @@ def _inputs_from_scene(scene, *, recon_shape, channel, seed, rays_per_pixel, qua
                          "error (part of the noise model) cannot be estimated from one ray per pixel; "
                          "use 2 or more")
     smp = cfg.sampler if sampler is None else sampler
+    if data == "refocus" and depths is not None:  # refused before the render, not after it
+        for k, d in enumerate(depths):
+            check_refocus_depth(cfg.camera, d, name=f"--depths[{k}]")
     lf = lt.render(cfg.scene, cfg.camera, rays_per_pixel=n_d, seed=s0,
                    wavelengths="gray" if wl is None else (wl,), progress=progress, sampler=smp)
     sa, T_true = effective_truth(medium, grid, wl)
@@ -1529,7 +1533,7 @@ def run_reconstruct(
     _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds, min_etendue_fraction, noise,
                                symmetry, quadrature, posterior, posterior_basis, sampler)
     symmetry = None if symmetry == "none" else symmetry
-    out = check_output_dir(out_dir, what="-o/--output")  # before the work, not after it
+    out = check_output_dir(out_dir, what="-o/--output", command="reconstruct")  # before the work, not after it
     st = _Stages(5 if posterior else 4, progress)
     metrics: dict[str, Any] = {"environment": _environment()}
 
@@ -1583,7 +1587,7 @@ def run_reconstruct(
                 problem, rec, inp, basis_name=posterior_basis, prior=prior, bounds=bounds, n_steps=posterior_steps,
                 max_steps=max_steps, symmetry=symmetry, progress=progress)
 
-    with st("outputs", f"write {out}/"), staged_directory(out) as stage:  # published complete, metrics.json last
+    with st("outputs", f"write {out}/"), staged_directory(out, command="reconstruct") as stage:  # published complete, metrics.json last
         metrics["files"] = _write_reconstruct_outputs(stage, inp, rec, post, data)
         metrics["timings_s"] = {**st.timings, "total": time.perf_counter() - t_start}
         metrics = _finite(metrics)

@@ -119,13 +119,21 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def check_output_dir(path: Any, *, what: str = "output folder", create: bool = True) -> Path:
+def check_output_dir(path: Any, *, what: str = "output folder", create: bool = True,
+                     command: str | None = None) -> Path:
     """Check, before any work, that ``path`` is (or can be made) a writable folder.
+
+    With ``command`` (the ``lftomo`` sub-command that will publish there with
+    :func:`staged_directory`), a folder that holds the complete output of
+    another command (its :data:`COMPLETE_MARKER` names that command) is
+    refused: publishing replaces the report files, so the folder would mix two
+    runs' files under one run's report.
 
     Raises
     ------
     LftomoError
-        If ``path`` is a file, lies under a file, or is not writable.
+        If ``path`` is a file, lies under a file, is not writable, or holds
+        another command's output.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise LftomoError(f"{what} must be a path (str or os.PathLike), got {type(path).__name__}")
@@ -143,7 +151,22 @@ def check_output_dir(path: Any, *, what: str = "output folder", create: bool = T
     target = p if p.exists() else next(q for q in p.parents if q.exists())
     if not os.access(target, os.W_OK | os.X_OK):
         raise LftomoError(f"{what} {str(p)!r} is not writable ({str(target)!r})")
+    other = _published_by(p)
+    if command is not None and other is not None and other != command:
+        raise LftomoError(f"{what} {str(p)!r} holds the output of `lftomo {other}` ({COMPLETE_MARKER}); write "
+                          f"`lftomo {command}` to another folder (its report would replace that run's and the "
+                          "folder would mix the two runs' files)")
     return p
+
+
+def _published_by(folder: Path) -> str | None:
+    """The command named by ``folder``'s completion marker (None: no marker, an unreadable one, or none named)."""
+    try:
+        marker = json.loads((folder / COMPLETE_MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    command = marker.get("command") if isinstance(marker, dict) else None
+    return command if isinstance(command, str) else None
 
 
 def check_output_file(path: Any, *, what: str = "output file") -> Path:
@@ -264,7 +287,7 @@ def _remove_stale_stages(out: Path) -> None:
             shutil.rmtree(d, ignore_errors=True)
 
 
-def _publish(stage: Path, out: Path, last: Sequence[str]) -> list[str]:
+def _publish(stage: Path, out: Path, last: Sequence[str], command: str | None) -> list[str]:
     names = sorted(f.name for f in stage.iterdir() if f.is_file())
     first = [n for n in names if n not in last]
     final = [n for n in names if n in last]
@@ -276,14 +299,16 @@ def _publish(stage: Path, out: Path, last: Sequence[str]) -> list[str]:
         for n in first + final:
             os.replace(stage / n, out / n)
         _fsync_dir(out)
-        marker = {"complete": True, "files": names, "time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        marker = {"complete": True, "files": names, "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                  **({"command": command} if command else {})}
         atomic_write_text(out / COMPLETE_MARKER, json.dumps(marker, indent=2))
     shutil.rmtree(stage, ignore_errors=True)
     return names
 
 
 @contextlib.contextmanager
-def staged_directory(out: str | os.PathLike, *, last: Sequence[str] = REPORT_FILES) -> Iterator[Path]:
+def staged_directory(out: str | os.PathLike, *, last: Sequence[str] = REPORT_FILES,
+                     command: str | None = None) -> Iterator[Path]:
     """Write a folder of outputs in a staging folder, publish it on success.
 
     Parameters
@@ -293,6 +318,9 @@ def staged_directory(out: str | os.PathLike, *, last: Sequence[str] = REPORT_FIL
     last : sequence of str
         File names that describe the others (reports); they are removed from
         ``out`` before publishing and moved in last.
+    command : str, optional
+        The ``lftomo`` sub-command publishing: named in the marker, and a folder
+        holding another command's output is refused (:func:`check_output_dir`).
 
     Yields
     ------
@@ -306,13 +334,13 @@ def staged_directory(out: str | os.PathLike, *, last: Sequence[str] = REPORT_FIL
     (each move is atomic) and :data:`COMPLETE_MARKER` is written last,
     listing them.
     """
-    out = check_output_dir(out)
+    out = check_output_dir(out, command=command)
     _remove_stale_stages(out)
     stage = out / f"{_STAGE_PREFIX}{os.getpid()}-{secrets.token_hex(3)}"
     stage.mkdir()
     try:
         yield stage
-        _publish(stage, out, tuple(last))
+        _publish(stage, out, tuple(last), command)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 

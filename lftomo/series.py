@@ -375,6 +375,22 @@ def _usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+#: Most local-cluster workers per usable core: each is a process with its own interpreter, JAX and numba.
+MAX_WORKERS_PER_CORE = 4
+
+
+def check_workers(workers: Any, name: str = "workers") -> int:
+    """A local cluster's process count: an integer from 1 to :data:`MAX_WORKERS_PER_CORE` × the usable cores."""
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise LftomoError(f"{name} must be an integer >= 1, got {workers!r}")
+    top = MAX_WORKERS_PER_CORE * _usable_cores()
+    if workers > top:
+        raise LftomoError(f"{name}={int(workers)} is more than {MAX_WORKERS_PER_CORE} processes per usable core "
+                          f"({_usable_cores()} cores: at most {top}); each worker is a process with its own memory, "
+                          "and one per core is the fastest")
+    return int(workers)
+
+
 def local_cluster(workers: int):
     """A ``distributed.LocalCluster`` of ``workers`` single-threaded processes, set up for lftomo.
 
@@ -427,9 +443,7 @@ def client_for(client: Any = None, scheduler: Any = None, workers: Any = None):
         finally:
             c.close()
         return
-    n = _usable_cores() if workers is None else workers
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise LftomoError(f"workers must be an integer >= 1, got {workers!r}")
+    n = _usable_cores() if workers is None else check_workers(workers)
     cluster = local_cluster(int(n))
     c = Client(cluster)
     try:

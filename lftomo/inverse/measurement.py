@@ -392,7 +392,7 @@ def add_noise(lf, *, relative_std: float | None = None, sensor: Any = None, seed
 
     signal = lf.raw.reshape((n_ch,) + lf.camera.sensor_shape)
     if np.any(signal < 0):
-        raise LftomoError(f"the signal of lf must be >= 0 everywhere, got minimum {signal.min()!r}")
+        raise LftomoError(f"the signal of lf must be >= 0 everywhere, got minimum {float(signal.min())!r}")
     noisy = np.empty_like(signal)
     std = np.empty_like(signal)
     saturated = np.zeros(signal.shape, bool)
