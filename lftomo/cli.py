@@ -328,27 +328,32 @@ def _print_scene_match(grid, camera, scene) -> None:
               f"  shape = [{sensor.shape[0]}, {sensor.shape[1]}]")
 
 
-def _series_forward(args, frames, out):
-    """The forward model of ``lftomo series``: ``--weights`` (camera of the first readable frame) or a scene file
-    (its camera and [medium], built with seed render.seed + 2 and kept as DIR/weights.npz)."""
-    from .demo import grid_of_weight_file
-    from .forward.weights import WeightMatrix, weights
+def _series_first_frame(args, frames):
+    """The first readable light-field frame (None if none is), with the options that apply to every frame
+    checked on it before the cluster starts: ``--noise`` for noise-free frames, ``--channel``."""
     from .lightfield import LightField
 
-    first = None
-    for k, f in enumerate(frames):  # the first readable frame: settings that apply to every frame are checked on it
+    for k, f in enumerate(frames):
         try:
             first = LightField.load(f)
-            break
-        except (ValueError, OSError):
+        except (ValueError, OSError):  # a bad frame is recorded as failed when its turn comes
             continue
-    if first is not None:
         if first.noise_std is None and args.noise is None:
             raise LftomoError(f"FRAMES[{k}] {f!r} is noise-free (no noise_std, e.g. an lftomo render): give --noise "
                               "(the relative noise to add, e.g. 0.01)")
         if args.channel >= first.n_channels:
             raise LftomoError(f"--channel {args.channel}: the frames have {first.n_channels} channel(s) "
                               f"(FRAMES[{k}] {f!r}); allowed 0..{first.n_channels - 1}")
+        return first
+    return None
+
+
+def _series_forward(args, first, out):
+    """The forward model of ``lftomo series``: ``--weights`` (camera of ``first``, the first readable frame, or
+    None) or a scene file (its camera and [medium], built with seed render.seed + 2 and kept as DIR/weights.npz)."""
+    from .demo import grid_of_weight_file
+    from .forward.weights import WeightMatrix, weights
+
     if args.weights is not None:
         if first is None:
             raise LftomoError("no frame could be read (light-field .npz files written by lftomo render / "
@@ -439,7 +444,7 @@ def cmd_series(args) -> int:
     if args.calibration is not None:
         W, raw_kw = _series_raw_forward(args, out)
     else:
-        W = _series_forward(args, frames, out)
+        W = _series_forward(args, _series_first_frame(args, frames), out)
     from .inverse.solverchoice import AutoSolver
 
     rule = _fit_rule(args)

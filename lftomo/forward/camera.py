@@ -64,9 +64,7 @@ def thick_lens_focal_length(r1: float, r2: float, thickness: float, index: float
     LftomoError
         For a zero or NaN radius, a negative or non-finite thickness, an index <= 1.
     """
-    for name, r in (("r1", r1), ("r2", r2)):
-        if not is_real(r) or not (math.isinf(r) or (math.isfinite(r) and r != 0.0)):
-            raise LftomoError(f"{name} must be a non-zero radius in m (inf for a plane), got {r!r}")
+    _check_radii("r1", r1, "r2", r2)
     if require_finite_scalar("thickness", thickness) < 0.0:
         raise LftomoError(f"thickness must be >= 0 (m), got {thickness!r}")
     if require_finite_scalar("index", index) <= 1.0:
@@ -105,10 +103,15 @@ def _store_floats(obj: Any, prefix: str, names: tuple[str, ...], radii: tuple[st
         object.__setattr__(obj, name, v)
 
 
-def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: float, index: float) -> None:
-    for name, r in ((f"{prefix}.r1", r1), (f"{prefix}.r2", r2)):
-        if not (math.isinf(r) or (np.isfinite(r) and r != 0.0)):
+def _check_radii(*names_and_radii: Any) -> None:
+    """Refuse a radius of curvature (name, value pairs) that is not a non-zero real number or ±inf."""
+    for name, r in zip(names_and_radii[::2], names_and_radii[1::2]):
+        if not is_real(r) or not (math.isinf(r) or (math.isfinite(r) and r != 0.0)):
             raise LftomoError(f"{name} must be a non-zero radius in m (inf for a plane), got {r!r}")
+
+
+def _check_lens(prefix: str, r1: float, r2: float, thickness: float, diameter: float, index: float) -> None:
+    _check_radii(f"{prefix}.r1", r1, f"{prefix}.r2", r2)
     require_positive(f"{prefix}.thickness", thickness)
     require_positive(f"{prefix}.diameter", diameter)
     require_finite_scalar(f"{prefix}.index", index)

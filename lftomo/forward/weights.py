@@ -590,7 +590,7 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
         got = f"a {value.dtype} array" if isinstance(value, np.ndarray) else repr(value)
         raise LftomoError(f"{name} must be a number or an array of numbers of shape {grid.shape} or ({n},), "
                           f"got {got}")
-    arr = require_array(name, value)  # text inside lists refused; complex refused
+    arr = require_array(name, value)  # text inside lists, complex and non-finite values refused by name
     if arr.ndim == 0:
         arr = np.full(n, float(arr))
     elif arr.shape == tuple(grid.shape) or arr.shape == (n,):
@@ -599,8 +599,6 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
         arr = np.array(arr.reshape(n), dtype=np.float64, order="C", copy=True)
     else:
         raise LftomoError(f"shape of {name} {arr.shape} does not match the grid {tuple(grid.shape)} or ({n},)")
-    if not np.all(np.isfinite(arr)):
-        raise LftomoError(f"{name} must be finite, got {int(np.count_nonzero(~np.isfinite(arr)))} non-finite value(s)")
     if minimum is not None and arr.size and arr.min() < minimum:
         raise LftomoError(f"{name} must be >= {minimum} everywhere (m^-1), got minimum {arr.min()!r}")
     return arr
