@@ -75,6 +75,11 @@ MAX_RAYS_PER_PIXEL = 2**32
 MAX_TOTAL_RAYS = 10**13
 
 
+#: Hottest temperature accepted (K), in fields, surfaces and fit bounds: far above any flame or arc (10⁴ K),
+#: far below where the gray band's σT⁴ and the fits' scaling by the bounds lose double precision (10⁸ K).
+MAX_TEMPERATURE = 1e5
+
+
 #: Upper bound of iteration counts (``max_steps``, ``linear_max_steps``, ...): far
 #: above any useful solve, far below what overflows a JAX int32 loop counter.
 MAX_SOLVER_STEPS = 1_000_000
@@ -111,7 +116,7 @@ def require_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
 
 
 def require_bounds(bounds: Any) -> tuple[float, float]:
-    """Temperature bounds ``(T_min, T_max)`` in K with ``0 < T_min < T_max``, as floats."""
+    """Temperature bounds ``(T_min, T_max)`` in K with ``0 < T_min < T_max <= MAX_TEMPERATURE``, as floats."""
     try:
         items = list(bounds)
     except TypeError:
@@ -122,7 +127,15 @@ def require_bounds(bounds: Any) -> tuple[float, float]:
     hi = require_finite_scalar("bounds[1] (T_max)", items[1])
     if not hi > lo:
         raise LftomoError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
+    require_temperature_ceiling("bounds[1] (T_max)", hi)
     return lo, hi
+
+
+def require_temperature_ceiling(name: str, highest: float) -> None:
+    """Refuse a temperature above :data:`MAX_TEMPERATURE` (K), naming ``name`` and its value."""
+    if highest > MAX_TEMPERATURE:
+        raise LftomoError(f"{name} must be at most {MAX_TEMPERATURE:.0e} K (temperatures are in kelvin), got "
+                          f"{highest!r}")
 
 
 def require_flag(name: str, value: Any, *, allow_none: bool = False) -> bool | None:

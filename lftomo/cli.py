@@ -14,7 +14,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from .errors import LftomoError
-from ._validate import require_regular_file
+from ._validate import MAX_TEMPERATURE, require_regular_file
 
 
 def _load(scene_path, args=None):
@@ -527,7 +527,9 @@ def _steps(text: str) -> int:
 
 
 def _posterior_steps(text: str) -> int:
-    return _int_in(text, 2, 2**31 - 1)
+    from ._validate import MAX_SOLVER_STEPS
+
+    return _int_in(text, 2, MAX_SOLVER_STEPS)
 
 
 def _relative_noise(text: str) -> float:
@@ -575,6 +577,8 @@ def _bounds(text: str) -> tuple[float, float]:
     vals = _float_list(text)
     if len(vals) != 2 or not (np.isfinite(vals[0]) and np.isfinite(vals[1]) and 0 < vals[0] < vals[1]):
         raise argparse.ArgumentTypeError(f"expected T_min,T_max (K) with 0 < T_min < T_max, got {text!r}")
+    if vals[1] > MAX_TEMPERATURE:
+        raise argparse.ArgumentTypeError(f"T_max must be at most {MAX_TEMPERATURE:.0e} K, got {text!r}")
     return vals[0], vals[1]
 
 
@@ -739,7 +743,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "evaluated on the weights' quadrature grid, the fields written on the reconstruction "
                          "grid) or 12 DCT modes, or 'field': the full-grid Laplace "
                          "posterior with lambda by empirical Bayes (lftomo.laplace_posterior)")
-    rc.add_argument("--posterior-steps", type=_posterior_steps, default=None, help="emcee steps, >= 2 (default 500)")
+    rc.add_argument("--posterior-steps", type=_posterior_steps, default=None, help="emcee steps, 2 to 10^6 (default 500)")
     rc.add_argument("--recon-shape", type=_shape3, default=None,
                     help="scene mode: reconstruction grid nx,ny,nz dividing the [medium] shape (default half)")
     rc.add_argument("--rays-per-pixel", type=_rays, default=None,

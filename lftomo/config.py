@@ -70,7 +70,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import LftomoError
-from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, require_inside, require_regular_file, toml_int, toml_number,
+from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, MAX_TEMPERATURE, require_inside, require_regular_file, toml_int, toml_number,
                         toml_numbers)
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
 from .forward.pose import Pose
@@ -220,7 +220,7 @@ def _surface(k: int, s: Any, base: Path, allow_outside: bool = False) -> PlanarE
             raise LftomoError(f"{tab}: {', '.join(unused)} not used with temperature (a uniform blackbody "
                              "surface); remove it or give radiance instead of temperature")
         emitter = dict(
-            temperature=toml_number(f"{tab} temperature", s["temperature"], gt=0, unit="K"),
+            temperature=toml_number(f"{tab} temperature", s["temperature"], gt=0, le=MAX_TEMPERATURE, unit="K"),
             emissivity=toml_number(f"{tab} emissivity", s.get("emissivity", 1.0), gt=0, le=1),
         )
     else:
@@ -472,6 +472,12 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     if not isinstance(surfaces_t, list):
         raise LftomoError("surfaces must be given as [[surface]] tables")
     surfaces = [_surface(k, s, base, allow_outside) for k, s in enumerate(surfaces_t)]
+    n_ch = 1 if wavelengths is None else len(wavelengths)
+    for k, s in enumerate(surfaces):
+        if s.radiance is not None and s.radiance.ndim == 3 and s.radiance.shape[0] != n_ch:
+            raise LftomoError(f"[[surface]] #{k + 1}: the texture {surfaces_t[k].get('path')!r} has "
+                              f"{s.radiance.shape[0]} channel(s) (its first axis) but [render] wavelength_nm gives "
+                              f"{n_ch} wavelength(s); give one channel per wavelength, or a 2-D texture for all")
     medium = None
     if "medium" in data:
         from .forward.media_config import medium_from_table

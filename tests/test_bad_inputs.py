@@ -95,7 +95,7 @@ WEIGHTS_CASES = {
     "rays-neg": (dict(rays_per_pixel=-4), "rays_per_pixel must be an integer >= 1"),
     "seed-neg": (dict(seed=-1), "seed must be an integer >= 0"),
     "seed-float": (dict(seed=0.5), "seed must be an integer"),
-    "wl-neg": (dict(wavelength=-1e-9), "wavelength must be a positive"),
+    "wl-neg": (dict(wavelength=-1e-9), "wavelength must be > 0, got -1e-09"),
     "wl-nm": (dict(wavelength=650), "wavelength must be in metres"),
     "wl-str": (dict(wavelength="blue"), "wavelength must be a wavelength"),
     "memory-neg": (dict(memory_limit=-1), "memory_limit must be a positive"),
@@ -349,7 +349,7 @@ def test_bounds_in_kilokelvin_are_refused_where_planck_underflows(lf, cam, grid)
     # the posterior had sampled T ~ 3 K in silence, and taken text bounds
     problem = lt.Problem.from_data(m, W)
     for bad, match in (((0.3, 3.0), r"bounds = \(0.3, 3.0\) K: the blackbody emission at T = 1.65 K \(650 nm\) is 0.0"),
-                       ((300.0, 1e300), r"the blackbody emission at T = 5e\+299 K \(650 nm\) is inf"),
+                       ((300.0, 1e300), r"bounds\[1\] \(T_max\) must be at most 1e\+05 K"),
                        (("300", "3000"), r"bounds must be \(T_min, T_max\) in K, two numbers, or None")):
         with pytest.raises(LftomoError, match=match):
             lt.build_log_posterior(problem, basis=lt.DCTBasis(grid, 2), bounds=bad)
@@ -1183,3 +1183,87 @@ def test_error_summaries_refuse_a_non_finite_truth(lf, W):
 def test_weights_refuse_text_and_bools_for_fields(cam, grid, value):
     with pytest.raises(LftomoError, match="sigma_a must be"):
         lt.weights(cam, grid, sigma_a=value, wavelength="gray", rays_per_pixel=1, seed=0, progress=False)
+
+
+# ============================================================== carried from the 2026-12-04 reviews (session 67)
+OBJECT_CASES_3 = {
+    # T = 1e300 had rendered to "raw must be finite" after the whole render; bounds of 1e8 K and above gave a
+    # chi²/m of 1e12 (the fit's scaling by the bounds loses double precision) with exit status 0
+    "medium-too-hot": (lambda: lt.Medium(tiny_grid(), sigma_a=1.0, T=1e300), r"T \(maximum\) must be at most 1e\+05 K"),
+    "emitter-too-hot": (lambda: lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.05, 0.05), temperature=2e5),
+                        r"temperature must be at most 1e\+05 K"),
+    "field-posterior-bounds-too-hot": (lambda: lt.inverse.fieldposterior.require_bounds((300.0, 1e9)),
+                                       r"bounds\[1\] \(T_max\) must be at most 1e\+05 K"),
+}
+
+
+@pytest.mark.parametrize("case", list(OBJECT_CASES_3))
+def test_object_arguments_3(case):
+    make, match = OBJECT_CASES_3[case]
+    with pytest.raises(LftomoError, match=match):
+        make()
+
+
+def test_fit_bounds_above_the_temperature_ceiling_are_refused(lf):
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    with pytest.raises(LftomoError, match=r"bounds\[1\] \(T_max\) must be at most 1e\+05 K .*, got 1000000000.0"):
+        lt.reconstruct(m, tiny_weights(), bounds=(300.0, 1e9))
+    lt.Medium(tiny_grid(), sigma_a=1.0, T=1e5)  # the ceiling itself is allowed
+    ms, S, _ = _tiny_joint()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # fewer data than unknowns
+        with pytest.raises(LftomoError, match=r"bounds\[1\] \(T_max\) must be at most 1e\+05 K"):
+            lt.reconstruct(ms, S, unknowns="T+sigma_a", bounds=(300.0, 1e9))
+
+
+def test_weights_take_a_0d_wavelength_as_render_does(cam, grid):
+    W0 = lt.weights(cam, grid, sigma_a=1.0, wavelength=np.array(650e-9), rays_per_pixel=1, seed=0, progress=False)
+    W1 = lt.weights(cam, grid, sigma_a=1.0, wavelength=650e-9, rays_per_pixel=1, seed=0, progress=False)
+    assert W0.metadata["wavelength"] == 650e-9
+    assert (W0.matrix != W1.matrix).nnz == 0
+    with pytest.raises(LftomoError, match="did you pass nanometres"):
+        lt.weights(cam, grid, sigma_a=1.0, wavelength=np.array(650.0), rays_per_pixel=1, seed=0, progress=False)
+
+
+def test_medium_file_with_an_unknown_array_is_refused(tmp_path, grid):
+    """A misspelt ``sigma_S`` had been dropped silently for sigma_s = 0."""
+    p = tmp_path / "m.npz"
+    np.savez(p, sigma_a=np.ones(grid.shape), T=np.full(grid.shape, 1500.0), sigma_S=np.ones(grid.shape))
+    with pytest.raises(LftomoError, match=r"holds array\(s\) \['sigma_S'\] that a medium file does not have"):
+        lt.Medium.from_npz(p, grid)
+
+
+def test_surface_outside_the_field_of_view_warns(cam):
+    far = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.5, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])
+    with pytest.warns(UserWarning, match=r"surfaces\[0\] lies outside the camera's field of view"):
+        lf = lt.render(far, cam, rays_per_pixel=1, seed=0, progress=False)
+    assert lf.raw.max() == 0.0  # the warning is right: nothing of it is seen
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        lt.render(plane(), cam, rays_per_pixel=1, seed=0, progress=False)  # in view: no warning
+
+
+def test_scene_file_texture_channels_and_medium_file_shapes_name_the_file(tmp_path):
+    np.save(tmp_path / "tex3.npy", np.ones((3, 8, 8)))
+    scene = _scene(tmp_path, surface='texture = "file"\npath = "tex3.npy"')
+    with pytest.raises(LftomoError, match=r"the texture 'tex3.npy' has 3 channel\(s\) .* gives 1 wavelength\(s\)"):
+        load_scene_file(scene)
+    np.savez(tmp_path / "mm.npz", sigma_a=np.ones((8, 8, 8)), T=np.full((4, 4, 4), 1500.0))
+    (tmp_path / "m.toml").write_text('[medium]\nphantom = "file"\npath = "mm.npz"\n')
+    with pytest.raises(LftomoError, match=r"disagree in shape \(sigma_a \(8, 8, 8\), T \(4, 4, 4\)\)"):
+        load_scene_file(tmp_path / "m.toml")
+
+
+def test_cli_refuses_a_hot_scene_and_bounds_before_the_work(tmp_path, capsys):
+    hot = tmp_path / "hot.toml"
+    hot.write_text(SCENE_MEDIUM.replace("T = 1500.0", "T = 1e300"))
+    assert main(["render", str(hot), "-o", str(tmp_path / "r"), "--quiet"]) == 2
+    assert "T (maximum) must be at most 1e+05 K" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    for argv in (["reconstruct", str(hot), "--bounds", "300,1e9"], ["reconstruct", str(hot), "--posterior",
+                                                                     "--posterior-steps", "100000000"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "T_max must be at most 1e+05 K" in err and "argument --posterior-steps" in err

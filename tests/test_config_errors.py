@@ -193,7 +193,8 @@ def test_wrong_files_as_surface_texture(tmp_path):
         ("radiance = \"bright\"", r"\[\[surface\]\] #2 radiance must be a number >= 0"),
         ('texture = "checkers"', r"\[\[surface\]\] #2 texture must be one of \['uniform', 'checkerboard', 'file'\]"),
         ("normal = [0, 0, 0]", r"\[\[surface\]\] #2: normal must be a non-zero vector"),
-        ("temperature = -1.0", r"\[\[surface\]\] #2 temperature must be a number > 0 \(K\), got -1.0"),
+        ("temperature = -1.0", r"\[\[surface\]\] #2 temperature must be a number > 0 and <= 100000 \(K\), got -1.0"),
+        ("temperature = 2e5", r"\[\[surface\]\] #2 temperature must be a number > 0 and <= 100000 \(K\), got 200000.0"),
     ],
 )
 def test_surface_values(tmp_path, extra, match):

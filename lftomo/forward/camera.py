@@ -1365,7 +1365,8 @@ def view_displacements(camera: Camera, depth: float, *, jacobian: bool = False, 
     pitch = camera.mla.pitch
     XY, tot, se = _zone_mean_positions(camera, depth, (0.0, 0.0), n_rays)
     lit = tot > 0
-    c = (tot[lit, None] * XY[lit]).sum(axis=0) / tot[lit].sum()
+    # no view lit (e.g. depth 1e9 m, whose rays are lost to rounding): every displacement is NaN, as for an unlit view
+    c = (tot[lit, None] * XY[lit]).sum(axis=0) / tot[lit].sum() if lit.any() else np.zeros(2)
 
     def to_view(xy):
         d = np.empty_like(xy)

@@ -117,6 +117,10 @@ def _from_file(t: Mapping[str, Any], grid: Grid, base: Path, allow_outside: bool
         msg = str(exc)
         raise LftomoError(msg if msg.startswith("[medium]") else
                          f"[medium] path: cannot read {str(p)!r} without pickle: {msg}") from None
+    if len(set(shapes.values())) > 1:
+        raise LftomoError(f"[medium] path: the arrays of {str(p)!r} disagree in shape ("
+                          + ", ".join(f"{n} {shp}" for n, shp in shapes.items()) + "); a medium file's fields share "
+                          "one shape (nx, ny, nz)")
     for name, shp in shapes.items():
         if shp == grid.shape:
             continue

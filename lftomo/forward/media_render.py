@@ -69,6 +69,20 @@ def box_in_camera_frame(lower, upper, camera) -> tuple[np.ndarray, np.ndarray, s
     return cam.min(axis=0), cam.max(axis=0), where
 
 
+def field_of_view(camera) -> tuple[float, np.ndarray]:
+    """The camera's field of view as a wedge per axis from its stop.
+
+    Returns ``(r, tan)``: at depth z (m, camera frame) the camera sees at most
+    ``|x| <= r + z tan[0]`` and ``|y| <= r + z tan[1]``, with ``r`` the stop's
+    radius (m) and ``tan`` (2,) the tangents of the half field angles (the MLA's
+    half-size imaged at the focus distance).  A conservative bound: a point
+    outside it sends no ray into any lenslet.
+    """
+    nx, ny = camera.mla.count
+    half = np.array([0.5 * nx, 0.5 * ny]) * camera.mla.pitch / abs(camera.magnification)
+    return 0.5 * camera.main_lens.stop_diameter, half / camera.object_distance
+
+
 def check_medium_visible(medium, camera) -> None:
     """Raise LftomoError before any tracing if the medium box overlaps the
     camera (camera-frame z <= 0) or lies entirely outside the field of view.
@@ -87,13 +101,7 @@ def check_medium_visible(medium, camera) -> None:
             f"the medium box starts at z = {lo[2]:.4g} m{where}; it must lie in object space z > 0 "
             "(the aperture stop is at z = 0 and the lens behind it)"
         )
-    # the field of view is a cone from the stop: half-width at depth z is
-    # stop radius + z * tan(half field angle)
-    nx, ny = camera.mla.count
-    d = camera.object_distance
-    half = np.array([0.5 * nx, 0.5 * ny]) * camera.mla.pitch / abs(camera.magnification)
-    tan = half / d
-    r = 0.5 * camera.main_lens.stop_diameter
+    r, tan = field_of_view(camera)
     for axis, name in ((0, "x"), (1, "y")):
         # at each depth the visible interval is [-r - z tan, r + z tan]
         zfar = hi[2]

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import require_finite_scalar, require_positive, require_regular_file, require_wavelength
+from .._validate import (require_finite_scalar, require_positive, require_regular_file, require_temperature_ceiling,
+                         require_wavelength)
 from ..radiation import blackbody_intensity
 from .grid import Grid
 
@@ -64,6 +65,10 @@ class SootRule:
 
     def to_dict(self) -> dict[str, float]:
         return {"reference_wavelength": self.reference_wavelength, "alpha": self.alpha}
+
+
+#: The arrays of a medium file (:meth:`Medium.save_npz`, :meth:`Medium.from_npz`).
+MEDIUM_FILE_ARRAYS = ("sigma_a", "T", "sigma_s", "g", "soot_reference_wavelength", "soot_alpha")
 
 
 def _field(name: str, value: Any, grid: Grid) -> np.ndarray:
@@ -113,7 +118,7 @@ class Medium:
     g : float or ndarray of ``grid.shape``, default 0
         Henyey–Greenstein asymmetry parameter, ``|g| < 1``.
     T : float or ndarray of ``grid.shape``
-        Temperature (K), > 0.
+        Temperature (K), > 0 and at most ``MAX_TEMPERATURE`` (1e5 K).
     sigma_a_rule : SootRule, optional
         Spectral dependence of a single ``sigma_a`` field.  Without it a single
         field is the same at all wavelengths.
@@ -168,6 +173,7 @@ class Medium:
             raise LftomoError(f"g must satisfy |g| < 1 everywhere, got max |g| = {float(np.abs(gg).max())!r}")
         TT = _field("T", self.T, grid)
         _check_min("T", TT, strict=True)
+        require_temperature_ceiling("T (maximum)", float(TT.max()))
         object.__setattr__(self, "sigma_a", sa)
         object.__setattr__(self, "sigma_s", ss)
         object.__setattr__(self, "g", gg)
@@ -348,6 +354,10 @@ class Medium:
         from ..io import read_npz
 
         keys = set(read_npz(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)"))
+        unknown = sorted(keys - set(MEDIUM_FILE_ARRAYS))
+        if unknown:  # a misspelt sigma_s or g would otherwise be dropped for its default of 0
+            raise LftomoError(f"medium file {os.fspath(path)!r} holds array(s) {unknown} that a medium file does not "
+                              f"have; it may hold {list(MEDIUM_FILE_ARRAYS)}")
         kw: dict[str, Any] = {}
         for name in ("sigma_a", "T"):
             kw[name] = load_field(path, name=name, shape=grid.shape)

@@ -9,14 +9,15 @@ the right and +y up, DESIGN §1).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
 from ..errors import LftomoError
-from .._validate import (require_array, require_flag, require_int, require_nonnegative,
-                         require_positive, require_vector)
+from .._validate import (require_array, require_flag, require_int, require_nonnegative, require_positive,
+                         require_temperature_ceiling, require_vector)
 from .surfaces import SURF_NCOL
 
 
@@ -113,7 +114,7 @@ class PlanarEmitter:
             arr.setflags(write=False)
             object.__setattr__(self, "radiance", arr)
         else:
-            require_positive("temperature", self.temperature)
+            require_temperature_ceiling("temperature", require_positive("temperature", self.temperature))
             e = require_positive("emissivity", self.emissivity)
             if e > 1.0:
                 raise LftomoError(f"emissivity must be in (0, 1], got {e!r}")
@@ -155,9 +156,12 @@ def pack_surfaces(surfaces: Sequence[PlanarEmitter], wavelengths: Sequence[float
     rows = []
     texs = []
     off = 0
-    for s in surfaces:
+    for k, s in enumerate(surfaces):
         u, v, n = s.frame
-        t = s.texture(wavelengths)
+        try:
+            t = s.texture(wavelengths)
+        except LftomoError as exc:
+            raise LftomoError(f"surfaces[{k}]: {exc}") from None
         rows.append(
             np.concatenate([s.center, u, v, n, [0.5 * s.size[0], 0.5 * s.size[1], off, t.shape[1], t.shape[2],
                                                 1.0 if s.transparent_back else 0.0]])
@@ -221,3 +225,19 @@ class Scene:
                     f"surfaces[{k}] reaches z = {zmin:.4g} m{where}; the object space of the camera is z > 0 "
                     "(the aperture stop is at z = 0): move it in front of the camera"
                 )
+            if not (self.medium is not None and self.medium.is_scattering):  # a scattering medium can bring it in
+                _warn_if_out_of_view(k, corners, camera, where)
+
+
+def _warn_if_out_of_view(k: int, corners: np.ndarray, camera, where: str) -> None:
+    """Warn that surface ``k`` (its corners in the camera frame, (4, 3) m) lies wholly outside the field of view."""
+    from .media_render import field_of_view
+
+    r, tan = field_of_view(camera)
+    for axis, name in ((0, "x"), (1, "y")):
+        limit = r + corners[:, 2] * tan[axis]  # the wedge at each corner's depth; the surface is convex
+        if np.all(corners[:, axis] > limit) or np.all(corners[:, axis] < -limit):
+            warnings.warn(f"surfaces[{k}] lies outside the camera's field of view{where} (every corner beyond "
+                          f"|{name}| = r + z tan, r = {r:.4g} m, tan = {tan[axis]:.4g}): the render shows none of it",
+                          UserWarning, stacklevel=4)
+            return

@@ -110,7 +110,7 @@ from numba import njit, prange
 from ..errors import LftomoError
 from .._validate import memory_limit as memory_limit_bytes
 from .._validate import (json_differences, require_array, require_int, require_positive, require_rays, require_seed,
-                        require_views)
+                        require_views, require_wavelength)
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
@@ -607,14 +607,9 @@ def _field_flat(name: str, value: Any, grid, *, minimum: float | None = 0.0) -> 
 def _wavelength(value: Any) -> float | None:
     if value is None or (isinstance(value, str) and value.lower() == "gray"):
         return None
-    if isinstance(value, (str, bool)) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if isinstance(value, str):
         raise LftomoError(f"wavelength must be a wavelength in m (e.g. 650e-9) or 'gray', got {value!r}")
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise LftomoError(f"wavelength must be a positive wavelength in m, got {value!r}")
-    if v > 1e-3:
-        raise LftomoError(f"wavelength must be in metres (e.g. 650e-9), got {v!r}; did you pass nanometres?")
-    return v
+    return require_wavelength("wavelength", value)  # a 0-d array counts, as in render
 
 
 def _pack_surfaces(surfaces: Any, wavelength: float | None):

@@ -186,7 +186,7 @@ from scipy.sparse.linalg import lsmr
 from threadpoolctl import threadpool_limits
 
 from ..errors import LftomoError
-from .._validate import require_choice, require_steps
+from .._validate import require_choice, require_steps, require_temperature_ceiling
 from ..forward.grid import Grid
 from ..forward.weights import RaySegments
 from ..interrupt import stop_between_steps
@@ -1032,6 +1032,7 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
     lo, hi = (float(b) for b in bounds)
     if not (0 < lo < hi):
         raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+    require_temperature_ceiling("bounds[1] (T_max)", hi)
     lam_max = float(lambda_max)
     if not (math.isfinite(lam_max) and lam_max >= _LAMBDA_START):
         raise LftomoError(f"lambda_max must be a finite number >= {_LAMBDA_START:g}, got {lambda_max!r}")

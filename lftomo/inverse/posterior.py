@@ -68,6 +68,7 @@ from .._validate import (
     require_nonnegative,
     require_positive,
     require_seed,
+    require_temperature_ceiling,
 )
 from ..interrupt import check_interrupt, stop_between_steps
 from ..radiation import dplanck_dT, gray_intensity, gray_inverse, planck, planck_inverse
@@ -623,6 +624,8 @@ def _check_bounds(bounds: Any, channels: list) -> tuple[float, float]:
     emitting = [ch for ch in channels if ch.kind != "linear"]
     if emitting and hi <= 0:
         raise LftomoError(f"bounds must allow T > 0 K for Planck/gray emission, got {bounds!r}")
+    if emitting and np.isfinite(hi):
+        require_temperature_ceiling("bounds[1] (T_max)", hi)
     if emitting and np.isfinite(lo) and np.isfinite(hi):
         mid = 0.5 * (max(lo, 0.0) + hi)
         with np.errstate(all="ignore"):

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import require_flag
+from .._validate import require_flag, require_temperature_ceiling
 from ..errors import LftomoError
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
@@ -377,4 +377,5 @@ def _temperature_bounds(bounds: Any) -> tuple[float, float]:
         raise LftomoError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
         raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
+    require_temperature_ceiling("bounds[1] (T_max)", hi)
     return lo, hi

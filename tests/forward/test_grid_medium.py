@@ -275,8 +275,12 @@ def test_load_field_rejects_wrong_shape_nan_dtype_missing(grid, tmp_path):
     )
     with pytest.raises(ValueError, match=r"shape of sigma_a \(4, 5, 5\) .* does not match the expected shape \(4, 5, 6\)"):
         load_field(p, name="sigma_a", shape=grid.shape)
-    with pytest.raises(ValueError, match=r"shape of sigma_a \(4, 5, 5\)"):
+    with pytest.raises(ValueError, match=r"holds array\(s\) \['c', 's'\] that a medium file does not have"):
         Medium.from_npz(p, grid)
+    p2 = tmp_path / "bad2.npz"
+    np.savez(p2, sigma_a=np.ones((4, 5, 5)), T=np.full(grid.shape, 800.0))
+    with pytest.raises(ValueError, match=r"shape of sigma_a \(4, 5, 5\)"):
+        Medium.from_npz(p2, grid)
     with pytest.raises(ValueError, match="T in .* must be finite"):
         load_field(p, name="T")
     with pytest.raises(ValueError, match="real numeric dtype"):
