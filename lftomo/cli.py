@@ -117,9 +117,19 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _npz_output(output: str) -> Path:
+    """The .npz file ``-o`` names (another suffix replaced, said on stderr), checked before the work."""
+    from .io import npz_output_path
+
+    out = npz_output_path(output, what="-o/--output")
+    if Path(output).suffix not in ("", ".npz"):
+        print(f"lftomo: note: -o {output} is written as {out} (an .npz archive)", file=sys.stderr)
+    return out
+
+
 def cmd_weights(args) -> int:
     from .forward.weights import weights
-    from .io import check_output_file, npz_output_path
+    from .io import check_output_file
 
     cfg = _load(args.scene, args)
     medium = cfg.scene.medium
@@ -129,7 +139,7 @@ def cmd_weights(args) -> int:
     seed = cfg.seed if args.seed is None else args.seed
     sampler = cfg.sampler if args.sampler is None else args.sampler
     channels = [None] if cfg.wavelengths is None else list(cfg.wavelengths)
-    out = npz_output_path(args.output, what="-o/--output")
+    out = _npz_output(args.output)
     # one file per camera of a rig (suffix: its name) and per wavelength (suffix: nm)
     jobs = []
     for cam, name in zip(cfg.cameras, cfg.camera_names):
@@ -240,7 +250,6 @@ def cmd_reconstruct(args) -> int:
 def cmd_calibrate(args) -> int:
     """``lftomo calibrate``: microlens grid (and radiometric factors) of a real camera from raw frames."""
     from .calibration import calibrate_grid, calibration_figure, radiometric_calibration, save_calibration
-    from .io import npz_output_path
     from .rawio import load_camera_description, read_raw
 
     if (args.blackbody is None) != (args.temperature is None):
@@ -257,7 +266,7 @@ def cmd_calibrate(args) -> int:
     if args.blackbody is not None and cam.gain is None:
         raise LftomoError(f"--blackbody: camera file {cam.source!r} needs [sensor] gain_e_per_count for the noise "
                          "of the calibration factors")
-    out = npz_output_path(args.output, what="-o/--output")
+    out = _npz_output(args.output)
     scene_camera = None
     if args.scene is not None:
         from .config import load_scene_file

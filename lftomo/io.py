@@ -185,7 +185,7 @@ def check_output_file(path: Any, *, what: str = "output file") -> Path:
 
 
 def npz_output_path(path: Any, *, what: str = "output file") -> Path:
-    """``path`` with the suffix ``.npz`` (appended when it has another), checked
+    """``path`` with the suffix ``.npz`` (replacing another suffix: ``W.mat`` is written as ``W.npz``), checked
     by :func:`check_output_file`; an existing folder given as ``path`` is
     refused rather than written beside as ``folder.npz``."""
     if isinstance(path, (str, os.PathLike)) and Path(path).is_dir():

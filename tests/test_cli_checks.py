@@ -132,3 +132,10 @@ def test_an_error_from_outside_lftomo_checks_asks_for_a_report(capsys):
     assert _run_command(argparse.Namespace(func=fails)) == 2
     err = capsys.readouterr().err
     assert "array is too big (ValueError from test_cli_checks" in err and "please report" in err
+
+
+def test_an_output_suffix_other_than_npz_is_replaced_and_said(files, tmp_path, capsys):
+    """``-o W.mat`` wrote W.npz without a word (session 66's review)."""
+    assert main(["weights", str(files["scene"]), "-o", str(tmp_path / "W.mat"), "--seed", "2", "--quiet"]) == 0
+    assert f"-o {tmp_path / 'W.mat'} is written as {tmp_path / 'W.npz'}" in capsys.readouterr().err
+    assert (tmp_path / "W.npz").is_file() and not (tmp_path / "W.mat").exists()
