@@ -383,7 +383,9 @@ class LightField:
 
     def _apply(self, R: sp.csr_matrix) -> np.ndarray:
         ny, nx = self.camera.views_shape[2:]
-        out = np.stack([R @ ch.ravel() for ch in self._raw3]).reshape(self.n_channels, ny, nx)
+        out = np.stack([R @ ch.ravel() for ch in self._raw3])
+        out[:, np.diff(R.indptr) == 0] = np.nan  # no lit view reaches these pixels: masked, not zero
+        out = out.reshape(self.n_channels, ny, nx)
         return out[0] if self.n_channels == 1 else out
 
     def refocus_at(self, depth: float) -> np.ndarray:
@@ -392,7 +394,9 @@ class LightField:
         Shift-and-add of the lit views with shifts traced through the real
         main lens (so spherical aberration of on-axis points is compensated),
         bilinear interpolation, normalised per pixel by the weight of the
-        contributing views.  Values are mean pixel signals (W or W/m).
+        contributing views.  Values are mean pixel signals (W or W/m); NaN
+        where no lit view reaches the pixel (strong defocus at the image's
+        edge), as unlit view pixels are.
         """
         return self._apply(self.refocus_operator_at(depth))
 

@@ -1267,3 +1267,52 @@ def test_cli_refuses_a_hot_scene_and_bounds_before_the_work(tmp_path, capsys):
         assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "T_max must be at most 1e+05 K" in err and "argument --posterior-steps" in err
+
+
+# ============================================================== an edge-case review of valid inputs (session 67)
+def test_one_ray_per_pixel_has_no_error_estimate_and_is_refused_where_one_is_needed(lf, W):
+    """One ray per pixel reported std_error = 0 and row_std_error = 0, and with_monte_carlo_noise added nothing:
+    the result claimed to be exact."""
+    assert lf.metadata["rays_per_pixel"] == 1 and not np.any(lf.std_error)
+    noisy = lt.add_noise(lf, relative_std=0.01, seed=1)
+    with pytest.raises(LftomoError, match="rendered with 1 ray per pixel: its Monte Carlo error cannot be estimated"):
+        lt.with_monte_carlo_noise(noisy, lf, rays_per_pixel=1, weights_rays_per_pixel=4)
+    with pytest.raises(LftomoError, match="rendered with 1 ray per pixel"):
+        lt.monte_carlo_std(lf, rays_per_pixel=1, weights_rays_per_pixel=4)
+    with pytest.raises(LftomoError, match="built with 1 ray per pixel: its Monte Carlo error cannot be estimated"):
+        W.model_std(np.ones(W.n_voxels))
+
+
+def test_voxels_no_datum_sees_are_named(cam):
+    """A box partly outside the field of view: 7 of 27 voxels have all-zero columns and had been given
+    389–1683 K (truth 1500) without a word."""
+    g = lt.Grid((3, 3, 3), (0.003, -0.003, 0.997), (0.012, 0.003, 1.003))
+    lf2 = lt.render(lt.Scene(medium=lt.Medium(g, sigma_a=20.0, T=1500.0)), cam, rays_per_pixel=2, seed=0,
+                    progress=False)
+    W2 = lt.weights(cam, g, sigma_a=20.0, rays_per_pixel=2, seed=1, progress=False)
+    unseen = int(np.count_nonzero(np.asarray(abs(W2.matrix).sum(axis=0)).ravel() == 0))
+    assert 0 < unseen < g.n_voxels
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf2, relative_std=0.01, seed=2))
+    with pytest.warns(UserWarning, match=f"{unseen} of 27 voxels of the \\(3, 3, 3\\) grid are seen by no datum"):
+        lt.Problem.from_data(m, W2)
+    with warnings.catch_warnings():  # the axisymmetric fit's ring cells are seen through their other voxels
+        warnings.simplefilter("error", UserWarning)
+        inside = lt.Grid((3, 3, 3), (-0.006, -0.006, 0.994), (0.006, 0.006, 1.006))
+        W3 = lt.weights(cam, inside, sigma_a=20.0, rays_per_pixel=2, seed=1, progress=False)
+        lf3 = lt.render(lt.Scene(medium=lt.Medium(inside, sigma_a=20.0, T=1500.0)), cam, rays_per_pixel=2, seed=0,
+                        progress=False)
+        lt.Problem.from_data(lt.Measurement.from_lightfield(lt.add_noise(lf3, relative_std=0.01, seed=2)), W3)
+
+
+def test_refocused_pixels_no_view_reaches_are_nan(grid):
+    """Strong defocus on a small camera: every refocused pixel had read 0.0 though no view reached it."""
+    cam = lt.Camera.seed(0.5, mla={"count": (10, 10)})
+    lf2 = lt.render(lt.Scene(medium=lt.Medium(grid, sigma_a=20.0, T=1500.0)), cam, rays_per_pixel=2, seed=0,
+                    progress=False)
+    R = lf2.refocus_operator_at(1.0)
+    empty = np.diff(R.indptr) == 0
+    assert empty.any()
+    img = lf2.refocus_at(1.0).ravel()
+    assert np.all(np.isnan(img[empty])) and np.all(np.isfinite(img[~empty]))
+    near = lf2.refocus_at(0.6)  # the focus side: reached everywhere, and equal to the operator's image
+    assert np.array_equal(near.ravel(), lf2.refocus_operator_at(0.6) @ lf2.raw.ravel())

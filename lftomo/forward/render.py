@@ -70,7 +70,10 @@ def render(
     LightField
         ``raw`` (rows, cols) — or (n_λ, rows, cols) with several wavelengths —
         the noise-free pixel signal (W, or W/m spectral), with its Monte Carlo
-        standard error and the pixel étendue.
+        standard error and the pixel étendue.  With one ray per pixel there is
+        no spread to estimate the error from: ``std_error`` is 0, and the
+        functions that use it refuse such a render
+        (:func:`lftomo.inverse.compare.monte_carlo_std`).
     """
     from ..lightfield import LightField
     from .camera import Camera

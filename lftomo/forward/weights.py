@@ -970,8 +970,9 @@ class WeightMatrix:
         over ``N`` (:func:`lftomo.forward.sampler.mean_variance`).  It is the
         standard deviation of ``s_i`` over build seeds, estimated from one
         build (itself uncertain: with K = 8 groups, by about ``1/√(2(K−1))`` ≈
-        27 % per row).  ``None`` for a matrix read from a file written before
-        it was kept, or derived without it.
+        27 % per row); 0 with one ray per pixel, where there is no spread
+        (:meth:`model_std` then refuses).  ``None`` for a matrix read from a
+        file written before it was kept, or derived without it.
 
         Use: ``r_i = row_std_error_i / s_i`` is the relative Monte Carlo error
         of row ``i``.  For a field ``x`` that is smooth over the voxels a
@@ -1106,12 +1107,17 @@ class WeightMatrix:
         Raises
         ------
         LftomoError
-            The matrix has no ``row_std_error`` (an old file), or ``x`` has
-            the wrong shape or non-finite values.
+            The matrix has no ``row_std_error`` (an old file) or was built
+            with one ray per pixel (no spread to estimate it from), or ``x``
+            has the wrong shape or non-finite values.
         """
         if self.row_std_error is None:
             raise LftomoError("this WeightMatrix has no row_std_error (read from a file written before it was "
                               "kept, or derived without it): rebuild it with lftomo.weights to get model_std")
+        if int(self.metadata.get("rays_per_pixel", 2)) < 2:  # one ray has no spread: row_std_error is 0
+            raise LftomoError("this WeightMatrix was built with 1 ray per pixel: its Monte Carlo error cannot be "
+                              "estimated from one ray per pixel (row_std_error is 0); build it with "
+                              "rays_per_pixel >= 2")
         x = self._as_x(x)
         if x.ndim != 1:
             raise LftomoError(f"x must be one field of shape ({self.n_voxels},) or the grid shape, got {x.shape}")

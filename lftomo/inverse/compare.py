@@ -172,6 +172,9 @@ def _require_render(lf: Any, name: str, rays_per_pixel: Any) -> None:
     if own is not None and int(own) != n:
         raise LftomoError(f"rays_per_pixel={n!r} but {name} was rendered with {int(own)} rays per pixel "
                           f"(its metadata): pass rays_per_pixel={int(own)}")
+    if n < 2:  # one ray (one randomization) has no spread: its std_error of 0 is not an estimate
+        raise LftomoError(f"{name} was rendered with 1 ray per pixel: its Monte Carlo error cannot be estimated "
+                          "from one ray per pixel (std_error is 0); render with rays_per_pixel >= 2")
 
 
 def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int:

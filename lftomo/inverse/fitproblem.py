@@ -42,7 +42,7 @@ from .subvoxel import interpolate_field, require_same_box, resolve_quadrature
 from .symmetry import resolve_symmetry
 from .unknowns import Unknowns, resolve_unknowns
 
-__all__ = ["Problem", "problem_on_grid", "weights_grid", "warn_underdetermined", "check_types"]
+__all__ = ["Problem", "problem_on_grid", "weights_grid", "warn_underdetermined", "warn_unseen", "check_types"]
 
 
 def weights_grid(W) -> Grid:
@@ -87,6 +87,18 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
         warnings.warn(f"reconstructing {n_unknowns} unknowns from only {n_data} data: the data cannot determine "
                       "the field, the result is mostly the smoothness prior; use more views or pixels, or a "
                       "coarser grid", UserWarning, stacklevel=_outside_lftomo())
+
+
+def warn_unseen(A: Any, grid: Any) -> None:
+    """Warn (UserWarning) when voxels of ``grid`` have all-zero columns in ``A`` (data × voxels): no datum
+    depends on them, so their values come from the prior alone."""
+    seen = np.asarray(abs(A).sum(axis=0)).ravel() > 0
+    k = int(seen.size - np.count_nonzero(seen))
+    if k:
+        warnings.warn(f"{k} of {seen.size} voxels of the {tuple(grid.shape)} grid are seen by no datum (all-zero "
+                      "columns of the weights: outside the field of view, or only in pixels left out): their "
+                      "temperatures are the smoothness prior's extrapolation, not measured", UserWarning,
+                      stacklevel=_outside_lftomo())
 
 
 def _outside_lftomo() -> int:
@@ -219,6 +231,8 @@ class Problem:
         # the cached property's value
         problem.__dict__["_linear_problem"] = stack_problems([p[0] for p in parts], label="channels")
         warn_underdetermined(problem.n_data, problem.n_unknowns)
+        if ring is None:  # a ring cell is seen wherever any of its voxels is
+            warn_unseen(problem.__dict__["_linear_problem"].A, g)
         return problem
 
     @classmethod
