@@ -30,7 +30,7 @@ from .fitoptions import (  # noqa: F401  (DEFAULT_*, MOVED_OPTIONS re-exported: 
     DEFAULT_NOISE_SCALE, DEFAULT_NOISE_SCALE_RINGS, DEFAULT_PRIOR, MOVED_OPTIONS, fit_keywords, fold_unknowns,
     moved_options, temperature_defaults)
 from .unknowns import resolve_unknowns
-from .solvers import warn_on_fit
+from .solvers import METHODS, warn_on_fit
 
 
 def _reconstruct_temperature(problem: Problem, *, regularization, prior, bounds, method, rule, options,
@@ -349,9 +349,8 @@ def reconstruct(
         fit, regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
     lo, hi = _temperature_bounds(bounds)
-    if fit == "T" and method not in ("auto", "levenberg-marquardt", "gauss-newton", "dense-lm"):
-        raise LftomoError("method must be 'auto', 'levenberg-marquardt', 'gauss-newton' or 'dense-lm' for "
-                         f"unknowns='T', got {method!r}")
+    if fit == "T" and method not in METHODS:
+        raise LftomoError(f"method must be one of {METHODS} for unknowns='T', got {method!r}")
     if require_flag("progress", progress, allow_none=True) is not None:
         options["progress"] = bool(progress)
     t0 = time.perf_counter()
