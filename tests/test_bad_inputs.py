@@ -1316,3 +1316,15 @@ def test_refocused_pixels_no_view_reaches_are_nan(grid):
     assert np.all(np.isnan(img[empty])) and np.all(np.isfinite(img[~empty]))
     near = lf2.refocus_at(0.6)  # the focus side: reached everywhere, and equal to the operator's image
     assert np.array_equal(near.ravel(), lf2.refocus_operator_at(0.6) @ lf2.raw.ravel())
+
+
+def test_the_unseen_voxel_check_leaves_the_matrix_as_it_is():
+    """abs(A) sums a non-canonical CSR's duplicates in place: the check had moved the demo's focal-stack λ by 2 %."""
+    import scipy.sparse as sp
+
+    from lftomo.inverse.fitproblem import warn_unseen
+
+    A = sp.csr_matrix((np.array([1.0, 2.0, 3.0]), np.array([2, 0, 2]), np.array([0, 3])), shape=(1, 3))
+    with pytest.warns(UserWarning, match="1 of 3 voxels"):
+        warn_unseen(A, lt.Grid((1, 1, 3), (0.0, 0.0, 1.0), (0.01, 0.01, 1.03)))
+    assert A.indices.tolist() == [2, 0, 2] and A.data.tolist() == [1.0, 2.0, 3.0]

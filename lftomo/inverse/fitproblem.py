@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import LftomoError
 from .._validate import require_array
@@ -92,7 +93,11 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
 def warn_unseen(A: Any, grid: Any) -> None:
     """Warn (UserWarning) when voxels of ``grid`` have all-zero columns in ``A`` (data × voxels): no datum
     depends on them, so their values come from the prior alone."""
-    seen = np.asarray(abs(A).sum(axis=0)).ravel() > 0
+    # read the stored entries only: abs(A) would sum A's duplicate entries in place (scipy's _deduped_data),
+    # reordering them and so every later product with A at the last bit (the λ search then moves)
+    Ac = A if sp.issparse(A) and A.format == "csr" else sp.csr_matrix(A)
+    seen = np.zeros(Ac.shape[1], dtype=bool)
+    seen[Ac.indices[Ac.data != 0]] = True
     k = int(seen.size - np.count_nonzero(seen))
     if k:
         warnings.warn(f"{k} of {seen.size} voxels of the {tuple(grid.shape)} grid are seen by no datum (all-zero "
