@@ -18,7 +18,8 @@ Cases: the standard axisymmetric flame on a 32³ grid (seed camera focused at
 scattering reference medium.  ``--weights`` adds the rows of the weight
 matrix of the flame: the relative spread of ``W @ I_b`` per row and of the
 row sums ``W @ 1``; "claimed" is the matrix's own ``W.model_std(x)``, from its
-``row_std_error`` (for the row sums, ``row_std_error`` itself).
+``entry_std_error`` and ``row_std_error`` (for the row sums, ``row_std_error``
+itself).
 
 Usage::
 
@@ -89,8 +90,8 @@ def run_case(name, cam, rays, seeds):
 def run_weights(cam, rays, seeds):
     """W's rows for the flame's I_b and for a uniform I_b = 1: spread over builds against the claimed error.
 
-    "claimed" is ``W.model_std(x)`` (``row_std_error`` carried to ``x`` by the relative rule); for
-    ``x = 1`` that is ``row_std_error`` itself, the error of the row sum the build estimates.
+    "claimed" is ``W.model_std(x)`` (the entries' variances plus a rank-one covariance fixed by
+    ``row_std_error``); for ``x = 1`` that is ``row_std_error`` itself, the error of the row sum.
     """
     grid = phantoms.default_flame_grid((32, 32, 32))
     med = phantoms.axisymmetric_flame(grid)

@@ -85,7 +85,8 @@ bytes; a build past ``memory_limit`` (default ``LFTOMO_MEMORY_LIMIT_GB``, else h
 the physical memory) is
 refused.  The build runs in chunks of rows (one bounded scratch buffer) into
 arrays pre-sized from the estimate, so the peak stays near the final size.
-CSR arrays: float64 values and int32 column indices (12 bytes per non-zero).
+CSR arrays: float64 values and int32 column indices, plus each entry's float32
+standard error (16 bytes per non-zero).
 """
 
 from __future__ import annotations
@@ -136,7 +137,6 @@ FORMAT = "lftomo-weights-1"
 TRANSPORT_STREAM = 1 << 40
 _MAX_BOUNCES = 1000
 _CHUNK_BYTES = 64 * 2**20  # scratch buffer of one chunk of rows
-_BYTES_PER_NNZ = 12  # float64 value + int32 column index
 
 
 # ===========================================================================
@@ -145,30 +145,69 @@ _BYTES_PER_NNZ = 12  # float64 value + int32 column index
 
 
 @njit(cache=True)
-def _finish_row(out_idx, out_val, o, cnt, pos):
-    """Sort the ``cnt`` entries of a row at ``o`` by column; reset ``pos``."""
+def _finish_row(out_idx, out_val, o, cnt, pos, out_err):
+    """Sort the ``cnt`` entries of a row at ``o`` by column (and their errors
+    ``out_err`` with them, unless it is empty); reset ``pos``."""
     if cnt > 1:
         order = np.argsort(out_idx[o:o + cnt])
         si = out_idx[o:o + cnt][order]
         sv = out_val[o:o + cnt][order]
         out_idx[o:o + cnt] = si
         out_val[o:o + cnt] = sv
+        if out_err.shape[0] > 0:
+            se = out_err[o:o + cnt][order]
+            out_err[o:o + cnt] = se
     for q in range(cnt):
         pos[out_idx[o + q]] = -1
 
 
+@njit(cache=True)
+def _group_shares(n_rays, k_groups):
+    """``n_g / N`` (K,) for :func:`_entry_errors`: each group's share of the rays."""
+    share = np.empty(k_groups)
+    for g in range(k_groups):
+        share[g] = _smp.group_size(n_rays, g, k_groups) / n_rays
+    return share
+
+
+@njit(cache=True)
+def _entry_errors(ga, cnt, share, out_err, o):
+    """Standard error of each of a row's ``cnt`` entries, ``out_err[o + q]``, from
+    its sums over each randomization group, ``ga[q]`` (K,), of the rays'
+    contributions ``val`` (the entry is their total ``S``): with ``share`` =
+    ``n_g / N``, ``sqrt(K/(K−1) Σ_g (ga[q, g] − share_g S)²)``, which is
+    :func:`lftomo.forward.sampler.group_variance` in these units (0 with one
+    group).  Resets ``ga[:cnt]`` to 0."""
+    k_groups = ga.shape[1]
+    scale = k_groups / (k_groups - 1.0) if k_groups >= 2 else 0.0
+    for q in range(cnt):
+        total = 0.0
+        for g in range(k_groups):
+            total += ga[q, g]
+        acc = 0.0
+        for g in range(k_groups):
+            d = ga[q, g] - share[g] * total
+            acc += d * d
+            ga[q, g] = 0.0
+        out_err[o + q] = math.sqrt(scale * acc)
+
+
 @njit(cache=True, inline="always")
-def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, pos):
-    """Finish row ``k``: sorted entries, background and row-sum variance; or, on ``overflow``, mark it
-    abandoned (``out_cnt[k] = -1``).  Either way ``pos`` is reset for the row's voxels."""
+def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, pos,
+               ga, share, out_err):
+    """Finish row ``k``: sorted entries with their standard errors, background and row-sum variance; or, on
+    ``overflow``, mark it abandoned (``out_cnt[k] = -1``).  Either way ``pos`` and ``ga`` are reset for the
+    row's voxels."""
     if overflow:
         for q in range(cnt):
             pos[out_idx[o + q]] = -1
+            ga[q, :] = 0.0
         out_cnt[k] = -1
         out_bg[k] = 0.0
         out_var[k] = 0.0
     else:
-        _finish_row(out_idx, out_val, o, cnt, pos)
+        _entry_errors(ga, cnt, share, out_err, o)
+        _finish_row(out_idx, out_val, o, cnt, pos, out_err)
         out_cnt[k] = cnt
         out_bg[k] = bg
         out_var[k] = _smp.mean_variance(gs, sq, n_rays, sampler)
@@ -176,7 +215,7 @@ def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_va
 
 @njit(cache=True, parallel=True)
 def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                    sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos):
+                    sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos, gacc, out_err):
     """Exact weight rows of the pixels ``pix`` (flat raw indices), no scattering.
 
     Row ``k`` is written at ``out_idx/out_val[buf_off[k]:]`` (capacity
@@ -188,7 +227,9 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
     sum of squares into the variance of their mean, as the renderer does.  A row that would exceed its capacity
     is abandoned with ``out_cnt[k] = -1`` (the caller recomputes it with the
     bound ``min(n_vox, n_rays * max_segments)``).  ``pos`` (n_threads, n_vox)
-    int32 scratch, all -1 on entry and exit.
+    int32 scratch, all -1 on entry and exit.  ``out_err`` (like ``out_val``): the
+    standard error of each entry, from its sums per group ``ray mod K`` kept in
+    ``gacc`` (n_threads, >= capacity, K) float64 scratch, all 0 on entry and exit.
     """
     n = pix.shape[0]
     ncols = int(optics[_o.O_NCOLS])
@@ -196,8 +237,10 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     k_groups = int(sampler[_smp.S_GROUPS])
+    share = _group_shares(n_rays, k_groups)
     for k in prange(n):
         p = pos[numba.get_thread_id()]
+        ga = gacc[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
         Ls = np.zeros(1)
@@ -222,6 +265,7 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
                 t_s = surfaces_hit(ox, oy, oz, dx, dy, dz, math.inf, surf, tex, Ls)
             ns = traverse(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, 0.0, t_s, vbuf, lbuf)
             wn = w * inv_n
+            grp = ray % k_groups
             T = 1.0
             for s in range(ns):
                 j = vbuf[s]
@@ -234,12 +278,14 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
                         if cnt >= cap:
                             overflow = True
                             break
-                        p[j] = cnt
-                        out_idx[o + cnt] = j
-                        out_val[o + cnt] = val
+                        q = cnt
+                        p[j] = q
+                        out_idx[o + q] = j
+                        out_val[o + q] = val
                         cnt += 1
                     else:
                         out_val[o + q] += val
+                    ga[q, grp] += val
             if overflow:
                 break
             if t_s < math.inf:
@@ -247,19 +293,22 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
             score = w * (1.0 - T)  # Σ_j of this ray's W_ij terms, times N
             gs[ray % k_groups] += score
             sq += score * score
-        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p)
+        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p,
+                   ga, share, out_err)
 
 
 @njit(cache=True, parallel=True)
 def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
-                     sigma_a, sigma_s, g, max_bounces, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos):
+                     sigma_a, sigma_s, g, max_bounces, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos, gacc,
+                     out_err):
     """Monte Carlo weight rows with scattering (see the module docstring):
     expected-value emission along each flight, next scattering vertex sampled
     exactly from ``sigma_s`` along the DDA segments, absorption carried as a
     weight.
 
     Same layout as :func:`_rows_absorbing` (a ray's score for ``out_var`` is
-    the sum of its emission terms over the whole path); a row that would exceed its
+    the sum of its emission terms over the whole path, and its contributions to
+    an entry add up in ``gacc`` for ``out_err``); a row that would exceed its
     capacity is abandoned with ``out_cnt[k] = -1`` (the caller recomputes it
     with a larger capacity: the random streams make it reproducible).
     """
@@ -272,8 +321,10 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
     y1 = y0 + ny * hy
     z1 = z0 + nz * hz
     k_groups = int(sampler[_smp.S_GROUPS])
+    share = _group_shares(n_rays, k_groups)
     for k in prange(n):
         p = pos[numba.get_thread_id()]
+        ga = gacc[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
         Ls = np.zeros(1)
@@ -330,12 +381,14 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
                                 if cnt >= cap:
                                     overflow = True
                                     break
-                                p[j] = cnt
-                                out_idx[o + cnt] = j
-                                out_val[o + cnt] = val
+                                q = cnt
+                                p[j] = q
+                                out_idx[o + q] = j
+                                out_val[o + q] = val
                                 cnt += 1
                             else:
                                 out_val[o + q] += val
+                            ga[q, ray % k_groups] += val
                         if hit < 0:
                             if ss > 0.0 and tau_s + ss * ell > tau_star:
                                 dt = (tau_star - tau_s) / ss
@@ -376,7 +429,8 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
             score = path_sum * n_rays
             gs[ray % k_groups] += score
             sq += score * score
-        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p)
+        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p,
+                   ga, share, out_err)
 
 
 @njit(cache=True, parallel=True)
@@ -444,6 +498,7 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
     (The signal's Jacobian and W together: :mod:`lftomo.forward.segmentrows`.)
     """
     n = out_cnt.shape[0]
+    no_errors = np.empty(0)  # the entries' errors are computed apart (_segments_entry_errors)
     for k in prange(n):
         p = pos[numba.get_thread_id()]
         i = row0 + k
@@ -501,9 +556,43 @@ def _segments_rows(row0, row_ray_ptr, ray_ptr, ray_w, ray_L, seg_vox, seg_len, i
             for q in range(cnt):
                 p[out_idx[o + q]] = -1
         else:
-            _finish_row(out_idx, out_val, o, cnt, p)
+            _finish_row(out_idx, out_val, o, cnt, p, no_errors)
         out_cnt[k] = cnt
         out_sig[k] = sig
+
+
+@njit(cache=True, parallel=True)
+def _segments_entry_errors(row_ray_ptr, ray_ptr, ray_w, ray_sample, seg_vox, seg_len, n_rays, k_groups, sigma_a,
+                           indptr, indices, pos, gacc, out):
+    """``out[indptr[i] + q]``: standard error of the stored entry ``q`` of row
+    ``i`` (columns ``indices``), as the row kernels' ``out_err``: each ray's
+    contribution ``w T(before j) (1 − e^{−σ_j ℓ_j}) / N`` summed per group
+    ``ray_sample mod K`` in ``gacc`` (n_threads, >= longest row, K), all 0 on
+    entry and exit; ``pos`` (n_threads, n_vox) int32, all -1 on entry and exit."""
+    inv_n = 1.0 / n_rays
+    share = _group_shares(n_rays, k_groups)
+    for i in prange(indptr.shape[0] - 1):
+        p = pos[numba.get_thread_id()]
+        ga = gacc[numba.get_thread_id()]
+        a = indptr[i]
+        cnt = indptr[i + 1] - a
+        for q in range(cnt):
+            p[indices[a + q]] = q
+        for ray in range(row_ray_ptr[i], row_ray_ptr[i + 1]):
+            wn = ray_w[ray] * inv_n
+            grp = ray_sample[ray] % k_groups
+            T = 1.0
+            for s in range(ray_ptr[ray], ray_ptr[ray + 1]):
+                j = seg_vox[s]
+                em = -math.expm1(-sigma_a[j] * seg_len[s])
+                val = wn * T * em
+                T -= T * em
+                q = p[j]
+                if val != 0.0 and q >= 0:
+                    ga[q, grp] += val
+        _entry_errors(ga, cnt, share, out, a)
+        for q in range(cnt):
+            p[indices[a + q]] = -1
 
 
 @njit(cache=True)
@@ -729,29 +818,35 @@ def _version() -> str:
 
 
 class _Growable:
-    """Pre-sized index/value arrays that grow by 25 % when an estimate was low."""
+    """Pre-sized index/value (and, with ``errors``, float32 standard-error)
+    arrays that grow by 25 % when an estimate was low."""
 
-    def __init__(self, capacity: int, idx_dtype=np.int32):
+    def __init__(self, capacity: int, idx_dtype=np.int32, errors: bool = False):
         self.idx = np.empty(max(capacity, 1), idx_dtype)
         self.val = np.empty(max(capacity, 1), np.float64)
+        self.err = np.empty(max(capacity, 1), np.float32) if errors else None
         self.n = 0
+
+    def _names(self) -> tuple[str, ...]:
+        return ("idx", "val") if self.err is None else ("idx", "val", "err")
 
     def reserve(self, extra: int) -> None:
         need = self.n + extra
         if need > self.idx.size:
             new = max(need, int(self.idx.size * 1.25) + 1)
-            self.idx = np.resize(self.idx, new)
-            self.val = np.resize(self.val, new)
+            for name in self._names():
+                setattr(self, name, np.resize(getattr(self, name), new))
 
-    def finish(self) -> tuple[np.ndarray, np.ndarray]:
+    def finish(self) -> tuple[np.ndarray, ...]:
+        """The used parts: (indices, values) or (indices, values, errors)."""
         n = max(self.n, 0)
-        for name in ("idx", "val"):
+        for name in self._names():
             a = getattr(self, name)
             try:
                 a.resize(n, refcheck=False)  # shrink in place (no copy of the used part)
             except (ValueError, SystemError):  # pragma: no cover - not owning its data
                 setattr(self, name, a[:n].copy())
-        return self.idx, self.val
+        return tuple(getattr(self, name) for name in self._names())
 
 
 def _pilot_rows(n_rows: int) -> np.ndarray:
@@ -765,40 +860,51 @@ def _pilot_rows(n_rows: int) -> np.ndarray:
     return np.sort(np.random.default_rng(20240611).choice(n_rows, size=n, replace=False)).astype(np.int64)
 
 
-def _run_rows(kernel_call, rows: np.ndarray, cap: int, cap_max: int, pos: np.ndarray, bufs=None):
+def _group_scratch(cap: int, k_groups: int) -> np.ndarray:
+    """Zeroed (n_threads, cap, K) float64 scratch of the entries' group sums
+    (``np.zeros``: pages no thread touches cost no memory)."""
+    return np.zeros((numba.get_num_threads(), max(cap, 1), k_groups))
+
+
+def _run_rows(kernel_call, rows: np.ndarray, cap: int, cap_max: int, pos: np.ndarray, k_groups: int, bufs=None):
     """Run a row kernel on ``rows`` with per-row capacity ``cap``; rows that
     overflow (count -1) are recomputed one by one with capacity ``cap_max``
-    (a hard bound).  ``bufs``: reusable (out_idx, out_val) of size >= n*cap.
+    (a hard bound).  ``bufs``: reusable (out_idx, out_val, out_err, group
+    scratch) of size >= n*cap; ``k_groups`` the sampler's K.
 
-    Returns (buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra) with
-    ``extra`` {k: (indices, values)} for the recomputed rows (their out_cnt is
-    final) and ``out_var`` the variance of each row sum.
+    Returns (buf_off, out_idx, out_val, out_err, out_cnt, out_bg, out_var, extra, bufs)
+    with ``extra`` {k: (indices, values, errors)} for the recomputed rows (their
+    out_cnt is final), ``out_err`` the standard error of each entry and
+    ``out_var`` the variance of each row sum.
     """
     n = rows.size
     buf_off = np.arange(n + 1, dtype=np.int64) * cap
-    if bufs is None or bufs[0].size < n * cap:
-        bufs = (np.empty(max(n * cap, 1), np.int32), np.empty(max(n * cap, 1), np.float64))
-    out_idx, out_val = bufs
+    if bufs is None or bufs[0].size < n * cap or bufs[3].shape[1] < cap:
+        size = max(n * cap, 1)
+        bufs = (np.empty(size, np.int32), np.empty(size, np.float64), np.empty(size, np.float64),
+                _group_scratch(cap, k_groups))
+    out_idx, out_val, out_err, gacc = bufs
     out_cnt = np.zeros(n, np.int64)
     out_bg = np.zeros(n)
     out_var = np.zeros(n)
-    kernel_call(rows, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos)
+    kernel_call(rows, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos, gacc, out_err)
     extra = {}
     for k in np.flatnonzero(out_cnt < 0):
         bo = np.array([0, cap_max], np.int64)
         ii = np.empty(cap_max, np.int32)
         vv = np.empty(cap_max)
+        ee = np.empty(cap_max)
         cc = np.zeros(1, np.int64)
         bb = np.zeros(1)
         var = np.zeros(1)
-        kernel_call(rows[k:k + 1], bo, ii, vv, cc, bb, var, pos)
+        kernel_call(rows[k:k + 1], bo, ii, vv, cc, bb, var, pos, _group_scratch(cap_max, k_groups), ee)
         if cc[0] < 0:  # pragma: no cover - cap_max is a hard bound
             raise RuntimeError(f"row of pixel {int(rows[k])} exceeds the hard bound of {cap_max} entries")
-        extra[int(k)] = (ii[:cc[0]].copy(), vv[:cc[0]].copy())
+        extra[int(k)] = (ii[:cc[0]].copy(), vv[:cc[0]].copy(), ee[:cc[0]].copy())
         out_cnt[k] = cc[0]
         out_bg[k] = bb[0]
         out_var[k] = var[0]
-    return buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra
+    return buf_off, out_idx, out_val, out_err, out_cnt, out_bg, out_var, extra, bufs
 
 
 def _max_seconds(max_seconds: Any) -> float | None:
@@ -838,7 +944,7 @@ def _timed_pilot(run_part, pilot_size: int, n_rows: int, sizer: ChunkSizer, what
 
 
 def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *, memory_limit: int,
-               progress, desc: str, what: str, n_rays: int, max_seconds: float | None = None):
+               progress, desc: str, what: str, n_rays: int, k_groups: int, max_seconds: float | None = None):
     """Pilot estimate, memory and time checks, chunked build.
 
     ``cap_max`` is a hard bound on the entries of one row.  The pilot (about
@@ -847,14 +953,14 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     above it are recomputed with ``cap_max``), one reused scratch buffer of at
     most ``_CHUNK_BYTES``, and output arrays pre-sized from the estimate.
 
-    Returns (data, indices, indptr, background, row_std_error, estimate dict).
+    Returns (data, indices, indptr, background, row_std_error, entry_std_error, estimate dict).
     """
     n_rows = pixel_index.size
     pos = _pos_scratch(n_vox)
     pilot = _pilot_rows(n_rows)
     sizer = ChunkSizer(max(16, _CHUNK_BYTES // (min(cap_max, 4096) * 12)), start=numba.get_num_threads())
     parts, seconds = _timed_pilot(
-        lambda a, b: _run_rows(kernel_call, pixel_index[pilot[a:b]], min(cap_max, 4096), cap_max, pos)[3],
+        lambda a, b: _run_rows(kernel_call, pixel_index[pilot[a:b]], min(cap_max, 4096), cap_max, pos, k_groups)[4],
         pilot.size, n_rows, sizer, what, max_seconds)
     if pilot.size:
         cnt_p = np.concatenate(parts)
@@ -868,9 +974,9 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     nnz_hi = int(math.ceil((mean + 4 * se) * n_rows + 0.02 * mean * n_rows)) + 16
     idx_dtype = np.int32 if nnz_hi < 2**31 - 1 else np.int64
     ib = np.dtype(idx_dtype).itemsize
-    chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 12))))
-    scratch = chunk_rows * cap * 12 + pos.nbytes
-    est_bytes = int(nnz_est * (8 + ib) + (n_rows + 1) * ib + n_rows * 24 + scratch)
+    chunk_rows = int(max(16, min(max(n_rows, 1), _CHUNK_BYTES // (cap * 20))))
+    scratch = chunk_rows * cap * 20 + pos.nbytes + numba.get_num_threads() * cap * k_groups * 8
+    est_bytes = int(nnz_est * (12 + ib) + (n_rows + 1) * ib + n_rows * 24 + scratch)
     estimate = {"nnz": nnz_est, "nnz_standard_error": se * n_rows, "bytes": est_bytes, "rows": int(n_rows),
                 "pilot_rows": int(pilot.size), "row_capacity": cap, "seconds": seconds}
     if est_bytes > memory_limit:
@@ -881,7 +987,7 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
             "rays_per_pixel, or raise memory_limit"
         )
     _check_seconds(what, seconds, max_seconds)
-    store = _Growable(nnz_hi, idx_dtype)
+    store = _Growable(nnz_hi, idx_dtype, errors=True)
     indptr = np.zeros(n_rows + 1, dtype=np.int64)
     background = np.zeros(n_rows)
     row_var = np.zeros(n_rows)
@@ -890,9 +996,8 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
     bufs = None
     sizer = ChunkSizer(chunk_rows, start=sizer.rows)  # time-sized chunks (Ctrl-C), at most chunk_rows
     for r0, r1 in sizer.ranges(n_rows):
-        buf_off, out_idx, out_val, out_cnt, out_bg, out_var, extra = _run_rows(
-            kernel_call, pixel_index[r0:r1], cap, cap_max, pos, bufs)
-        bufs = (out_idx, out_val)
+        buf_off, out_idx, out_val, out_err, out_cnt, out_bg, out_var, extra, bufs = _run_rows(
+            kernel_call, pixel_index[r0:r1], cap, cap_max, pos, k_groups, bufs)
         tot = int(out_cnt.sum())
         store.reserve(tot)
         ends = np.cumsum(out_cnt)
@@ -901,19 +1006,21 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
         for k in extra:
             cnt_main[k] = 0
         _compact(buf_off, cnt_main, dest, out_idx, out_val, store.idx, store.val)
-        for k, (ii, vv) in extra.items():
+        _compact_values(buf_off, cnt_main, dest, out_err, store.err)
+        for k, (ii, vv, ee) in extra.items():
             store.idx[dest[k]:dest[k] + ii.size] = ii
             store.val[dest[k]:dest[k] + ii.size] = vv
+            store.err[dest[k]:dest[k] + ii.size] = ee
         indptr[r0 + 1:r1 + 1] = store.n + ends
         store.n += tot
         background[r0:r1] = out_bg
         row_var[r0:r1] = out_var
         bar.update(r1 - r0)
     bar.close()
-    bufs = out_idx = out_val = None  # free the scratch before shrinking the result
-    indices, data = store.finish()
+    bufs = out_idx = out_val = out_err = None  # free the scratch before shrinking the result
+    indices, data, entry_se = store.finish()
     indptr = indptr.astype(idx_dtype)
-    return data, indices, indptr, background, np.sqrt(row_var), estimate
+    return data, indices, indptr, background, np.sqrt(row_var), entry_se, estimate
 
 
 # ===========================================================================
@@ -975,13 +1082,24 @@ class WeightMatrix:
         file written before it was kept, or derived without it.
 
         Use: ``r_i = row_std_error_i / s_i`` is the relative Monte Carlo error
-        of row ``i``.  For a field ``x`` that is smooth over the voxels a
-        pixel's rays cross, the error of ``(W x)_i`` is approximately the
-        same relative error, ``σ_model,i ≈ r_i |(W x)_i|``
-        (:meth:`model_std`); this is an approximation — exact for ``x``
-        constant along the row's rays, and neither an upper nor a lower bound
-        when ``x`` varies across the pixel's ray bundle.  Add it to the
-        measurement noise in quadrature: ``σ_i² = σ_noise,i² + σ_model,i²``.
+        of row ``i``, and ``r_i |(W x)_i|`` the *relative rule* for the error
+        of ``(W x)_i``: exact for ``x`` constant along the row's rays, neither
+        an upper nor a lower bound when ``x`` varies across the pixel's ray
+        bundle.  It needs no ``x`` (a measured signal can stand in for
+        ``W x``: :func:`lftomo.rawdata.with_model_error`).
+    entry_std_error : ndarray of float32, shape (nnz,), or None
+        Monte Carlo standard error (m² sr) of each stored entry ``W[i, j]``
+        (aligned with ``data``), from the spread of the entry's K
+        randomization groups (rays ``m`` with ``m mod K = g``;
+        :func:`lftomo.forward.sampler.group_variance`, for either sampler: the
+        groups of the ``"independent"`` sampler are independent too).  It
+        gives :meth:`model_std` for any field ``x``:
+        ``σ_model,i² = Σ_j entry_std_error_ij² x_j²``, which leaves out the
+        covariance of a row's entries (rays that cross one voxel cross its
+        neighbours along the ray, and a ray that misses one voxel crosses
+        another).  ``None`` for a matrix read from a file written before it was
+        kept, or derived without it (:meth:`model_std` then falls back on the
+        relative rule).
     """
 
     data: np.ndarray
@@ -996,6 +1114,7 @@ class WeightMatrix:
     background: np.ndarray
     metadata: dict = field(default_factory=dict)
     row_std_error: np.ndarray | None = None
+    entry_std_error: np.ndarray | None = None
 
     # ---- sparse views --------------------------------------------------------
     @cached_property
@@ -1023,7 +1142,7 @@ class WeightMatrix:
     @property
     def nbytes(self) -> int:
         """Bytes held by the matrix and its row maps."""
-        extra = 0 if self.row_std_error is None else self.row_std_error.nbytes
+        extra = sum(a.nbytes for a in (self.row_std_error, self.entry_std_error) if a is not None)
         return extra + int(sum(a.nbytes for a in (self.data, self.indices, self.indptr, self.pixel_index,
                                                   self.view_pixel, self.view_ptr, self.background)))
 
@@ -1085,14 +1204,28 @@ class WeightMatrix:
         return self @ Ib + self.background
 
     def model_std(self, x) -> np.ndarray:
-        """Monte Carlo standard error of ``W @ x`` per row, by the relative rule.
+        """Monte Carlo standard error of ``W @ x`` per row.
 
-        ``σ_model,i = (row_std_error_i / s_i) |(W x)_i|`` with
-        ``s_i = Σ_j W[i, j]`` (0 for an empty row): the relative error of the
-        row's response to a uniform source carried over to ``x``.  An
-        approximation, valid when ``x`` is smooth over the voxels the pixel's
-        rays cross (see :attr:`row_std_error`).  The background's own Monte
-        Carlo error is not included.
+        ``Var (W x)_i = Σ_jl C_i,jl x_j x_l`` needs the covariance ``C_i`` of
+        row ``i``'s entries, which is not kept.  It is modelled as its
+        diagonal, the entries' variances ``v_ij = entry_std_error_ij²``, plus
+        a rank-one part ``β_i w_j w_l`` off the diagonal (``w = W[i]``), with
+        ``β_i`` set so that the row sum's variance is ``row_std_error_i²``::
+
+            σ_model,i² = Σ_j v_ij x_j² + β_i ((W x)_i² − Σ_j w_j² x_j²),
+            β_i = (row_std_error_i² − Σ_j v_ij) / (s_i² − Σ_j w_j²)
+
+        (``s_i = Σ_j w_j``; ``β_i = 0`` for a row with one entry).  It is
+        exact for a uniform ``x`` (it returns ``row_std_error`` there) and
+        for ``x`` on one voxel, and otherwise an approximation; where it would
+        fall below the smaller of the diagonal term and the relative rule it
+        is held there.  For a matrix without entry errors (a file written
+        before they were kept) it is the relative rule,
+        ``σ_model,i = (row_std_error_i / s_i) |(W x)_i|`` (0 for an empty
+        row), valid when ``x`` is smooth over the voxels the pixel's rays
+        cross (see :attr:`row_std_error`).  The background's own Monte Carlo
+        error is not included.  Add it to the measurement noise in
+        quadrature: ``σ_i² = σ_noise,i² + σ_model,i²``.
 
         Parameters
         ----------
@@ -1124,9 +1257,24 @@ class WeightMatrix:
         x = np.asarray(x, dtype=float)
         if not np.all(np.isfinite(x)):
             raise LftomoError(f"x must be finite, got {int(np.count_nonzero(~np.isfinite(x)))} non-finite value(s)")
+        wx = self @ x
         s = self.row_sums
-        rel = np.divide(self.row_std_error, s, out=np.zeros(self.n_rows), where=s > 0)
-        return rel * np.abs(self @ x)
+        relative = np.divide(self.row_std_error, s, out=np.zeros(self.n_rows), where=s > 0) * np.abs(wx)
+        if self.entry_std_error is None:
+            return relative
+
+        def row_dot(values, v):  # Σ_j values_ij v_j on W's pattern
+            return sp.csr_matrix((values, self.indices, self.indptr), shape=self.shape) @ v
+
+        v = np.square(self.entry_std_error, dtype=np.float64)
+        w2 = self.data * self.data
+        ones = np.ones(self.n_voxels)
+        diagonal = row_dot(v, x * x)
+        den = s * s - row_dot(w2, ones)
+        beta = np.divide(self.row_std_error ** 2 - row_dot(v, ones), den, out=np.zeros(self.n_rows),
+                         where=den > 1e-9 * s * s)
+        var = diagonal + beta * (wx * wx - row_dot(w2, x * x))
+        return np.sqrt(np.maximum(var, np.minimum(diagonal, relative ** 2)))
 
     @cached_property
     def row_sums(self) -> np.ndarray:
@@ -1203,15 +1351,19 @@ class WeightMatrix:
             for vu in views:
                 keep[self.rows_of_view(*vu)] = True
         rows = np.flatnonzero(keep)
-        sub = self.matrix[rows]
+        lengths = np.diff(self.indptr)[rows].astype(np.int64)
+        indptr = np.concatenate([[0], np.cumsum(lengths)]).astype(self.indptr.dtype)
+        # the stored entries of the kept rows, in order
+        entries = np.repeat(self.indptr[rows].astype(np.int64) - indptr[:-1], lengths) + np.arange(int(indptr[-1]))
         nv, nu = self.views_shape[:2]
         vv = self.view_pixel[rows] // int(np.prod(self.views_shape[2:]))
         view_ptr = np.concatenate([[0], np.cumsum(np.bincount(vv, minlength=nv * nu))]).astype(np.int64)
         meta = dict(self.metadata, views=f"subset of {rows.size} rows")
-        return WeightMatrix(sub.data, sub.indices, sub.indptr, (rows.size, self.n_voxels), self.pixel_index[rows],
-                            self.view_pixel[rows], view_ptr, self.views_shape, self.sensor_shape,
-                            self.background[rows], meta,
-                            None if self.row_std_error is None else self.row_std_error[rows])
+        return WeightMatrix(self.data[entries], self.indices[entries], indptr, (rows.size, self.n_voxels),
+                            self.pixel_index[rows], self.view_pixel[rows], view_ptr, self.views_shape,
+                            self.sensor_shape, self.background[rows], meta,
+                            None if self.row_std_error is None else self.row_std_error[rows],
+                            None if self.entry_std_error is None else self.entry_std_error[entries])
 
     def raw_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Unique raw pixels of the rows and, for each, its first row index."""
@@ -1221,7 +1373,7 @@ class WeightMatrix:
     # ---- persistence ---------------------------------------------------------
     def save(self, path: str | os.PathLike, *, compressed: bool = False) -> Path:
         """Write an ``.npz`` (no pickle): CSR arrays, row maps, background,
-        ``row_std_error`` (when known) and JSON metadata.
+        ``row_std_error`` and ``entry_std_error`` (when known) and JSON metadata.
 
         ``compressed=True`` uses ``np.savez_compressed`` (smaller, slower).
         The write is atomic (:func:`lftomo.io.atomic_path`): an interrupted
@@ -1234,7 +1386,7 @@ class WeightMatrix:
         meta = dict(self.metadata, format=FORMAT, shape=list(self.shape), views_shape=list(self.views_shape),
                     sensor_shape=list(self.sensor_shape))
         writer = np.savez_compressed if compressed else np.savez
-        extra = {} if self.row_std_error is None else {"row_std_error": self.row_std_error}
+        extra = {name: a for name in _W_OPTIONAL if (a := getattr(self, name)) is not None}
         with atomic_path(path) as tmp:
             writer(tmp, meta=np.array(json.dumps(meta)), data=self.data, indices=self.indices, indptr=self.indptr,
                    pixel_index=self.pixel_index, view_pixel=self.view_pixel, view_ptr=self.view_ptr,
@@ -1247,10 +1399,10 @@ class WeightMatrix:
 
         Every member is validated before use: dtypes, shapes, the CSR
         structure (``indptr`` starts at 0, never decreases and ends at nnz;
-        column indices in range), finite non-negative weights, background and
-        ``row_std_error``, row maps in range, and physical metadata.  A file
-        without ``row_std_error`` (written before it was kept) loads with
-        ``row_std_error = None``.
+        column indices in range), finite non-negative weights, background, ``row_std_error`` and
+        ``entry_std_error``, row maps in range, and physical metadata.  A file
+        without ``row_std_error`` or ``entry_std_error`` (written before they
+        were kept) loads with None for them.
 
         Parameters
         ----------
@@ -1280,7 +1432,7 @@ class WeightMatrix:
         return cls(a["data"], a["indices"], a["indptr"], shape, a["pixel_index"], a["view_pixel"], a["view_ptr"],
                    views_shape, sensor_shape, a["background"],
                    {k: v for k, v in meta.items() if k not in ("format", "shape", "views_shape", "sensor_shape")},
-                   a["row_std_error"])
+                   a["row_std_error"], a["entry_std_error"])
 
     def __repr__(self) -> str:
         return (f"WeightMatrix(shape={self.shape}, nnz={self.nnz}, {self.nbytes / 1e6:.3g} MB, "
@@ -1289,7 +1441,7 @@ class WeightMatrix:
 
 _WHAT = "weight-matrix file"
 _W_MEMBERS = ("meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background")
-_W_OPTIONAL = ("row_std_error",)  # absent from files written before it was kept
+_W_OPTIONAL = ("row_std_error", "entry_std_error")  # absent from files written before they were kept
 
 
 def _check_grid_types(camera, grid) -> None:
@@ -1395,6 +1547,8 @@ def _check_weights_arrays(arrays: dict, path, shape, views_shape, sensor_shape) 
     out["view_ptr"] = vp
     out["background"] = check_member(arrays, "background", shape=(n_rows,), minimum=0.0, **kw)
     out["row_std_error"] = check_member(arrays, "row_std_error", shape=(n_rows,), minimum=0.0, required=False, **kw)
+    out["entry_std_error"] = check_member(arrays, "entry_std_error", shape=data.shape, minimum=0.0, required=False,
+                                          **kw)
     return out
 
 
@@ -1534,32 +1688,32 @@ def weights(
     if not scattering:
         cap_max = int(min(n_vox, n_rays * m))
 
-        def call(pix, buf_off, oi, ov, oc, ob, var, pos):
+        def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
             _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, buf_off, oi, ov, oc, ob, var,
-                            pos)
+                            pos, gacc, oe)
 
         estimator = "exact DDA per ray (same rays as render)"
     else:
         cap_max = n_vox  # paths may scatter anywhere
         warn_if_diffusive(ss, tuple(grid.shape), tuple(grid.spacing), max_bounces)
 
-        def call(pix, buf_off, oi, ov, oc, ob, var, pos):
+        def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
             _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi,
-                             ov, oc, ob, var, pos)
+                             ov, oc, ob, var, pos, gacc, oe)
 
         estimator = ("Monte Carlo: expected-value emission along each flight, scattering vertices sampled from "
                      "sigma_s with absorption as a weight, HG phase function")
     t0 = time.perf_counter()
-    data, indices, indptr, background, row_se, est = _build_csr(
+    data, indices, indptr, background, row_se, entry_se, est = _build_csr(
         call, pixel_index, n_vox, cap_max, memory_limit=limit, progress=progress, desc="weights",
-        what="weight matrix", n_rays=n_rays, max_seconds=max_seconds)
+        what="weight matrix", n_rays=n_rays, k_groups=int(sampler[_smp.S_GROUPS]), max_seconds=max_seconds)
     elapsed = time.perf_counter() - t0
     meta = _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc,
                  {"estimate": est, "build_seconds": elapsed, "max_bounces": max_bounces if scattering else None,
                   "sampler": sampler_name})
     return WeightMatrix(data, indices, indptr, (int(pixel_index.size), n_vox), pixel_index, view_pixel, view_ptr,
                         tuple(int(a) for a in camera.views_shape), tuple(int(a) for a in camera.sensor_shape),
-                        background, meta, row_std_error=row_se)
+                        background, meta, row_std_error=row_se, entry_std_error=entry_se)
 
 
 # ===========================================================================
@@ -1779,7 +1933,24 @@ class RaySegments:
         _rows_mean_variance(gs, sq, n, sampler, var)
         return np.sqrt(var)
 
+    def entry_std_error(self, sigma_a, indptr, indices) -> np.ndarray | None:
+        """``entry_std_error`` (nnz,) float32 m² sr of ``W(sigma_a)`` with the CSR
+        pattern ``indptr``, ``indices`` (see :class:`WeightMatrix`), or None
+        without ``ray_sample``."""
+        if self.ray_sample is None:
+            return None
+        sa = self._sigma(sigma_a)
+        n = self.rays_per_pixel
+        k = _smp.group_count(n)
+        longest = int(np.diff(indptr).max()) if indptr.size > 1 else 0
+        out = np.zeros(int(indptr[-1]))
+        _segments_entry_errors(self.row_ray_ptr, self.ray_ptr, self.ray_weight, self.ray_sample, self.voxel,
+                               self.length, n, k, sa, indptr, indices, _pos_scratch(self.n_voxels),
+                               _group_scratch(longest, k), out)
+        return out.astype(np.float32)
+
     def _wm(self, data, indices, indptr, background, sa, extra):
+        entry_se = self.entry_std_error(sa, indptr, indices)
         if indptr[-1] < 2**31 - 1:
             indptr = indptr.astype(np.int32)
         meta = dict(self.metadata)
@@ -1787,7 +1958,7 @@ class RaySegments:
         meta.update(extra)
         return WeightMatrix(data, indices, indptr, (self.n_rows, self.n_voxels), self.pixel_index, self.view_pixel,
                             self.view_ptr, self.views_shape, self.sensor_shape, background, meta,
-                            self.row_std_error(sa))
+                            self.row_std_error(sa), entry_se)
 
     def weights(self, sigma_a, *, memory_limit: float | None = None) -> WeightMatrix:
         """The exact weight matrix for ``sigma_a`` (float or grid-shaped array, m⁻¹).
