@@ -1,4 +1,5 @@
-"""The curvature prior's free depth trend on one camera, against the gradient prior and curvature + w·gradient.
+"""The curvature prior's free depth trend on one camera, against the gradient prior, curvature + w·gradient and
+curvature with mirrored faces.
 
 The curvature prior (second differences, no boundary condition) leaves every field linear in each coordinate
 free.  One camera hardly sees a linear trend along its axis, so a free-voxel fit may carry one.  Two cases:
@@ -10,6 +11,11 @@ free.  One camera hardly sees a linear trend along its axis, so a free-voxel fit
 * ``demo``: `lftomo demo`'s setting (``studies/demo_setting.py --subvoxel``: the 12 mm standard flame on 32³, free
   16³ with sub-voxel emission, stratified sampler, 64 rays, 1 % noise), views and the focal stack.
 
+The candidates: ``--weights w`` adds curvature + w·gradient (first differences everywhere); ``--faces w`` adds the
+curvature prior plus ``w`` times the second difference at the face voxels with a mirrored ghost voxel (first
+differences across the faces only; w = 1 is the curvature operator with Neumann faces).  Both leave only the
+constants free.
+
 For each prior it prints the mean / max |ΔT|/T (above 800 K; and above 1400 K for ``demo``) and the mean error per
 depth layer (K) over the voxels above 800 K.
 
@@ -17,6 +23,8 @@ Usage::
 
     python studies/prior_depth_ramp.py box --weights 0.1,0.3,1 [--rays 4]
     python studies/prior_depth_ramp.py demo --weights 0.3,1 --noise-seeds 1 [--no-gradient]
+    python studies/prior_depth_ramp.py box --weights "" --faces 0.1,0.3,1
+    python studies/prior_depth_ramp.py demo --weights "" --faces 0.3,1 --no-gradient --noise-seeds 1,2,3
 """
 from __future__ import annotations
 
@@ -50,6 +58,36 @@ class CurvatureGradientPrior(Prior):
             return (self.operator(grid.grid, dimensionless=dimensionless) @ grid.expansion).tocsr()
         hb = float(np.prod(grid.spacing) ** (1.0 / 3.0)) if dimensionless else 1.0
         return sp.vstack([curvature_operator(grid) * hb**2, self.w * gradient_operator(grid) * hb]).tocsr()
+
+
+def _face_diff_1d(n: int, h: float) -> sp.csr_matrix:
+    """``(f[1] − f[0]) / h²`` on row 0 and ``(f[n−2] − f[n−1]) / h²`` on row n−1 (the second difference with a
+    mirrored ghost voxel), other rows zero."""
+    if n < 2:
+        return sp.csr_matrix((n, n))
+    return sp.csr_matrix(([-1.0, 1.0, 1.0, -1.0], ([0, 0, n - 1, n - 1], [0, 1, n - 2, n - 1])), shape=(n, n)) / h**2
+
+
+class CurvatureFacesPrior(Prior):
+    """``[h̄² C x; w h̄² F x]``: the curvature prior plus ``w`` times the second difference at the face voxels with a
+    mirrored ghost (Neumann faces: w = 1 is the mirrored-boundary curvature).  Null space: the constants."""
+
+    name = "curvature+faces"
+    order = 2
+
+    def __init__(self, w: float) -> None:
+        self.w = float(w)
+
+    def operator(self, grid, *, dimensionless: bool = True) -> sp.csr_matrix:
+        if isinstance(grid, Parameterization):
+            return (self.operator(grid.grid, dimensionless=dimensionless) @ grid.expansion).tocsr()
+        hb = float(np.prod(grid.spacing) ** (1.0 / 3.0)) if dimensionless else 1.0
+        shape, h = tuple(grid.shape), grid.spacing
+        F = sp.vstack([sp.kron(sp.kron(_face_diff_1d(shape[0], h[0]) if a == 0 else sp.identity(shape[0]),
+                                       _face_diff_1d(shape[1], h[1]) if a == 1 else sp.identity(shape[1])),
+                               _face_diff_1d(shape[2], h[2]) if a == 2 else sp.identity(shape[2]))
+                       for a in range(3)])
+        return sp.vstack([curvature_operator(grid) * hb**2, self.w * F * hb**2]).tocsr()
 
 
 def layers(T, truth, hot):
@@ -104,6 +142,7 @@ def main() -> None:
     ap.add_argument("--weights", default="0.3", help="comma-separated w of curvature + w·gradient")
     ap.add_argument("--rays", type=int, default=4, help="box: rays per pixel of the data and the weights")
     ap.add_argument("--noise-seeds", default="1", help="demo: comma-separated noise draws")
+    ap.add_argument("--faces", default="", help="comma-separated w of curvature + w·(mirrored face rows)")
     ap.add_argument("--no-gradient", action="store_true", help="leave out the gradient prior's rows")
     ap.add_argument("--cache", default="demo_setting_cache")
     a = ap.parse_args()
@@ -111,6 +150,8 @@ def main() -> None:
     priors = {"curvature": "curvature"} if a.no_gradient else {"curvature": "curvature", "gradient": "gradient"}
     for w in (float(x) for x in a.weights.split(",") if x):
         priors[f"curvature+{w:g}gradient"] = CurvatureGradientPrior(w)
+    for w in (float(x) for x in a.faces.split(",") if x):
+        priors[f"curvature+{w:g}faces"] = CurvatureFacesPrior(w)
     if a.case == "box":
         box_case(priors, a.rays)
     else:
