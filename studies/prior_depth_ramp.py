@@ -44,20 +44,31 @@ from lftomo.inverse.parameterize import Parameterization
 from lftomo.inverse.regularizers import Prior, curvature_operator, gradient_operator
 
 
-class CurvatureGradientPrior(Prior):
-    """``[h̄² C x; w h̄ D x]``: the curvature prior plus ``w`` times the gradient prior's residual."""
+class _CurvaturePlus(Prior):
+    """``[h̄² C x; w E x]``: the curvature prior plus ``w`` times the extra rows ``E`` (dimensionless) of a subclass."""
 
-    name = "curvature+gradient"
     order = 2
 
     def __init__(self, w: float) -> None:
         self.w = float(w)
 
+    def _extra(self, grid, hb: float) -> sp.csr_matrix:
+        raise NotImplementedError
+
     def operator(self, grid, *, dimensionless: bool = True) -> sp.csr_matrix:
         if isinstance(grid, Parameterization):
             return (self.operator(grid.grid, dimensionless=dimensionless) @ grid.expansion).tocsr()
         hb = float(np.prod(grid.spacing) ** (1.0 / 3.0)) if dimensionless else 1.0
-        return sp.vstack([curvature_operator(grid) * hb**2, self.w * gradient_operator(grid) * hb]).tocsr()
+        return sp.vstack([curvature_operator(grid) * hb**2, self.w * self._extra(grid, hb)]).tocsr()
+
+
+class CurvatureGradientPrior(_CurvaturePlus):
+    """``[h̄² C x; w h̄ D x]``: the curvature prior plus ``w`` times the gradient prior's residual."""
+
+    name = "curvature+gradient"
+
+    def _extra(self, grid, hb: float) -> sp.csr_matrix:
+        return gradient_operator(grid) * hb
 
 
 def _face_diff_1d(n: int, h: float) -> sp.csr_matrix:
@@ -68,26 +79,17 @@ def _face_diff_1d(n: int, h: float) -> sp.csr_matrix:
     return sp.csr_matrix(([-1.0, 1.0, 1.0, -1.0], ([0, 0, n - 1, n - 1], [0, 1, n - 2, n - 1])), shape=(n, n)) / h**2
 
 
-class CurvatureFacesPrior(Prior):
+class CurvatureFacesPrior(_CurvaturePlus):
     """``[h̄² C x; w h̄² F x]``: the curvature prior plus ``w`` times the second difference at the face voxels with a
     mirrored ghost (Neumann faces: w = 1 is the mirrored-boundary curvature).  Null space: the constants."""
 
     name = "curvature+faces"
-    order = 2
 
-    def __init__(self, w: float) -> None:
-        self.w = float(w)
-
-    def operator(self, grid, *, dimensionless: bool = True) -> sp.csr_matrix:
-        if isinstance(grid, Parameterization):
-            return (self.operator(grid.grid, dimensionless=dimensionless) @ grid.expansion).tocsr()
-        hb = float(np.prod(grid.spacing) ** (1.0 / 3.0)) if dimensionless else 1.0
+    def _extra(self, grid, hb: float) -> sp.csr_matrix:
         shape, h = tuple(grid.shape), grid.spacing
-        F = sp.vstack([sp.kron(sp.kron(_face_diff_1d(shape[0], h[0]) if a == 0 else sp.identity(shape[0]),
-                                       _face_diff_1d(shape[1], h[1]) if a == 1 else sp.identity(shape[1])),
-                               _face_diff_1d(shape[2], h[2]) if a == 2 else sp.identity(shape[2]))
-                       for a in range(3)])
-        return sp.vstack([curvature_operator(grid) * hb**2, self.w * F * hb**2]).tocsr()
+        ops = [[_face_diff_1d(shape[b], h[b]) if b == a else sp.identity(shape[b]) for b in range(3)]
+               for a in range(3)]
+        return sp.vstack([sp.kron(sp.kron(o[0], o[1]), o[2]) for o in ops]) * hb**2
 
 
 def layers(T, truth, hot):
