@@ -350,6 +350,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
             px, py, pz = ox, oy, oz
             n_scatter = 0
             path_sum = 0.0  # Σ_j of this path's W_ij terms
+            grp = ray % k_groups
             while True:
                 t_s = math.inf
                 if n_surf > 0:
@@ -388,7 +389,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
                                 cnt += 1
                             else:
                                 out_val[o + q] += val
-                            ga[q, ray % k_groups] += val
+                            ga[q, grp] += val
                         if hit < 0:
                             if ss > 0.0 and tau_s + ss * ell > tau_star:
                                 dt = (tau_star - tau_s) / ss
@@ -427,7 +428,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
                 tstate, u2 = rng_uniform(tstate)
                 dx, dy, dz = sample_hg_direction(dx, dy, dz, g[hit], u1, u2)
             score = path_sum * n_rays
-            gs[ray % k_groups] += score
+            gs[grp] += score
             sq += score * score
         _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p,
                    ga, share, out_err)
@@ -1092,14 +1093,13 @@ class WeightMatrix:
         (aligned with ``data``), from the spread of the entry's K
         randomization groups (rays ``m`` with ``m mod K = g``;
         :func:`lftomo.forward.sampler.group_variance`, for either sampler: the
-        groups of the ``"independent"`` sampler are independent too).  It
-        gives :meth:`model_std` for any field ``x``:
-        ``σ_model,i² = Σ_j entry_std_error_ij² x_j²``, which leaves out the
-        covariance of a row's entries (rays that cross one voxel cross its
-        neighbours along the ray, and a ray that misses one voxel crosses
-        another).  ``None`` for a matrix read from a file written before it was
-        kept, or derived without it (:meth:`model_std` then falls back on the
-        relative rule).
+        groups of the ``"independent"`` sampler are independent too).  With
+        ``row_std_error`` it gives :meth:`model_std` for any field ``x``; alone,
+        ``Σ_j entry_std_error_ij² x_j²`` would leave out the covariance of a
+        row's entries (rays that cross one voxel cross its neighbours along the
+        ray, and a ray that misses one voxel crosses another).  ``None`` for a
+        matrix read from a file written before it was kept, or derived without
+        it (:meth:`model_std` then falls back on the relative rule).
     """
 
     data: np.ndarray
@@ -1263,17 +1263,16 @@ class WeightMatrix:
         if self.entry_std_error is None:
             return relative
 
-        def row_dot(values, v):  # Σ_j values_ij v_j on W's pattern
-            return sp.csr_matrix((values, self.indices, self.indptr), shape=self.shape) @ v
-
-        v = np.square(self.entry_std_error, dtype=np.float64)
-        w2 = self.data * self.data
-        ones = np.ones(self.n_voxels)
-        diagonal = row_dot(v, x * x)
-        den = s * s - row_dot(w2, ones)
-        beta = np.divide(self.row_std_error ** 2 - row_dot(v, ones), den, out=np.zeros(self.n_rows),
-                         where=den > 1e-9 * s * s)
-        var = diagonal + beta * (wx * wx - row_dot(w2, x * x))
+        # the entries' variances and squares on W's pattern
+        V = sp.csr_matrix((np.square(self.entry_std_error, dtype=np.float64), self.indices, self.indptr),
+                          shape=self.shape)
+        W2 = sp.csr_matrix((self.data * self.data, self.indices, self.indptr), shape=self.shape)
+        x2 = x * x
+        diagonal = V @ x2
+        den = s * s - np.asarray(W2.sum(axis=1)).ravel()
+        beta = np.divide(self.row_std_error ** 2 - np.asarray(V.sum(axis=1)).ravel(), den,
+                         out=np.zeros(self.n_rows), where=den > 1e-9 * s * s)
+        var = diagonal + beta * (wx * wx - W2 @ x2)
         return np.sqrt(np.maximum(var, np.minimum(diagonal, relative ** 2)))
 
     @cached_property
