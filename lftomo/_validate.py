@@ -115,19 +115,30 @@ def require_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
     return value
 
 
-def require_bounds(bounds: Any) -> tuple[float, float]:
-    """Temperature bounds ``(T_min, T_max)`` in K with ``0 < T_min < T_max <= MAX_TEMPERATURE``, as floats."""
+def require_bounds(bounds: Any, name: str = "bounds") -> tuple[float, float]:
+    """Temperature bounds ``(T_min, T_max)`` in K with ``0 < T_min < T_max <= MAX_TEMPERATURE``, as floats.
+
+    The one check of a temperature fit's bounds (library, joint fit, command
+    line); ``name`` is what the messages call them (e.g. ``"--bounds"``).
+    The posterior's bounds, which may be None or infinite and apply to linear
+    channels too, are checked by :func:`lftomo.inverse.posterior.build_log_posterior`.
+    """
+    bad = LftomoError(f"{name} must be (T_min, T_max) in K, two numbers, got {bounds!r}")
+    if isinstance(bounds, (str, bytes)):
+        raise bad
     try:
         items = list(bounds)
     except TypeError:
-        raise LftomoError(f"bounds must be (T_min, T_max) in K, got {bounds!r}") from None
-    if len(items) != 2:
-        raise LftomoError(f"bounds must be (T_min, T_max) in K, got {bounds!r}")
-    lo = require_positive("bounds[0] (T_min)", items[0])
-    hi = require_finite_scalar("bounds[1] (T_max)", items[1])
-    if not hi > lo:
-        raise LftomoError(f"bounds must satisfy T_min < T_max (K), got bounds={tuple(items)!r}")
-    require_temperature_ceiling("bounds[1] (T_max)", hi)
+        raise bad from None
+    if len(items) != 2 or any(isinstance(v, (str, bytes, bool, np.bool_)) for v in items):
+        raise bad
+    try:
+        lo, hi = float(items[0]), float(items[1])
+    except (TypeError, ValueError):
+        raise bad from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
+        raise LftomoError(f"{name} must satisfy 0 < T_min < T_max (K), both finite, got {bounds!r}")
+    require_temperature_ceiling(f"{name}[1] (T_max)", hi)
     return lo, hi
 
 

@@ -14,7 +14,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from .errors import LftomoError
-from ._validate import MAX_TEMPERATURE, require_regular_file
+from ._validate import require_regular_file
 
 
 def _load(scene_path, args=None):
@@ -583,12 +583,12 @@ def _depths(text: str) -> list[float]:
 
 
 def _bounds(text: str) -> tuple[float, float]:
-    vals = _float_list(text)
-    if len(vals) != 2 or not (np.isfinite(vals[0]) and np.isfinite(vals[1]) and 0 < vals[0] < vals[1]):
-        raise argparse.ArgumentTypeError(f"expected T_min,T_max (K) with 0 < T_min < T_max, got {text!r}")
-    if vals[1] > MAX_TEMPERATURE:
-        raise argparse.ArgumentTypeError(f"T_max must be at most {MAX_TEMPERATURE:.0e} K, got {text!r}")
-    return vals[0], vals[1]
+    from ._validate import require_bounds
+
+    try:
+        return require_bounds(_float_list(text), "bounds")
+    except LftomoError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def _shape3(text: str) -> tuple[int, int, int]:

@@ -40,7 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._validate import require_in_range, require_temperature_ceiling
+from ._validate import require_bounds, require_in_range
 from .errors import LftomoError
 from .forward.sampler import DEFAULT_SAMPLER
 from .inverse.fitproblem import problem_on_grid, weights_grid
@@ -1070,9 +1070,7 @@ def _check_reconstruct_options(scene, lightfield, weights, data, depths, bounds,
         raise LftomoError(f"--data must be 'subaperture' or 'refocus', got {data!r}")
     if data == "subaperture" and depths:
         raise LftomoError("--depths is only used with --data refocus")
-    if not (0 < bounds[0] < bounds[1]):
-        raise LftomoError(f"--bounds must be T_min,T_max with 0 < T_min < T_max (K), got {bounds!r}")
-    require_temperature_ceiling("--bounds T_max", bounds[1])
+    require_bounds(bounds, "--bounds")
     require_in_range("--min-etendue-fraction", min_etendue_fraction, 0.0, 1.0, high_open=True)
     if noise is not None and not (math.isfinite(noise) and noise > 0):
         raise LftomoError(f"--noise must be a relative noise level > 0 (0.01 = 1 %), got {noise!r}")

@@ -7,6 +7,7 @@ and that the message names the argument, key, file or member at fault.
 from __future__ import annotations
 
 import json
+import re
 import math
 import os
 import warnings
@@ -1266,7 +1267,7 @@ def test_cli_refuses_a_hot_scene_and_bounds_before_the_work(tmp_path, capsys):
             main(argv)
         assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "T_max must be at most 1e+05 K" in err and "argument --posterior-steps" in err
+    assert "bounds[1] (T_max) must be at most 1e+05 K" in err and "argument --posterior-steps" in err
 
 
 # ============================================================== an edge-case review of valid inputs (session 67)
@@ -1328,3 +1329,37 @@ def test_the_unseen_voxel_check_leaves_the_matrix_as_it_is():
     with pytest.warns(UserWarning, match="1 of 3 voxels"):
         warn_unseen(A, lt.Grid((1, 1, 3), (0.0, 0.0, 1.0), (0.01, 0.01, 1.03)))
     assert A.indices.tolist() == [2, 0, 2] and A.data.tolist() == [1.0, 2.0, 3.0]
+
+
+# ============================================================== one check of a fit's temperature bounds (session 69)
+@pytest.mark.parametrize("bad, match", [
+    ((3000.0, 300.0), r"must satisfy 0 < T_min < T_max \(K\), both finite"),
+    ((0.0, 300.0), r"must satisfy 0 < T_min < T_max"),
+    ((300.0, math.inf), r"must satisfy 0 < T_min < T_max"),
+    ((300.0, 1e9), r"\[1\] \(T_max\) must be at most 1e\+05 K"),
+])
+def test_temperature_bounds_are_checked_alike_everywhere(lf, tmp_path, capsys, bad, match):
+    """The library, the joint fit's options, `lftomo reconstruct --bounds` and its option check share
+    `_validate.require_bounds`: the same rule and the same words, naming what each calls the bounds."""
+    from lftomo._validate import require_bounds
+    from lftomo.demo import _check_reconstruct_options
+    from lftomo.inverse.joint import _check_options
+
+    def named(name):
+        return re.escape(name) + ("" if match.startswith(r"\[") else " ") + match
+
+    with pytest.raises(LftomoError, match=named("bounds")):
+        require_bounds(bad)
+    m = lt.Measurement.from_lightfield(lt.add_noise(lf, relative_std=0.01, seed=1))
+    with pytest.raises(LftomoError, match=match):
+        lt.reconstruct(m, tiny_weights(), bounds=bad)
+    with pytest.raises(LftomoError, match=match):
+        _check_options(method="auto", engine="host", rule="discrepancy", noise_scale=None, regularization="auto",
+                       bounds=bad, lambda_max=1e12, polish_steps=0, max_steps=10, linear_max_steps=10,
+                       search="projected")
+    with pytest.raises(LftomoError, match=named("--bounds")):
+        _check_reconstruct_options(tmp_path / "s.toml", None, None, "subaperture", None, bad, 0.2, None, None, 1,
+                                   False, "flame", None)
+    with pytest.raises(SystemExit):
+        main(["reconstruct", str(tmp_path / "s.toml"), "--bounds", f"{bad[0]!r},{bad[1]!r}"])
+    assert re.search(match, capsys.readouterr().err)

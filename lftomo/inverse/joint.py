@@ -186,7 +186,7 @@ from scipy.sparse.linalg import lsmr
 from threadpoolctl import threadpool_limits
 
 from ..errors import LftomoError
-from .._validate import require_choice, require_steps, require_temperature_ceiling
+from .._validate import require_bounds, require_choice, require_steps
 from ..forward.grid import Grid
 from ..forward.weights import RaySegments
 from ..interrupt import stop_between_steps
@@ -1029,10 +1029,7 @@ def _check_options(*, method, engine, rule, noise_scale, regularization, bounds,
                          f"got regularization={regularization!r}, rule={rule!r}")
     search = require_choice("discrepancy_search", search, BRACKET_SEARCHES)
     rule_obj = Discrepancy(noise_scale, search=SEARCH_OF_JOINT[search]) if rule_cls is Discrepancy else rule_cls()
-    lo, hi = (float(b) for b in bounds)
-    if not (0 < lo < hi):
-        raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
-    require_temperature_ceiling("bounds[1] (T_max)", hi)
+    lo, hi = require_bounds(bounds)
     lam_max = float(lambda_max)
     if not (math.isfinite(lam_max) and lam_max >= _LAMBDA_START):
         raise LftomoError(f"lambda_max must be a finite number >= {_LAMBDA_START:g}, got {lambda_max!r}")

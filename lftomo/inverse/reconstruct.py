@@ -16,9 +16,7 @@ import dataclasses
 import time
 from typing import Any
 
-import numpy as np
-
-from .._validate import require_flag, require_temperature_ceiling
+from .._validate import require_bounds, require_flag
 from ..errors import LftomoError
 from ..forward.grid import Grid
 from ..interrupt import stop_between_steps
@@ -348,7 +346,7 @@ def reconstruct(
     regularization, method, rule, options = fit_keywords(
         fit, regularization=options.pop("regularization", "auto"), method=options.pop("method", None), rule=rule,
         solver=solver, options=options)
-    lo, hi = _temperature_bounds(bounds)
+    lo, hi = require_bounds(bounds)
     if fit == "T" and method not in METHODS:
         raise LftomoError(f"method must be one of {METHODS} for unknowns='T', got {method!r}")
     if require_flag("progress", progress, allow_none=True) is not None:
@@ -366,15 +364,3 @@ def reconstruct(
                                        t_assemble=time.perf_counter() - t0)
     warn_on_fit(rec.T, rec.chi2, hi)
     return rec
-
-
-def _temperature_bounds(bounds: Any) -> tuple[float, float]:
-    """``(T_min, T_max)`` of :func:`reconstruct`'s ``bounds``, checked (K)."""
-    try:
-        lo, hi = (float(b) for b in bounds)
-    except (TypeError, ValueError):
-        raise LftomoError(f"bounds must be (T_min, T_max) in K, two numbers, got {bounds!r}") from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
-        raise LftomoError(f"bounds must be (T_min, T_max) with 0 < T_min < T_max, got {bounds!r}")
-    require_temperature_ceiling("bounds[1] (T_max)", hi)
-    return lo, hi
