@@ -389,6 +389,23 @@ def read_npz(path: str | os.PathLike, *, what: str, needs: str, limit: Any = Non
     LftomoError
         Naming the file and the member.
     """
+    return _npz(path, what=what, needs=needs, limit=limit, load=True)
+
+
+def npz_shapes(path: str | os.PathLike, *, what: str, needs: str, limit: Any = None) -> dict[str, tuple]:
+    """The shape of every array of an ``.npz`` archive, from the members' headers, with
+    :func:`read_npz`'s checks (no objects, sizes that match the bytes, the memory limit) but
+    without reading the arrays.
+
+    Returns
+    -------
+    dict of str to tuple of int
+    """
+    return _npz(path, what=what, needs=needs, limit=limit, load=False)
+
+
+def _npz(path: Any, *, what: str, needs: str, limit: Any, load: bool) -> dict[str, Any]:
+    """Every member's header checked; then the arrays (``load``) or their shapes."""
     import zipfile
 
     import numpy as np
@@ -416,10 +433,12 @@ def read_npz(path: str | os.PathLike, *, what: str, needs: str, limit: Any = Non
                                       f"({nbytes} bytes) but holds {info.file_size - offset} bytes: truncated "
                                       "or corrupt")
                 check_allocation(f"{what} {str(p)!r} member {name!r}", nbytes, limit=limit)
-            for info in infos:
-                member = info.filename
-                with zf.open(member) as fh:
-                    out[member[:-4]] = np.lib.format.read_array(fh, allow_pickle=False)
+                out[name] = tuple(shape)
+            if load:
+                for info in infos:
+                    member = info.filename
+                    with zf.open(member) as fh:
+                        out[member[:-4]] = np.lib.format.read_array(fh, allow_pickle=False)
     except LftomoError:
         raise
     except Exception as exc:  # noqa: BLE001 - any failure to decode damaged bytes (BadZipFile, zlib.error,

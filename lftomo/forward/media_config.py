@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import inspect
 import numbers
-import zipfile
-import zlib
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -32,6 +30,7 @@ import numpy as np
 
 from ..errors import LftomoError
 from .._validate import require_inside, require_npz_file, toml_int, toml_number, toml_numbers
+from ..io import npz_shapes
 from . import phantoms
 from .grid import Grid
 from .medium import Medium
@@ -103,20 +102,16 @@ def _from_file(t: Mapping[str, Any], grid: Grid, base: Path, allow_outside: bool
     p = require_inside(base / path, base, where="[medium] path", allow_outside=allow_outside)
     p = require_npz_file(p, prefix="[medium] path: ", what="medium file",
                          needs="phantom = 'file' needs an .npz (numpy.savez) with arrays sigma_a and T [, sigma_s, g]")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            files = sorted(z.files)
-            missing = [n for n in _FILE_ARRAYS if n not in files]
-            if missing:
-                raise LftomoError(f"[medium] path: {str(p)!r} has no array(s) {missing}; it holds {files}; "
-                                 "phantom = 'file' needs sigma_a and T [, sigma_s, g]")
-            shapes = {n: z[n].shape for n in _FILE_ARRAYS}
-    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        raise LftomoError(f"[medium] path: cannot read {str(p)!r}: {exc}") from None
-    except ValueError as exc:
-        msg = str(exc)
-        raise LftomoError(msg if msg.startswith("[medium]") else
-                         f"[medium] path: cannot read {str(p)!r} without pickle: {msg}") from None
+    try:  # the members' headers only: the arrays are read once, by Medium.from_npz
+        held = npz_shapes(p, what="medium file", needs="phantom = 'file' needs sigma_a and T [, sigma_s, g]")
+    except LftomoError as exc:
+        raise LftomoError(f"[medium] path: {exc}") from None
+    files = sorted(held)
+    missing = [n for n in _FILE_ARRAYS if n not in files]
+    if missing:
+        raise LftomoError(f"[medium] path: {str(p)!r} has no array(s) {missing}; it holds {files}; "
+                         "phantom = 'file' needs sigma_a and T [, sigma_s, g]")
+    shapes = {n: held[n] for n in _FILE_ARRAYS}
     if len(set(shapes.values())) > 1:
         raise LftomoError(f"[medium] path: the arrays of {str(p)!r} disagree in shape ("
                           + ", ".join(f"{n} {shp}" for n, shp in shapes.items()) + "); a medium file's fields share "

@@ -353,28 +353,34 @@ class Medium:
         """
         from ..io import read_npz
 
-        keys = set(read_npz(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)"))
+        p = os.fspath(path)
+        data = read_npz(path, what="medium file", needs="expected arrays sigma_a and T (numpy.savez)")  # read once
+        keys = set(data)
         unknown = sorted(keys - set(MEDIUM_FILE_ARRAYS))
         if unknown:  # a misspelt sigma_s or g would otherwise be dropped for its default of 0
-            raise LftomoError(f"medium file {os.fspath(path)!r} holds array(s) {unknown} that a medium file does not "
+            raise LftomoError(f"medium file {p!r} holds array(s) {unknown} that a medium file does not "
                               f"have; it may hold {list(MEDIUM_FILE_ARRAYS)}")
+
+        def field(name, shape=None):
+            if name not in data:
+                raise LftomoError(f"{p!r} has no array {name!r}; it holds {sorted(data)}")
+            return checked_field(data[name], name=name, path=p, shape=shape)
+
         kw: dict[str, Any] = {}
         for name in ("sigma_a", "T"):
-            kw[name] = load_field(path, name=name, shape=grid.shape)
+            kw[name] = field(name, grid.shape)
         for name in ("sigma_s", "g"):
             if name in keys:
-                arr = load_field(path, name=name)
+                arr = field(name)
                 if arr.ndim != 0 and arr.shape != grid.shape:
-                    raise LftomoError(f"shape of {name} {arr.shape} in {os.fspath(path)!r} does not match grid.shape {grid.shape}")
+                    raise LftomoError(f"shape of {name} {arr.shape} in {p!r} does not match grid.shape {grid.shape}")
                 kw[name] = arr
         soot = {"soot_reference_wavelength", "soot_alpha"} & keys
         if len(soot) == 1:
-            raise LftomoError(f"{os.fspath(path)!r} must hold both soot_reference_wavelength and soot_alpha, got only {soot}")
+            raise LftomoError(f"{p!r} must hold both soot_reference_wavelength and soot_alpha, got only {soot}")
         if soot:
-            kw["sigma_a_rule"] = SootRule(
-                float(load_field(path, name="soot_reference_wavelength", shape=())),
-                float(load_field(path, name="soot_alpha", shape=())),
-            )
+            kw["sigma_a_rule"] = SootRule(float(field("soot_reference_wavelength", ())),
+                                          float(field("soot_alpha", ())))
         return cls(grid, **kw)
 
 
@@ -416,12 +422,18 @@ def load_field(path: str | os.PathLike, *, name: str, shape: tuple[int, ...] | N
         arr = data[name]
     else:
         arr = read_npy(p, what=f"{name} file")
+    return checked_field(arr, name=name, path=p, shape=shape)
+
+
+def checked_field(arr: np.ndarray, *, name: str, path: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    """A field read from ``path``, checked as :func:`load_field` checks it: a real numeric dtype,
+    ``shape`` if given, finite values; returned as float64."""
     if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-        raise LftomoError(f"{name} in {p!r} must have a real numeric dtype, got {arr.dtype}")
+        raise LftomoError(f"{name} in {path!r} must have a real numeric dtype, got {arr.dtype}")
     if shape is not None and arr.shape != tuple(shape):
-        raise LftomoError(f"shape of {name} {arr.shape} in {p!r} does not match the expected shape {tuple(shape)}")
+        raise LftomoError(f"shape of {name} {arr.shape} in {path!r} does not match the expected shape {tuple(shape)}")
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
-        raise LftomoError(f"{name} in {p!r} must be finite, got {bad} non-finite value(s) (NaN or inf)")
+        raise LftomoError(f"{name} in {path!r} must be finite, got {bad} non-finite value(s) (NaN or inf)")
     return arr
