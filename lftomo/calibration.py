@@ -505,7 +505,7 @@ def decode_operator(grid: MicrolensGrid, *, n_views: int | None = None, valid: A
 
     i.e. on an ``n × n`` grid of offsets that spans one lenslet cell along the
     lattice axes (``a``, ``b``: :attr:`MicrolensGrid.basis`), with the axes
-    flipped as in :attr:`lftomo.LightField.views` (upright views, DESIGN §2;
+    flipped as in :attr:`lftomo.LightField.views` (upright views, docs/design.md, *Units and frames*;
     for the integer seed grid with centres on pixel centres this is exactly
     the seed decode).  Bilinear interpolation between the four nearest pixels.
 
@@ -698,7 +698,7 @@ def radiometric_calibration(blackbody: Any, *, temperature: float, wavelength: f
     view, imaged through the same optics, filter and exposure as the flame,
     gives each pixel the signal ``S = ε I_b(λ, T_bb) G`` (W/m), with ``I_b``
     Planck's spectral radiance and ``G`` the pixel étendue (m² sr) of the
-    forward model (DESIGN §1 "Pixel signal").  The factor is
+    forward model (docs/design.md, *Pixel signal and Monte Carlo estimators*).  The factor is
 
         f = ε I_b(λ, T_bb) G / (C − D)          [W/m per count],
 

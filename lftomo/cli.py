@@ -694,7 +694,8 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(w, "override render.sampler (the rays are those of lftomo render with the same seed and sampler)")
     w.add_argument("--memory-limit-gb", type=_pos_float, default=None,
-                   help="refuse a build estimated above this size (default: half the machine's memory)")
+                   help="refuse a build estimated above this size (default: LFTOMO_MEMORY_LIMIT_GB if set, "
+                        "else half the machine's memory)")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(w)
     w.set_defaults(func=cmd_weights)

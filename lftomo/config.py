@@ -3,7 +3,7 @@
 Format (lengths in m, temperatures in K, radiance in W m^-2 sr^-1 [m^-1])::
 
     [camera]
-    preset = "seed"            # the reference camera (DESIGN §1)
+    preset = "seed"            # the reference camera (docs/design.md, *Camera*)
     focus_distance = 1.0
     [camera.main_lens]         # optional overrides of MainLens fields
     stop_diameter = 0.1        # r1, r2, thickness, diameter, index, stop_to_vertex, ideal

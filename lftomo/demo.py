@@ -11,7 +11,7 @@ refocused vs sub-aperture data — and writes a self-contained report
 light field and a saved weight matrix, or from a scene file (render and
 weights made internally, as in the demo).
 
-The physics is kept honest in both (DESIGN §4): the truth is rendered by
+The physics is kept honest in both (docs/design.md, *Inverse problem*): the truth is rendered by
 Monte Carlo on a grid 2× finer than the reconstruction grid, the data and the
 weight matrix use independent rays, and errors are quoted against the
 *effective* truth on the reconstruction grid
@@ -527,7 +527,7 @@ def _demo_camera(d: _DemoRun) -> None:
     quick = d.cfg["mode"] == "quick"
     d.sections.append({
         "title": "1. Camera",
-        "text": ("The reference plenoptic camera (DESIGN §1): thick biconvex main lens traced surface by "
+        "text": ("The reference plenoptic camera (docs/design.md, *Camera*): thick biconvex main lens traced surface by "
                  "surface, MLA in the traced best-focus plane of the 1 m object plane, sensor in the microlens "
                  "focal plane. " + ("<b>Quick mode</b>: 30 × 30 lenslets of 1 mm (every lenslet dimension "
                                     "doubled) over 0.1 mm pixels — same field of view, F-numbers and "

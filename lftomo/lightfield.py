@@ -1,6 +1,6 @@
 """The decoded light field: raw image, sub-aperture views, refocusing.
 
-Conventions (DESIGN §2)
+Conventions (docs/design.md, *Light fields*)
 -----------------------
 ``raw``: ``(rows, cols)`` (or ``(n_λ, rows, cols)``), the sensor as seen from
 behind the camera looking along +z: column index along +x, row 0 at +y.  The
@@ -244,7 +244,8 @@ class LightField:
     Parameters
     ----------
     raw : ndarray, shape (rows, cols) or (n_λ, rows, cols)
-        Noise-free pixel signal (W, or W/m spectral).
+        Pixel signal (W, or W/m spectral); noisy where ``noise_std`` is set
+        (:func:`lftomo.add_noise`), the noise-free one then in ``signal``.
     camera : Camera
     wavelengths : tuple of float or None
         Channel wavelengths (m); None for the gray band.

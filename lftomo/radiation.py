@@ -14,7 +14,7 @@ Gray (total) radiance::
     I_b(T) = σ T⁴ / π
 
 The medium emits ``sigma_a · I_b(T)`` (local thermodynamic equilibrium), see
-``DESIGN.md`` §1.
+docs/design.md, *Media and radiative transfer*.
 
 The same laws are here twice, once per array library: the numpy functions
 check their inputs (:func:`planck`, :func:`dplanck_dT`, ...), the ``*_jax``

@@ -2,7 +2,7 @@
 
 A raw frame is the sensor image as the camera wrote it: a 2-D array of
 integer counts (ADU), ``(rows, cols)``, row 0 first in the file.  lftomo keeps
-that orientation (DESIGN §2: the raw image is stored as the sensor records it);
+that orientation (docs/design.md, *Units and frames*: the raw image is stored as the sensor records it);
 decoding (:mod:`lftomo.calibration`) turns it into upright views.
 
 Readers

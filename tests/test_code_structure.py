@@ -113,3 +113,42 @@ def test_the_forward_model_never_imports_the_inverse_side():
               for n in ast.walk(ast.parse(p.read_text())) if isinstance(n, ast.Import)
               for a in n.names if a.name.startswith("lftomo.inverse")]
     assert not found, "lftomo.forward imports lftomo.inverse: " + "; ".join(found)
+
+
+def test_docs_and_docstrings_name_the_projects_own_design_document():
+    """A user's clone has only docs/design.md, whose sections have names, not numbers: no file the
+    project ships may send a reader to the developers' DESIGN.md or its numbered sections."""
+    shipped = [*sorted((ROOT / "lftomo").rglob("*.py")), *sorted((ROOT / "tests").rglob("*.py")),
+               ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    here = Path(__file__).resolve()
+    offenders = [f"{p.relative_to(ROOT)}:{i}" for p in shipped if p.resolve() != here
+                 for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+                 if "DESIGN §" in line or "DESIGN.md" in line or "shared/" in line]
+    assert not offenders, offenders
+
+
+def test_docstring_cross_references_resolve():
+    """Every ``:func:`/``:class:``/… reference to ``lftomo.…`` in the library's sources names an
+    object that exists (a dataclass's fields count as its attributes)."""
+    import dataclasses
+    import importlib
+    import re
+
+    pattern = re.compile(r":(?:func|class|meth|attr|data|mod):`~?(lftomo(?:\.\w+)+)`")
+    missing = []
+    for path in sorted((ROOT / "lftomo").rglob("*.py")):
+        for match in pattern.finditer(path.read_text(encoding="utf-8")):
+            parts = match.group(1).split(".")
+            for k in range(len(parts), 0, -1):
+                try:
+                    obj = importlib.import_module(".".join(parts[:k]))
+                except ImportError:
+                    continue
+                break
+            for attr in parts[k:]:
+                fields = {f.name for f in dataclasses.fields(obj)} if dataclasses.is_dataclass(obj) else set()
+                if not hasattr(obj, attr) and attr not in fields:
+                    missing.append(f"{path.relative_to(ROOT)}: {match.group(1)}")
+                    break
+                obj = getattr(obj, attr, None)
+    assert not missing, missing

@@ -1,6 +1,6 @@
 """The plenoptic camera: thick main lens, aperture stop, microlens array, sensor.
 
-Frame (DESIGN §1): aperture stop at z = 0, object space z > 0, MLA and sensor
+Frame (docs/design.md, *Units and frames*): aperture stop at z = 0, object space z > 0, MLA and sensor
 at z < 0; the camera looks along +z.  Lengths in metres.
 
 The main lens sits behind the stop: its front (object-side) vertex is at
@@ -17,7 +17,7 @@ number of pixels, and it is rotated and shifted on the sensor.
 :class:`MicrolensArray` takes a ``rotation`` and an ``offset`` and
 :class:`Sensor` a ``shape``; a pixel then belongs to the lenslet nearest its
 centre (:func:`lftomo.forward.optics.own_lenslet`), and views are decoded
-about the microlens-image centres (:func:`lftomo.decode_index`).
+about the microlens-image centres (:func:`lftomo.lightfield.decode_index`).
 :meth:`Camera.seed` with ``mla_grid=`` builds the camera whose microlens
 images lie on a grid calibrated from a white image
 (:func:`lftomo.calibrate_grid`).
@@ -988,7 +988,7 @@ class Camera:
         """(rows, cols), each (p, p) int64 in raw order: the pixels decoded from
         the central lenslet's image (its block on the regular grid; on a
         general lattice the p x p pixels about its image centre, as
-        :func:`lftomo.decode_index` takes them)."""
+        :func:`lftomo.lightfield.decode_index` takes them)."""
         p = self.pixels_per_lenslet
         i0, j0 = self.central_lenslet
         rr, cc = np.indices((p, p))

@@ -4,7 +4,7 @@ Fields on a :class:`Grid` are arrays of ``grid.shape = (nx, ny, nz)`` indexed
 ``[ix, iy, iz]``; voxel ``(ix, iy, iz)`` covers
 ``[lower + i·spacing, lower + (i+1)·spacing]`` per axis and its flat index is the
 C-order one, ``np.ravel_multi_index((ix, iy, iz), shape)``.  Coordinates in m,
-in the camera frame of ``DESIGN.md`` (+z along the optical axis, +y up).
+in the camera frame of docs/design.md (*Units and frames*) (+z along the optical axis, +y up).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Numba kernels for sequential real-ray tracing through the plenoptic camera.
 
-Frame (DESIGN §1): optical axis +z, aperture stop at z = 0, object space z > 0,
+Frame (docs/design.md, *Units and frames*): optical axis +z, aperture stop at z = 0, object space z > 0,
 microlens array (MLA) and sensor at z < 0.  Light travels from the object
 towards -z; the *backward* trace (pixel -> object) travels towards +z.
 

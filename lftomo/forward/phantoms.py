@@ -1,6 +1,6 @@
 """Synthetic media (phantoms): uniform boxes, blobs, flames and the reference cases.
 
-Frame (``DESIGN.md``): the camera looks along +z, +y is up, so a flame's axis is
+Frame (docs/design.md, *Units and frames*): the camera looks along +z, +y is up, so a flame's axis is
 vertical, parallel to +y.  Distances in m, temperatures in K, coefficients in m⁻¹.
 Every function returns a :class:`~lftomo.forward.medium.Medium` on the grid given.
 """
@@ -49,7 +49,7 @@ def default_flame_grid(shape: tuple[int, int, int] = (32, 32, 32), focus_distanc
     50 mm wide in x and z, 60 mm tall in y, centred on the optical axis at
     ``z = focus_distance``: ``lower = (-0.025, -0.030, f - 0.025)``,
     ``upper = (0.025, 0.030, f + 0.025)`` (m).  The seed camera focused at 1 m
-    sees a field about 68 mm wide, so the box fills most of it.
+    sees a field about 73 mm wide (``Camera.describe()``), so the box fills most of it.
 
     Parameters
     ----------
@@ -525,7 +525,7 @@ def precessing_flame_sequence(grid: Grid, n_frames: int, *, frame_rate: float = 
 # ---------------------------------------------------------------------- reference cases
 # The reference text compares a pure absorber, a scattering medium and an emitting
 # medium; it gives no coefficients, so these are chosen to be uniform (analytic
-# checks apply, DESIGN.md §7) with an optical thickness of order one across a 50 mm box.
+# checks apply, docs/design.md, *Reference cases (tests)*) with an optical thickness of order one across a 50 mm box.
 
 
 def reference_absorbing(grid: Grid, *, sigma_a: float = 20.0, T: float = 300.0) -> Medium:
@@ -546,8 +546,8 @@ def reference_scattering(
     """Cold scattering medium: uniform ``sigma_a = 2``, ``sigma_s = 18 m⁻¹``.
 
     Albedo ``sigma_s / (sigma_a + sigma_s) = 0.9``, HG ``g = 0.75``, extinction
-    20 m⁻¹ (τ = 1 across 50 mm), as in the van de Hulst slab case of DESIGN.md
-    §7.  ``T = 300 K`` (non-emitting at visible wavelengths, see
+    20 m⁻¹ (τ = 1 across 50 mm), as in the van de Hulst slab case of docs/design.md
+    (*Reference cases (tests)*).  ``T = 300 K`` (non-emitting at visible wavelengths, see
     :func:`reference_absorbing`).
     """
     _require_grid(grid)

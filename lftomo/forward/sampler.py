@@ -1,6 +1,6 @@
 """Pixel samplers: where the backward rays of a pixel start.
 
-A pixel's signal is the radiant power through its area (DESIGN §1),
+A pixel's signal is the radiant power through its area (docs/design.md, *Pixel signal and Monte Carlo estimators*),
 ``Φ = ∫_pixel ∫_disc L cos θ_s cos θ_q / r² dA_q dA_s``, an integral over a
 4-D domain: a point ``s`` on the pixel and a point ``q`` on the back-vertex
 plane of a lenslet (the ray from ``s`` to ``q`` is then traced through the

@@ -10,7 +10,7 @@ What is here
   :mod:`lftomo.forward.surfaces`; :func:`trace_rays` is its parallel driver and
   :func:`radiance_mc` the checked Python entry point.
 * :func:`slab_collimated`: reflectance and transmittance of a plane-parallel slab
-  under collimated normal incidence (the van de Hulst reference case, DESIGN §7).
+  under collimated normal incidence (the van de Hulst reference case, docs/design.md, *Reference cases (tests)*).
 
 Medium convention
 -----------------
@@ -924,7 +924,7 @@ def slab_collimated(albedo, g, tau, n_photons, seed, *, majorant_factor=1.0):
     The slab is homogeneous, infinite in x and y, of optical thickness ``tau``,
     with single-scattering ``albedo`` and HG asymmetry ``g``; the illumination
     is collimated and normal.  ``T`` includes the unscattered part
-    ``exp(-tau)``.  Reference (van de Hulst 1980; DESIGN §7): albedo 0.9,
+    ``exp(-tau)``.  Reference (van de Hulst 1980; docs/design.md, *Reference cases (tests)*): albedo 0.9,
     g 0.75, tau 2 gives R = 0.09739, T = 0.66096.
 
     Parameters

@@ -4,7 +4,7 @@ Texture orientation: ``texture[row, col]``; columns run along the emitter's
 width axis ``e_u`` and row 0 is at its ``+e_v`` edge.  An emitter facing the
 camera (the default, normal -z) has ``e_u = +x`` and ``e_v = +y``, so a texture
 appears in the sub-aperture views exactly as stored (views are shown with +x to
-the right and +y up, DESIGN §1).
+the right and +y up, docs/design.md, *Units and frames*).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Ray–voxel weight matrices per sub-aperture, and the ray–segment table.
 
-Definition (DESIGN §3).  For known ``sigma_a``, ``sigma_s`` and ``g`` the pixel
+Definition (docs/design.md, *Weight matrices*).  For known ``sigma_a``, ``sigma_s`` and ``g`` the pixel
 signal is linear in the blackbody intensity field,
 ``signal = W @ I_b(T).ravel() + background``, and ``W[i, j]`` (m² sr) is the
 signal of pixel row ``i`` per unit blackbody intensity of voxel ``j``; row
@@ -1595,7 +1595,7 @@ def weights(
 
     ``W[i, j]`` (m² sr) is the signal of pixel row ``i`` per unit blackbody
     intensity ``I_b`` of voxel ``j``, so that
-    ``signal = W @ I_b.ravel() + W.background`` (DESIGN §3).  Rows are raw
+    ``signal = W @ I_b.ravel() + W.background`` (docs/design.md, *Weight matrices*).  Rows are raw
     pixels grouped per sub-aperture ``(v, u)`` then ``(y, x)``
     (``W.pixel_index`` maps rows to raw pixels); columns are C-order voxels.
     Use it for the linear temperature inversion at known absorption.

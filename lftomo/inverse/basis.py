@@ -15,7 +15,7 @@ leading walker axis: ``c`` of shape (n_walkers, K) gives ``T`` of shape
   :func:`lftomo.forward.phantoms.axisymmetric_flame` with six physical
   parameters.
 
-All bases have at most :data:`MAX_COEFFS` = 40 coefficients (DESIGN §4: the
+All bases have at most :data:`MAX_COEFFS` = 40 coefficients (docs/design.md, *Inverse problem*: the
 affine-invariant ensemble sampler needs ``n_walkers >= 2 K`` walkers and mixes
 slowly in more dimensions).
 """

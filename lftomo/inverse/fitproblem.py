@@ -278,7 +278,7 @@ class Problem:
 
     @property
     def data_kind(self) -> str:
-        """The measurements' kind (``"subaperture"``, ``"focal"``, …), or ``"mixed"``."""
+        """The measurements' kind (``"subaperture"`` or ``"refocus"``), or ``"mixed"``."""
         kinds = {m.kind for m in self.measurements}
         return kinds.pop() if len(kinds) == 1 else "mixed"
 

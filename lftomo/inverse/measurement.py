@@ -1,7 +1,7 @@
 """Synthetic measurements: a sensor model, noisy light fields, and data vectors.
 
 Three steps turn a rendered (noise-free) light field into the data of an
-inverse problem (DESIGN §1 "Pixel signal", §4, issue 5 §1):
+inverse problem (docs/design.md, *Pixel signal and Monte Carlo estimators*, *Inverse problem*):
 
 1. :class:`SensorModel` converts pixel signal (W, or W/m spectral) into
    integer counts: photo-electrons with Poisson shot noise, dark charge,
@@ -478,7 +478,7 @@ class Measurement:
 
     The data are linear in the raw image of the channel:
     ``y = operator @ raw[channel].ravel()``, so a weight matrix whose rows are
-    raw pixels maps to the data as ``operator @ W_raw`` (DESIGN §3:
+    raw pixels maps to the data as ``operator @ W_raw`` (docs/design.md, *Weight matrices*:
     refocus and sub-aperture inversion share the forward model and differ only
     in ``operator``).  Make one with :meth:`from_lightfield`.
 

@@ -1,6 +1,6 @@
 """Posterior of the temperature field in a reduced parameterisation (emcee + Laplace).
 
-Model (DESIGN §4, issue 5 §3).  For each wavelength channel (a
+Model (docs/design.md, *Inverse problem*).  For each wavelength channel (a
 :class:`~lftomo.inverse.problem.LinearProblem`)::
 
     y = A x + background + e,   e ~ N(0, Σ),  Σ = diag(sigma²),  x = I_b(T(c))

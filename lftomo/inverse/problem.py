@@ -1,7 +1,7 @@
 """The linear forward problem shared by all inverse solvers.
 
 For known ``sigma_a``, ``sigma_s``, ``g`` the data are linear in the blackbody
-intensity field (DESIGN §3):
+intensity field (docs/design.md, *Weight matrices*):
 
     y = A @ I_b(T).ravel() + background + noise,   noise ~ N(0, diag(sigma²))
 

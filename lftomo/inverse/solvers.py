@@ -1,6 +1,6 @@
 """Temperature reconstruction: regularized nonlinear least squares with optimistix.
 
-Model (DESIGN §4)
+Model (docs/design.md, *Inverse problem*)
 -----------------
 For one channel (:class:`lftomo.inverse.problem.LinearProblem`) the data are
 ``y = A I_b(T) + background + noise``, noise ``N(0, diag σ²)``.  The unknown is
@@ -900,8 +900,11 @@ def solve_temperature(
         Problem of two or more cameras
         (:data:`~lftomo.inverse.fitoptions.DEFAULT_NOISE_SCALE_RIG`).
     solver : Solver, optional, keyword-only
-        ``LevenbergMarquardt(...)`` (default) or ``GaussNewton(...)`` with
-        their step counts and tolerances (:mod:`lftomo.inverse.solverchoice`).
+        ``AutoSolver(...)`` (the default, as for :func:`lftomo.reconstruct`:
+        the dense Levenberg–Marquardt fit ``DenseLM`` up to its size limit,
+        the matrix-free ``LevenbergMarquardt`` above), or ``DenseLM(...)``,
+        ``LevenbergMarquardt(...)``, ``GaussNewton(...)`` with their step
+        counts and tolerances (:mod:`lftomo.inverse.solverchoice`).
     unknowns : Temperature, optional, keyword-only
         What the prior acts on (:class:`~lftomo.inverse.unknowns.Temperature`:
         ``penalize``, ``T_ref``); default ``Temperature()``.

@@ -1,4 +1,4 @@
-"""Participating media through the real camera: reference cases (DESIGN §7)."""
+"""Participating media through the real camera: reference cases (docs/design.md, *Reference cases (tests)*)."""
 
 import math
 

@@ -227,7 +227,7 @@ def test_slab_limits_and_loose_majorant():
 
 
 # ---------------------------------------------------------------------------
-# Equilibrium (DESIGN §7): isothermal medium in walls at the same temperature
+# Equilibrium (docs/design.md, *Reference cases (tests)*): isothermal medium in walls at the same temperature
 # ---------------------------------------------------------------------------
 
 
@@ -297,7 +297,7 @@ def test_equilibrium_two_channels_spectral_tracking():
 
 
 # ---------------------------------------------------------------------------
-# Non-scattering reference cases (DESIGN §7)
+# Non-scattering reference cases (docs/design.md, *Reference cases (tests)*)
 # ---------------------------------------------------------------------------
 
 
