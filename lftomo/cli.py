@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import sys
@@ -586,7 +587,11 @@ def _bounds(text: str) -> tuple[float, float]:
     from ._validate import require_bounds
 
     try:
-        return require_bounds(_float_list(text), "bounds")
+        vals = [float(t) for t in text.replace(" ", "").split(",") if t]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected T_min,T_max in K, e.g. 300,2500; got {text!r}") from None
+    try:
+        return require_bounds(vals, "bounds")
     except LftomoError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
 
@@ -625,7 +630,7 @@ def _add_series_parser(sub) -> None:
                          "in time order; and one SCENE.toml among them, whose camera and [medium] give the weight "
                          "matrix (or --weights)")
     sr.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
-    sr.add_argument("-o", "--output", type=_output, default="lftomo-series", help="output directory (a rerun resumes there)")
+    sr.add_argument("-o", "--output", type=_output, default="lftomo-series", help="output directory (default lftomo-series; a rerun resumes there)")
     sr.add_argument("--scheduler", default=None, help="address of a Dask scheduler, e.g. tcp://host:8786 "
                                                       "(default: a local cluster)")
     sr.add_argument("--workers", type=_pos_int, default=None,
@@ -680,7 +685,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_camera)
     r = sub.add_parser("render", help="render the raw light field, views and a focal stack")
     r.add_argument("scene", nargs="?", default=None, help="TOML scene file (default: built-in target scene)")
-    r.add_argument("-o", "--output", type=_output, default="lftomo-render", help="output directory")
+    r.add_argument("-o", "--output", type=_output, default="lftomo-render",
+                   help="output directory (default lftomo-render)")
     r.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     r.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(r, "override render.sampler")
@@ -689,7 +695,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_render)
     w = sub.add_parser("weights", help="build the ray-voxel weight matrix of the scene's medium grid (.npz)")
     w.add_argument("scene", help="TOML scene file with a [medium]")
-    w.add_argument("-o", "--output", type=_output, default="weights.npz", help="output .npz (several wavelengths: suffix _<nm>nm)")
+    w.add_argument("-o", "--output", type=_output, default="weights.npz",
+                   help="output .npz (default weights.npz; several wavelengths: suffix _<nm>nm)")
     w.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     w.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(w, "override render.sampler (the rays are those of lftomo render with the same seed and sampler)")
@@ -714,7 +721,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "or give --lightfield and --weights")
     rc.add_argument("--lightfield", default=None, help="light field .npz (lftomo render / LightField.save)")
     rc.add_argument("--weights", default=None, help="weight matrix .npz (lftomo weights) on the reconstruction grid")
-    rc.add_argument("-o", "--output", type=_output, default="lftomo-reconstruct", help="output directory")
+    rc.add_argument("-o", "--output", type=_output, default="lftomo-reconstruct",
+                    help="output directory (default lftomo-reconstruct)")
     rc.add_argument("--noise", type=_relative_noise, default=None,
                     help="relative Gaussian noise added to a noise-free light field (default 0.01)")
     rc.add_argument("--data", choices=("subaperture", "refocus"), default="subaperture", help="data kind")
@@ -791,7 +799,8 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--scene", default=None, help="scene TOML whose camera will reconstruct these frames: says "
                      "whether its microlens lattice is the calibrated one, else prints the [camera.mla] and "
                      "[camera.sensor] keys that make it so")
-    cal.add_argument("-o", "--output", type=_output, default="calibration.npz", help="output .npz (a .png figure beside it)")
+    cal.add_argument("-o", "--output", type=_output, default="calibration.npz",
+                     help="output .npz (default calibration.npz; a .png figure beside it)")
     cal.set_defaults(func=cmd_calibrate)
     from .designcli import add_design_parser
 
@@ -822,7 +831,8 @@ def main(argv=None) -> int:
     Exit status: 0 success; 2 a bad argument, scene file, input file or output
     location (``lftomo: error: ...`` on stderr, no traceback); 1 ``lftomo series``
     with frames that failed (listed, the others done); 130 interrupted
-    (Ctrl-C), with every output file either as before or complete.
+    (Ctrl-C), with every output file either as before or complete; 141 the
+    reader of its standard output went away (a closed pipe, ``| head``).
     """
     args = build_parser().parse_args(argv)
     out = getattr(args, "output", None)
@@ -830,6 +840,10 @@ def main(argv=None) -> int:
     status = 2
     try:
         status = _run_command(args)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+        status = 141
     finally:
         if fresh and status != 0:
             _remove_if_empty(Path(out))
@@ -847,8 +861,14 @@ def _remove_if_empty(folder: Path) -> None:
 
 def _run_command(args) -> int:
     """``args.func(args)``, with the errors a user can cause turned into an exit status and one line."""
+    from ._validate import memory_limit
+
     try:
+        memory_limit()  # a bad LFTOMO_MEMORY_LIMIT_GB is named as such, not as the first table that sizes an array
         return args.func(args)
+    except BrokenPipeError:  # the reader of our output went away (`| head`): not an error of the input
+        _silence_stdout()
+        return 141
     except KeyboardInterrupt:
         print("lftomo: interrupted; no output file was left half-written", file=sys.stderr)
         return 130
@@ -875,6 +895,15 @@ def _run_command(args) -> int:
         print(f"lftomo: error: a compiled kernel refused its input ({type(exc).__name__}: {first}); "
               "please report this with the command line", file=sys.stderr)
         return 2
+
+
+def _silence_stdout() -> None:
+    """Point stdout at the null device, so that the interpreter's last flush to a closed pipe is quiet."""
+    import os
+
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
 
 
 def _origin(exc: BaseException) -> str:

@@ -1099,8 +1099,9 @@ def _recon_grid(fine, recon_shape):
     if len(shape) != 3 or any(n < 1 or f % n for n, f in zip(shape, fine.shape)):
         given = (f"--recon-shape {list(shape)}" if recon_shape else
                  f"the default reconstruction grid, half the [medium] shape, {list(shape)},")
+        ask = "give a --recon-shape that does" if recon_shape else "give --recon-shape"
         raise LftomoError(f"{given} must divide the [medium] shape {list(fine.shape)} (the truth grid must be "
-                         "an integer refinement of the reconstruction grid); give --recon-shape")
+                         f"an integer refinement of the reconstruction grid); {ask}")
     return lt.Grid(shape, fine.lower, fine.upper)
 
 

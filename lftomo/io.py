@@ -160,13 +160,42 @@ def check_output_dir(path: Any, *, what: str = "output folder", create: bool = T
 
 
 def _published_by(folder: Path) -> str | None:
-    """The command named by ``folder``'s completion marker (None: no marker, an unreadable one, or none named)."""
+    """The command whose output ``folder`` holds: the one its completion marker names, or ``"series"`` for a
+    time series' folder (which grows frame by frame and keeps a manifest instead); None if neither."""
+    marker = _marker(folder)
+    if marker is None:
+        return "series" if _is_series_folder(folder) else None
+    command = marker.get("command")
+    return command if isinstance(command, str) else None
+
+
+def _marker(folder: Path) -> dict | None:
+    """``folder``'s completion marker as a dict (None: none, or unreadable)."""
     try:
         marker = json.loads((folder / COMPLETE_MARKER).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    command = marker.get("command") if isinstance(marker, dict) else None
-    return command if isinstance(command, str) else None
+    return marker if isinstance(marker, dict) else None
+
+
+#: The manifest a time series keeps in its output folder, and the format it names.
+SERIES_MANIFEST, SERIES_FORMAT_PREFIX = "manifest.json", "lftomo-series"
+
+
+def _is_series_folder(folder: Path) -> bool:
+    try:
+        doc = json.loads((folder / SERIES_MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and str(doc.get("format", "")).startswith(SERIES_FORMAT_PREFIX)
+
+
+def _previous_files(out: Path, command: str | None) -> list[str]:
+    """The files the previous run of ``command`` published in ``out`` (plain names only), from its marker."""
+    marker = _marker(out)
+    if marker is None or marker.get("command") != command or not isinstance(marker.get("files"), list):
+        return []
+    return [f for f in marker["files"] if isinstance(f, str) and f not in ("", ".", "..") and Path(f).name == f]
 
 
 def check_output_file(path: Any, *, what: str = "output file") -> Path:
@@ -291,9 +320,13 @@ def _publish(stage: Path, out: Path, last: Sequence[str], command: str | None) -
     names = sorted(f.name for f in stage.iterdir() if f.is_file())
     first = [n for n in names if n not in last]
     final = [n for n in names if n in last]
+    stale = [n for n in _previous_files(out, command) if n not in names]  # a rerun's folder holds this run only
     with deferred_sigint():
         for n in (COMPLETE_MARKER, *last):
             with contextlib.suppress(FileNotFoundError):
+                (out / n).unlink()
+        for n in stale:  # best effort: a stale file that cannot be removed does not stop the publishing
+            with contextlib.suppress(OSError):
                 (out / n).unlink()
         _fsync_dir(out)
         for n in first + final:

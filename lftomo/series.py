@@ -48,6 +48,7 @@ import numpy as np
 
 from ._validate import require_in_range
 from .errors import LftomoError
+from .io import SERIES_FORMAT_PREFIX, SERIES_MANIFEST
 
 __all__ = ["reconstruct_series", "SeriesResult", "FrameResult", "WORKER_ENV", "WORKER_DASK_CONFIG", "MANIFEST",
            "frame_metrics", "series_figure", "series_strip", "fingerprint", "solve_frame", "client_for",
@@ -73,9 +74,9 @@ WORKER_DASK_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD
 #: (between two windows of frames), and the next frame on that worker fetches the whole matrix again (a
 #: second copy, seen in the test of one copy per worker).
 SCHEDULER_DASK_CONFIG = {"distributed.scheduler.active-memory-manager.start": False}
-#: Name of the manifest in the output folder.
-MANIFEST = "manifest.json"
-FORMAT = "lftomo-series-1"
+#: Name of the manifest in the output folder (the other commands know a series' folder by it).
+MANIFEST = SERIES_MANIFEST
+FORMAT = f"{SERIES_FORMAT_PREFIX}-1"
 #: Temperature (K) above which a voxel counts as flame in :func:`frame_metrics`.
 FLAME_T = 1500.0
 
@@ -748,7 +749,7 @@ def reconstruct_series(
     if noise is not None and not (isinstance(noise, (int, float)) and np.isfinite(noise) and noise > 0):
         raise LftomoError(f"noise must be a relative std > 0 or None, got {noise!r}")
     _check_option_names(reconstruct_options)
-    out = check_output_dir(out, what="out")
+    out = check_output_dir(out, what="out", command="series")  # not another command's folder
     fwd = _check_forward(forward)
     raw, raw_settings = None, None
     if calibration is not None:

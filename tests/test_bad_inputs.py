@@ -1363,3 +1363,102 @@ def test_temperature_bounds_are_checked_alike_everywhere(lf, tmp_path, capsys, b
     with pytest.raises(SystemExit):
         main(["reconstruct", str(tmp_path / "s.toml"), "--bounds", f"{bad[0]!r},{bad[1]!r}"])
     assert re.search(match, capsys.readouterr().err)
+
+
+# ============================================================== a new user's walkthrough of the README (session 69)
+def _scene_file(tmp_path, text, name="s.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_a_closed_pipe_ends_the_command_quietly(tmp_path, monkeypatch):
+    """`lftomo camera ... | head` closes the pipe early: that is the reader's choice, not a bad input (status 2,
+    "lftomo: error: Broken pipe"); the command stops with 141 (128 + SIGPIPE), as a shell tool would."""
+    import io
+
+    r, w = os.pipe()
+    os.close(r)
+    stream = io.TextIOWrapper(os.fdopen(w, "wb", buffering=0), write_through=True)
+    monkeypatch.setattr("sys.stdout", stream)
+    scene = _scene_file(tmp_path, SCENE_SURFACE.format(render="", surface="radiance = 1.0"))
+    assert main(["camera", str(scene)]) == 141
+
+
+def test_a_bad_memory_limit_variable_is_named_as_such(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("LFTOMO_MEMORY_LIMIT_GB", "abc")
+    scene = _scene_file(tmp_path, SCENE_SURFACE.format(render="", surface="radiance = 1.0"))
+    assert main(["camera", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert "lftomo: error: environment variable LFTOMO_MEMORY_LIMIT_GB must be a number > 0, got 'abc'" in err
+    assert "[camera]" not in err
+
+
+def test_bounds_and_recon_shape_messages_fit_what_was_given(capsys):
+    from lftomo.demo import _recon_grid
+
+    with pytest.raises(SystemExit):
+        main(["reconstruct", "s.toml", "--bounds", "300K,3000K"])
+    assert "expected T_min,T_max in K, e.g. 300,2500; got '300K,3000K'" in capsys.readouterr().err
+    fine = lt.Grid((16, 16, 16), (-0.01, -0.01, 0.99), (0.01, 0.01, 1.01))
+    with pytest.raises(LftomoError, match=r"--recon-shape \[5, 5, 5\] must divide .*; give a --recon-shape that does$"):
+        _recon_grid(fine, (5, 5, 5))
+    with pytest.raises(LftomoError, match=r"the default reconstruction grid.*; give --recon-shape$"):
+        _recon_grid(lt.Grid((5, 5, 5), (-0.01, -0.01, 0.99), (0.01, 0.01, 1.01)), None)
+
+
+def test_series_and_the_other_commands_keep_out_of_each_others_folders(tmp_path, capsys):
+    from lftomo.io import COMPLETE_MARKER, SERIES_MANIFEST
+    from lftomo.series import FORMAT
+
+    rendered = tmp_path / "r"
+    rendered.mkdir()
+    (rendered / COMPLETE_MARKER).write_text(json.dumps({"complete": True, "files": [], "command": "render"}))
+    with pytest.raises(LftomoError, match=r"holds the output of `lftomo render`.*write `lftomo series` to another"):
+        lt.reconstruct_series([], tiny_weights(), out=rendered)
+    series = tmp_path / "ser"
+    series.mkdir()
+    (series / SERIES_MANIFEST).write_text(json.dumps({"format": FORMAT, "settings": {}, "frames": []}))
+    scene = _scene_file(tmp_path, SCENE_SURFACE.format(render="", surface="radiance = 1.0"))
+    assert main(["render", str(scene), "-o", str(series), "--quiet"]) == 2
+    assert "holds the output of `lftomo series`" in capsys.readouterr().err
+    assert sorted(p.name for p in series.iterdir()) == [SERIES_MANIFEST]
+
+
+def test_a_rerun_publishes_only_its_own_files(tmp_path, capsys):
+    """A rerun of `lftomo render` into its own folder removes what the previous run published and this one
+    does not write (here the previous scene's refocused images at other depths), and nothing else."""
+    out = tmp_path / "r"
+    first = _scene_file(tmp_path, SCENE_SURFACE.format(render="", surface="radiance = 1.0")
+                   + "[output]\nfocal_stack_depths = [0.95, 1.05]\n", "a.toml")
+    second = _scene_file(tmp_path, SCENE_SURFACE.format(render="", surface="radiance = 1.0")
+                    + "[output]\nfocal_stack_depths = [1.0]\n", "b.toml")
+    assert main(["render", str(first), "-o", str(out), "--quiet"]) == 0
+    (out / "notes.txt").write_text("mine")
+    before = {p.name for p in out.iterdir()}
+    assert "refocus_950mm.png" in before
+    assert main(["render", str(second), "-o", str(out), "--quiet"]) == 0
+    after = {p.name for p in out.iterdir()}
+    marker = json.loads((out / "lftomo-complete.json").read_text())
+    assert after == set(marker["files"]) | {"lftomo-complete.json", "notes.txt"}
+    assert "refocus_950mm.png" not in after and "refocus_1000mm.png" in after
+
+
+def test_a_render_that_no_light_reaches_says_so():
+    cam = tiny_camera()
+    far = lt.Scene(surfaces=[lt.PlanarEmitter(center=(5.0, 0.0, 1.0), size=(0.05, 0.05), radiance=1.0)])  # aside
+    with pytest.warns(UserWarning, match="no light reached the sensor: every pixel is 0"):
+        lf = lt.render(far, cam, rays_per_pixel=2, progress=False)
+    assert not np.any(lf.raw)
+
+
+def test_unseen_voxels_of_a_quadrature_grid_are_counted_as_such():
+    import scipy.sparse as sp
+
+    from lftomo.inverse.fitproblem import warn_unseen
+
+    A = sp.csr_matrix(np.eye(3, 64))  # 3 of the 64 columns of a 2x-refined 2^3 grid seen
+    grid = lt.Grid((2, 2, 2), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    with pytest.warns(UserWarning, match=r"61 of 64 voxels of the weights' \(4, 4, 4\) quadrature grid \(of the "
+                                         r"\(2, 2, 2\) reconstruction grid\) are seen by no datum"):
+        warn_unseen(A, grid)

@@ -136,7 +136,18 @@ def render(
         "elapsed_s": elapsed,
         "estimated_seconds": estimate,
     }
+    if not np.any(mean):
+        _warn_no_light(camera)
     return LightField(raw=raw, camera=camera, wavelengths=wl, std_error=se, metadata=meta)
+
+
+def _warn_no_light(camera) -> None:
+    """Warn that no light reached the sensor (a scene outside the camera's view, or lengths given in mm)."""
+    import warnings
+
+    warnings.warn(f"no light reached the sensor: every pixel is 0. Is the scene in front of the camera and within "
+                  f"its field of view? The camera is focused at {camera.focus_distance:g} m from its stop (lengths "
+                  "are in m: 1000 is a kilometre)", UserWarning, stacklevel=3)
 
 
 def _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, shape) -> float:

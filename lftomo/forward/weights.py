@@ -985,7 +985,7 @@ def _build_csr(kernel_call, pixel_index: np.ndarray, n_vox: int, cap_max: int, *
             f"the {what} needs an estimated {est_bytes / 1e9:.3g} GB ({nnz_est:.4g} non-zeros for {n_rows} "
             f"pixel rows x {n_vox} voxels, {n_rays} rays per pixel), more than memory_limit = "
             f"{memory_limit / 1e9:.3g} GB; select fewer views (views=...), use a coarser grid or fewer "
-            "rays_per_pixel, or raise memory_limit"
+            "rays_per_pixel, or raise memory_limit (lftomo weights --memory-limit-gb, or LFTOMO_MEMORY_LIMIT_GB)"
         )
     _check_seconds(what, seconds, max_seconds)
     store = _Growable(nnz_hi, idx_dtype, errors=True)
@@ -2184,7 +2184,8 @@ def ray_segments(
         raise LftomoError(
             f"the ray-segment table needs an estimated {est_bytes / 1e9:.3g} GB ({seg_est:.4g} segments of "
             f"{ray_est:.4g} rays), more than memory_limit = {limit / 1e9:.3g} GB; select fewer views, use a "
-            "coarser grid or fewer rays_per_pixel, or raise memory_limit"
+            "coarser grid or fewer rays_per_pixel, or raise memory_limit (lftomo weights --memory-limit-gb, or "
+            "LFTOMO_MEMORY_LIMIT_GB)"
         )
     _check_seconds("ray-segment table", seconds, max_seconds)
     seg_store = _Growable(int(seg_est * 1.03) + 16)
