@@ -293,8 +293,9 @@ def memory_limit(value: Any = None) -> int:
             gb = float(env)
         except ValueError:
             gb = float("nan")
-        if not (np.isfinite(gb) and gb > 0):
-            raise LftomoError(f"environment variable LFTOMO_MEMORY_LIMIT_GB must be a number > 0, got {env!r}")
+        if not (np.isfinite(gb) and 0 < gb * 1e9 < 2.0**63):
+            raise LftomoError(f"environment variable LFTOMO_MEMORY_LIMIT_GB must be a number > 0, got {env!r} "
+                              "(gigabytes, below 9.2e9)")
         return int(gb * 1e9)
     try:
         v = float(value) if isinstance(value, (numbers.Real, np.integer, np.floating)) else float("nan")

@@ -902,8 +902,12 @@ def _silence_stdout() -> None:
     import os
 
     with contextlib.suppress(OSError, ValueError):
+        fd = sys.stdout.fileno()  # none under a capturing test runner or in a notebook: nothing to silence
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        try:
+            os.dup2(devnull, fd)
+        finally:
+            os.close(devnull)
 
 
 def _origin(exc: BaseException) -> str:

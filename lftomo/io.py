@@ -195,7 +195,8 @@ def _previous_files(out: Path, command: str | None) -> list[str]:
     marker = _marker(out)
     if marker is None or marker.get("command") != command or not isinstance(marker.get("files"), list):
         return []
-    return [f for f in marker["files"] if isinstance(f, str) and f not in ("", ".", "..") and Path(f).name == f]
+    return [f for f in marker["files"]
+            if isinstance(f, str) and f not in ("", ".", "..") and "\x00" not in f and Path(f).name == f]
 
 
 def check_output_file(path: Any, *, what: str = "output file") -> Path:
@@ -326,7 +327,7 @@ def _publish(stage: Path, out: Path, last: Sequence[str], command: str | None) -
             with contextlib.suppress(FileNotFoundError):
                 (out / n).unlink()
         for n in stale:  # best effort: a stale file that cannot be removed does not stop the publishing
-            with contextlib.suppress(OSError):
+            with contextlib.suppress(OSError, ValueError):
                 (out / n).unlink()
         _fsync_dir(out)
         for n in first + final:
@@ -343,6 +344,9 @@ def _publish(stage: Path, out: Path, last: Sequence[str], command: str | None) -
 def staged_directory(out: str | os.PathLike, *, last: Sequence[str] = REPORT_FILES,
                      command: str | None = None) -> Iterator[Path]:
     """Write a folder of outputs in a staging folder, publish it on success.
+
+    Publishing also removes the files that the previous run of the same ``command`` listed in
+    the folder's marker and this run does not write (plain names only); no other file is touched.
 
     Parameters
     ----------

@@ -1459,6 +1459,27 @@ def test_unseen_voxels_of_a_quadrature_grid_are_counted_as_such():
 
     A = sp.csr_matrix(np.eye(3, 64))  # 3 of the 64 columns of a 2x-refined 2^3 grid seen
     grid = lt.Grid((2, 2, 2), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
-    with pytest.warns(UserWarning, match=r"61 of 64 voxels of the weights' \(4, 4, 4\) quadrature grid \(of the "
-                                         r"\(2, 2, 2\) reconstruction grid\) are seen by no datum"):
+    with pytest.warns(UserWarning, match=r"61 of 64 voxels of the weights' quadrature grid \(finer than the "
+                                         r"\(2, 2, 2\) grid\) are seen by no datum"):
         warn_unseen(A, grid)
+
+
+def test_a_rerun_removes_only_plain_names_its_marker_lists(tmp_path):
+    """The previous run's marker is read to find its files: a hostile or damaged list (other folders, absolute
+    paths, separators, NUL) removes nothing outside the output folder and never stops the publishing."""
+    from lftomo.io import COMPLETE_MARKER, staged_directory
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (tmp_path / "outside.txt").write_text("keep")
+    (out / "sub").mkdir()
+    (out / "sub" / "inner.txt").write_text("keep")
+    (out / "old.png").write_text("stale")
+    listed = ["old.png", "../outside.txt", str(tmp_path / "outside.txt"), "sub/inner.txt", "sub", "x\x00y", ".."]
+    (out / COMPLETE_MARKER).write_text(json.dumps({"complete": True, "files": listed, "command": "render"}))
+    with staged_directory(out, command="render") as stage:
+        (stage / "new.png").write_text("new")
+    assert (tmp_path / "outside.txt").read_text() == "keep"
+    assert (out / "sub" / "inner.txt").read_text() == "keep"
+    assert not (out / "old.png").exists() and (out / "new.png").read_text() == "new"
+    assert json.loads((out / COMPLETE_MARKER).read_text())["files"] == ["new.png"]

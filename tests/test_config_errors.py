@@ -154,13 +154,12 @@ def test_medium_file_without_T(tmp_path):
         _load(tmp_path, '[medium]\nphantom = "file"\npath = "m.npz"\nshape = [8, 8, 8]\n')
 
 
-
 def test_a_medium_file_is_read_once(tmp_path, monkeypatch):
     """The scene's shape checks read the members' headers; the arrays are read once, by Medium.from_npz
     (each array had been read up to six times: a large medium loads several times faster)."""
     rng = np.random.default_rng(1)
-    fields = dict(sigma_a=rng.random((6, 6, 6)), T=1000.0 + rng.random((6, 6, 6)), sigma_s=np.zeros((6, 6, 6)),
-                  g=np.full((6, 6, 6), 0.2))
+    fields = {"sigma_a": rng.random((6, 6, 6)), "T": 1000.0 + rng.random((6, 6, 6)), "sigma_s": np.zeros((6, 6, 6)),
+              "g": np.full((6, 6, 6), 0.2)}
     np.savez(tmp_path / "m.npz", **fields)
     reads = []
     real = np.lib.format.read_array

@@ -146,8 +146,9 @@ def _warn_no_light(camera) -> None:
     import warnings
 
     warnings.warn(f"no light reached the sensor: every pixel is 0. Is the scene in front of the camera and within "
-                  f"its field of view? The camera is focused at {camera.focus_distance:g} m from its stop (lengths "
-                  "are in m: 1000 is a kilometre)", UserWarning, stacklevel=3)
+                  f"its field of view (the camera is focused at {camera.focus_distance:g} m from its stop; lengths "
+                  "are in m: 1000 is a kilometre), and does anything in it emit at these wavelengths (radiance > 0, "
+                  "or hot enough)?", UserWarning, stacklevel=3)
 
 
 def _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, shape) -> float:

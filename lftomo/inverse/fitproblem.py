@@ -102,9 +102,7 @@ def warn_unseen(A: Any, grid: Any) -> None:
     if k:
         where = f"{seen.size} voxels of the {tuple(grid.shape)} grid"
         if seen.size != int(np.prod(grid.shape)):  # sub-voxel emission: A's columns are the quadrature grid's
-            q = round((seen.size / int(np.prod(grid.shape))) ** (1 / 3))
-            where = (f"{seen.size} voxels of the weights' {tuple(q * n for n in grid.shape)} quadrature grid (of the "
-                     f"{tuple(grid.shape)} reconstruction grid)")
+            where = f"{seen.size} voxels of the weights' quadrature grid (finer than the {tuple(grid.shape)} grid)"
         warnings.warn(f"{k} of {where} are seen by no datum (all-zero "
                       "columns of the weights: outside the field of view, or only in pixels left out): their "
                       "temperatures are the smoothness prior's extrapolation, not measured", UserWarning,
