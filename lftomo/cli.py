@@ -566,11 +566,11 @@ def _regularization(text: str):
     return v
 
 
-def _float_list(text: str) -> list[float]:
+def _float_list(text: str, expected: str = "comma-separated numbers, e.g. 0.98,1.0,1.02") -> list[float]:
     try:
         vals = [float(t) for t in text.replace(" ", "").split(",") if t]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, e.g. 0.98,1.0,1.02; got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}") from None
     if not vals:
         raise argparse.ArgumentTypeError(f"expected at least one number, got {text!r}")
     return vals
@@ -586,10 +586,7 @@ def _depths(text: str) -> list[float]:
 def _bounds(text: str) -> tuple[float, float]:
     from ._validate import require_bounds
 
-    try:
-        vals = [float(t) for t in text.replace(" ", "").split(",") if t]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected T_min,T_max in K, e.g. 300,2500; got {text!r}") from None
+    vals = _float_list(text, "T_min,T_max in K, e.g. 300,2500")
     try:
         return require_bounds(vals, "bounds")
     except LftomoError as e:
@@ -840,10 +837,6 @@ def main(argv=None) -> int:
     status = 2
     try:
         status = _run_command(args)
-        sys.stdout.flush()
-    except BrokenPipeError:
-        _silence_stdout()
-        status = 141
     finally:
         if fresh and status != 0:
             _remove_if_empty(Path(out))
@@ -865,7 +858,9 @@ def _run_command(args) -> int:
 
     try:
         memory_limit()  # a bad LFTOMO_MEMORY_LIMIT_GB is named as such, not as the first table that sizes an array
-        return args.func(args)
+        status = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
+        return status
     except BrokenPipeError:  # the reader of our output went away (`| head`): not an error of the input
         _silence_stdout()
         return 141
