@@ -49,6 +49,7 @@ from .version import __version__
 from ._validate import (check_allocation, require_array, require_finite_scalar, require_in_range, require_int,
                         resolve_wavelengths)
 from .forward.camera import Camera, best_focus_z, nearest_focus_distance, view_displacements
+from .forward.allocation import ALLOCATIONS
 from .forward.sampler import SAMPLERS
 
 FORMAT = "lftomo-lightfield-1"
@@ -613,6 +614,9 @@ def _check_lightfield_meta(data: dict, path) -> dict:
     if rpp is not None and (isinstance(rpp, bool) or not isinstance(rpp, int) or rpp < 1):
         raise LftomoError(f"{what} {str(path)!r}: member 'meta' metadata.rays_per_pixel must be an integer >= 1, "
                           f"got {rpp!r}")
+    if md.get("allocation") is not None and md["allocation"] not in ALLOCATIONS:
+        raise LftomoError(f"{what} {str(path)!r}: member 'meta' metadata.allocation must be one of "
+                          f"{list(ALLOCATIONS)}, got {md['allocation']!r}")
     if md.get("sampler") is not None and md["sampler"] not in SAMPLERS:
         raise LftomoError(f"{what} {str(path)!r}: member 'meta' metadata.sampler must be one of {list(SAMPLERS)}, "
                           f"got {md['sampler']!r}")

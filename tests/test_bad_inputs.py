@@ -659,6 +659,8 @@ LF_FILE_CASES = {
                    r"metadata.rays_per_pixel must be an integer >= 1, got 2.5"),
     "sampler": (dict(meta=lambda m: {**m, "metadata": {**m["metadata"], "sampler": "sobol"}}),
                 r"metadata.sampler must be one of \['stratified', 'independent'\], got 'sobol'"),
+    "allocation": (dict(meta=lambda m: {**m, "metadata": {**m["metadata"], "allocation": ["x"]}}),
+                   r"metadata.allocation must be one of \['uniform', 'adaptive'\], got \['x'\]"),
 }
 
 

@@ -229,3 +229,17 @@ def test_python_dash_m_runs_the_command():
                          timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.startswith("usage: lftomo camera")
+
+
+def test_render_command_adaptive_allocation(tmp_path):
+    """--allocation adaptive reaches the render, its summary and the saved light field's metadata."""
+    scene = tmp_path / "s.toml"
+    scene.write_text('[camera]\nfocus_distance = 1.0\n[camera.mla]\ncount = [8, 8]\n[render]\nrays_per_pixel = 16\n'
+                     '[[surface]]\ncenter = [0.0, 0.0, 1.0]\nsize = [0.004, 0.004]\nradiance = 1.0\n')
+    out = tmp_path / "out"
+    assert main(["render", str(scene), "-o", str(out), "--allocation", "adaptive", "--quiet"]) == 0
+    assert json.loads((out / "summary.json").read_text())["allocation"] == "adaptive"
+    lf = lt.LightField.load(out / "lightfield.npz")
+    assert lf.metadata["allocation"] == "adaptive" and lf.metadata["rays_per_pixel_range"][1] > 16
+    with pytest.raises(SystemExit):
+        main(["render", str(scene), "-o", str(tmp_path / "o2"), "--allocation", "smart"])

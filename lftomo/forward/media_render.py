@@ -137,17 +137,17 @@ def _pixel_blocks(row0, row1, optics):
 
 
 @njit(cache=True, inline="always")
-def _store_pixel(r, c, gs, sq, n_ch, rays_per_pixel, sampler, mean, var):
+def _store_pixel(r, c, gs, sq, n_ch, n_rays, sampler, mean, var):
     """Write pixel (r, c)'s mean and the variance of the mean from its group sums."""
-    inv_n = 1.0 / rays_per_pixel
+    inv_n = 1.0 / n_rays
     for ch in range(n_ch):
         mean[ch, r, c] = gs[ch].sum() * inv_n
-        var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], rays_per_pixel, sampler)
+        var[ch, r, c] = _smp.mean_variance(gs[ch], sq[ch], n_rays, sampler)
 
 
 @njit(cache=True, parallel=True)
-def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
-                    x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, mean, var):
+def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, counts, seed,
+                    x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, mean, var, passed):
     ncols = int(optics[_o.O_NCOLS])
     n_pix = (row1 - row0) * ncols
     k_groups = int(sampler[_smp.S_GROUPS])
@@ -158,31 +158,37 @@ def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, ra
         for k in range(b, n_pix, n_blk):
             r = row0 + k // ncols
             c = k % ncols
+            n_rays = counts[r, c]
             key = rng_init(seed, r * ncols + c)
             state = key
             gs[:, :] = 0.0
             sq[:] = 0.0
             g = 0  # group of sample m: m mod k_groups
-            for m in range(rays_per_pixel):
+            for m in range(n_rays):
                 gm = g
                 g = g + 1 if g + 1 < k_groups else 0
-                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, rays_per_pixel, key, state,
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, n_rays, key, state,
                                                                       optics, sampler, mli)
                 if not ok:
                     continue
+                passed[0, r, c] += 1
                 integrate_emission(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, Ib, surf, tex,
                                    L)
+                lit = False
                 for ch in range(n_ch):
                     v = w * L[ch]
                     gs[ch, gm] += v
                     sq[ch] += v * v
-            _store_pixel(r, c, gs, sq, n_ch, rays_per_pixel, sampler, mean, var)
+                    lit = lit or v != 0.0
+                if lit:
+                    passed[1, r, c] += 1
+            _store_pixel(r, c, gs, sq, n_ch, n_rays, sampler, mean, var)
 
 
 @njit(cache=True, parallel=True)
-def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, rays_per_pixel, seed,
+def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, counts, seed,
                      x0, y0, z0, hx, hy, hz, nx, ny, nz, sigma_a, sigma_s, g, Ib, majorant,
-                     max_bounces, mean, var):
+                     max_bounces, mean, var, passed):
     ncols = int(optics[_o.O_NCOLS])
     n_pix = (row1 - row0) * ncols
     k_groups = int(sampler[_smp.S_GROUPS])
@@ -198,58 +204,69 @@ def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, r
             # transport draws from its own stream, so the optics samples are the
             # same as in any other render with this seed (common random numbers)
             tstate = rng_init(seed, TRANSPORT_STREAM + r * ncols + c)
+            n_rays = counts[r, c]
             gs[:, :] = 0.0
             sq[:] = 0.0
             grp = 0  # group of sample m: m mod k_groups
-            for m in range(rays_per_pixel):
+            for m in range(n_rays):
                 gm = grp
                 grp = grp + 1 if grp + 1 < k_groups else 0
-                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, rays_per_pixel, key, state,
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, n_rays, key, state,
                                                                       optics, sampler, mli)
                 if not ok:
                     continue
+                passed[0, r, c] += 1
                 for ch in range(n_ch):
                     L[ch] = 0.0
                 tstate = trace_radiance(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                                        sigma_a, sigma_s, g, Ib, majorant, surf, tex, tstate, L, max_bounces)
+                lit = False
                 for ch in range(n_ch):
                     v = w * L[ch]
                     gs[ch, gm] += v
                     sq[ch] += v * v
-            _store_pixel(r, c, gs, sq, n_ch, rays_per_pixel, sampler, mean, var)
+                    lit = lit or v != 0.0
+                if lit:
+                    passed[1, r, c] += 1
+            _store_pixel(r, c, gs, sq, n_ch, n_rays, sampler, mean, var)
 
 
 def medium_row_kernel(medium, wavelengths, camera):
     """Validate the medium against the camera and return ``f(r0, r1, optics,
-    sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)`` rendering rows
-    [r0, r1) (``var``: the estimated variance of each pixel's mean)."""
+    sampler, mli, surf, tex, n_ch, counts, seed, mean, var, passed)`` rendering rows
+    [r0, r1) with ``counts[r, c]`` rays for pixel (r, c) (``var``: the estimated
+    variance of each pixel's mean; ``passed[0]``, ``passed[1]``: incremented by
+    the rays that pass the optics and by those that bring light).  ``counts``
+    int64 (rows, cols), ``passed`` int64 (2, rows, cols); ``mean``, ``var``
+    float (n_ch, rows, cols)."""
     check_medium_visible(medium, camera)
     p = pack_medium(medium, wavelengths)
     x0, y0, z0 = (float(v) for v in p["lower"])
     hx, hy, hz = (float(v) for v in p["spacing"])
     nx, ny, nz = (int(v) for v in p["shape"])
     if not medium.is_scattering:
-        def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
-            _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
-                            x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["Ib"], mean, var)
+        def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, counts, seed, mean, var, passed):
+            _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, counts, seed,
+                            x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["Ib"], mean, var, passed)
     else:
         warn_if_diffusive(p["sigma_s"], (nx, ny, nz), (hx, hy, hz), MAX_BOUNCES)
 
-        def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var):
-            _rows_scattering(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, n_rays, seed,
+        def run(r0, r1, optics, sampler, mli, surf, tex, n_ch, counts, seed, mean, var, passed):
+            _rows_scattering(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch, counts, seed,
                              x0, y0, z0, hx, hy, hz, nx, ny, nz, p["sigma_a"], p["sigma_s"], p["g"], p["Ib"],
-                             p["majorant"], MAX_BOUNCES, mean, var)
+                             p["majorant"], MAX_BOUNCES, mean, var, passed)
     return run
 
 
 def empty_row_kernel(n_ch):
     """Row renderer for a scene without a medium (surfaces only): the exact
-    integrator with an empty 1-voxel grid that no object-space ray meets."""
+    integrator with an empty 1-voxel grid that no object-space ray meets.
+    Same call as :func:`medium_row_kernel`'s."""
     sigma = np.zeros((n_ch, 1))
 
-    def run(r0, r1, optics, sampler, mli, surf, tex, n_ch_, n_rays, seed, mean, var):
-        _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch_, n_rays, seed,
-                        0.0, 0.0, -10.0, 1e-9, 1e-9, 1e-9, 1, 1, 1, sigma, sigma, mean, var)
+    def run(r0, r1, optics, sampler, mli, surf, tex, n_ch_, counts, seed, mean, var, passed):
+        _rows_absorbing(r0, r1, _pixel_blocks(r0, r1, optics), optics, sampler, mli, surf, tex, n_ch_, counts, seed,
+                        0.0, 0.0, -10.0, 1e-9, 1e-9, 1e-9, 1, 1, 1, sigma, sigma, mean, var, passed)
     return run
 
 

@@ -25,7 +25,8 @@ from .._validate import (check_allocation, require_flag, require_instance, requi
                          resolve_wavelengths)
 from ..progress import progress_bar
 from .chunks import ChunkSizer, interruptible
-from .sampler import DEFAULT_SAMPLER, SAMPLERS
+from .allocation import DEFAULT_ALLOCATION, PILOT_RAYS, check_allocation_name, pilot_seed, ray_counts, uses_pilot
+from .sampler import DEFAULT_SAMPLER, S_GROUPS, SAMPLERS, pixels_in_image
 
 
 @interruptible
@@ -37,6 +38,7 @@ def render(
     seed: int = 0,
     wavelengths: Any = (650e-9,),
     sampler: str = DEFAULT_SAMPLER,
+    allocation: str = DEFAULT_ALLOCATION,
     progress: bool | None = None,
     max_seconds: float | None = None,
 ):
@@ -48,7 +50,8 @@ def render(
         Surfaces (and optionally a medium).
     camera : Camera
     rays_per_pixel : int
-        Rays traced per pixel (>= 1).
+        Rays traced per pixel (>= 1); with ``allocation="adaptive"``, the
+        uniform render whose cost the adaptive one spends.
     seed : int
         Seed of the per-pixel random streams (>= 0).
     wavelengths : float, sequence of float, or "gray"
@@ -58,6 +61,16 @@ def render(
         Where each pixel's rays start (:mod:`lftomo.forward.sampler`):
         randomized quasi-Monte Carlo restricted to where light can pass (the
         default), or independent uniform samples.
+    allocation : {"uniform", "adaptive"}
+        How the rays are shared among the pixels
+        (:mod:`lftomo.forward.allocation`): ``rays_per_pixel`` each (the
+        default), or, after a pilot of one ray per randomization, by the
+        pixels' own Monte Carlo error against a relative measurement noise,
+        for the uniform render's cost.  Adaptive needs ``rays_per_pixel`` >=
+        16 (twice the pilot's 8); below that the render is uniform.  Either
+        way every pixel's estimate and ``std_error`` are unbiased and honest;
+        ``metadata["allocation"]`` says which was used and
+        ``metadata["rays_per_pixel_range"]`` the fewest and most rays a pixel got.
     progress : bool, optional
         Show a progress bar (default: when the render is large).
     max_seconds : float, optional
@@ -91,13 +104,14 @@ def render(
     optics = camera.packed
     if sampler not in SAMPLERS:
         raise LftomoError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
+    check_allocation_name(allocation)
     packed_sampler, mli = camera.sampler_arrays(sampler, n_rays)
     nrows, ncols = camera.sensor_shape
-    # mean, variance, the pilot's two scratch images and the standard error, each (n_ch, rows, cols)
-    check_allocation(f"a render of {n_ch} channel(s) x {nrows} x {ncols} pixels", 5.0 * n_ch * nrows * ncols * 8,
-                     hint="use fewer wavelengths or a smaller camera")
-    mean = np.zeros((n_ch, nrows, ncols))
-    var = np.zeros((n_ch, nrows, ncols))
+    # mean, variance, the time estimate's two scratch images and the standard error, each (n_ch, rows, cols), and an
+    # adaptive render's pilot mean and variance; the ray counts and the passing rays are int64 (3, rows, cols)
+    images = 7.0 if allocation == "adaptive" else 5.0
+    check_allocation(f"a render of {n_ch} channel(s) x {nrows} x {ncols} pixels",
+                     (images * n_ch + 3.0) * nrows * ncols * 8, hint="use fewer wavelengths or a smaller camera")
     if max_seconds is not None:
         from .._validate import require_positive
 
@@ -109,18 +123,20 @@ def render(
         row_kernel = medium_row_kernel(scene.medium, wl, camera)
     else:
         row_kernel = empty_row_kernel(n_ch)
+    shape = (n_ch, nrows, ncols)
     show = progress if progress is not None else (nrows * ncols * n_rays > 2_000_000)
-    estimate = _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, mean.shape)
+    estimate = _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, shape)
     _check_estimate(estimate, max_seconds, bool(show))
-    # chunks of rows sized to ~0.25 s each, so that Ctrl-C is seen between two kernel calls
-    sizer = ChunkSizer(nrows, start=numba.get_num_threads())
-    bar = progress_bar(nrows * ncols, show, "render")
-    try:
-        for r0, r1 in sizer.ranges(nrows):
-            row_kernel(r0, r1, optics, packed_sampler, mli, surf, tex, n_ch, n_rays, seed, mean, var)
-            bar.update((r1 - r0) * ncols)
-    finally:
-        bar.close()
+    run = (row_kernel, optics, packed_sampler, mli, surf, tex, n_ch)
+    counts = np.full((nrows, ncols), n_rays, dtype=np.int64)
+    k_groups = int(packed_sampler[S_GROUPS])
+    adaptive = uses_pilot(allocation, n_rays, k_groups)
+    if adaptive:
+        pilot_mean, _, pilot_passed = _render_rows(run, np.full((nrows, ncols), PILOT_RAYS, dtype=np.int64),
+                                                   pilot_seed(seed), shape, show, "render pilot")
+        counts = ray_counts(pilot_mean, pilot_passed, pixels_in_image(optics, packed_sampler, mli), n_rays,
+                            k_groups)
+    mean, var, _ = _render_rows(run, counts, seed, shape, show, "render")
     elapsed = time.perf_counter() - t0
     std_error = np.sqrt(var)
     raw = mean[0] if n_ch == 1 else mean
@@ -130,6 +146,8 @@ def render(
         "transport": "surfaces" if scene.medium is None else ("delta tracking" if scene.medium.is_scattering else "exact DDA"),
         "rays_per_pixel": n_rays,
         "sampler": sampler,
+        "allocation": "adaptive" if adaptive else "uniform",
+        "rays_per_pixel_range": [int(counts.min()), int(counts.max())],
         "seed": seed,
         "wavelengths": None if wl is None else list(wl),
         "scene": scene.summary(),
@@ -151,23 +169,49 @@ def _warn_no_light(camera) -> None:
                   "or hot enough)?", UserWarning, stacklevel=3)
 
 
+def _render_rows(run, counts, seed, shape, show, label):
+    """Render every row with ``counts[r, c]`` rays for pixel (r, c), in chunks of
+    rows sized to ~0.25 s each, so that Ctrl-C is seen between two kernel calls.
+
+    ``run`` is ``(row_kernel, optics, packed sampler, mli, surf, tex, n_ch)``.
+    Returns ``(mean, var, passed)``: (n_ch, rows, cols) means and variances of
+    the means, (2, rows, cols) rays that passed the optics and rays that
+    brought light.
+    """
+    row_kernel, optics, packed_sampler, mli, surf, tex, n_ch = run
+    nrows, ncols = shape[1:]
+    mean, var = np.zeros(shape), np.zeros(shape)
+    passed = np.zeros((2, nrows, ncols), dtype=np.int64)
+    sizer = ChunkSizer(nrows, start=numba.get_num_threads())
+    bar = progress_bar(nrows * ncols, show, label)
+    try:
+        for r0, r1 in sizer.ranges(nrows):
+            row_kernel(r0, r1, optics, packed_sampler, mli, surf, tex, n_ch, counts, seed, mean, var, passed)
+            bar.update((r1 - r0) * ncols)
+    finally:
+        bar.close()
+    return mean, var, passed
+
+
 def _estimate_seconds(row_kernel, camera, sampler, surf, tex, n_ch, n_rays, seed, shape) -> float:
     """Seconds the render will take, from a few middle rows at up to 64 rays per pixel.
 
     The cost grows linearly with the rays, so a pilot with few rays estimates a
-    render with any number of them without tracing them.
+    render with any number of them without tracing them (an adaptive render
+    spends the uniform one's cost).
     """
     nrows, ncols = shape[1:]
     k = max(1, min(nrows, 4 * numba.get_num_threads()))
     r0 = (nrows - k) // 2
     n_pilot = min(n_rays, 64)
     scratch_m, scratch_s = np.zeros(shape), np.zeros(shape)
+    passed = np.zeros((2, nrows, ncols), dtype=np.int64)
     # one row with one ray first: a first call compiles the kernel, which is not render time
-    row_kernel(r0, r0 + 1, camera.packed, *camera.sampler_arrays(sampler, 1), surf, tex, n_ch, 1, seed,
-               scratch_m, scratch_s)
+    row_kernel(r0, r0 + 1, camera.packed, *camera.sampler_arrays(sampler, 1), surf, tex, n_ch,
+               np.ones((nrows, ncols), dtype=np.int64), seed, scratch_m, scratch_s, passed)
     t = time.perf_counter()
-    row_kernel(r0, r0 + k, camera.packed, *camera.sampler_arrays(sampler, n_pilot), surf, tex, n_ch, n_pilot, seed,
-               scratch_m, scratch_s)
+    row_kernel(r0, r0 + k, camera.packed, *camera.sampler_arrays(sampler, n_pilot), surf, tex, n_ch,
+               np.full((nrows, ncols), n_pilot, dtype=np.int64), seed, scratch_m, scratch_s, passed)
     per_ray = (time.perf_counter() - t) / (k * ncols * n_pilot)
     return per_ray * nrows * ncols * n_rays
 

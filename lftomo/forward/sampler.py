@@ -246,6 +246,30 @@ def pixel_box(r0, c0, cr, cc, rad):
     return True, rlo, rhi, clo, chi
 
 
+@njit(cache=True)
+def pixels_in_image(optics, sampler, mli):
+    """Pixels that draw all their rays: (rows, cols) bool.
+
+    With the stratified sampler, a pixel whose square misses its microlens
+    image disc (:func:`pixel_box`) draws one ray per randomization whatever
+    its ray count (:func:`pixel_ray`); every other pixel, and every pixel of
+    the independent sampler or of a camera whose pixels see several lenslets,
+    draws them all.
+    """
+    nr = int(optics[_o.O_NROWS])
+    nc = int(optics[_o.O_NCOLS])
+    out = np.ones((nr, nc), dtype=np.bool_)
+    if sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0:
+        return out
+    for r in range(nr):
+        for c in range(nc):
+            i, j = _o.own_lenslet(r, c, optics)
+            lens = i * int(optics[_o.O_M_NX]) + j
+            ok, rlo, rhi, clo, chi = pixel_box(float(r), float(c), mli[lens, 0], mli[lens, 1], mli[lens, 2])
+            out[r, c] = ok and (rhi - rlo) * (chi - clo) > 0.0
+    return out
+
+
 @njit(cache=True, inline="always")
 def _hash_uniform(key, m, salt):
     """A uniform number in [0, 1) from (key, m, salt) (counter-based)."""

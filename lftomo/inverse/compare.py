@@ -167,6 +167,10 @@ def _require_render(lf: Any, name: str, rays_per_pixel: Any) -> None:
         raise LftomoError(f"{name} must be an lftomo.LightField (a Monte Carlo render), got {type(lf).__name__}")
     if lf.std_error is None:
         raise LftomoError(f"{name} has no std_error (not a Monte Carlo render)")
+    if lf.metadata.get("allocation", "uniform") != "uniform":
+        raise LftomoError(f"{name} was rendered with allocation={lf.metadata['allocation']!r}: its pixels had "
+                          "different ray counts, while this noise model scales the Monte Carlo error of the data and "
+                          "of the weights by one ray count per pixel; render the data with allocation='uniform'")
     n = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
     own = lf.metadata.get("rays_per_pixel")
     if own is not None and int(own) != n:

@@ -1,0 +1,143 @@
+"""How a render shares its rays among the pixels.
+
+``"uniform"``: every pixel gets ``rays_per_pixel`` rays, as lftomo always did.
+
+``"adaptive"``: a *pilot* render of :data:`PILOT_RAYS` rays per pixel, from its
+own random streams, measures where the light is and how many of each pixel's
+rays pass the optics; the rays of the main render are then shared out by
+Neyman's allocation with costs (Neyman 1934; Cochran, *Sampling Techniques*,
+3rd ed., 1977, §5.5): pixel ``i`` gets
+
+    n_i ∝ min(1, μ_i / (f · max μ)) / √c_i,
+
+where ``μ_i`` is the pilot's mean, ``f`` = :data:`SIGNAL_FLOOR` and
+``c_i = 1 + β_p p_i + β_l l_i`` the cost of one ray (``p_i`` and ``l_i`` the
+shares of the pilot's rays that passed the optics and that brought light,
+``β_p`` = :data:`PASS_COST`, ``β_l`` = :data:`LIGHT_COST`).  For rays whose relative
+spread is alike in every pixel, this minimises the sum over pixels of the Monte
+Carlo variance in units of a relative measurement noise
+``σ_i ∝ max(μ_i, f · max μ)`` (lftomo's ``add_noise(relative_std=…)`` model)
+for the render's cost; a pilot of a few rays estimates a pixel's own spread too
+poorly to do better.  The weights are spread to each pixel's 3 × 3 neighbours
+(a pixel whose few pilot rays all missed a bright neighbour's light still gets
+rays); every pixel keeps at least K rays (one per randomization,
+K = :data:`lftomo.forward.sampler.N_GROUPS`) and gets at most
+:data:`MAX_SHARE` × ``rays_per_pixel``; the rays cost, under the model ``c``,
+what the uniform render's would, less the pilot's.
+
+The main render's estimate uses its own rays only: the pilot decides how many,
+not what they see, so each pixel's estimate and its ``std_error`` stay unbiased
+and honest for any ray count (a pilot reused in the estimate would be biased,
+since its value and the count it chose are correlated).  On a scene whose light
+covers a small part of the sensor (a flame in a larger field) the rays go where
+the light is; on a uniformly lit one the allocation stays close to uniform.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import LftomoError
+
+ALLOCATIONS = ("uniform", "adaptive")
+#: The allocation used when none is named.
+DEFAULT_ALLOCATION = "uniform"
+#: Signal floor ``f`` of the noise scale, as a fraction of the channel's largest
+#: pilot signal (the floor of lftomo's relative measurement noise).
+SIGNAL_FLOOR = 1e-3
+#: Cost ``β_p`` of a ray that passes the optics (traced through the main lens),
+#: against one that is drawn and culled, in ``c = 1 + β_p p + β_l l``.
+PASS_COST = 0.75
+#: Cost ``β_l`` of a ray that brings light (through a medium) on top of that.
+#: Both fitted to render times of the 32³ flame and of a white plane
+#: (docs/performance.md).
+LIGHT_COST = 1.0
+#: Largest ray count of a pixel, in units of ``rays_per_pixel``.
+MAX_SHARE = 32
+#: Rays per pixel of the pilot.
+PILOT_RAYS = 2
+#: Seed offset of the pilot's random streams (user seeds are below 2**62).
+PILOT_SEED_OFFSET = 2**62
+
+
+def check_allocation_name(allocation) -> str:
+    """``allocation`` if it is one of :data:`ALLOCATIONS`, else a clear error."""
+    if not isinstance(allocation, str) or allocation not in ALLOCATIONS:
+        raise LftomoError(f"allocation must be one of {ALLOCATIONS}, got {allocation!r}")
+    return allocation
+
+
+def uses_pilot(allocation: str, rays_per_pixel: int, k_groups: int) -> bool:
+    """Whether an ``allocation`` render of ``rays_per_pixel`` rays draws a pilot:
+    adaptive renders with at least two rays per randomization beyond the pilot's."""
+    return allocation == "adaptive" and rays_per_pixel >= 2 * k_groups
+
+
+def pilot_seed(seed: int) -> int:
+    """Seed of the pilot's random streams: never the seed of a user's render."""
+    return int(seed) + PILOT_SEED_OFFSET
+
+
+def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups: int) -> np.ndarray:
+    """Rays per pixel of an adaptive render, from its pilot.
+
+    Parameters
+    ----------
+    pilot_mean : ndarray, (n_ch, rows, cols)
+        The pilot's pixel means, from :data:`PILOT_RAYS` rays per pixel.
+    pilot_passed : ndarray of int, (2, rows, cols)
+        The pilot's rays per pixel that passed the optics, and those that
+        brought light.
+    in_image : ndarray of bool, (rows, cols)
+        Pixels that draw all their rays
+        (:func:`lftomo.forward.sampler.pixels_in_image`); the others draw one
+        per randomization whatever their count and keep ``rays_per_pixel``.
+    rays_per_pixel : int
+        The uniform render's rays per pixel, whose cost (under the model
+        ``c``) the pilot and the counts share.
+    k_groups : int
+        Randomizations per pixel, K.
+
+    Returns
+    -------
+    ndarray of int64, (rows, cols)
+        Multiples of K, at least K, at most :data:`MAX_SHARE` ×
+        ``rays_per_pixel``; ``rays_per_pixel`` everywhere when the pilot saw
+        no light.
+    """
+    from scipy.ndimage import maximum_filter, uniform_filter
+
+    mean = np.asarray(pilot_mean, dtype=float)
+    uniform = np.full(in_image.shape, int(rays_per_pixel), dtype=np.int64)
+    peak = mean.reshape(mean.shape[0], -1).max(axis=1)
+    lit = peak > 0
+    if not np.any(lit):
+        return uniform
+    scale = np.maximum(mean[lit], SIGNAL_FLOOR * peak[lit][:, None, None])
+    need = maximum_filter((mean[lit] / scale).max(axis=0), size=3, mode="nearest")
+    frac = uniform_filter(np.asarray(pilot_passed, dtype=float) / PILOT_RAYS, size=(1, 3, 3), mode="nearest")
+    cost = 1.0 + PASS_COST * frac[0] + LIGHT_COST * frac[1]
+    need = np.where(in_image, need, 0.0)
+    if not np.any(need > 0) or not np.all(np.isfinite(need)):
+        return uniform
+    budget = float(np.sum(cost[in_image])) * (rays_per_pixel - PILOT_RAYS)
+    share = need / np.sqrt(cost)
+    top = MAX_SHARE * rays_per_pixel // k_groups
+
+    def units(s):
+        return np.clip(np.rint(share * s), 1, top)
+
+    lo, hi = 0.0, 1.0
+    while np.sum(k_groups * units(hi)[in_image] * cost[in_image]) <= budget and hi < 1e300:
+        lo, hi = hi, 2.0 * hi
+        if np.all(units(hi)[in_image] >= top):
+            lo = hi
+            break
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if np.sum(k_groups * units(mid)[in_image] * cost[in_image]) <= budget:
+            lo = mid
+        else:
+            hi = mid
+    counts = (k_groups * units(lo)).astype(np.int64)
+    return np.where(in_image, counts, uniform)
