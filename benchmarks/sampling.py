@@ -71,19 +71,25 @@ def measure(images, claimed, times):
     }
 
 
+#: (label, sampler, allocation) of the renders compared; the last is the reference of the ratios
+RENDERS = (("stratified", "stratified", "uniform"), ("adaptive", "stratified", "adaptive"),
+           ("independent", "independent", "uniform"))
+
+
 def run_case(name, cam, rays, seeds):
     scene = make_case(name)
     out = {}
-    for smp in ("stratified", "independent"):
-        lt.render(scene, cam, rays_per_pixel=1, seed=0, sampler=smp, progress=False)  # JIT
+    for label, smp, alloc in RENDERS:
+        lt.render(scene, cam, rays_per_pixel=16, seed=0, sampler=smp, allocation=alloc, progress=False)  # JIT
         imgs, errs, times = [], [], []
         for s in range(seeds):
             t0 = time.perf_counter()
-            lf = lt.render(scene, cam, rays_per_pixel=rays, seed=100 + s, sampler=smp, progress=False)
+            lf = lt.render(scene, cam, rays_per_pixel=rays, seed=100 + s, sampler=smp, allocation=alloc,
+                           progress=False)
             times.append(time.perf_counter() - t0)
             imgs.append(np.asarray(lf.raw))
             errs.append(np.asarray(lf.std_error))
-        out[smp] = measure(imgs, errs, times)
+        out[label] = measure(imgs, errs, times)
     return out
 
 
@@ -129,14 +135,18 @@ def main():
     print(f"{'case':14s} {'sampler':12s} {'px':>6s} {'median':>8s} {'p90':>8s} {'claimed':>8s} "
           f"{'cl/spr':>7s} {'time s':>7s}")
     for name, res in rows:
-        for smp in ("stratified", "independent"):
+        for smp in res:
             r = res[smp]
             print(f"{name:14s} {smp:12s} {r['pixels']:6d} {r['median']:8.2%} {r['p90']:8.2%} {r['claimed']:8.2%} "
                   f"{r['ratio']:7.2f} {r['time']:7.2f}")
-        s, i = res["stratified"], res["independent"]
-        eff = (i["var"] * i["time"]) / max(s["var"] * s["time"], 1e-300)
-        print(f"{name:14s} ratios: error {s['median'] / i['median']:.3f}, time {s['time'] / i['time']:.2f}, "
-              f"efficiency {eff:.1f}x")
+        i = res["independent"]
+        for smp in res:
+            if smp == "independent":
+                continue
+            s = res[smp]
+            eff = (i["var"] * i["time"]) / max(s["var"] * s["time"], 1e-300)
+            print(f"{name:14s} {smp} / independent: error {s['median'] / i['median']:.3f}, "
+                  f"time {s['time'] / i['time']:.2f}, efficiency {eff:.1f}x")
 
 
 if __name__ == "__main__":
