@@ -196,11 +196,18 @@ def _alpha(camera: Camera, depth: float) -> float:
     return (z_xp - _image_plane_z(camera, depth)) / (z_xp - z_h1)
 
 
+#: A refocus depth beyond this many focus distances is warned about (most often mm taken for m).
+FAR_DEPTH_FACTOR = 100.0
+FAR_DEPTH_MESSAGE = "times the camera's focus distance"
+
+
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
     """``depth`` (m from the stop) as float if the main lens images it behind itself.
 
     An object at or inside the focal length (plus the stop-to-lens distance)
-    has no real image: refocusing there would silently return zeros.
+    has no real image: refocusing there would silently return zeros.  A depth
+    more than :data:`FAR_DEPTH_FACTOR` times the camera's focus distance is
+    kept but warned about: it is most often a depth in mm.
     """
     _require_camera(camera)
     from ._validate import require_positive
@@ -211,6 +218,12 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
         raise LftomoError(f"{name} = {d!r} m is inside or too close to the main-lens focal length "
                           f"({camera.main_lens.focal_length:.4g} m): refocus depths must be > {lo:.4g} m "
                           "from the aperture stop")
+    if d > FAR_DEPTH_FACTOR * camera.focus_distance:
+        import warnings
+
+        warnings.warn(f"{name} = {d:g} m is {d / camera.focus_distance:.0f} {FAR_DEPTH_MESSAGE} "
+                      f"({camera.focus_distance:g} m): depths are in m, so {d:g} mm would be {d / 1000:g} m",
+                      UserWarning, stacklevel=3)
     return d
 
 
@@ -430,10 +443,14 @@ class LightField:
 
         bar = progress_bar(d.size, sys.stderr.isatty() if progress is None else bool(progress), "focal stack",
                            unit="depth")
+        import warnings
+
         try:
             images = []
             for x in d:
-                images.append(self.refocus_at(float(x)))
+                with warnings.catch_warnings():  # a far depth was warned about above, by its index
+                    warnings.filterwarnings("ignore", message=".*" + FAR_DEPTH_MESSAGE, category=UserWarning)
+                    images.append(self.refocus_at(float(x)))
                 bar.update(1)
         finally:
             bar.close()

@@ -1485,3 +1485,20 @@ def test_a_rerun_removes_only_plain_names_its_marker_lists(tmp_path):
     assert (out / "sub" / "inner.txt").read_text() == "keep"
     assert not (out / "old.png").exists() and (out / "new.png").read_text() == "new"
     assert json.loads((out / COMPLETE_MARKER).read_text())["files"] == ["new.png"]
+
+
+def test_a_refocus_depth_in_mm_is_warned_about():
+    """980 (mm meant) is 980 m for a camera focused at 1 m: refocused, with a warning naming the units;
+    depths near the focus are not warned about."""
+    import warnings
+
+    lf = tiny_lightfield()
+    with pytest.warns(UserWarning) as caught:
+        stack = lf.focal_stack([980.0, 1000.0], progress=False)
+    assert [str(w.message) for w in caught] == [
+        "depths[0] = 980 m is 980 times the camera's focus distance (1 m): depths are in m, so 980 mm would be 0.98 m",
+        "depths[1] = 1000 m is 1000 times the camera's focus distance (1 m): depths are in m, so 1000 mm would be 1 m"]
+    assert stack.shape[0] == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lf.focal_stack([0.98, 1.02], progress=False)
