@@ -70,9 +70,10 @@ def cmd_render(args) -> int:
     rpp = cfg.rays_per_pixel if args.rays_per_pixel is None else args.rays_per_pixel
     seed = cfg.seed if args.seed is None else args.seed
     sampler = cfg.sampler if args.sampler is None else args.sampler
+    allocation = cfg.allocation if args.allocation is None else args.allocation
     from .demo import save_lightfield_products
 
-    print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel {args.allocation}, seed {seed}, {sampler} sampler"
+    print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel {allocation}, seed {seed}, {sampler} sampler"
           + (f", {len(cfg.cameras)} cameras: {', '.join(cfg.camera_names)})" if cfg.is_rig else ")"), file=sys.stderr)
     with staged_directory(out, command="render") as stage:  # all files appear together, summary.json last
         files: list[Path] = []
@@ -80,7 +81,7 @@ def cmd_render(args) -> int:
         for cam, name in zip(cfg.cameras, cfg.camera_names):
             t0 = time.perf_counter()
             lf = render(cfg.scene, cam, rays_per_pixel=rpp, seed=seed, wavelengths=cfg.wavelengths or "gray",
-                        progress=not args.quiet, sampler=sampler, allocation=args.allocation)
+                        progress=not args.quiet, sampler=sampler, allocation=allocation)
             t_render = time.perf_counter() - t0
             depths = cfg.focal_stack_depths or (cam.focus_distance,)
             if not cfg.is_rig:
@@ -104,7 +105,7 @@ def cmd_render(args) -> int:
             "rays_per_pixel": rpp,
             "seed": seed,
             "sampler": sampler,
-            "allocation": args.allocation,
+            "allocation": lf.metadata["allocation"],  # what was used: below 16 rays, uniform
         }
         if cfg.is_rig:
             summary["cameras"] = per_camera
@@ -688,10 +689,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     r.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(r, "override render.sampler")
-    r.add_argument("--allocation", choices=("uniform", "adaptive"), default="uniform",
-                   help="how the rays are shared among the pixels (lftomo.forward.allocation): the same number each "
-                        "(default), or after a pilot, where the light is, for the same cost; a light field rendered "
-                        "adaptively cannot be fitted by lftomo reconstruct")
+    r.add_argument("--allocation", choices=("uniform", "adaptive"), default=None,
+                   help="how the rays are shared among the pixels (lftomo.forward.allocation): the same number each, "
+                        "or after a pilot, where the light is, for the same cost; default the scene's [render] "
+                        "allocation, else 'uniform'. A fit cannot add an adaptive render's Monte Carlo error to its "
+                        "noise model")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(r)
     r.set_defaults(func=cmd_render)

@@ -32,6 +32,7 @@ optional ``name`` (letters, digits, ``_``, ``-``; default ``camera1``,
     seed = 0
     wavelength_nm = 650        # a number, a list, or "gray"
     sampler = "stratified"     # pixel sampler: "stratified" (default) or "independent"
+    allocation = "uniform"     # rays per pixel: "uniform" (default) or "adaptive" (lftomo render only)
 
     [output]
     focal_stack_depths = [0.95, 1.0, 1.05]
@@ -74,6 +75,7 @@ from ._validate import (MAX_RAYS_PER_PIXEL, MAX_SEED, MAX_TEMPERATURE, require_i
                         toml_numbers)
 from .forward.camera import Camera, MainLens, MicrolensArray, Sensor
 from .forward.pose import Pose
+from .forward.allocation import ALLOCATIONS, DEFAULT_ALLOCATION
 from .forward.sampler import DEFAULT_SAMPLER, SAMPLERS
 from .forward.scene import PlanarEmitter, Scene, checkerboard
 from .lightfield import check_refocus_depth
@@ -85,7 +87,7 @@ _CAMERA = {"preset", "focus_distance", "main_lens", "mla", "sensor", "pose", "na
 _POSE_LOOK_AT = {"eye", "target", "up"}
 _POSE_EXPLICIT = {"position", "rotation"}
 _CAMERA_PARTS = {"main_lens": MainLens, "mla": MicrolensArray, "sensor": Sensor}
-_RENDER = {"rays_per_pixel", "seed", "wavelength_nm", "sampler"}
+_RENDER = {"rays_per_pixel", "seed", "wavelength_nm", "sampler", "allocation"}
 _OUTPUT = {"focal_stack_depths"}
 _SURFACE = {"center", "size", "texture", "radiance", "low", "squares", "path", "temperature", "emissivity", "normal", "up"}
 _TEXTURES = ("uniform", "checkerboard", "file")
@@ -112,6 +114,7 @@ class SceneConfig:
     source: str = "<built-in>"
     raw: dict = field(default_factory=dict)
     sampler: str = DEFAULT_SAMPLER
+    allocation: str = DEFAULT_ALLOCATION
     cameras: tuple = ()
     camera_names: tuple = ()
 
@@ -454,6 +457,10 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
     if not (isinstance(sampler, str) and sampler in SAMPLERS):
         raise LftomoError(f"[render] sampler must be one of {list(SAMPLERS)} (lftomo.forward.sampler), "
                           f"got {sampler!r}")
+    allocation = r.get("allocation", DEFAULT_ALLOCATION)
+    if not (isinstance(allocation, str) and allocation in ALLOCATIONS):
+        raise LftomoError(f"[render] allocation must be one of {list(ALLOCATIONS)} (lftomo.forward.allocation), "
+                          f"got {allocation!r}")
     out = data.get("output", {})
     _check_keys("[output]", out, _OUTPUT)
     depths_t = out.get("focal_stack_depths", [])
@@ -499,6 +506,7 @@ def scene_from_dict(data: Mapping[str, Any], *, base: Path = Path("."), source: 
         source=source,
         raw=dict(data),
         sampler=sampler,
+        allocation=allocation,
         cameras=cameras,
         camera_names=names,
     )

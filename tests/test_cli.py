@@ -241,5 +241,13 @@ def test_render_command_adaptive_allocation(tmp_path):
     assert json.loads((out / "summary.json").read_text())["allocation"] == "adaptive"
     lf = lt.LightField.load(out / "lightfield.npz")
     assert lf.metadata["allocation"] == "adaptive" and lf.metadata["rays_per_pixel_range"][1] > 16
+    # the scene key, and the summary says what was used: below 16 rays, uniform
+    scene.write_text(scene.read_text().replace("rays_per_pixel = 16", "rays_per_pixel = 8\nallocation = \"adaptive\""))
+    with pytest.warns(UserWarning, match="the render is uniform"):
+        assert main(["render", str(scene), "-o", str(tmp_path / "o8"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "o8" / "summary.json").read_text())["allocation"] == "uniform"
     with pytest.raises(SystemExit):
         main(["render", str(scene), "-o", str(tmp_path / "o2"), "--allocation", "smart"])
+    scene.write_text(scene.read_text().replace('"adaptive"', '"smart"'))
+    with pytest.raises(ValueError, match=r"\[render\] allocation must be one of \['uniform', 'adaptive'\].*'smart'"):
+        load_scene_file(scene)

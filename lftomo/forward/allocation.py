@@ -23,7 +23,7 @@ poorly to do better.  The weights are spread to each pixel's 3 × 3 neighbours
 rays); every pixel keeps at least K rays (one per randomization,
 K = :data:`lftomo.forward.sampler.N_GROUPS`) and gets at most
 :data:`MAX_SHARE` × ``rays_per_pixel``; the rays cost, under the model ``c``,
-what the uniform render's would, less the pilot's.
+at most what the uniform render's would, less the pilot's.
 
 The main render's estimate uses its own rays only: the pilot decides how many,
 not what they see, so each pixel's estimate and its ``std_error`` stay unbiased
@@ -69,7 +69,7 @@ def check_allocation_name(allocation) -> str:
 
 def uses_pilot(allocation: str, rays_per_pixel: int, k_groups: int) -> bool:
     """Whether an ``allocation`` render of ``rays_per_pixel`` rays draws a pilot:
-    adaptive renders with at least two rays per randomization beyond the pilot's."""
+    adaptive renders with at least two rays per randomization in all."""
     return allocation == "adaptive" and rays_per_pixel >= 2 * k_groups
 
 
@@ -93,8 +93,8 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         (:func:`lftomo.forward.sampler.pixels_in_image`); the others draw one
         per randomization whatever their count and keep ``rays_per_pixel``.
     rays_per_pixel : int
-        The uniform render's rays per pixel, whose cost (under the model
-        ``c``) the pilot and the counts share.
+        The uniform render's rays per pixel: the pilot and the counts cost at
+        most what it would (under the model ``c``).
     k_groups : int
         Randomizations per pixel, K.
 
@@ -102,8 +102,9 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
     -------
     ndarray of int64, (rows, cols)
         Multiples of K, at least K, at most :data:`MAX_SHARE` ×
-        ``rays_per_pixel``; ``rays_per_pixel`` everywhere when the pilot saw
-        no light.
+        ``rays_per_pixel``, costing at most the budget (whole multiples of K
+        and the cap can leave part of it unspent); ``rays_per_pixel``
+        everywhere when the pilot saw no light.
     """
     from scipy.ndimage import maximum_filter, uniform_filter
 
@@ -130,9 +131,6 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
     lo, hi = 0.0, 1.0
     while np.sum(k_groups * units(hi)[in_image] * cost[in_image]) <= budget and hi < 1e300:
         lo, hi = hi, 2.0 * hi
-        if np.all(units(hi)[in_image] >= top):
-            lo = hi
-            break
     for _ in range(60):
         mid = 0.5 * (lo + hi)
         if np.sum(k_groups * units(mid)[in_image] * cost[in_image]) <= budget:
