@@ -1,6 +1,5 @@
 """Adaptive ray allocation (lftomo.forward.allocation): unbiased, honest, where the light is."""
 
-import numba
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -98,18 +97,6 @@ def test_adaptive_render_has_lower_error_where_the_light_is(spot_renders):
     assert err["adaptive"] < 0.5 * err["uniform"], err
     lo, hi = ada[0].metadata["rays_per_pixel_range"]
     assert lo == 8 and hi > 32
-
-
-def test_adaptive_render_is_deterministic_across_thread_counts(small_camera):
-    sc = _spot_scene()
-    n0 = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        a = lt.render(sc, small_camera, rays_per_pixel=16, seed=3, allocation="adaptive", progress=False)
-    finally:
-        numba.set_num_threads(n0)
-    b = lt.render(sc, small_camera, rays_per_pixel=16, seed=3, allocation="adaptive", progress=False)
-    assert np.array_equal(a.raw, b.raw) and np.array_equal(a.std_error, b.std_error)
 
 
 def test_adaptive_scattering_render_runs_and_few_rays_fall_back_to_uniform(small_camera):

@@ -159,18 +159,20 @@ def test_stratified_has_lower_error_than_independent(small_camera):
     assert err["stratified"] < 0.6 * err["independent"], err
 
 
-def test_stratified_render_is_deterministic_across_thread_counts(small_camera):
+@pytest.mark.parametrize("allocation, rays", [("uniform", 8), ("adaptive", 16)])
+def test_stratified_render_is_deterministic_across_thread_counts(small_camera, allocation, rays):
     sc = lt.Scene(surfaces=[lt.PlanarEmitter(center=(0.0, 0.0, 1.0), size=(0.02, 0.02),
                                              radiance=lt.checkerboard(4, low=0.2, high=1.0))])
+    kw = dict(rays_per_pixel=rays, seed=3, sampler="stratified", allocation=allocation, progress=False)
     n0 = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        a = lt.render(sc, small_camera, rays_per_pixel=8, seed=3, sampler="stratified", progress=False)
+        a = lt.render(sc, small_camera, **kw)
     finally:
         numba.set_num_threads(n0)
-    b = lt.render(sc, small_camera, rays_per_pixel=8, seed=3, sampler="stratified", progress=False)
+    b = lt.render(sc, small_camera, **kw)
     assert np.array_equal(a.raw, b.raw) and np.array_equal(a.std_error, b.std_error)
-    assert a.metadata["sampler"] == "stratified"
+    assert a.metadata["sampler"] == "stratified" and a.metadata["allocation"] == allocation
 
 
 def test_unknown_sampler_is_refused(small_camera):
