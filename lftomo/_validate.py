@@ -7,6 +7,7 @@ import math
 import numbers
 import os
 import stat
+import sys
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,16 @@ from typing import Any
 import numpy as np
 
 from .errors import LftomoError
+
+
+def user_stacklevel() -> int:
+    """The ``stacklevel`` that makes a warning point at the first caller outside the lftomo package
+    (the user's line); call it from the function that warns."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    level, frame = 1, sys._getframe(1)
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package + os.sep):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _fmt(value: Any) -> str:

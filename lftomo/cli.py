@@ -689,7 +689,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     r.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(r, "override render.sampler")
-    r.add_argument("--allocation", choices=("uniform", "adaptive"), default=None,
+    from .forward.allocation import ALLOCATIONS
+
+    r.add_argument("--allocation", choices=ALLOCATIONS, default=None,
                    help="how the rays are shared among the pixels (lftomo.forward.allocation): the same number each, "
                         "or after a pilot, where the light is, for the same cost; default the scene's [render] "
                         "allocation, else 'uniform'. A fit cannot add an adaptive render's Monte Carlo error to its "

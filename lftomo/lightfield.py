@@ -198,7 +198,6 @@ def _alpha(camera: Camera, depth: float) -> float:
 
 #: A refocus depth beyond this many focus distances is warned about (most often mm taken for m).
 FAR_DEPTH_FACTOR = 100.0
-FAR_DEPTH_MESSAGE = "times the camera's focus distance"
 
 
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
@@ -221,9 +220,11 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
     if d > FAR_DEPTH_FACTOR * camera.focus_distance:
         import warnings
 
-        warnings.warn(f"{name} = {d:g} m is {d / camera.focus_distance:.0f} {FAR_DEPTH_MESSAGE} "
+        from ._validate import user_stacklevel
+
+        warnings.warn(f"{name} = {d:g} m is {d / camera.focus_distance:.0f} times the camera's focus distance "
                       f"({camera.focus_distance:g} m): depths are in m, so {d:g} mm would be {d / 1000:g} m",
-                      UserWarning, stacklevel=3)
+                      UserWarning, stacklevel=user_stacklevel())
     return d
 
 
@@ -388,7 +389,10 @@ class LightField:
 
     def refocus_operator_at(self, depth: float) -> sp.csr_matrix:
         """Sparse matrix R (n_y*n_x, rows*cols) with ``refocus_at(depth) = (R @ raw.ravel()).reshape(n_y, n_x)``."""
-        depth = check_refocus_depth(self.camera, depth)
+        return self._refocus_operator(check_refocus_depth(self.camera, depth))
+
+    def _refocus_operator(self, depth: float) -> sp.csr_matrix:
+        """:meth:`refocus_operator_at` of a depth already checked."""
         shifts = view_shift_field(self.camera, self.centers, depth)
         return _shift_and_add_matrix(self.view_index, self.view_mask, shifts, self.camera.sensor_shape)
 
@@ -443,14 +447,10 @@ class LightField:
 
         bar = progress_bar(d.size, sys.stderr.isatty() if progress is None else bool(progress), "focal stack",
                            unit="depth")
-        import warnings
-
         try:
             images = []
-            for x in d:
-                with warnings.catch_warnings():  # a far depth was warned about above, by its index
-                    warnings.filterwarnings("ignore", message=".*" + FAR_DEPTH_MESSAGE, category=UserWarning)
-                    images.append(self.refocus_at(float(x)))
+            for x in d:  # checked above
+                images.append(self._apply(self._refocus_operator(float(x))))
                 bar.update(1)
         finally:
             bar.close()

@@ -251,7 +251,7 @@ def pixels_in_image(optics, sampler, mli):
     """Pixels that draw all their rays: (rows, cols) bool.
 
     With the stratified sampler, a pixel whose square misses its microlens
-    image disc (:func:`pixel_box`) draws one ray per randomization whatever
+    image disc (:func:`image_box`) draws one ray per randomization whatever
     its ray count (:func:`pixel_ray`); every other pixel, and every pixel of
     the independent sampler or of a camera whose pixels see several lenslets,
     draws them all.
@@ -264,10 +264,20 @@ def pixels_in_image(optics, sampler, mli):
     for r in range(nr):
         for c in range(nc):
             i, j = _o.own_lenslet(r, c, optics)
-            lens = i * int(optics[_o.O_M_NX]) + j
-            ok, rlo, rhi, clo, chi = pixel_box(float(r), float(c), mli[lens, 0], mli[lens, 1], mli[lens, 2])
-            out[r, c] = ok and (rhi - rlo) * (chi - clo) > 0.0
+            out[r, c] = image_box(float(r), float(c), i, j, optics, mli)[0]
     return out
+
+
+@njit(cache=True, inline="always")
+def image_box(r0, c0, i, j, optics, mli):
+    """:func:`pixel_box` of the unit square at ``(r0, c0)`` and the microlens
+    image disc of lenslet ``(i, j)`` (``mli``), empty also when of zero area.
+
+    Returns ``(nonempty, rlo, rhi, clo, chi)``.
+    """
+    lens = i * int(optics[_o.O_M_NX]) + j
+    ok, rlo, rhi, clo, chi = pixel_box(r0, c0, mli[lens, 0], mli[lens, 1], mli[lens, 2])
+    return ok and (rhi - rlo) * (chi - clo) > 0.0, rlo, rhi, clo, chi
 
 
 @njit(cache=True, inline="always")
@@ -341,13 +351,9 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     # restricted pixel region: box of pixel ∩ microlens image disc
     r0 = row + off_r
     c0 = col + off_c
-    lens = i * int(optics[_o.O_M_NX]) + j
-    has_box, rlo, rhi, clo, chi = pixel_box(r0, c0, mli[lens, 0], mli[lens, 1], mli[lens, 2])
+    has_box, rlo, rhi, clo, chi = image_box(r0, c0, i, j, optics, mli)
     alpha = sampler[S_ALPHA] if has_box else 1.0
     a_box = (rhi - rlo) * (chi - clo) if has_box else 0.0
-    if has_box and a_box <= 0.0:
-        has_box = False
-        alpha = 1.0
     k_groups = int(sampler[S_GROUPS])
     g = m % k_groups
     idx = m // k_groups

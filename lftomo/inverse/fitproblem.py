@@ -23,8 +23,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import os
-import sys
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -33,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import LftomoError
-from .._validate import require_array
+from .._validate import require_array, user_stacklevel
 from ..forward.grid import Grid
 from .measurement import Measurement
 from .parameterize import Parameterization, SubVoxel, require_selection
@@ -87,7 +85,7 @@ def warn_underdetermined(n_data: int, n_unknowns: int) -> None:
     if n_data < n_unknowns:
         warnings.warn(f"reconstructing {n_unknowns} unknowns from only {n_data} data: the data cannot determine "
                       "the field, the result is mostly the smoothness prior; use more views or pixels, or a "
-                      "coarser grid", UserWarning, stacklevel=_outside_lftomo())
+                      "coarser grid", UserWarning, stacklevel=user_stacklevel())
 
 
 def warn_unseen(A: Any, grid: Any) -> None:
@@ -106,16 +104,7 @@ def warn_unseen(A: Any, grid: Any) -> None:
         warnings.warn(f"{k} of {where} are seen by no datum (all-zero "
                       "columns of the weights: outside the field of view, or only in pixels left out): their "
                       "temperatures are the smoothness prior's extrapolation, not measured", UserWarning,
-                      stacklevel=_outside_lftomo())
-
-
-def _outside_lftomo() -> int:
-    """The ``stacklevel`` of the first caller outside the lftomo package (a warning points at the user's line)."""
-    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    level, frame = 1, sys._getframe(1)
-    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package + os.sep):
-        frame, level = frame.f_back, level + 1
-    return level
+                      stacklevel=user_stacklevel())
 
 
 def check_types(measurement: Any, weights: Any) -> None:
