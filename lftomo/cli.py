@@ -152,19 +152,38 @@ def cmd_weights(args) -> int:
     for _, _, path in jobs:  # before the build, not after it
         check_output_file(path, what="-o/--output")
     limit = None if args.memory_limit_gb is None else args.memory_limit_gb * 1e9
+    guide = _weights_guide(args.guide, cfg)
+    rows = "uniform" if guide is None else "adaptive"
     for cam, wl, path in jobs:
         band = "gray" if wl is None else f"{wl * 1e9:.0f} nm"
-        print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel, seed {seed}, {sampler} sampler, {band})",
-              file=sys.stderr)
+        print(f"lftomo weights: {cfg.source} -> {path} ({rpp} rays/pixel {rows}, seed {seed}, {sampler} sampler, "
+              f"{band})", file=sys.stderr)
         W = weights(cam, medium.grid, sigma_a=medium.sigma_a_at(wl), sigma_s=medium.sigma_s, g=medium.g,
                     wavelength="gray" if wl is None else wl, rays_per_pixel=rpp, seed=seed,
                     surfaces=cfg.scene.surfaces or None, memory_limit=limit, progress=not args.quiet,
-                    sampler=sampler)
+                    sampler=sampler, allocation=rows, guide=guide)
         W.save(path)
         est = W.metadata["estimate"]
         print(f"{W.shape[0]} pixel rows x {W.shape[1]} voxels in {len(W.blocks)} views: nnz {W.nnz} "
               f"(estimated {est['nnz']}), {W.nbytes / 1e6:.1f} MB, {W.metadata['build_seconds']:.1f} s; wrote {path}")
     return 0
+
+
+def _weights_guide(path, cfg):
+    """The light field of ``--guide`` (None without it), read and checked before any build."""
+    if path is None:
+        return None
+    from .lightfield import LightField
+
+    if cfg.is_rig:
+        raise LftomoError(f"--guide gives one camera's image, but scene file {cfg.source!r} has "
+                          f"{len(cfg.cameras)} cameras; build each camera's matrix from a scene file of its own")
+    guide = LightField.load(path)
+    want = tuple(cfg.cameras[0].sensor_shape)
+    if tuple(guide.camera.sensor_shape) != want:
+        raise LftomoError(f"--guide {str(path)!r} is an image of a {guide.camera.sensor_shape} sensor, but the "
+                          f"scene's camera has a {want} sensor")
+    return guide
 
 
 def cmd_demo(args) -> int:
@@ -706,6 +725,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--rays-per-pixel", type=_rays, default=None, help="override render.rays_per_pixel")
     w.add_argument("--seed", type=_seed, default=None, help="override render.seed")
     _add_sampler(w, "override render.sampler (the rays are those of lftomo render with the same seed and sampler)")
+    w.add_argument("--guide", default=None, metavar="LIGHTFIELD.npz",
+                   help="share the rays among the rows where this light field (the measurement, or lftomo "
+                        "render's lightfield.npz of a first guess) is bright: the same rays in all, lower error "
+                        "where the light is (allocation='adaptive'); default: the same rays for every row")
     w.add_argument("--memory-limit-gb", type=_pos_float, default=None,
                    help="refuse a build estimated above this size (default: LFTOMO_MEMORY_LIMIT_GB if set, "
                         "else half the machine's memory)")

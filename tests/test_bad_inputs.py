@@ -109,6 +109,15 @@ WEIGHTS_CASES = {
     "views-empty": (dict(views=[]), "views must name at least one"),
     "views-twice": (dict(views=[(1, 1), (1, 1)]), r"views lists some views more than once: \[\(1, 1\)\]"),
     "surfaces-int": (dict(surfaces=3), "surfaces must be None"),
+    "allocation-name": (dict(allocation="smart"), r"allocation must be one of \('uniform', 'adaptive'\), got 'smart'"),
+    "adaptive-no-guide": (dict(allocation="adaptive"), r"allocation='adaptive' needs guide=, an image of this "
+                                                      r"camera's sensor"),
+    "guide-uniform": (dict(guide=np.ones((100, 100))), r"guide is used by allocation='adaptive' only"),
+    "guide-shape": (dict(allocation="adaptive", guide=np.ones((10, 10))),
+                    r"guide must be an image of this camera's sensor, shape \(100, 100\) or \(n_λ, 100, 100\), "
+                    r"got shape \(10, 10\)"),
+    "guide-nan": (dict(allocation="adaptive", guide=np.full((100, 100), np.nan)), "guide must be finite"),
+    "guide-str": (dict(allocation="adaptive", guide="bright"), "guide must be numeric"),
 }
 
 
@@ -584,7 +593,7 @@ def _corrupt_W(files, tmp_path, change):
         a["view_ptr"] = a["view_ptr"][::-1].copy()
     elif change == "extra-member":
         a["extra"] = np.zeros(2)
-    elif change in ("meta-wavelength", "meta-shape", "meta-format", "meta-rays"):
+    elif change in ("meta-wavelength", "meta-shape", "meta-format", "meta-rays", "meta-allocation"):
         m = json.loads(str(a["meta"]))
         if change == "meta-wavelength":
             m["wavelength"] = -650e-9
@@ -594,6 +603,8 @@ def _corrupt_W(files, tmp_path, change):
             m["format"] = "something-else"
         elif change == "meta-rays":
             m["rays_per_pixel"] = 0
+        elif change == "meta-allocation":
+            m["allocation"] = "smart"
         a["meta"] = np.array(json.dumps(m))
     elif change == "meta-json":
         a["meta"] = np.array("{not json")
@@ -622,6 +633,7 @@ W_FILE_CASES = {
     "meta-shape": r"member 'meta' key 'shape' must be a list of 2 integers",
     "meta-format": r"member 'meta' has format 'something-else'",
     "meta-rays": r"member 'meta' rays_per_pixel must be an integer >= 1",
+    "meta-allocation": r"member 'meta' allocation must be one of \['uniform', 'adaptive'\], got 'smart'",
     "meta-json": r"member 'meta' is not valid JSON",
     "meta-list": r"member 'meta' must be a JSON object",
 }

@@ -251,3 +251,32 @@ def test_render_command_adaptive_allocation(tmp_path):
     scene.write_text(scene.read_text().replace('"adaptive"', '"smart"'))
     with pytest.raises(ValueError, match=r"\[render\] allocation must be one of \['uniform', 'adaptive'\].*'smart'"):
         load_scene_file(scene)
+
+
+def test_weights_command_guide(tmp_path, capsys):
+    """--guide builds adaptive rows from a rendered light field: the same matrix as lt.weights with that guide;
+    a guide of another sensor is refused before the build."""
+    text = ("[camera]\nfocus_distance = 1.0\n[camera.mla]\ncount = [{n}, {n}]\n[render]\nrays_per_pixel = 32\n"
+            "wavelength_nm = 650\n"
+            "[medium]\nphantom = \"gaussian_blob\"\nshape = [4, 4, 4]\nlower = [-0.006, -0.006, 0.994]\n"
+            "upper = [0.006, 0.006, 1.006]\n[medium.params]\nwidth = 0.003\nT_peak = 1800.0\nsigma_a_peak = 20.0\n")
+    scene = tmp_path / "m.toml"
+    scene.write_text(text.format(n=10))
+    assert main(["render", str(scene), "-o", str(tmp_path / "r"), "--quiet"]) == 0
+    guide = tmp_path / "r" / "lightfield.npz"
+    out = tmp_path / "W.npz"
+    assert main(["weights", str(scene), "-o", str(out), "--guide", str(guide), "--quiet"]) == 0
+    assert "32 rays/pixel adaptive" in capsys.readouterr().err
+    cfg = load_scene_file(scene)
+    W = lt.WeightMatrix.load(out, cfg.camera, cfg.scene.medium.grid)
+    ref = lt.weights(cfg.camera, cfg.scene.medium.grid, sigma_a=cfg.scene.medium.sigma_a_at(650e-9), rays_per_pixel=32,
+                     seed=cfg.seed, wavelength=650e-9, allocation="adaptive", guide=lt.LightField.load(guide),
+                     progress=False)
+    assert W.metadata["allocation"] == "adaptive" and W.metadata["rays_per_pixel_range"] == [8, 32]  # dark rows: 8
+    np.testing.assert_array_equal(W.data, ref.data)
+    other = tmp_path / "other.toml"
+    other.write_text(text.format(n=8))
+    assert main(["weights", str(other), "-o", str(tmp_path / "W2.npz"), "--guide", str(guide), "--quiet"]) == 2
+    assert "is an image of a (100, 100) sensor, but the scene's camera has a (80, 80) sensor" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "W2.npz").exists()

@@ -78,16 +78,18 @@ def pilot_seed(seed: int) -> int:
     return int(seed) + PILOT_SEED_OFFSET
 
 
-def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups: int) -> np.ndarray:
+def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups: int, *,
+               spent: int = PILOT_RAYS) -> np.ndarray:
     """Rays per pixel of an adaptive render, from its pilot.
 
     Parameters
     ----------
     pilot_mean : ndarray, (n_ch, rows, cols)
-        The pilot's pixel means, from :data:`PILOT_RAYS` rays per pixel.
-    pilot_passed : ndarray of int, (2, rows, cols)
+        The pilot's pixel means, from :data:`PILOT_RAYS` rays per pixel (or
+        any image of where the light is: a weight matrix's guide).
+    pilot_passed : ndarray of int, (2, rows, cols), or None
         The pilot's rays per pixel that passed the optics, and those that
-        brought light.
+        brought light; None: every ray costs the same (``c = 1``).
     in_image : ndarray of bool, (rows, cols)
         Pixels that draw all their rays
         (:func:`lftomo.forward.sampler.pixels_in_image`); the others draw one
@@ -97,6 +99,9 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         most what it would (under the model ``c``).
     k_groups : int
         Randomizations per pixel, K.
+    spent : int
+        Rays per pixel already spent on the pilot, taken from the budget
+        (0 where the guide cost nothing).
 
     Returns
     -------
@@ -116,12 +121,15 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         return uniform
     scale = np.maximum(mean[lit], SIGNAL_FLOOR * peak[lit][:, None, None])
     need = maximum_filter((mean[lit] / scale).max(axis=0), size=3, mode="nearest")
-    frac = uniform_filter(np.asarray(pilot_passed, dtype=float) / PILOT_RAYS, size=(1, 3, 3), mode="nearest")
-    cost = 1.0 + PASS_COST * frac[0] + LIGHT_COST * frac[1]
+    if pilot_passed is None:
+        cost = np.ones(in_image.shape)
+    else:
+        frac = uniform_filter(np.asarray(pilot_passed, dtype=float) / PILOT_RAYS, size=(1, 3, 3), mode="nearest")
+        cost = 1.0 + PASS_COST * frac[0] + LIGHT_COST * frac[1]
     need = np.where(in_image, need, 0.0)
     if not np.any(need > 0) or not np.all(np.isfinite(need)):
         return uniform
-    budget = float(np.sum(cost[in_image])) * (rays_per_pixel - PILOT_RAYS)
+    budget = float(np.sum(cost[in_image])) * (rays_per_pixel - spent)
     share = need / np.sqrt(cost)
     top = MAX_SHARE * rays_per_pixel // k_groups
 

@@ -115,6 +115,7 @@ from .._validate import (json_differences, require_array, require_int, require_p
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
+from .allocation import ALLOCATIONS, DEFAULT_ALLOCATION, check_allocation_name, ray_counts
 from .sampler import DEFAULT_SAMPLER
 from .segmentrows import linearized_rows, row_pattern
 from .dda import max_segments, ray_box, traverse
@@ -214,10 +215,12 @@ def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_va
 
 
 @njit(cache=True, parallel=True)
-def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos, gacc, out_err):
     """Exact weight rows of the pixels ``pix`` (flat raw indices), no scattering.
 
+    Pixel ``pix[k]`` draws ``counts[pix[k]]`` rays (``counts``: int64, one per
+    raw pixel, multiples of the sampler's K).
     Row ``k`` is written at ``out_idx/out_val[buf_off[k]:]`` (capacity
     ``buf_off[k+1] - buf_off[k]``), sorted by voxel; ``out_cnt[k]`` entries;
     ``out_bg[k]`` the background signal; ``out_var[k]`` the estimated
@@ -233,12 +236,13 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
     """
     n = pix.shape[0]
     ncols = int(optics[_o.O_NCOLS])
-    inv_n = 1.0 / n_rays
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     k_groups = int(sampler[_smp.S_GROUPS])
-    share = _group_shares(n_rays, k_groups)
     for k in prange(n):
+        n_rays = counts[pix[k]]
+        inv_n = 1.0 / n_rays
+        share = _group_shares(n_rays, k_groups)
         p = pos[numba.get_thread_id()]
         ga = gacc[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
@@ -298,7 +302,7 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, 
 
 
 @njit(cache=True, parallel=True)
-def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                      sigma_a, sigma_s, g, max_bounces, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos, gacc,
                      out_err):
     """Monte Carlo weight rows with scattering (see the module docstring):
@@ -314,15 +318,16 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0,
     """
     n = pix.shape[0]
     ncols = int(optics[_o.O_NCOLS])
-    inv_n = 1.0 / n_rays
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     x1 = x0 + nx * hx
     y1 = y0 + ny * hy
     z1 = z0 + nz * hz
     k_groups = int(sampler[_smp.S_GROUPS])
-    share = _group_shares(n_rays, k_groups)
     for k in prange(n):
+        n_rays = counts[pix[k]]
+        inv_n = 1.0 / n_rays
+        share = _group_shares(n_rays, k_groups)
         p = pos[numba.get_thread_id()]
         ga = gacc[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
@@ -1490,6 +1495,9 @@ def _check_weights_meta(arrays: dict, path):
         v = meta.get(key)
         if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
             raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' {key} must be an integer >= {lo}, got {v!r}")
+    if meta.get("allocation") is not None and meta["allocation"] not in ALLOCATIONS:
+        raise LftomoError(f"{_WHAT} {str(path)!r}: member 'meta' allocation must be one of {list(ALLOCATIONS)}, "
+                          f"got {meta['allocation']!r}")
     return meta, shape, views_shape, sensor_shape
 
 
@@ -1590,6 +1598,8 @@ def weights(
     max_bounces: int = _MAX_BOUNCES,
     sampler: str = DEFAULT_SAMPLER,
     max_seconds: float | None = None,
+    allocation: str = DEFAULT_ALLOCATION,
+    guide: Any = None,
 ) -> WeightMatrix:
     """Ray–voxel weight matrix ``W`` of the camera for a medium on ``grid``.
 
@@ -1647,6 +1657,22 @@ def weights(
         exceeds this.  The estimate comes from the first part of the pilot
         rows (refused before the rest of the pilot) and again from the whole
         pilot (``metadata["estimate"]["seconds"]``).
+    allocation : {"uniform", "adaptive"}
+        ``"uniform"``: ``rays_per_pixel`` rays for every row.  ``"adaptive"``:
+        the rows share ``rays_per_pixel`` × the number of rows among them by
+        the rule of :func:`lftomo.forward.allocation.ray_counts` (every ray
+        costing the same), most where ``guide`` is bright, at least K and at
+        most :data:`~lftomo.forward.allocation.MAX_SHARE` ×
+        ``rays_per_pixel`` per row (``metadata["rays_per_pixel_range"]``).
+        Each row stays unbiased and its ``row_std_error`` and
+        ``entry_std_error`` honest for its own count; the rows' errors
+        differ, so give a fit their own (:meth:`WeightMatrix.model_std`), not
+        a rule that scales one error by a ray count.
+    guide : LightField or ndarray, shape (rows, cols) or (n_λ, rows, cols)
+        For ``allocation="adaptive"`` (and required there): an image of this
+        camera's sensor that shows where the light is, such as the
+        measurement itself or a render of a first guess.  Negative values
+        (noise) count as 0.
 
     Returns
     -------
@@ -1680,15 +1706,17 @@ def weights(
         raise LftomoError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
     sampler_name = sampler
     sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
+    counts = _row_ray_counts(camera, pixel_index, n_rays, int(sampler[_smp.S_GROUPS]), allocation, guide)
+    most = int(counts[pixel_index].max(initial=n_rays))
     ga = _grid_args(grid)
     n_vox = grid.n_voxels
     m = max_segments(*ga[6:])
     scattering = bool(np.any(ss > 0.0))
     if not scattering:
-        cap_max = int(min(n_vox, n_rays * m))
+        cap_max = int(min(n_vox, most * m))
 
         def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
-            _rows_absorbing(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, buf_off, oi, ov, oc, ob, var,
+            _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, *ga, sa, buf_off, oi, ov, oc, ob, var,
                             pos, gacc, oe)
 
         estimator = "exact DDA per ray (same rays as render)"
@@ -1697,7 +1725,7 @@ def weights(
         warn_if_diffusive(ss, tuple(grid.shape), tuple(grid.spacing), max_bounces)
 
         def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
-            _rows_scattering(pix, optics, sampler, mli, surf, tex, n_rays, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi,
+            _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi,
                              ov, oc, ob, var, pos, gacc, oe)
 
         estimator = ("Monte Carlo: expected-value emission along each flight, scattering vertices sampled from "
@@ -1709,10 +1737,42 @@ def weights(
     elapsed = time.perf_counter() - t0
     meta = _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc,
                  {"estimate": est, "build_seconds": elapsed, "max_bounces": max_bounces if scattering else None,
-                  "sampler": sampler_name})
+                  "sampler": sampler_name, "allocation": allocation,
+                  "rays_per_pixel_range": [int(counts[pixel_index].min(initial=n_rays)), most]})
     return WeightMatrix(data, indices, indptr, (int(pixel_index.size), n_vox), pixel_index, view_pixel, view_ptr,
                         tuple(int(a) for a in camera.views_shape), tuple(int(a) for a in camera.sensor_shape),
                         background, meta, row_std_error=row_se, entry_std_error=entry_se)
+
+
+def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int, allocation: Any,
+                    guide: Any) -> np.ndarray:
+    """Rays of each raw pixel's row, int64 (rows · cols,): ``n_rays`` each
+    (uniform), or shared out among the rows ``pixel_index`` where ``guide``
+    is bright (adaptive)."""
+    from ..lightfield import LightField
+
+    allocation = check_allocation_name(allocation)
+    sensor = tuple(int(a) for a in camera.sensor_shape)
+    n_pix = sensor[0] * sensor[1]
+    if allocation == "uniform":
+        if guide is not None:
+            raise LftomoError("guide is used by allocation='adaptive' only; pass allocation='adaptive' or leave "
+                              "guide out")
+        return np.full(n_pix, n_rays, dtype=np.int64)
+    if guide is None:
+        raise LftomoError("allocation='adaptive' needs guide=, an image of this camera's sensor that shows where "
+                          "the light is (the measurement, or a render of a first guess)")
+    raw = guide.raw if isinstance(guide, LightField) else guide
+    img = require_array("guide", raw)
+    if img.shape == sensor:
+        img = img[None]
+    if img.ndim != 3 or img.shape[1:] != sensor:
+        raise LftomoError(f"guide must be an image of this camera's sensor, shape {sensor} or (n_λ, {sensor[0]}, "
+                          f"{sensor[1]}), got shape {img.shape}")
+    rows = np.zeros(n_pix, dtype=bool)
+    rows[pixel_index] = True
+    counts = ray_counts(np.maximum(img, 0.0), None, rows.reshape(sensor), n_rays, k_groups, spent=0)
+    return np.ascontiguousarray(counts.ravel(), dtype=np.int64)
 
 
 # ===========================================================================
