@@ -713,8 +713,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--allocation", choices=ALLOCATIONS, default=None,
                    help="how the rays are shared among the pixels (lftomo.forward.allocation): the same number each, "
                         "or after a pilot, where the light is, for the same cost; default the scene's [render] "
-                        "allocation, else 'uniform'. A fit cannot add an adaptive render's Monte Carlo error to its "
-                        "noise model")
+                        "allocation, else 'uniform'")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_allow_outside(r)
     r.set_defaults(func=cmd_render)

@@ -168,7 +168,7 @@ def _environment() -> dict[str, Any]:
     return env
 
 
-def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
+def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: Any,
                          min_etendue_fraction: float | None = None):
     """Add the Monte Carlo variance of data and model to a noisy light field's ``noise_std``.
 
@@ -178,7 +178,9 @@ def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
     so stage 5 and stage 7 see the same noise model) the render's standard
     error is floored per view (pixels whose rays all missed the flame report
     0; the default ``floor="bound"``) and scaled by
-    ``sqrt(1 + n_data / n_weights)``.
+    ``sqrt(1 + n_data / n_weights)``, per pixel where the rays per pixel
+    differ (``n_weights`` an array of the sensor's shape for an adaptive
+    matrix; an adaptive render's ``lf.ray_counts``).
 
     ``min_etendue_fraction`` (if given) replaces the decode's threshold on
     both light fields first: the rim pixels it drops are not data.
@@ -197,11 +199,13 @@ def _noise_with_mc_error(noisy, lf, n_data: int | None, n_weights: int | None,
         raise LftomoError(f"rays per pixel of the light field is {n_data}: its Monte Carlo error (part of the noise "
                          "model) cannot be estimated from one ray per pixel; render with --rays-per-pixel >= 2")
     n_data = int(n_data or 1)
-    n_weights = int(n_weights or n_data)
+    per_pixel = np.ndim(n_weights) > 0 or lf.ray_counts is not None
+    n_weights = np.asarray(n_weights) if np.ndim(n_weights) > 0 else int(n_weights or n_data)
     noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=n_data, weights_rays_per_pixel=n_weights,
                                    min_etendue_fraction=min_etendue_fraction)
+    ratio = "n_data/n_weights, each pixel's rays" if per_pixel else f"{n_data}/{n_weights}"
     rule = (f"sigma^2 = noise^2 + mc^2, mc = lftomo.inverse.compare.monte_carlo_std "
-            f"(render MC standard error floored per view, x sqrt(1 + {n_data}/{n_weights}))")
+            f"(render MC standard error floored per view, x sqrt(1 + {ratio}))")
     return noisy, rule
 
 
@@ -1339,7 +1343,10 @@ def _reconstruct_measurement(inp: _ReconstructInputs, *, noise, data, min_etendu
         noise_rule = "noise_std of the light field"
     else:
         noisy = lt.add_noise(lf, relative_std=NOISE if noise is None else noise, seed=inp.noise_seed)
-        noisy, noise_rule = _noise_with_mc_error(noisy, lf, inp.n_data_rays, inp.n_weight_rays, min_etendue_fraction)
+        n_w = inp.n_weight_rays
+        if inp.W.row_rays is not None:  # an adaptive matrix: each pixel's row its own rays
+            n_w = inp.W.to_raw(inp.W.rays_per_row(), fill=float(n_w or 1))
+        noisy, noise_rule = _noise_with_mc_error(noisy, lf, inp.n_data_rays, n_w, min_etendue_fraction)
     if data == "refocus":
         if not depths:
             raise LftomoError("--data refocus needs --depths (m), e.g. --depths 0.98,1.0,1.02")

@@ -281,6 +281,10 @@ class LightField:
         Noise-free signal kept beside a noisy ``raw``.
     metadata : dict
         Renderer, scene summary, seed, version, ...
+    ray_counts : ndarray of int, shape (rows, cols), optional
+        Rays each pixel drew, where they differ (a render with
+        ``allocation="adaptive"``); None: ``metadata["rays_per_pixel"]``
+        each, or not a Monte Carlo render.
     """
 
     raw: np.ndarray
@@ -293,6 +297,7 @@ class LightField:
     signal: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
     min_etendue_fraction: float = 0.05
+    ray_counts: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         cam = self.camera
@@ -314,6 +319,8 @@ class LightField:
             if v is not None:
                 low = None if name == "signal" else 0.0
                 object.__setattr__(self, name, _frozen(require_array(name, v, shape=shape, minimum=low)))
+        if self.ray_counts is not None:
+            object.__setattr__(self, "ray_counts", _check_ray_counts(self.ray_counts, cam.sensor_shape))
         if self.etendue is None:
             object.__setattr__(self, "etendue", cam.etendue_map)
         else:
@@ -468,7 +475,7 @@ class LightField:
 
         path = npz_output_path(path, what="light-field file")
         arrays = {"raw": self.raw, "etendue": self.etendue, "centers": self.centers}
-        for name in ("std_error", "noise_std", "signal"):
+        for name in ("std_error", "noise_std", "signal", "ray_counts"):
             if getattr(self, name) is not None:
                 arrays[name] = getattr(self, name)
         meta = {
@@ -601,7 +608,21 @@ def _shift_and_add_matrix(view_index, view_mask, shifts, sensor_shape) -> sp.csr
 
 
 # ---- validation of saved light fields ------------------------------------------
-_LF_ARRAYS = ("raw", "etendue", "centers", "std_error", "noise_std", "signal")
+_LF_ARRAYS = ("raw", "etendue", "centers", "std_error", "noise_std", "signal", "ray_counts")
+
+
+def _check_ray_counts(value: Any, sensor_shape: tuple[int, int]) -> np.ndarray:
+    """``ray_counts`` as int64 after checking: integers >= 1 of the sensor's shape."""
+    a = np.asarray(value)
+    if a.dtype.kind not in "iu":
+        raise LftomoError(f"ray_counts must be an integer array, got dtype {a.dtype}")
+    if a.shape != tuple(sensor_shape):
+        raise LftomoError(f"ray_counts must have the sensor's shape {tuple(sensor_shape)}, got {a.shape}")
+    if a.size and a.min() < 1:
+        raise LftomoError(f"ray_counts must be >= 1 (rays per pixel), got minimum {a.min().item()!r}")
+    out = np.array(a, dtype=np.int64, copy=True)  # own read-only copy
+    out.setflags(write=False)
+    return out
 
 
 def _check_lightfield_meta(data: dict, path) -> dict:
@@ -675,5 +696,7 @@ def _check_lightfield_arrays(data: dict, meta: dict, camera, wl, path) -> dict:
         "std_error": check_member(data, "std_error", shape=shape, minimum=0.0, required=False, **kw),
         "noise_std": check_member(data, "noise_std", shape=shape, minimum=0.0, required=False, **kw),
         "signal": check_member(data, "signal", shape=shape, required=False, **kw),
+        "ray_counts": check_member(data, "ray_counts", kinds="iu", shape=camera.sensor_shape, minimum=1,
+                                   required=False, **kw),
     }
     return out

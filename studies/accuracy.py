@@ -15,7 +15,7 @@ at the voxel centres, on the same voxels.
 
 Usage::
 
-    python studies/accuracy.py [--n 24] [--refine 2] [--rays 64] [--weight-rays 64] [--draws 1]
+    python studies/accuracy.py [--n 24] [--refine 2] [--rays 64] [--weight-rays 64] [--allocation adaptive] [--draws 1]
         [--symmetry axisymmetric | --splines 12,12,12] [--prior laplacian|curvature] [--quadrature 2] [--save fields.npz]
         [--json results.json] [--workers N | --scheduler tcp://host:8786]
 
@@ -48,7 +48,8 @@ def draw_row(d, reg, lf, W, a, ctx):
     T_true, T_point, sa_c, coarse = ctx["T_true"], ctx["T_point"], ctx["sa_c"], ctx["coarse"]
     hot, emitting = ctx["hot"], ctx["emitting"]
     noisy = lt.add_noise(lf, relative_std=a.noise, seed=100 + d)
-    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=a.weight_rays,
+    n_w = a.weight_rays if W.row_rays is None else W.to_raw(W.rays_per_row(), fill=a.weight_rays)
+    noisy = with_monte_carlo_noise(noisy, lf, rays_per_pixel=a.rays, weights_rays_per_pixel=n_w,
                                    min_etendue_fraction=a.min_etendue, floor=a.mc_floor)
     m = lt.Measurement.from_lightfield(noisy, data=a.data, depths=None)
     t = time.perf_counter()
@@ -113,6 +114,9 @@ def main():
     ap.add_argument("--regularization", default="auto")
     ap.add_argument("--sampler", default=None, choices=["stratified", "independent"],
                     help="pixel sampler of the render and the weights (default: the library's)")
+    ap.add_argument("--allocation", default="uniform", choices=["uniform", "adaptive"],
+                    help="rays per pixel of the render and of W's rows: the same everywhere, or where the light is "
+                         "(W's rows guided by a measurement of the flame: the render with an independent noise draw)")
     ap.add_argument("--mla", type=int, default=0, help="lenslets per side (0: the seed camera's)")
     ap.add_argument("--flame", default="axisymmetric", choices=["axisymmetric", "two_lobed", "crossflow"])
     ap.add_argument("--data", default="subaperture")
@@ -152,7 +156,9 @@ def main():
     smp = {} if a.sampler is None else {"sampler": a.sampler}
     sa_c, T_true = effective_truth(flame, coarse, wl)
     lf = lt.render(lt.Scene(medium=flame), cam, rays_per_pixel=a.rays, seed=11, wavelengths=(wl,), progress=False,
-                   **smp)
+                   allocation=a.allocation, **smp)
+    if a.allocation == "adaptive":
+        smp = dict(smp, allocation="adaptive", guide=lt.add_noise(lf, relative_std=a.noise, seed=99))
     t_render = time.perf_counter() - t0
     if a.quadrature > 1:  # the known sigma_a (block means) interpolated like T
         quad = coarse.refined(a.quadrature)

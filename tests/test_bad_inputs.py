@@ -593,6 +593,8 @@ def _corrupt_W(files, tmp_path, change):
         a["view_ptr"] = a["view_ptr"][::-1].copy()
     elif change == "extra-member":
         a["extra"] = np.zeros(2)
+    elif change == "row-rays-zero":
+        a["row_rays"] = np.zeros(a["pixel_index"].shape, np.int64)
     elif change in ("meta-wavelength", "meta-shape", "meta-format", "meta-rays", "meta-allocation"):
         m = json.loads(str(a["meta"]))
         if change == "meta-wavelength":
@@ -634,6 +636,7 @@ W_FILE_CASES = {
     "meta-format": r"member 'meta' has format 'something-else'",
     "meta-rays": r"member 'meta' rays_per_pixel must be an integer >= 1",
     "meta-allocation": r"member 'meta' allocation must be one of \['uniform', 'adaptive'\], got 'smart'",
+    "row-rays-zero": r"member 'row_rays' must be >= 1, got minimum 0",
     "meta-json": r"member 'meta' is not valid JSON",
     "meta-list": r"member 'meta' must be a JSON object",
 }
@@ -673,6 +676,12 @@ LF_FILE_CASES = {
                 r"metadata.sampler must be one of \['stratified', 'independent'\], got 'sobol'"),
     "allocation": (dict(meta=lambda m: {**m, "metadata": {**m["metadata"], "allocation": ["x"]}}),
                    r"metadata.allocation must be one of \['uniform', 'adaptive'\], got \['x'\]"),
+    "counts-zero": (dict(ray_counts=np.zeros((100, 100), np.int64),
+                         meta=lambda m: {**m, "arrays": sorted(m["arrays"] + ["ray_counts"])}),
+                    r"member 'ray_counts' must be >= 1, got minimum 0"),
+    "counts-float": (dict(ray_counts=np.ones((100, 100)), meta=lambda m: {**m, "arrays": sorted(m["arrays"] +
+                                                                                              ["ray_counts"])}),
+                     r"member 'ray_counts' has dtype float64; expected an integer dtype"),
 }
 
 

@@ -31,6 +31,11 @@ and honest for any ray count (a pilot reused in the estimate would be biased,
 since its value and the count it chose are correlated).  On a scene whose light
 covers a small part of the sensor (a flame in a larger field) the rays go where
 the light is; on a uniformly lit one the allocation stays close to uniform.
+
+The rows of a weight matrix are shared out by the same rule
+(:func:`lftomo.weights` with ``allocation="adaptive"``), from a *guide*
+image of where the light is instead of a pilot (every ray costing the same,
+nothing spent on a pilot).
 """
 
 from __future__ import annotations

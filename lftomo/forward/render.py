@@ -70,8 +70,9 @@ def render(
         needs ``rays_per_pixel`` >= 16 (two rays per randomization); below
         that the render is uniform, with a warning.  Either way every pixel's
         estimate and ``std_error`` are unbiased and honest;
-        ``metadata["allocation"]`` says which was used and
-        ``metadata["rays_per_pixel_range"]`` the fewest and most rays a pixel got.
+        ``metadata["allocation"]`` says which was used,
+        ``metadata["rays_per_pixel_range"]`` the fewest and most rays a pixel
+        got, and an adaptive render's ``LightField.ray_counts`` each pixel's.
     progress : bool, optional
         Show a progress bar (default: when the render is large).
     max_seconds : float, optional
@@ -164,7 +165,8 @@ def render(
     }
     if not np.any(mean):
         _warn_no_light(camera)
-    return LightField(raw=raw, camera=camera, wavelengths=wl, std_error=se, metadata=meta)
+    return LightField(raw=raw, camera=camera, wavelengths=wl, std_error=se, metadata=meta,
+                      ray_counts=counts if adaptive else None)
 
 
 def _warn_no_light(camera) -> None:

@@ -1105,6 +1105,9 @@ class WeightMatrix:
         ray, and a ray that misses one voxel crosses another).  ``None`` for a
         matrix read from a file written before it was kept, or derived without
         it (:meth:`model_std` then falls back on the relative rule).
+    row_rays : ndarray of int64, shape (n_rows,), or None
+        Rays each row drew, where they differ (``allocation="adaptive"``);
+        None: ``metadata["rays_per_pixel"]`` each.  See :meth:`rays_per_row`.
     """
 
     data: np.ndarray
@@ -1120,6 +1123,7 @@ class WeightMatrix:
     metadata: dict = field(default_factory=dict)
     row_std_error: np.ndarray | None = None
     entry_std_error: np.ndarray | None = None
+    row_rays: np.ndarray | None = None
 
     # ---- sparse views --------------------------------------------------------
     @cached_property
@@ -1367,7 +1371,26 @@ class WeightMatrix:
                             self.pixel_index[rows], self.view_pixel[rows], view_ptr, self.views_shape,
                             self.sensor_shape, self.background[rows], meta,
                             None if self.row_std_error is None else self.row_std_error[rows],
-                            None if self.entry_std_error is None else self.entry_std_error[entries])
+                            None if self.entry_std_error is None else self.entry_std_error[entries],
+                            None if self.row_rays is None else self.row_rays[rows])
+
+    def rays_per_row(self) -> np.ndarray:
+        """Rays each row drew, int64 (n_rows,): :attr:`row_rays`, or
+        ``metadata["rays_per_pixel"]`` for every row.  ``W.to_raw(W.rays_per_row(),
+        fill=1)`` gives them per raw pixel (for
+        :func:`lftomo.inverse.compare.monte_carlo_std`).
+
+        Raises
+        ------
+        LftomoError
+            Neither is known (a matrix derived without a ray count).
+        """
+        if self.row_rays is not None:
+            return self.row_rays
+        n = self.metadata.get("rays_per_pixel")
+        if n is None:
+            raise LftomoError("this WeightMatrix records no rays per pixel (metadata['rays_per_pixel'])")
+        return np.full(self.n_rows, int(n), dtype=np.int64)
 
     def raw_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Unique raw pixels of the rows and, for each, its first row index."""
@@ -1436,7 +1459,7 @@ class WeightMatrix:
         return cls(a["data"], a["indices"], a["indptr"], shape, a["pixel_index"], a["view_pixel"], a["view_ptr"],
                    views_shape, sensor_shape, a["background"],
                    {k: v for k, v in meta.items() if k not in ("format", "shape", "views_shape", "sensor_shape")},
-                   a["row_std_error"], a["entry_std_error"])
+                   a["row_std_error"], a["entry_std_error"], a["row_rays"])
 
     def __repr__(self) -> str:
         return (f"WeightMatrix(shape={self.shape}, nnz={self.nnz}, {self.nbytes / 1e6:.3g} MB, "
@@ -1445,7 +1468,7 @@ class WeightMatrix:
 
 _WHAT = "weight-matrix file"
 _W_MEMBERS = ("meta", "data", "indices", "indptr", "pixel_index", "view_pixel", "view_ptr", "background")
-_W_OPTIONAL = ("row_std_error", "entry_std_error")  # absent from files written before they were kept
+_W_OPTIONAL = ("row_std_error", "entry_std_error", "row_rays")  # absent from older files (and row_rays from uniform)
 
 
 def _check_grid_types(camera, grid) -> None:
@@ -1556,6 +1579,7 @@ def _check_weights_arrays(arrays: dict, path, shape, views_shape, sensor_shape) 
     out["row_std_error"] = check_member(arrays, "row_std_error", shape=(n_rows,), minimum=0.0, required=False, **kw)
     out["entry_std_error"] = check_member(arrays, "entry_std_error", shape=data.shape, minimum=0.0, required=False,
                                           **kw)
+    out["row_rays"] = check_member(arrays, "row_rays", kinds="iu", shape=(n_rows,), minimum=1, required=False, **kw)
     return out
 
 
@@ -1741,7 +1765,8 @@ def weights(
                   "rays_per_pixel_range": [int(counts[pixel_index].min(initial=n_rays)), most]})
     return WeightMatrix(data, indices, indptr, (int(pixel_index.size), n_vox), pixel_index, view_pixel, view_ptr,
                         tuple(int(a) for a in camera.views_shape), tuple(int(a) for a in camera.sensor_shape),
-                        background, meta, row_std_error=row_se, entry_std_error=entry_se)
+                        background, meta, row_std_error=row_se, entry_std_error=entry_se,
+                        row_rays=None if allocation == "uniform" else counts[pixel_index])
 
 
 def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int, allocation: Any,

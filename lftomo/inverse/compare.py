@@ -23,7 +23,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import LftomoError
-from .._validate import require_in_range, require_int
+from .._validate import require_array, require_in_range, require_int
 from ..forward.grid import Grid
 
 #: Sub-voxel quadrature of the weights :func:`compare_refocus_subaperture` builds (refinement per axis).
@@ -84,8 +84,12 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     Carlo from independent rays are two estimates of the same pixel integral;
     their difference has variance ``se_d² + se_W²``.  ``se_d`` is the render's
     own standard error (``lf.std_error``); ``se_W`` is taken as
-    ``se_d · sqrt(rays_per_pixel / weights_rays_per_pixel)`` (same pixel, same
-    sampler).
+    ``se_d · sqrt(n_d / n_W)`` (same pixel, same sampler), ``n_d`` and
+    ``n_W`` the rays of the pixel in the render and in its row of the weight
+    matrix: ``rays_per_pixel`` and ``weights_rays_per_pixel``, or each
+    pixel's own where they differ (an adaptive render's
+    ``lf.ray_counts``; an adaptive matrix's ``W.rays_per_row()``, given per
+    raw pixel).
 
     ``se_d²`` is a sample variance from few hits: a pixel whose rays all missed
     the flame reports ``se_d = 0`` although the other estimate may not vanish
@@ -129,8 +133,12 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     ----------
     lf : LightField
         The noise-free render (``std_error`` set), raw (rows, cols) or (n_λ, rows, cols).
-    weights_rays_per_pixel, rays_per_pixel : int
-        Rays per pixel of the weight matrix and of the render.
+    weights_rays_per_pixel : int or ndarray, shape (rows, cols)
+        Rays per pixel of the weight matrix, or per raw pixel
+        (``W.to_raw(W.rays_per_row(), fill=1)``) for an adaptive one.
+    rays_per_pixel : int
+        Rays per pixel of the render (its ``metadata["rays_per_pixel"]``;
+        an adaptive render's pixels drew ``lf.ray_counts``).
     floor : {"bound", "prior", "calibrated"}
         How the floor enters (above).
 
@@ -139,7 +147,7 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     ndarray, shape of ``lf.raw`` (signal units)
     """
     _require_render(lf, "lf", rays_per_pixel)
-    require_int("weights_rays_per_pixel", weights_rays_per_pixel, minimum=1)
+    n_w = _weights_rays(weights_rays_per_pixel, lf.camera.sensor_shape)
     if floor not in MC_FLOORS:
         raise LftomoError(f"floor must be one of {MC_FLOORS}, got {floor!r}")
     se = np.asarray(lf.std_error, dtype=float).reshape(lf.n_channels, -1)
@@ -147,7 +155,7 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     if floor == "bound":
         out = np.maximum(se, fl)
     else:  # scaled-inverse-χ² posterior: the render's sample variance (ν dof), the floor a prior worth one ray
-        nu = mc_degrees_of_freedom(lf, rays_per_pixel)
+        nu = np.ravel(mc_degrees_of_freedom(lf, rays_per_pixel))
         out = np.sqrt((fl**2 + nu * se**2) / (nu + 1))
         if floor == "calibrated":
             for c in range(out.shape[0]):
@@ -155,8 +163,23 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
                 total = float(np.sum(out[c][dec] ** 2))
                 if total > 0:
                     out[c] *= np.sqrt(float(np.sum(se[c][dec] ** 2)) / total)
-    out *= np.sqrt(1.0 + rays_per_pixel / weights_rays_per_pixel)
+    out *= np.sqrt(1.0 + _data_rays(lf, rays_per_pixel).ravel() / n_w.ravel())
     return out.reshape(np.shape(lf.raw))
+
+
+def _weights_rays(value: Any, sensor_shape: tuple[int, int]) -> np.ndarray:
+    """``weights_rays_per_pixel`` as a float array of the sensor's shape (an int: the same everywhere)."""
+    if np.ndim(value) == 0:
+        return np.full(sensor_shape, float(require_int("weights_rays_per_pixel", value, minimum=1)))
+    a = require_array("weights_rays_per_pixel", value, shape=tuple(sensor_shape), minimum=1.0)
+    return a
+
+
+def _data_rays(lf, rays_per_pixel: int) -> np.ndarray:
+    """Rays each raw pixel of a render drew, float (rows, cols)."""
+    if lf.ray_counts is not None:
+        return np.asarray(lf.ray_counts, dtype=float)
+    return np.full(lf.camera.sensor_shape, float(rays_per_pixel))
 
 
 def _require_render(lf: Any, name: str, rays_per_pixel: Any) -> None:
@@ -167,10 +190,10 @@ def _require_render(lf: Any, name: str, rays_per_pixel: Any) -> None:
         raise LftomoError(f"{name} must be an lftomo.LightField (a Monte Carlo render), got {type(lf).__name__}")
     if lf.std_error is None:
         raise LftomoError(f"{name} has no std_error (not a Monte Carlo render)")
-    if lf.metadata.get("allocation", "uniform") != "uniform":
-        raise LftomoError(f"{name} was rendered with allocation={lf.metadata['allocation']!r}: its pixels had "
-                          "different ray counts, while this noise model scales the Monte Carlo error of the data and "
-                          "of the weights by one ray count per pixel; render the data with allocation='uniform'")
+    if lf.metadata.get("allocation", "uniform") != "uniform" and lf.ray_counts is None:
+        raise LftomoError(f"{name} was rendered with allocation={lf.metadata['allocation']!r} but carries no "
+                          "ray_counts (a file written before they were kept): the noise model needs each pixel's "
+                          "rays; render it again")
     n = require_int("rays_per_pixel", rays_per_pixel, minimum=1)
     own = lf.metadata.get("rays_per_pixel")
     if own is not None and int(own) != n:
@@ -189,13 +212,18 @@ def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int:
 
     if lf.metadata.get("sampler") == "stratified":
         return max(group_count(rays_per_pixel) - 1, 0)
+    if lf.ray_counts is not None:  # independent rays, their own number per pixel: (rows, cols)
+        return np.maximum(np.asarray(lf.ray_counts) - 1, 0)
     return max(int(rays_per_pixel) - 1, 0)
 
 
 def monte_carlo_floor(lf, *, covering: bool = True) -> np.ndarray:
     """The floor of :func:`monte_carlo_std`, per raw pixel: ``ρ`` × the
     largest signal near the pixel, ``ρ`` the median relative standard error of
-    the view's lit pixels (0 outside the views).  Shape of ``lf.raw``.
+    the view's lit pixels (0 outside the views).  Shape of ``lf.raw``.  Where
+    the pixels drew different numbers of rays (``lf.ray_counts``), ``ρ`` is
+    the median of the relative errors scaled to one ray (× ``√n``), divided
+    by the pixel's own ``√n``.
 
     "Near" is the pixel and its 3 × 3 neighbours in its own view
     (:data:`FLOOR_OWN_VIEW`).  With ``covering`` (the floor of
@@ -220,15 +248,18 @@ def monte_carlo_floor(lf, *, covering: bool = True) -> np.ndarray:
     idx = lf.view_index
     mask = lf.view_mask
     out = np.zeros_like(raw)
+    # an adaptive render: relative errors compared at one ray (× √n), the floor at the pixel's own n
+    root = None if lf.ray_counts is None else np.where(mask, np.sqrt(lf.ray_counts.ravel()[np.maximum(idx, 0)]), 1.0)
     for c in range(lf.n_channels):
         x, s = raw[c], se[c]
         vals = np.where(mask, x[np.maximum(idx, 0)], 0.0)
-        svals = np.where(mask, s[np.maximum(idx, 0)], 0.0)
+        svals = np.where(mask, s[np.maximum(idx, 0)], 0.0) if root is None else \
+            np.where(mask, s[np.maximum(idx, 0)], 0.0) * root
         rho = np.zeros(vals.shape[:2])
         for v, u in np.ndindex(*rho.shape):
             lit = (vals[v, u] > 0) & (svals[v, u] > 0)
             rho[v, u] = np.median(svals[v, u][lit] / vals[v, u][lit]) if lit.any() else 0.0
-        rho = rho[:, :, None, None]
+        rho = rho[:, :, None, None] if root is None else rho[:, :, None, None] / root
         local = maximum_filter(vals, size=FLOOR_OWN_VIEW, mode="constant")
         if covering:
             around = maximum_filter(vals, size=FLOOR_NEIGHBOURHOOD, mode="constant")
@@ -237,7 +268,7 @@ def monte_carlo_floor(lf, *, covering: bool = True) -> np.ndarray:
     return out.reshape(np.shape(lf.raw))
 
 
-def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_pixel: int,
+def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_pixel: Any,
                            min_etendue_fraction: float | None = 0.2, floor: str = "bound"):
     """The noisy light field with :func:`monte_carlo_std` added to its ``noise_std``.
 
@@ -250,8 +281,11 @@ def with_monte_carlo_noise(noisy, lf, *, rays_per_pixel: int, weights_rays_per_p
         From :func:`lftomo.add_noise` of ``lf``.
     lf : LightField
         The noise-free Monte Carlo render (``std_error`` set).
-    rays_per_pixel, weights_rays_per_pixel : int
-        Rays per pixel of the render and of the weight matrix.
+    rays_per_pixel : int
+        Rays per pixel of the render.
+    weights_rays_per_pixel : int or ndarray, shape (rows, cols)
+        Rays per pixel of the weight matrix, or per raw pixel for an adaptive
+        one (:func:`monte_carlo_std`).
     min_etendue_fraction : float or None
     floor : {"bound", "prior", "calibrated"}
         Passed to :func:`monte_carlo_std`.

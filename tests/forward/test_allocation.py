@@ -112,11 +112,25 @@ def test_adaptive_scattering_render_runs_and_few_rays_fall_back_to_uniform(small
     assert few.metadata["allocation"] == "uniform" and few.metadata["rays_per_pixel_range"] == [8, 8]
 
 
-def test_bad_allocation_is_refused_and_adaptive_data_is_not_fitted(small_camera):
+def test_bad_allocation_is_refused_and_the_counts_are_kept(small_camera, tmp_path):
+    import dataclasses
+
     with pytest.raises(ValueError, match=r"allocation must be one of \('uniform', 'adaptive'\), got 'smart'"):
         lt.render(_spot_scene(), small_camera, rays_per_pixel=16, allocation="smart")
     lf = lt.render(_spot_scene(), small_camera, rays_per_pixel=16, seed=2, allocation="adaptive", progress=False)
+    assert lf.ray_counts.dtype == np.int64 and lf.ray_counts.shape == small_camera.sensor_shape
+    assert [lf.ray_counts.min(), lf.ray_counts.max()] == lf.metadata["rays_per_pixel_range"]
+    back = lt.LightField.load(lf.save(tmp_path / "a.npz"))
+    assert np.array_equal(back.ray_counts, lf.ray_counts) and not back.ray_counts.flags.writeable
+    assert lt.render(_spot_scene(), small_camera, rays_per_pixel=16, seed=2, progress=False).ray_counts is None
     from lftomo.inverse.compare import monte_carlo_std
 
-    with pytest.raises(ValueError, match="allocation='adaptive'.*render the data with allocation='uniform'"):
-        monte_carlo_std(lf, rays_per_pixel=16, weights_rays_per_pixel=16)
+    assert np.all(np.isfinite(monte_carlo_std(lf, rays_per_pixel=16, weights_rays_per_pixel=16)))
+    with pytest.raises(ValueError, match="allocation='adaptive' but carries no ray_counts"):
+        monte_carlo_std(dataclasses.replace(lf, ray_counts=None), rays_per_pixel=16, weights_rays_per_pixel=16)
+    with pytest.raises(ValueError, match="ray_counts must be an integer array, got dtype float64"):
+        dataclasses.replace(lf, ray_counts=lf.ray_counts * 1.0)
+    with pytest.raises(ValueError, match=r"ray_counts must have the sensor's shape \(200, 200\), got \(2, 2\)"):
+        dataclasses.replace(lf, ray_counts=np.ones((2, 2), int))
+    with pytest.raises(ValueError, match="ray_counts must be >= 1"):
+        dataclasses.replace(lf, ray_counts=np.zeros(small_camera.sensor_shape, int))

@@ -85,6 +85,46 @@ def test_monte_carlo_std_explains_the_difference_of_two_renders(sampler, min_pri
         monte_carlo_std(a, weights_rays_per_pixel=0, rays_per_pixel=16)
 
 
+@pytest.mark.parametrize("other", ["adaptive", "uniform"])
+def test_monte_carlo_std_with_per_pixel_ray_counts(other):
+    """An adaptive render's pixels drew their own numbers of rays (``lf.ray_counts``): the difference from a
+    second render (adaptive, its counts given per pixel as a weight matrix's would be; or uniform) is explained
+    as for uniform renders: chi² not above 1 (the floor only adds), "calibrated" right in total (0.8-1.25)."""
+    import dataclasses
+
+    from lftomo.inverse.compare import monte_carlo_std
+
+    cam = lt.Camera.seed(1.0, mla={"count": (12, 12)})
+    box = dict(lower=(-0.004, -0.004, 0.996), upper=(0.004, 0.004, 1.004))
+    flame = lt.phantoms.gaussian_blob(lt.Grid(shape=(8, 8, 8), **box), center=(0.0, 0.0, 1.0), width=0.002,
+                                      T_peak=1800.0, sigma_a_peak=20.0)
+    kw = dict(rays_per_pixel=32, wavelengths="gray", progress=False)
+    a = dataclasses.replace(lt.render(lt.Scene(medium=flame), cam, seed=1, allocation="adaptive", **kw),
+                            min_etendue_fraction=0.2)
+    b = lt.render(lt.Scene(medium=flame), cam, seed=2, allocation=other, **kw)
+    assert a.ray_counts is not None and a.ray_counts.min() == 8 and a.ray_counts.max() > 2 * 32
+    n_b = b.ray_counts if other == "adaptive" else 32
+    idx = a.view_index[a.view_mask]
+    diff = (a.raw.ravel() - b.raw.ravel())[idx]
+    lit = b.raw.ravel()[idx] > 0
+    ratios = {}
+    for floor in ("bound", "prior", "calibrated"):
+        sd = monte_carlo_std(a, weights_rays_per_pixel=n_b, rays_per_pixel=32, floor=floor).ravel()[idx]
+        covered = lit & (sd > 0)
+        assert np.mean(covered[lit]) > 0.99
+        m = int(covered.sum())
+        assert m > 200
+        assert np.mean((diff[covered] / sd[covered]) ** 2) < 1.0 + 5 * np.sqrt(2.0 / m), floor
+        ratios[floor] = float(np.sum(diff[covered] ** 2) / np.sum(sd[covered] ** 2))
+    assert 0.8 <= ratios["calibrated"] <= 1.25, ratios
+    # per-pixel counts of the weights: the sensor's shape, each >= 1
+    with pytest.raises(ValueError, match=r"shape of weights_rays_per_pixel \(5, 5\) does not match the expected shape "
+                                         r"\(120, 120\)"):
+        monte_carlo_std(a, weights_rays_per_pixel=np.ones((5, 5)), rays_per_pixel=32)
+    with pytest.raises(ValueError, match="weights_rays_per_pixel must be >= 1"):
+        monte_carlo_std(a, weights_rays_per_pixel=np.zeros((120, 120)), rays_per_pixel=32)
+
+
 def test_monte_carlo_floor_follows_the_adjacent_views():
     """A pixel dark in its own 3 x 3 neighbourhood gets ρ × the largest signal of its 3 x 3 x 3 x 3 (v, u, y, x)
     neighbourhood; a pixel that reads more keeps ρ × its own view's 3 x 3 (both computed here from the views)."""
