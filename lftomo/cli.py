@@ -178,11 +178,13 @@ def _weights_guide(path, cfg):
     if cfg.is_rig:
         raise LftomoError(f"--guide gives one camera's image, but scene file {cfg.source!r} has "
                           f"{len(cfg.cameras)} cameras; build each camera's matrix from a scene file of its own")
+    from ._validate import json_differences
+
     guide = LightField.load(path)
-    want = tuple(cfg.cameras[0].sensor_shape)
-    if tuple(guide.camera.sensor_shape) != want:
-        raise LftomoError(f"--guide {str(path)!r} is an image of a {guide.camera.sensor_shape} sensor, but the "
-                          f"scene's camera has a {want} sensor")
+    diffs = json_differences(cfg.cameras[0].to_dict(), guide.camera.to_dict())
+    if diffs:
+        raise LftomoError(f"--guide {str(path)!r} was taken with another camera than the scene's (scene vs guide): "
+                          + "; ".join(diffs))
     return guide
 
 
@@ -726,8 +728,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sampler(w, "override render.sampler (the rays are those of lftomo render with the same seed and sampler)")
     w.add_argument("--guide", default=None, metavar="LIGHTFIELD.npz",
                    help="share the rays among the rows where this light field (the measurement, or lftomo "
-                        "render's lightfield.npz of a first guess) is bright: the same rays in all, lower error "
-                        "where the light is (allocation='adaptive'); default: the same rays for every row")
+                        "render's lightfield.npz of a first guess, of the same camera) is bright: at most the same "
+                        "rays in all, lower error where the light is (allocation='adaptive'; from 16 rays per "
+                        "pixel); default: the same rays for every row")
     w.add_argument("--memory-limit-gb", type=_pos_float, default=None,
                    help="refuse a build estimated above this size (default: LFTOMO_MEMORY_LIMIT_GB if set, "
                         "else half the machine's memory)")

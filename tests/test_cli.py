@@ -272,11 +272,12 @@ def test_weights_command_guide(tmp_path, capsys):
     ref = lt.weights(cfg.camera, cfg.scene.medium.grid, sigma_a=cfg.scene.medium.sigma_a_at(650e-9), rays_per_pixel=32,
                      seed=cfg.seed, wavelength=650e-9, allocation="adaptive", guide=lt.LightField.load(guide),
                      progress=False)
-    assert W.metadata["allocation"] == "adaptive" and W.metadata["rays_per_pixel_range"] == [8, 32]  # dark rows: 8
+    lo, hi = W.metadata["rays_per_pixel_range"]
+    assert W.metadata["allocation"] == "adaptive" and lo == 8 and hi > 32  # dark rows: 8
     np.testing.assert_array_equal(W.data, ref.data)
     other = tmp_path / "other.toml"
     other.write_text(text.format(n=8))
     assert main(["weights", str(other), "-o", str(tmp_path / "W2.npz"), "--guide", str(guide), "--quiet"]) == 2
-    assert "is an image of a (100, 100) sensor, but the scene's camera has a (80, 80) sensor" in \
+    assert "was taken with another camera than the scene's (scene vs guide): mla.count[0]: 8 vs 10" in \
         capsys.readouterr().err
     assert not (tmp_path / "W2.npz").exists()

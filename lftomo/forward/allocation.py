@@ -112,9 +112,10 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
     -------
     ndarray of int64, (rows, cols)
         Multiples of K, at least K, at most :data:`MAX_SHARE` ×
-        ``rays_per_pixel``, costing at most the budget (whole multiples of K
-        and the cap can leave part of it unspent); ``rays_per_pixel``
-        everywhere when the pilot saw no light.
+        ``rays_per_pixel``, costing at most the budget: rounded to multiples
+        of K, then what is left goes one K each to the pixels the rounding
+        cut most (largest remainder; the cap can still leave part of it
+        unspent); ``rays_per_pixel`` everywhere when the pilot saw no light.
     """
     from scipy.ndimage import maximum_filter, uniform_filter
 
@@ -150,5 +151,12 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
             lo = mid
         else:
             hi = mid
-    counts = (k_groups * units(lo)).astype(np.int64)
+    n_units = units(lo)
+    # the remainder of the budget, one unit (K rays) each to the pixels the rounding cut most (largest remainder)
+    left = budget - float(np.sum(k_groups * n_units[in_image] * cost[in_image]))
+    cut = np.flatnonzero((in_image & (n_units < top)).ravel())
+    order = cut[np.argsort(-(share * lo - n_units).ravel()[cut], kind="stable")]
+    take = order[np.cumsum(k_groups * cost.ravel()[order]) <= left]
+    n_units.ravel()[take] += 1
+    counts = (k_groups * n_units).astype(np.int64)
     return np.where(in_image, counts, uniform)

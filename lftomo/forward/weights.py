@@ -1683,11 +1683,14 @@ def weights(
         pilot (``metadata["estimate"]["seconds"]``).
     allocation : {"uniform", "adaptive"}
         ``"uniform"``: ``rays_per_pixel`` rays for every row.  ``"adaptive"``:
-        the rows share ``rays_per_pixel`` × the number of rows among them by
-        the rule of :func:`lftomo.forward.allocation.ray_counts` (every ray
-        costing the same), most where ``guide`` is bright, at least K and at
-        most :data:`~lftomo.forward.allocation.MAX_SHARE` ×
-        ``rays_per_pixel`` per row (``metadata["rays_per_pixel_range"]``).
+        the rows share at most ``rays_per_pixel`` × the number of rows among
+        them by the rule of :func:`lftomo.forward.allocation.ray_counts`
+        (every ray costing the same), most where ``guide`` is bright, at
+        least K and at most :data:`~lftomo.forward.allocation.MAX_SHARE` ×
+        ``rays_per_pixel`` per row (``metadata["rays_per_pixel_range"]``;
+        ``W.row_rays``).  It needs ``rays_per_pixel`` >= 2K = 16 and a
+        guide with light where the matrix has rows; otherwise the rows are
+        uniform, with a warning (``metadata["allocation"]`` says which).
         Each row stays unbiased and its ``row_std_error`` and
         ``entry_std_error`` honest for its own count; the rows' errors
         differ, so give a fit their own (:meth:`WeightMatrix.model_std`), not
@@ -1730,30 +1733,14 @@ def weights(
         raise LftomoError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
     sampler_name = sampler
     sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
-    counts = _row_ray_counts(camera, pixel_index, n_rays, int(sampler[_smp.S_GROUPS]), allocation, guide)
-    most = int(counts[pixel_index].max(initial=n_rays))
-    ga = _grid_args(grid)
+    counts, adaptive = _row_ray_counts(camera, pixel_index, n_rays, int(sampler[_smp.S_GROUPS]), allocation, guide)
+    row_counts = counts[pixel_index] if pixel_index.size else np.full(1, n_rays)
     n_vox = grid.n_voxels
-    m = max_segments(*ga[6:])
     scattering = bool(np.any(ss > 0.0))
-    if not scattering:
-        cap_max = int(min(n_vox, most * m))
-
-        def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
-            _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, *ga, sa, buf_off, oi, ov, oc, ob, var,
-                            pos, gacc, oe)
-
-        estimator = "exact DDA per ray (same rays as render)"
-    else:
-        cap_max = n_vox  # paths may scatter anywhere
+    if scattering:
         warn_if_diffusive(ss, tuple(grid.shape), tuple(grid.spacing), max_bounces)
-
-        def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
-            _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, *ga, sa, ss, gg, max_bounces, buf_off, oi,
-                             ov, oc, ob, var, pos, gacc, oe)
-
-        estimator = ("Monte Carlo: expected-value emission along each flight, scattering vertices sampled from "
-                     "sigma_s with absorption as a weight, HG phase function")
+    call, cap_max, estimator = _row_kernel(scattering, (optics, sampler, mli, surf, tex, counts, seed),
+                                           grid, sa, ss, gg, max_bounces, max(int(row_counts.max()), n_rays))
     t0 = time.perf_counter()
     data, indices, indptr, background, row_se, entry_se, est = _build_csr(
         call, pixel_index, n_vox, cap_max, memory_limit=limit, progress=progress, desc="weights",
@@ -1761,32 +1748,59 @@ def weights(
     elapsed = time.perf_counter() - t0
     meta = _meta(camera, grid, wl, n_rays, seed, estimator, sa, ss, gg, surf_summary, views_desc,
                  {"estimate": est, "build_seconds": elapsed, "max_bounces": max_bounces if scattering else None,
-                  "sampler": sampler_name, "allocation": allocation,
-                  "rays_per_pixel_range": [int(counts[pixel_index].min(initial=n_rays)), most]})
+                  "sampler": sampler_name, "allocation": "adaptive" if adaptive else "uniform",
+                  "rays_per_pixel_range": [int(row_counts.min()), int(row_counts.max())]})
     return WeightMatrix(data, indices, indptr, (int(pixel_index.size), n_vox), pixel_index, view_pixel, view_ptr,
                         tuple(int(a) for a in camera.views_shape), tuple(int(a) for a in camera.sensor_shape),
                         background, meta, row_std_error=row_se, entry_std_error=entry_se,
-                        row_rays=None if allocation == "uniform" else counts[pixel_index])
+                        row_rays=row_counts if adaptive else None)
+
+
+def _row_kernel(scattering: bool, head: tuple, grid, sa, ss, gg, max_bounces: int, most_rays: int):
+    """The row kernel of :func:`weights` as ``call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe)``, with
+    the hard bound on a row's entries and the estimator's description.  ``head``: (optics, sampler, mli,
+    surf, tex, counts, seed) as the kernels take them."""
+    ga = _grid_args(grid)
+    if not scattering:
+        def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
+            _rows_absorbing(pix, *head, *ga, sa, buf_off, oi, ov, oc, ob, var, pos, gacc, oe)
+
+        return call, int(min(grid.n_voxels, most_rays * max_segments(*ga[6:]))), \
+            "exact DDA per ray (same rays as render)"
+
+    def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
+        _rows_scattering(pix, *head, *ga, sa, ss, gg, max_bounces, buf_off, oi, ov, oc, ob, var, pos, gacc, oe)
+
+    # paths may scatter anywhere: any voxel
+    return call, grid.n_voxels, ("Monte Carlo: expected-value emission along each flight, scattering vertices "
+                                 "sampled from sigma_s with absorption as a weight, HG phase function")
 
 
 def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int, allocation: Any,
-                    guide: Any) -> np.ndarray:
-    """Rays of each raw pixel's row, int64 (rows · cols,): ``n_rays`` each
-    (uniform), or shared out among the rows ``pixel_index`` where ``guide``
-    is bright (adaptive)."""
+                    guide: Any) -> tuple[np.ndarray, bool]:
+    """Rays of each raw pixel's row, int64 (rows · cols,), and whether they
+    are adaptive: shared out among the rows ``pixel_index`` where ``guide``
+    is bright, or ``n_rays`` each (uniform, and adaptive below 2K rays or
+    with a dark guide, with a warning)."""
     from ..lightfield import LightField
 
     allocation = check_allocation_name(allocation)
     sensor = tuple(int(a) for a in camera.sensor_shape)
     n_pix = sensor[0] * sensor[1]
+    uniform = np.full(n_pix, n_rays, dtype=np.int64), False
     if allocation == "uniform":
         if guide is not None:
             raise LftomoError("guide is used by allocation='adaptive' only; pass allocation='adaptive' or leave "
                               "guide out")
-        return np.full(n_pix, n_rays, dtype=np.int64)
+        return uniform
     if guide is None:
         raise LftomoError("allocation='adaptive' needs guide=, an image of this camera's sensor that shows where "
                           "the light is (the measurement, or a render of a first guess)")
+    if isinstance(guide, LightField):
+        diffs = json_differences(camera.to_dict(), guide.camera.to_dict())
+        if diffs:
+            raise LftomoError("guide is a light field of another camera than the one given; differences: "
+                              + "; ".join(diffs))
     raw = guide.raw if isinstance(guide, LightField) else guide
     img = require_array("guide", raw)
     if img.shape == sensor:
@@ -1796,8 +1810,18 @@ def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int,
                           f"{sensor[1]}), got shape {img.shape}")
     rows = np.zeros(n_pix, dtype=bool)
     rows[pixel_index] = True
-    counts = ray_counts(np.maximum(img, 0.0), None, rows.reshape(sensor), n_rays, k_groups, spent=0)
-    return np.ascontiguousarray(counts.ravel(), dtype=np.int64)
+    img = np.maximum(img, 0.0)
+    if n_rays < 2 * k_groups or not np.any(img.reshape(img.shape[0], -1)[:, pixel_index] > 0):
+        import warnings
+
+        why = (f"needs rays_per_pixel >= {2 * k_groups} (two rays per randomization), got {n_rays}"
+               if n_rays < 2 * k_groups else "found no light in the guide where the matrix has rows")
+        from .._validate import user_stacklevel
+
+        warnings.warn(f"allocation='adaptive' {why}: the rows are uniform", UserWarning, stacklevel=user_stacklevel())
+        return uniform
+    counts = ray_counts(img, None, rows.reshape(sensor), n_rays, k_groups, spent=0)
+    return np.ascontiguousarray(counts.ravel(), dtype=np.int64), True
 
 
 # ===========================================================================

@@ -89,7 +89,10 @@ def monte_carlo_std(lf, *, weights_rays_per_pixel: int, rays_per_pixel: int, flo
     matrix: ``rays_per_pixel`` and ``weights_rays_per_pixel``, or each
     pixel's own where they differ (an adaptive render's
     ``lf.ray_counts``; an adaptive matrix's ``W.rays_per_row()``, given per
-    raw pixel).
+    raw pixel).  The ratio assumes an error that falls as ``n^(-1/2)``: exact
+    for the independent sampler; the stratified sampler's error falls faster,
+    so where ``n_d`` is well above ``n_W`` W's share is underestimated (give W
+    at least the data's rays, or build both adaptive).
 
     ``se_d²`` is a sample variance from few hits: a pixel whose rays all missed
     the flame reports ``se_d = 0`` although the other estimate may not vanish
@@ -204,9 +207,10 @@ def _require_render(lf: Any, name: str, rays_per_pixel: Any) -> None:
                           "from one ray per pixel (std_error is 0); render with rays_per_pixel >= 2")
 
 
-def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int:
+def mc_degrees_of_freedom(lf, rays_per_pixel: int) -> int | np.ndarray:
     """Degrees of freedom of a render's per-pixel ``std_error``: ``R − 1`` for the
-    independent sampler, ``K − 1`` for the stratified one (its error comes from
+    independent sampler (``n − 1`` per pixel, (rows, cols), where the pixels drew
+    ``lf.ray_counts``), ``K − 1`` for the stratified one (its error comes from
     the spread of ``K`` randomizations, :func:`lftomo.forward.sampler.group_count`)."""
     from ..forward.sampler import group_count
 

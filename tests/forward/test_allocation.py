@@ -40,6 +40,19 @@ def test_counts_share_the_uniform_cost_and_follow_the_light():
     assert k < n[20, 20] < n[11, 11]
 
 
+def test_the_rounding_leaves_less_than_one_step_of_the_budget():
+    """Equal shares move in whole steps of K together: 78 % of the pixels lit alike at 16 rays could only get
+    16 each (81 % of the budget spent); the largest-remainder step gives what is left, one K at a time."""
+    k, R = 8, 16
+    mean = np.zeros((1, 20, 20))
+    mean[0, :, :16] = 1.0
+    n = allocation.ray_counts(mean, None, np.ones((20, 20), bool), R, k, spent=0)
+    assert np.all(n % k == 0) and np.all(n >= k)
+    budget = R * n.size
+    assert budget - k < n.sum() <= budget
+    assert set(np.unique(n[:, :17])) == {16, 24} and np.all(n[:, 17:] == k)  # column 16: the 3 x 3 spread
+
+
 def test_a_dark_pilot_gives_the_uniform_counts():
     n = allocation.ray_counts(np.zeros((2, 5, 6)), np.zeros((2, 5, 6), int), np.ones((5, 6), bool), 64, 8)
     assert np.all(n == 64)

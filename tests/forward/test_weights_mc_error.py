@@ -341,5 +341,19 @@ def test_adaptive_rows_are_deterministic_across_thread_counts_and_saved(cam, gri
         assert np.array_equal(getattr(a, k), getattr(b, k)), k
     c = WeightMatrix.load(b.save(tmp_path / "W.npz"), cam, grid)
     assert c.metadata["allocation"] == "adaptive" and c.metadata["rays_per_pixel_range"] == \
-        b.metadata["rays_per_pixel_range"]
-    assert np.array_equal(c.row_std_error, b.row_std_error)
+        b.metadata["rays_per_pixel_range"] == [int(b.row_rays.min()), int(b.row_rays.max())]
+    assert np.array_equal(c.row_std_error, b.row_std_error) and np.array_equal(c.row_rays, b.row_rays)
+    sub = b.select([(5, 5)])
+    assert np.array_equal(sub.row_rays, b.row_rays[b.rows_of_view(5, 5)])
+    assert np.array_equal(sub.rays_per_row(), sub.row_rays)
+    # below 2K rays, or with a guide dark where the matrix has rows: uniform rows, with a warning
+    for change, why in ((dict(rays_per_pixel=8), "needs rays_per_pixel >= 16"),
+                        (dict(guide=np.zeros(cam.sensor_shape)), "found no light in the guide")):
+        with pytest.warns(UserWarning, match=f"allocation='adaptive' {why}.*the rows are uniform"):
+            u = weights(cam, grid, **{**kw, **change})
+        assert u.metadata["allocation"] == "uniform" and u.row_rays is None
+        assert np.all(u.rays_per_row() == u.metadata["rays_per_pixel"])
+    other = lt.Camera.seed(1.1, mla={"count": (12, 12)})
+    lf = lt.LightField(raw=guide, camera=other)
+    with pytest.raises(lt.LftomoError, match="guide is a light field of another camera than the one given"):
+        weights(cam, grid, **{**kw, "guide": lf})
