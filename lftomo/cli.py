@@ -72,6 +72,7 @@ def cmd_render(args) -> int:
     sampler = cfg.sampler if args.sampler is None else args.sampler
     allocation = cfg.allocation if args.allocation is None else args.allocation
     from .demo import save_lightfield_products
+    from .lightfield import FarDepthWarning
 
     print(f"lftomo render: {cfg.source} -> {out}/ ({rpp} rays/pixel {allocation}, seed {seed}, {sampler} sampler"
           + (f", {len(cfg.cameras)} cameras: {', '.join(cfg.camera_names)})" if cfg.is_rig else ")"), file=sys.stderr)
@@ -84,15 +85,17 @@ def cmd_render(args) -> int:
                         progress=not args.quiet, sampler=sampler, allocation=allocation)
             t_render = time.perf_counter() - t0
             depths = cfg.focal_stack_depths or (cam.focus_distance,)
-            if not cfg.is_rig:
-                cam_files = [out / f.name for f in save_lightfield_products(lf, stage, depths)]
-            else:
-                tmp = stage / f".camera-{name}"
-                cam_files = []
-                for f in save_lightfield_products(lf, tmp, depths):
-                    f.rename(_suffixed(stage / f.name, name))
-                    cam_files.append(_suffixed(out / f.name, name))
-                shutil.rmtree(tmp)
+            with warnings.catch_warnings():  # the scene file's far depths were warned about as it was read
+                warnings.simplefilter("ignore", FarDepthWarning)
+                if not cfg.is_rig:
+                    cam_files = [out / f.name for f in save_lightfield_products(lf, stage, depths)]
+                else:
+                    tmp = stage / f".camera-{name}"
+                    cam_files = []
+                    for f in save_lightfield_products(lf, tmp, depths):
+                        f.rename(_suffixed(stage / f.name, name))
+                        cam_files.append(_suffixed(out / f.name, name))
+                    shutil.rmtree(tmp)
             files += cam_files
             per_camera[name] = {"render_seconds": t_render, "total_signal": float(np.sum(lf.raw)),
                                 "pose": None if cam.pose is None else cam.pose.to_dict(),
@@ -948,8 +951,8 @@ def _origin(exc: BaseException) -> str:
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
-    """One line per warning for a command-line user (the category where it is not a UserWarning)."""
-    kind = "" if category is UserWarning else f" ({category.__name__})"
+    """One line per warning for a command-line user (the category where it is not a UserWarning or one of lftomo's)."""
+    kind = "" if issubclass(category, UserWarning) else f" ({category.__name__})"
     return f"lftomo: warning{kind}: {message}\n"
 
 

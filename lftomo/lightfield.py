@@ -200,13 +200,18 @@ def _alpha(camera: Camera, depth: float) -> float:
 FAR_DEPTH_FACTOR = 100.0
 
 
+class FarDepthWarning(UserWarning):
+    """A refocus depth more than :data:`FAR_DEPTH_FACTOR` focus distances away (most often a depth in mm)."""
+
+
 def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> float:
     """``depth`` (m from the stop) as float if the main lens images it behind itself.
 
     An object at or inside the focal length (plus the stop-to-lens distance)
     has no real image: refocusing there would silently return zeros.  A depth
     more than :data:`FAR_DEPTH_FACTOR` times the camera's focus distance is
-    kept but warned about: it is most often a depth in mm.
+    kept but warned about (:class:`FarDepthWarning`): it is most often a
+    depth in mm.
     """
     _require_camera(camera)
     from ._validate import require_positive
@@ -224,7 +229,7 @@ def check_refocus_depth(camera: Camera, depth: Any, name: str = "depth") -> floa
 
         warnings.warn(f"{name} = {d:g} m is {d / camera.focus_distance:.0f} times the camera's focus distance "
                       f"({camera.focus_distance:g} m): depths are in m, so {d:g} mm would be {d / 1000:g} m",
-                      UserWarning, stacklevel=user_stacklevel())
+                      FarDepthWarning, stacklevel=user_stacklevel())
     return d
 
 

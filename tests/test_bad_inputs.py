@@ -1523,3 +1523,21 @@ def test_a_refocus_depth_in_mm_is_warned_about():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         lf.focal_stack([0.98, 1.02], progress=False)
+
+
+def test_lftomo_render_warns_once_about_a_far_depth_in_the_scene_file(tmp_path):
+    """The scene file's depth is warned about as the file is read, naming its key; the focal stack and the
+    refocused image made from it do not repeat it (they did: three warnings for one depth)."""
+    from lftomo.cli import main
+    from lftomo.lightfield import FarDepthWarning
+
+    scene = tmp_path / "s.toml"
+    scene.write_text("[camera]\nfocus_distance = 1.0\n[camera.mla]\ncount = [8, 8]\n[render]\nrays_per_pixel = 2\n"
+                     "[output]\nfocal_stack_depths = [1.0, 1000.0]\n[[surface]]\ncenter = [0.0, 0.0, 1.0]\n"
+                     "size = [0.004, 0.004]\nradiance = 1.0\n")
+    with pytest.warns(FarDepthWarning) as caught:
+        assert main(["render", str(scene), "-o", str(tmp_path / "out"), "--quiet"]) == 0
+    far = [str(w.message) for w in caught if issubclass(w.category, FarDepthWarning)]
+    assert far == ["[output] focal_stack_depths[1] = 1000 m is 1000 times the camera's focus distance (1 m): "
+                   "depths are in m, so 1000 mm would be 1 m"]
+    assert (tmp_path / "out" / "refocus_1000000mm.png").exists()
