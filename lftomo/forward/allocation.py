@@ -72,10 +72,19 @@ def check_allocation_name(allocation) -> str:
     return allocation
 
 
+def too_few_rays(rays_per_pixel: int, k_groups: int) -> str | None:
+    """Why ``rays_per_pixel`` rays are too few to share out (an adaptive render
+    or weight matrix is then uniform), or None: at least two rays per
+    randomization are needed, so that every pixel's K can be moved."""
+    if rays_per_pixel >= 2 * k_groups:
+        return None
+    return f"needs rays_per_pixel >= {2 * k_groups} (two rays per randomization), got {rays_per_pixel}"
+
+
 def uses_pilot(allocation: str, rays_per_pixel: int, k_groups: int) -> bool:
     """Whether an ``allocation`` render of ``rays_per_pixel`` rays draws a pilot:
-    adaptive renders with at least two rays per randomization in all."""
-    return allocation == "adaptive" and rays_per_pixel >= 2 * k_groups
+    adaptive renders with enough rays (:func:`too_few_rays`)."""
+    return allocation == "adaptive" and too_few_rays(rays_per_pixel, k_groups) is None
 
 
 def pilot_seed(seed: int) -> int:

@@ -25,7 +25,8 @@ from .._validate import (check_allocation, require_flag, require_instance, requi
                          resolve_wavelengths)
 from ..progress import progress_bar
 from .chunks import ChunkSizer, interruptible
-from .allocation import DEFAULT_ALLOCATION, PILOT_RAYS, check_allocation_name, pilot_seed, ray_counts, uses_pilot
+from .allocation import (DEFAULT_ALLOCATION, PILOT_RAYS, check_allocation_name, pilot_seed, ray_counts, too_few_rays,
+                         uses_pilot)
 from .sampler import DEFAULT_SAMPLER, S_GROUPS, SAMPLERS, pixels_in_image
 
 
@@ -137,8 +138,8 @@ def render(
     if allocation == "adaptive" and not adaptive:
         import warnings
 
-        warnings.warn(f"allocation='adaptive' needs rays_per_pixel >= {2 * k_groups} (two rays per randomization), "
-                      f"got {n_rays}: the render is uniform", UserWarning, stacklevel=3)
+        warnings.warn(f"allocation='adaptive' {too_few_rays(n_rays, k_groups)}: the render is uniform", UserWarning,
+                      stacklevel=3)
     if adaptive:
         pilot_mean, _, pilot_passed = _render_rows(run, np.full((nrows, ncols), PILOT_RAYS, dtype=np.int64),
                                                    pilot_seed(seed), shape, show, "render pilot")

@@ -115,7 +115,7 @@ from .._validate import (json_differences, require_array, require_int, require_p
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
-from .allocation import ALLOCATIONS, DEFAULT_ALLOCATION, check_allocation_name, ray_counts
+from .allocation import ALLOCATIONS, DEFAULT_ALLOCATION, check_allocation_name, ray_counts, too_few_rays
 from .sampler import DEFAULT_SAMPLER
 from .segmentrows import linearized_rows, row_pattern
 from .dda import max_segments, ray_box, traverse
@@ -1692,9 +1692,8 @@ def weights(
         guide with light where the matrix has rows; otherwise the rows are
         uniform, with a warning (``metadata["allocation"]`` says which).
         Each row stays unbiased and its ``row_std_error`` and
-        ``entry_std_error`` honest for its own count; the rows' errors
-        differ, so give a fit their own (:meth:`WeightMatrix.model_std`), not
-        a rule that scales one error by a ray count.
+        ``entry_std_error`` honest for its own count; give the noise model
+        (:func:`lftomo.monte_carlo_std`) ``W.to_raw(W.rays_per_row(), fill=1)``.
     guide : LightField or ndarray, shape (rows, cols) or (n_λ, rows, cols)
         For ``allocation="adaptive"`` (and required there): an image of this
         camera's sensor that shows where the light is, such as the
@@ -1811,11 +1810,12 @@ def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int,
     rows = np.zeros(n_pix, dtype=bool)
     rows[pixel_index] = True
     img = np.maximum(img, 0.0)
-    if n_rays < 2 * k_groups or not np.any(img.reshape(img.shape[0], -1)[:, pixel_index] > 0):
+    why = too_few_rays(n_rays, k_groups)
+    if why is None and not np.any(img.reshape(img.shape[0], -1)[:, pixel_index] > 0):
+        why = "found no light in the guide where the matrix has rows"
+    if why is not None:
         import warnings
 
-        why = (f"needs rays_per_pixel >= {2 * k_groups} (two rays per randomization), got {n_rays}"
-               if n_rays < 2 * k_groups else "found no light in the guide where the matrix has rows")
         from .._validate import user_stacklevel
 
         warnings.warn(f"allocation='adaptive' {why}: the rows are uniform", UserWarning, stacklevel=user_stacklevel())

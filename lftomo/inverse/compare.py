@@ -174,8 +174,7 @@ def _weights_rays(value: Any, sensor_shape: tuple[int, int]) -> np.ndarray:
     """``weights_rays_per_pixel`` as a float array of the sensor's shape (an int: the same everywhere)."""
     if np.ndim(value) == 0:
         return np.full(sensor_shape, float(require_int("weights_rays_per_pixel", value, minimum=1)))
-    a = require_array("weights_rays_per_pixel", value, shape=tuple(sensor_shape), minimum=1.0)
-    return a
+    return require_array("weights_rays_per_pixel", value, shape=tuple(sensor_shape), minimum=1.0)
 
 
 def _data_rays(lf, rays_per_pixel: int) -> np.ndarray:
@@ -257,13 +256,16 @@ def monte_carlo_floor(lf, *, covering: bool = True) -> np.ndarray:
     for c in range(lf.n_channels):
         x, s = raw[c], se[c]
         vals = np.where(mask, x[np.maximum(idx, 0)], 0.0)
-        svals = np.where(mask, s[np.maximum(idx, 0)], 0.0) if root is None else \
-            np.where(mask, s[np.maximum(idx, 0)], 0.0) * root
+        svals = np.where(mask, s[np.maximum(idx, 0)], 0.0)
+        if root is not None:
+            svals = svals * root
         rho = np.zeros(vals.shape[:2])
         for v, u in np.ndindex(*rho.shape):
             lit = (vals[v, u] > 0) & (svals[v, u] > 0)
             rho[v, u] = np.median(svals[v, u][lit] / vals[v, u][lit]) if lit.any() else 0.0
-        rho = rho[:, :, None, None] if root is None else rho[:, :, None, None] / root
+        rho = rho[:, :, None, None]
+        if root is not None:
+            rho = rho / root
         local = maximum_filter(vals, size=FLOOR_OWN_VIEW, mode="constant")
         if covering:
             around = maximum_filter(vals, size=FLOOR_NEIGHBOURHOOD, mode="constant")
