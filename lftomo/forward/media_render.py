@@ -164,7 +164,7 @@ def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, co
             gs[:, :] = 0.0
             sq[:] = 0.0
             g = 0  # group of sample m: m mod k_groups
-            for m in range(n_rays):
+            for m in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
                 gm = g
                 g = g + 1 if g + 1 < k_groups else 0
                 state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, n_rays, key, state,
@@ -208,7 +208,7 @@ def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, c
             gs[:, :] = 0.0
             sq[:] = 0.0
             grp = 0  # group of sample m: m mod k_groups
-            for m in range(n_rays):
+            for m in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
                 gm = grp
                 grp = grp + 1 if grp + 1 < k_groups else 0
                 state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, m, n_rays, key, state,

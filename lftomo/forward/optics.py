@@ -319,6 +319,20 @@ def vertex_z_back(optics):
 
 
 @njit(cache=True, inline="always")
+def lenslet_back_surface(lx, ly, optics):
+    """The lenslets' back (sensor-side) surface at ``(lx, ly)`` (m) from a lenslet's axis.
+
+    Returns ``(z, nx, ny, nz)``: the surface's height and its unit normal
+    (``nz > 0``; ``(0, 0, 1)`` for a plane).  The point must lie within the
+    clear aperture, ``lx² + ly² ≤ O_M_R²``.
+    """
+    curv = optics[O_M2_C]
+    rho2 = lx * lx + ly * ly
+    root = math.sqrt(max(1.0 - curv * curv * rho2, 0.0))
+    return vertex_z_back(optics) - curv * rho2 / (1.0 + root), curv * lx, curv * ly, root
+
+
+@njit(cache=True, inline="always")
 def mla_backward(px, py, pz, dx, dy, dz, i, j, optics):
     """Through lenslet (i, j) from the sensor side. Returns (ok, p, d)."""
     cx, cy = lenslet_center(i, j, optics)
@@ -511,6 +525,40 @@ def trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics):
     ok, px, py, pz, dx, dy, dz = mla_backward(sx, sy, sz, dx, dy, dz, i, j, optics)
     if not ok:
         return False, 0.0, 0.0, dx, dy, dz
+    return _lenslet_front_to_stop(px, py, pz, dx, dy, dz, optics)
+
+
+@njit(cache=True, inline="always")
+def trace_back_surface_to_stop(hx, hy, hz, nx, ny, nz, dx, dy, dz, i, j, optics):
+    """:func:`trace_lenslet_to_stop` for a ray whose entry into lenslet (i, j)
+    is known: the point ``h`` of its back (sensor-side) surface, inside the
+    clear aperture, where the surface's unit normal is ``n``, reached along
+    the unit direction ``d`` (dz > 0) from a sensor point.
+
+    A sampler that draws ``h`` on the surface itself (and so knows ``n``)
+    refracts there without intersecting the surface again; the result equals
+    :func:`trace_lenslet_to_stop`'s from that sensor point up to rounding.
+
+    Returns ``(ok, x, y, dx, dy, dz)`` as :func:`trace_lenslet_to_stop`.
+    """
+    ok, dx, dy, dz = _refract(dx, dy, dz, nx, ny, nz, 1.0, optics[O_M_N])
+    if not ok:
+        return False, 0.0, 0.0, dx, dy, dz
+    cx, cy = lenslet_center(i, j, optics)
+    ok, px, py, pz, dx, dy, dz = surface_refract(
+        hx, hy, hz, dx, dy, dz, cx, cy, optics[O_M1_ZV], optics[O_M1_C], optics[O_M_R] * optics[O_M_R],
+        optics[O_M_N], 1.0
+    )
+    if not ok:
+        return False, 0.0, 0.0, dx, dy, dz
+    return _lenslet_front_to_stop(px, py, pz, dx, dy, dz, optics)
+
+
+@njit(cache=True, inline="always")
+def _lenslet_front_to_stop(px, py, pz, dx, dy, dz, optics):
+    """From the point ``p`` where a ray leaves a lenslet (direction ``d``,
+    towards the main lens) to the stop plane: an early cull at the exit pupil,
+    then the main lens.  Returns ``(ok, x, y, dx, dy, dz)``."""
     # Early cull: a ray that crosses the paraxial exit-pupil plane far outside
     # the pupil (by a margin that covers pupil aberrations) cannot pass the stop.
     cull = optics[O_XP_R2]

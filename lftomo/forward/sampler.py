@@ -246,25 +246,44 @@ def pixel_box(r0, c0, cr, cc, rad):
     return True, rlo, rhi, clo, chi
 
 
-@njit(cache=True)
-def pixels_in_image(optics, sampler, mli):
-    """Pixels that draw all their rays: (rows, cols) bool.
+@njit(cache=True, inline="always")
+def draws_all(row, col, optics, sampler, mli):
+    """Whether pixel (row, col) draws all its samples.
 
     With the stratified sampler, a pixel whose square misses its microlens
-    image disc (:func:`image_box`) draws one ray per randomization whatever
-    its ray count (:func:`pixel_ray`); every other pixel, and every pixel of
-    the independent sampler or of a camera whose pixels see several lenslets,
-    draws them all.
+    image disc (:func:`image_box`) draws one sample per randomization
+    whatever its ray count (:func:`pixel_ray`); every other pixel, and every
+    pixel of the independent sampler or of a camera whose pixels see several
+    lenslets, draws them all.
     """
+    if sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0:
+        return True
+    i, j = _o.own_lenslet(row, col, optics)
+    return image_box(float(row), float(col), i, j, optics, mli)[0]
+
+
+@njit(cache=True, inline="always")
+def samples_drawn(row, col, n_rays, optics, sampler, mli):
+    """How many of pixel (row, col)'s ``n_rays`` samples :func:`pixel_ray`
+    draws: all, or ``min(K, n_rays)`` (the first of each randomization) where
+    :func:`draws_all` is False.  :func:`pixel_ray` returns ``ok`` False for
+    every sample past this count, so a kernel's loop over
+    ``range(samples_drawn(...))`` gives the same result as one over
+    ``range(n_rays)``, without the empty calls."""
+    if draws_all(row, col, optics, sampler, mli):
+        return n_rays
+    return min(int(sampler[S_GROUPS]), n_rays)
+
+
+@njit(cache=True)
+def pixels_in_image(optics, sampler, mli):
+    """Pixels that draw all their rays (:func:`draws_all`): (rows, cols) bool."""
     nr = int(optics[_o.O_NROWS])
     nc = int(optics[_o.O_NCOLS])
     out = np.ones((nr, nc), dtype=np.bool_)
-    if sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0:
-        return out
     for r in range(nr):
         for c in range(nc):
-            i, j = _o.own_lenslet(r, c, optics)
-            out[r, c] = image_box(float(r), float(c), i, j, optics, mli)[0]
+            out[r, c] = draws_all(r, c, optics, sampler, mli)
     return out
 
 
@@ -402,13 +421,7 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
     rho2 = lx * lx + ly * ly
     if rho2 > rc * rc:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
-    curv = optics[_o.O_M2_C]
-    root = math.sqrt(max(1.0 - curv * curv * rho2, 0.0))
-    hz = _o.vertex_z_back(optics) - curv * rho2 / (1.0 + root)
-    # the sphere's unit normal at h (up to sign); a plane: n = z
-    nx = curv * lx
-    ny = curv * ly
-    nz = root
+    hz, nx, ny, nz = _o.lenslet_back_surface(lx, ly, optics)
     # mixture density per unit pixel-coordinate area and m² of projected
     # surface (rho > 0: pack_sampler requires it)
     dens = alpha / (math.pi * rc * rc)
@@ -418,7 +431,7 @@ def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampl
         if ddx * ddx + ddy * ddy <= rho * rho:
             dens += (1.0 - alpha) / (a_box * math.pi * rho * rho)
     dx, dy, dz, w = _o.sample_direction_weight(sx, sy, sz, hx, hy, hz, nx, ny, nz, n_rep / (dens * psel), optics)
-    ok, x, y, dx, dy, dz = _o.trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, optics)
+    ok, x, y, dx, dy, dz = _o.trace_back_surface_to_stop(hx, hy, hz, nx, ny, nz, dx, dy, dz, i, j, optics)
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     return state, True, x, y, 0.0, dx, dy, dz, w

@@ -259,7 +259,7 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0, 
         cnt = 0
         bg = 0.0
         overflow = False
-        for ray in range(n_rays):
+        for ray in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
@@ -345,7 +345,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
         cnt = 0
         bg = 0.0
         overflow = False
-        for ray in range(n_rays):
+        for ray in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok or overflow:
@@ -464,7 +464,7 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
         state = key
         o = seg_off[k]
         nr = 0
-        for ray in range(n_rays):
+        for ray in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:

@@ -285,3 +285,58 @@ def test_the_test_session_compiles_numba_kernels_for_these_sources(small_camera)
     small_camera.pixel_etendue(n_rays=8, seed=1)  # compiles (or loads) camera._pixel_throughput
     path = camera._pixel_throughput._cache._cache_path
     assert os.path.commonpath([path, numba.config.CACHE_DIR]) == numba.config.CACHE_DIR, path
+
+
+@pytest.mark.parametrize("r2", [-1.15e-3, np.inf, 4e-3], ids=["convex", "plane", "concave"])
+def test_trace_from_the_sampled_back_surface_point_equals_the_trace_from_the_sensor(r2):
+    """The stratified sampler draws the point ``h`` where a ray enters the lenslet on its back surface and
+    refracts there (:func:`trace_back_surface_to_stop`) instead of intersecting that surface again from the
+    sensor point (:func:`trace_lenslet_to_stop`).  For back surfaces convex, flat and concave towards the
+    sensor, over sensor points of a lenslet's block and points of its whole clear aperture, both give the
+    same vignetting and the same object-space ray."""
+    import math
+
+    cam = lt.Camera.seed(1.0, mla={"count": (20, 20), "r2": r2})
+    opt = cam.packed
+    i, j = cam.central_lenslet
+    cx, cy = O.lenslet_center(i, j, opt)
+    half = 0.5 * cam.pixels_per_lenslet * opt[O.O_S_PITCH]
+    rc = opt[O.O_M_R]
+    rng = np.random.default_rng(11)
+    n_pass = 0
+    for _ in range(4000):
+        sx, sy = cx + rng.uniform(-half, half), cy + rng.uniform(-half, half)
+        rad, phi = rc * math.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * math.pi)
+        lx, ly = rad * math.cos(phi), rad * math.sin(phi)
+        hz, nx, ny, nz = O.lenslet_back_surface(lx, ly, opt)
+        assert abs(nx * nx + ny * ny + nz * nz - 1.0) < 1e-12 and nz > 0.0
+        sz = opt[O.O_S_Z]
+        dx, dy, dz, _ = O.sample_direction_weight(sx, sy, sz, cx + lx, cy + ly, hz, nx, ny, nz, 1.0, opt)
+        a = O.trace_lenslet_to_stop(sx, sy, sz, dx, dy, dz, i, j, opt)
+        b = O.trace_back_surface_to_stop(cx + lx, cy + ly, hz, nx, ny, nz, dx, dy, dz, i, j, opt)
+        assert a[0] == b[0], (sx, sy, lx, ly)
+        if a[0]:
+            n_pass += 1
+            np.testing.assert_allclose(b[1:3], a[1:3], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(b[3:], a[3:], rtol=0, atol=1e-12)
+    assert n_pass > 200, n_pass
+
+
+def test_samples_drawn_skips_only_samples_that_are_never_drawn(small_camera):
+    """A pixel that misses its microlens image draws one sample per randomization: the kernels loop
+    over :func:`samples_drawn` samples, and :func:`pixel_ray` returns nothing for the rest."""
+    cam = small_camera
+    packed, mli = cam.sampler_arrays("stratified", 64)
+    inside = S.pixels_in_image(cam.packed, packed, mli)
+    assert 0.2 < inside.mean() < 0.95
+    rows, cols = np.nonzero(~inside)
+    for r, c in zip(rows[::97], cols[::97]):
+        assert S.samples_drawn(r, c, 64, cam.packed, packed, mli) == 8
+        key = np.uint64(rng_init(3, r * 1000 + c))
+        for m in range(8, 64, 5):
+            assert not S.pixel_ray(r, c, 0.0, 0.0, m, 64, key, key, cam.packed, packed, mli)[1]
+    r, c = np.argwhere(inside)[0]
+    assert S.samples_drawn(r, c, 64, cam.packed, packed, mli) == 64
+    assert S.samples_drawn(r, c, 5, cam.packed, packed, mli) == 5
+    ind, ind_mli = cam.sampler_arrays("independent", 64)
+    assert S.pixels_in_image(cam.packed, ind, ind_mli).all()
