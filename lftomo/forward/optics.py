@@ -462,10 +462,14 @@ def sample_direction_weight(sx, sy, sz, hx, hy, hz, nx, ny, nz, inv_density, opt
     return dx, dy, dz, w
 
 
-# The three whole-path functions below are plain (not numba-inlined) calls:
+# The whole-path samplers are plain (not numba-inlined) calls in the kernels:
 # every parallel kernel that inlined them compiled 2-3x slower (a medium
-# render's first call 54 s -> 20 s cold) and ran no faster (0.45 vs 0.44 s,
-# 600x600 px, 16 rays, 32^3 medium); LLVM still inlines what pays.
+# render's first call 54 s -> 20 s cold).  sample_pixel_ray_offset (like the
+# stratified sampler's body) is inlined into its one dispatcher,
+# lftomo.forward.sampler.pixel_ray, which the kernels call: a call boundary
+# per sample less (numba's reference counting of the array arguments and the
+# result passed through memory), ~8 % of a render, for ~15 % more compile
+# time of a render's first call (docs/performance.md).
 @njit(cache=True)
 def sample_pixel_ray(row, col, state, optics):
     """Sample one backward ray from pixel (row, col) into object space.
@@ -483,7 +487,7 @@ def sample_pixel_ray(row, col, state, optics):
     return sample_pixel_ray_offset(row, col, 0.0, 0.0, state, optics)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sample_pixel_ray_offset(row, col, off_r, off_c, state, optics):
     """:func:`sample_pixel_ray` for a pixel-sized square displaced by
     (``off_r``, ``off_c``) pixels from pixel (row, col), seen through the

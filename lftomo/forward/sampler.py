@@ -358,7 +358,7 @@ def pixel_ray_world(row, col, m, n_rays, key, state, optics, sampler, mli):
     return state, ok, ox, oy, oz, dx, dy, dz, w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
     sp = optics[_o.O_S_PITCH]
     i, j = _o.own_lenslet(row, col, optics)
