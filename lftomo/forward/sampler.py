@@ -505,11 +505,11 @@ def _surface_passes(sx, sy, hx, hy, i, j, optics):
     projected at (hx, hy) pass lenslet (i, j)?"""
     cx, cy = _o.lenslet_center(i, j, optics)
     rc = optics[_o.O_M_R]
-    rho2 = (hx - cx) ** 2 + (hy - cy) ** 2
-    if rho2 > rc * rc:
+    lx = hx - cx
+    ly = hy - cy
+    if lx * lx + ly * ly > rc * rc:
         return False
-    curv = optics[_o.O_M2_C]
-    hz = _o.vertex_z_back(optics) - curv * rho2 / (1.0 + math.sqrt(max(1.0 - curv * curv * rho2, 0.0)))
+    hz = _o.lenslet_back_surface(lx, ly, optics)[0]
     sz = optics[_o.O_S_Z]
     ex = hx - sx
     ey = hy - sy
