@@ -14,7 +14,7 @@ from conftest import stratified_etendue_check
 from lftomo.forward import sampler as S
 from lftomo.forward.camera import _pixel_throughput
 from lftomo.forward import optics as O
-from lftomo.forward.rng import rng_init, rng_uniform
+from lftomo.forward.rng import rng_init, rng_uniform, rng_uniform_at
 
 
 @njit(cache=True)
@@ -340,3 +340,76 @@ def test_samples_drawn_skips_only_samples_that_are_never_drawn(small_camera):
     assert S.samples_drawn(r, c, 5, cam.packed, packed, mli) == 5
     ind, ind_mli = cam.sampler_arrays("independent", 64)
     assert S.pixels_in_image(cam.packed, ind, ind_mli).all()
+
+
+@njit(cache=True)
+def _stream_words(key, n):
+    """The first n outputs of the stream at key, drawn one by one with rng_uniform, and by rng_uniform_at."""
+    drawn = np.zeros(n)
+    direct = np.zeros(n)
+    st = np.uint64(key)
+    for k in range(n):
+        st, drawn[k] = rng_uniform(st)
+        direct[k] = rng_uniform_at(np.uint64(key), k + 1)
+    return drawn, direct
+
+
+def test_rng_uniform_at_equals_the_streams_draws():
+    """Counter access (one mix) gives the numbers rng_uniform draws in turn, bit for bit."""
+    for key in (0, 12345, 2**62 + 17):
+        drawn, direct = _stream_words(key, 40)
+        np.testing.assert_array_equal(drawn, direct)
+
+
+@njit(cache=True)
+def _first_points(n_keys, g):
+    out = np.zeros((n_keys, 4))
+    for k in range(n_keys):
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = S.group_point(rng_init(7, k), g, 0)
+    return out
+
+
+def test_group_points_have_independent_uniform_coordinates_across_pixels():
+    """The four scrambling seeds of a group come from two 64-bit words: the
+    coordinates of a pixel's first point must still be uniform and pairwise
+    uncorrelated across pixels, and differ between groups (5 standard errors)."""
+    n = 20000
+    se_mean, se_corr = np.sqrt(1 / 12 / n), 1 / np.sqrt(n)
+    pts = {g: _first_points(n, g) for g in (0, 3, 7)}
+    for g, x in pts.items():
+        assert np.all(np.abs(x.mean(axis=0) - 0.5) < 5 * se_mean), g
+        corr = np.corrcoef(x.T)[np.triu_indices(4, 1)]
+        assert np.all(np.abs(corr) < 5 * se_corr), (g, corr)
+        # uniform in each dimension: 16 bins, chi-square well below its 1e-6 tail (15 dof: 58)
+        for d in range(4):
+            counts = np.bincount(np.floor(x[:, d] * 16).astype(int), minlength=16)
+            assert np.sum((counts - n / 16) ** 2 / (n / 16)) < 58.0, (g, d)
+    cross = np.corrcoef(pts[0][:, 0], pts[3][:, 0])[0, 1]
+    assert abs(cross) < 5 * se_corr
+
+
+def test_concentric_map_equals_the_trigonometric_formula():
+    """Independent computation: Shirley & Chiu's map with math.cos/math.sin;
+    the polynomial sin/cos must agree to rounding over the whole square,
+    diagonals and axes included."""
+    import math
+
+    def reference(u1, u2):
+        a, b = 2 * u1 - 1, 2 * u2 - 1
+        if a == 0 and b == 0:
+            return 0.0, 0.0
+        if abs(a) > abs(b):
+            r, phi = a, math.pi / 4 * (b / a)
+        else:
+            r, phi = b, math.pi / 2 - math.pi / 4 * (a / b)
+        return r * math.cos(phi), r * math.sin(phi)
+
+    rng = np.random.default_rng(3)
+    pts = np.vstack([rng.random((5000, 2)), [[0.5, 0.5], [1.0, 1.0], [0.0, 1.0], [0.75, 0.75], [0.25, 0.75],
+                                             [0.5, 0.9], [0.9, 0.5], [0.0, 0.0]]])
+    for u1, u2 in pts:
+        np.testing.assert_allclose(S.concentric_disc(u1, u2), reference(u1, u2), rtol=0, atol=1e-15)
+    xs = np.linspace(-math.pi / 4, math.pi / 4, 2001)
+    got = np.array([S.sincos_quarter(x) for x in xs])
+    np.testing.assert_allclose(got[:, 0], np.sin(xs), rtol=0, atol=2e-16)
+    np.testing.assert_allclose(got[:, 1], np.cos(xs), rtol=0, atol=2e-16)
