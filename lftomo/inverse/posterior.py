@@ -1448,19 +1448,50 @@ def _sampler_start(logpost: Any, basis: Any, *, optimize: bool, T_start: Any):
 
 def _walker_ball(logpost: Any, c_start: np.ndarray, chol: np.ndarray, n_walkers: int, init_scale: float,
                  rng: np.random.Generator) -> np.ndarray:
-    """Walkers ``c_start + init_scale · chol z``, redrawing infeasible ones (shrinking the ball if needed)."""
-    K = c_start.size
-    p0 = c_start + init_scale * rng.standard_normal((n_walkers, K)) @ chol.T
+    """Walkers ``c + init_scale · chol z`` about the start ``c``, redrawing infeasible ones (shrinking the ball if
+    needed).
+
+    A start on a bound (a MAP with voxels at a temperature bound) has no feasible ball about it: each walker would
+    fall outside with probability 1/2 per coordinate at the bound, at any scale.  The centre then moves 0.1 %, 1 %,
+    then 10 % of the way towards an interior point, the fit of the uniform field at the middle of the bounds; in a
+    convex feasible set (a linear basis between bounds) every such centre is interior.
+    """
+    p0 = _feasible_ball(logpost, c_start, chol, n_walkers, init_scale, rng)
+    if p0 is None:
+        inner = _interior_coefficients(logpost)
+        for eps in (1e-3, 1e-2, 1e-1) if inner is not None else ():
+            p0 = _feasible_ball(logpost, c_start + eps * (inner - c_start), chol, n_walkers, init_scale, rng)
+            if p0 is not None:
+                break
+    if p0 is None:
+        raise LftomoError("could not place the walkers inside the bounds around the starting point; widen bounds")
+    return p0
+
+
+def _feasible_ball(logpost: Any, centre: np.ndarray, chol: np.ndarray, n_walkers: int, init_scale: float,
+                   rng: np.random.Generator) -> np.ndarray | None:
+    """Walkers ``centre + scale · chol z`` all of finite log density, the infeasible ones redrawn from a ball
+    shrunk by 0.7 each time (60 times at most); None if some stay infeasible."""
+    K = centre.size
+    p0 = centre + init_scale * rng.standard_normal((n_walkers, K)) @ chol.T
     scale = init_scale
     for _ in range(60):
         bad = ~np.isfinite(logpost(p0))
         if not bad.any():
-            break
+            return p0
         scale *= 0.7
-        p0[bad] = c_start + scale * rng.standard_normal((int(bad.sum()), K)) @ chol.T
-    else:
-        raise LftomoError("could not place the walkers inside the bounds around the starting point; widen bounds")
-    return p0
+        p0[bad] = centre + scale * rng.standard_normal((int(bad.sum()), K)) @ chol.T
+    return None
+
+
+def _interior_coefficients(logpost: Any) -> np.ndarray | None:
+    """Coefficients of the uniform field at the middle of finite temperature bounds, if of finite log density
+    (None otherwise, or for infinite bounds)."""
+    lo, hi = (float(v) for v in logpost.T_bounds)
+    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        return None
+    inner = np.asarray(logpost.basis.fit(np.full(logpost.basis.n_voxels, 0.5 * (lo + hi))), dtype=float)
+    return inner if np.isfinite(logpost(inner)) else None
 
 
 def _sampling_target(logpost: Any, likelihood: str, auto: bool, c_start, chol, lap, rng: np.random.Generator):

@@ -556,3 +556,41 @@ def test_laplace_of_a_log_posterior_equals_that_of_its_problem(linear_case):
     b = laplace_approximation(build_log_posterior(linear_case["prob"], **linear_case["kw"]))
     np.testing.assert_allclose(b.c_map, a.c_map, rtol=1e-12)
     np.testing.assert_allclose(b.cov, a.cov, rtol=1e-10)
+
+
+class _BoxPosterior:
+    """Log density 0 inside 300 ≤ T ≤ 2000 K, -inf outside, for the identity basis of a 12-voxel field."""
+
+    T_bounds = (300.0, 2000.0)
+
+    class basis:
+        n_voxels = 12
+
+        @staticmethod
+        def fit(T):
+            return np.asarray(T, dtype=float).copy()
+
+    def __call__(self, C):
+        C = np.asarray(C, dtype=float)
+        ok = np.all((C >= 300.0) & (C <= 2000.0), axis=-1)
+        return np.where(ok, 0.0, -np.inf)
+
+
+def test_walkers_start_inside_the_bounds_when_the_map_lies_on_them():
+    """A MAP with 8 of 12 voxels at the lower bound: a ball about it is feasible with probability 2^-8 per
+    walker at any scale, and the walkers were refused ('widen bounds'); they now start next to it, inside."""
+    from lftomo.inverse.posterior import _walker_ball
+
+    lp = _BoxPosterior()
+    c_map = np.full(12, 300.0)
+    c_map[8:] = [900.0, 1200.0, 1500.0, 1800.0]
+    chol = np.diag(np.full(12, 20.0))
+    p0 = _walker_ball(lp, c_map, chol, 32, 1.0, np.random.default_rng(0))
+    assert p0.shape == (32, 12) and np.all(np.isfinite(lp(p0)))
+    # next to the MAP: within 10 % of the way to the bounds' middle (1150 K), and the walkers distinct
+    assert np.all(np.abs(p0 - c_map) <= 0.1 * np.abs(1150.0 - c_map) + 3 * 20.0)
+    assert np.linalg.matrix_rank(p0 - p0.mean(axis=0)) == 12
+    # an interior start keeps its ball about itself
+    inner = np.full(12, 1000.0)
+    q0 = _walker_ball(lp, inner, chol, 32, 1.0, np.random.default_rng(0))
+    np.testing.assert_allclose(q0.mean(axis=0), inner, atol=4 * 20.0)
