@@ -60,23 +60,6 @@ def rng_uniform(state):
 
 
 @njit(cache=True, inline="always")
-def rng_word(state, k):
-    """The ``k``-th (``k >= 1``) 64-bit output (uint64) of the stream at
-    ``state``, without advancing it: one mix, as cheap as one draw.
-
-    Counter-based keys: ``rng_word(key, 1), rng_word(key, 2), ...`` are the
-    outputs ``rng_uniform`` would give from ``key``, in full 64 bits.
-    """
-    return _mix64(state + np.uint64(k) * _GOLDEN)
-
-
-@njit(cache=True, inline="always")
-def rng_uniform_at(state, k):
-    """The ``k``-th (``k >= 1``) uniform number in [0, 1) of the stream at ``state``, without advancing it."""
-    return float(rng_word(state, k) >> _S11) * _INV53
-
-
-@njit(cache=True, inline="always")
 def rng_uniform_open(state):
     """Like :func:`rng_uniform` but u is on the open interval (0, 1]."""
     state = state + _GOLDEN

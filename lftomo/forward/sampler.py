@@ -61,7 +61,7 @@ from numba import njit, prange
 
 from ..errors import LftomoError
 from . import optics as _o
-from .rng import rng_init, rng_uniform_at, rng_word
+from .rng import rng_init, rng_uniform
 
 SAMPLERS = ("stratified", "independent")
 #: The sampler used when none is named (the lower per-pixel error at the same
@@ -267,6 +267,30 @@ def pixel_box(r0, c0, cr, cc, rad):
 
 
 @njit(cache=True, inline="always")
+def pixel_context(row, col, off_r, off_c, optics, sampler, mli):
+    """What every sample of pixel (row, col) shares, computed once per pixel.
+
+    ``off_r``, ``off_c`` (pixels) displace the sampled square as in
+    :func:`pixel_ray`.  The stratified sampler's restricted pixel region is
+    the box of the (displaced) square ∩ the microlens image disc of the
+    pixel's own lenslet (:func:`image_box`); a camera whose pixels see
+    several lenslets recomputes it for the lenslet each sample selects.
+
+    Returns
+    -------
+    tuple
+        ``(row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi)``: the
+        pixel, its lenslet and its box (pixel-corner coordinates; ``has_box``
+        False, and the box zero, for the independent sampler).
+    """
+    i, j = _o.own_lenslet(row, col, optics)
+    has_box, rlo, rhi, clo, chi = False, 0.0, 0.0, 0.0, 0.0
+    if sampler[S_KIND] != 0.0:
+        has_box, rlo, rhi, clo, chi = image_box(row + off_r, col + off_c, i, j, optics, mli)
+    return row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi
+
+
+@njit(cache=True, inline="always")
 def draws_all(row, col, optics, sampler, mli):
     """Whether pixel (row, col) draws all its samples.
 
@@ -276,21 +300,24 @@ def draws_all(row, col, optics, sampler, mli):
     pixel of the independent sampler or of a camera whose pixels see several
     lenslets, draws them all.
     """
-    if sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0:
-        return True
-    i, j = _o.own_lenslet(row, col, optics)
-    return image_box(float(row), float(col), i, j, optics, mli)[0]
+    return _context_draws_all(pixel_context(row, col, 0.0, 0.0, optics, sampler, mli), optics, sampler)
 
 
 @njit(cache=True, inline="always")
-def samples_drawn(row, col, n_rays, optics, sampler, mli):
-    """How many of pixel (row, col)'s ``n_rays`` samples :func:`pixel_ray`
-    draws: all, or ``min(K, n_rays)`` (the first of each randomization) where
-    :func:`draws_all` is False.  :func:`pixel_ray` returns ``ok`` False for
+def _context_draws_all(pctx, optics, sampler):
+    return sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0 or pctx[6]
+
+
+@njit(cache=True, inline="always")
+def samples_drawn(pctx, n_rays, optics, sampler):
+    """How many of the ``n_rays`` samples of the pixel with context ``pctx``
+    (:func:`pixel_context`) :func:`context_ray` draws: all, or
+    ``min(K, n_rays)`` (the first of each randomization) where
+    :func:`draws_all` is False.  :func:`context_ray` returns ``ok`` False for
     every sample past this count, so a kernel's loop over
     ``range(samples_drawn(...))`` gives the same result as one over
     ``range(n_rays)``, without the empty calls."""
-    if draws_all(row, col, optics, sampler, mli):
+    if _context_draws_all(pctx, optics, sampler):
         return n_rays
     return min(int(sampler[S_GROUPS]), n_rays)
 
@@ -321,22 +348,22 @@ def image_box(r0, c0, i, j, optics, mli):
 
 @njit(cache=True, inline="always")
 def _hash_uniform(key, m, salt):
-    """A uniform number in [0, 1) from (key, m, salt) (counter-based): output
-    ``m + 1`` of the stream at ``key ^ salt``."""
-    return rng_uniform_at(np.uint64(key) ^ np.uint64(salt), m + 1)
+    """A uniform number in [0, 1) from (key, m, salt) (counter-based)."""
+    st = rng_init(np.uint64(key) ^ np.uint64(salt), m)
+    st, u = rng_uniform(st)
+    return u
 
 
 @njit(cache=True)
-def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
-    """Sample ray ``m`` of the ``n_rays`` rays of pixel (row, col) into object space.
+def context_ray(pctx, m, n_rays, key, state, optics, sampler, mli):
+    """Sample ray ``m`` of the ``n_rays`` rays of the pixel with context
+    ``pctx`` (:func:`pixel_context`) into object space.
 
     Parameters
     ----------
-    row, col : int
-        The pixel; its lenslet is :func:`lftomo.forward.optics.own_lenslet`'s.
-    off_r, off_c : float
-        Displacement (pixels) of the sampled square from the pixel, seen
-        through the pixel's lenslet (0 for the pixel itself).
+    pctx : tuple
+        The pixel's context, :func:`pixel_context` (the pixel, the
+        displacement of its sampled square, its lenslet and image box).
     m, n_rays : int
         Sample index and number of samples of this pixel.
     key : uint64
@@ -355,41 +382,56 @@ def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, ml
         ``E[w L] = ∫∫ L cos θ dA dω`` over the pixel.
     """
     if sampler[S_KIND] == 0.0:
-        return _o.sample_pixel_ray_offset(row, col, off_r, off_c, state, optics)
-    return _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli)
+        return _o.sample_pixel_ray_offset(pctx[0], pctx[1], pctx[2], pctx[3], state, optics)
+    return _stratified_ray(pctx, m, n_rays, key, state, optics, sampler, mli)
 
 
 @njit(cache=True, inline="always")
-def pixel_ray_world(row, col, m, n_rays, key, state, optics, sampler, mli):
-    """:func:`pixel_ray` of the pixel itself, with the object-space ray in the world frame.
+def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
+    """Sample ray ``m`` of the ``n_rays`` rays of pixel (row, col) into object space:
+    :func:`context_ray` of :func:`pixel_context` (``off_r``, ``off_c``: displacement
+    (pixels) of the sampled square from the pixel, seen through the pixel's lenslet;
+    0 for the pixel itself).  Kernels that draw many rays per pixel compute the
+    context once and call :func:`context_ray`.
+
+    Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)`` as :func:`context_ray`.
+    """
+    return context_ray(pixel_context(row, col, off_r, off_c, optics, sampler, mli), m, n_rays, key, state,
+                       optics, sampler, mli)
+
+
+@njit(cache=True, inline="always")
+def pixel_ray_world(pctx, m, n_rays, key, state, optics, sampler, mli):
+    """:func:`context_ray` of the pixel itself, with the object-space ray in the world frame.
 
     The camera-frame ray (origin on the stop plane, dz > 0) is mapped by the
     camera's pose (:func:`lftomo.forward.optics.pose_ray_to_world`); with the
     identity pose it is returned untouched, bit for bit.  Every kernel that
-    sends rays into the scene (render, weights, ray segments) calls this;
+    sends rays into the scene (render, weights, ray segments) calls this
+    with the pixel's context (:func:`pixel_context`, no displacement);
     tabulations of the camera itself (étendue, stop positions) call
     :func:`pixel_ray` and stay in the camera frame.
 
-    Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)`` as :func:`pixel_ray`.
+    Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)`` as :func:`context_ray`.
     """
-    state, ok, ox, oy, oz, dx, dy, dz, w = pixel_ray(row, col, 0.0, 0.0, m, n_rays, key, state, optics, sampler, mli)
+    state, ok, ox, oy, oz, dx, dy, dz, w = context_ray(pctx, m, n_rays, key, state, optics, sampler, mli)
     ox, oy, oz, dx, dy, dz = _o.pose_ray_to_world(ox, oy, oz, dx, dy, dz, optics)
     return state, ok, ox, oy, oz, dx, dy, dz, w
 
 
 @njit(cache=True, inline="always")
-def _stratified_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, mli):
+def _stratified_ray(pctx, m, n_rays, key, state, optics, sampler, mli):
     sp = optics[_o.O_S_PITCH]
-    i, j = _o.own_lenslet(row, col, optics)
+    row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi = pctx
+    r0 = row + off_r
+    c0 = col + off_c
     psel = 1.0
     if int(optics[_o.O_RINGS]) > 0:
         inside, i, j, psel = _o.select_lenslet(i, j, _hash_uniform(key, m, 0x5E1EC7), optics)
         if not inside:
             return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
-    # restricted pixel region: box of pixel ∩ microlens image disc
-    r0 = row + off_r
-    c0 = col + off_c
-    has_box, rlo, rhi, clo, chi = image_box(r0, c0, i, j, optics, mli)
+        # restricted pixel region: box of pixel ∩ the selected lenslet's microlens image disc
+        has_box, rlo, rhi, clo, chi = image_box(r0, c0, i, j, optics, mli)
     alpha = sampler[S_ALPHA] if has_box else 1.0
     a_box = (rhi - rlo) * (chi - clo) if has_box else 0.0
     k_groups = int(sampler[S_GROUPS])
@@ -456,17 +498,14 @@ def group_point(key, g, idx):
     """Point ``idx`` of randomization ``g`` of the pixel with random key
     ``key``: its four Owen-scrambled Sobol' coordinates in [0, 1).
 
-    Each (group, dimension) has its own well-mixed 32-bit scrambling seed,
-    the halves of outputs ``2g + 1`` and ``2g + 2`` of the key's stream
-    (:func:`lftomo.forward.rng.rng_word`): the Laine–Karras hash only
-    scrambles, so related seeds would give correlated dimensions.
+    Each (group, dimension) has its own well-mixed scrambling seed,
+    ``rng_init(key, 4 g + d + 1)``: the Laine–Karras hash only scrambles,
+    so related seeds would give correlated dimensions.
 
     Returns ``(u1, u2, a1, a2)``: the pixel-area pair and the lenslet pair.
     """
-    h01 = rng_word(key, 2 * g + 1)
-    h23 = rng_word(key, 2 * g + 2)
-    return (scrambled_sobol(idx, 0, h01), scrambled_sobol(idx, 1, h01 >> np.uint64(32)),
-            scrambled_sobol(idx, 2, h23), scrambled_sobol(idx, 3, h23 >> np.uint64(32)))
+    return (scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1)), scrambled_sobol(idx, 1, rng_init(key, 4 * g + 2)),
+            scrambled_sobol(idx, 2, rng_init(key, 4 * g + 3)), scrambled_sobol(idx, 3, rng_init(key, 4 * g + 4)))
 
 
 @njit(cache=True, inline="always")

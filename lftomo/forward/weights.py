@@ -259,8 +259,9 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0, 
         cnt = 0
         bg = 0.0
         overflow = False
-        for ray in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
                 continue
@@ -345,8 +346,9 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
         cnt = 0
         bg = 0.0
         overflow = False
-        for ray in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok or overflow:
                 continue
@@ -464,8 +466,9 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
         state = key
         o = seg_off[k]
         nr = 0
-        for ray in range(_smp.samples_drawn(r, c, n_rays, optics, sampler, mli)):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(r, c, ray, n_rays, key, state,
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
             if not ok:
                 continue
