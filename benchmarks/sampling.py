@@ -9,7 +9,8 @@ largest) it prints
   the standard deviation over seeds divided by the mean (``spread``);
 * the median of the renderer's own ``std_error / raw`` (``claimed``) and the
   median ratio claimed / spread (honest error bars: near 1);
-* the render time (second and later renders, JIT excluded);
+* the median render time (JIT excluded; the samplers' renders interleaved seed
+  by seed, so that the machine's drift falls on each alike);
 * the efficiency ratio ``(var_ind × t_ind) / (var_str × t_str)`` with the
   median per-pixel variances.
 
@@ -79,20 +80,21 @@ RENDERS = (("stratified", "stratified", "uniform"), ("adaptive", "stratified", "
 
 
 def run_case(name, cam, rays, seeds):
+    """Render ``seeds`` seeds with each of :data:`RENDERS`, interleaved (seed by seed, one render of each in
+    turn), so that a drift of the machine's speed falls on every sampler alike."""
     scene = make_case(name)
-    out = {}
     for label, smp, alloc in RENDERS:
         lt.render(scene, cam, rays_per_pixel=16, seed=0, sampler=smp, allocation=alloc, progress=False)  # JIT
-        imgs, errs, times = [], [], []
-        for s in range(seeds):
+    imgs, errs, times = ({label: [] for label, _, _ in RENDERS} for _ in range(3))
+    for s in range(seeds):
+        for label, smp, alloc in RENDERS:
             t0 = time.perf_counter()
             lf = lt.render(scene, cam, rays_per_pixel=rays, seed=100 + s, sampler=smp, allocation=alloc,
                            progress=False)
-            times.append(time.perf_counter() - t0)
-            imgs.append(np.asarray(lf.raw))
-            errs.append(np.asarray(lf.std_error))
-        out[label] = measure(imgs, errs, times)
-    return out
+            times[label].append(time.perf_counter() - t0)
+            imgs[label].append(np.asarray(lf.raw))
+            errs[label].append(np.asarray(lf.std_error))
+    return {label: measure(imgs[label], errs[label], times[label]) for label, _, _ in RENDERS}
 
 
 def run_weights(cam, rays, seeds):
@@ -108,23 +110,22 @@ def run_weights(cam, rays, seeds):
     # the adaptive rows' guide: the measurement a user would have (16 rays per pixel, 1 % noise)
     data = lt.render(lt.Scene(surfaces=[], medium=med), cam, rays_per_pixel=16, seed=300, progress=False)
     guide = lt.add_noise(data, relative_std=0.01, seed=301)
-    out = {name: {} for name in fields}
-    for label, smp, alloc in RENDERS:
-        kw = {"allocation": alloc, "guide": guide} if alloc == "adaptive" else {}
-        sig = {name: [] for name in fields}
-        claims = {name: [] for name in fields}
-        times = []
-        for s in range(seeds):
+    sig = {name: {label: [] for label, _, _ in RENDERS} for name in fields}
+    claims = {name: {label: [] for label, _, _ in RENDERS} for name in fields}
+    times = {label: [] for label, _, _ in RENDERS}
+    # interleaved, seed by seed (see run_case); the first build of each compiles and is not timed
+    for s in range(seeds):
+        for label, smp, alloc in RENDERS:
+            kw = {"allocation": alloc, "guide": guide} if alloc == "adaptive" else {}
             t0 = time.perf_counter()
             W = lt.weights(cam, grid, sigma_a=sa, rays_per_pixel=rays, seed=200 + s, sampler=smp, progress=False,
                            **kw)
-            times.append(time.perf_counter() - t0)
+            times[label].append(time.perf_counter() - t0)
             for name, x in fields.items():
-                sig[name].append(W @ x)
-                claims[name].append(W.model_std(x))
-        for name in fields:
-            out[name][label] = measure(sig[name], claims[name], times[1:] or times)
-    return list(out.items())
+                sig[name][label].append(W @ x)
+                claims[name][label].append(W.model_std(x))
+    return [(name, {label: measure(sig[name][label], claims[name][label], times[label][1:] or times[label])
+                    for label, _, _ in RENDERS}) for name in fields]
 
 
 def main():

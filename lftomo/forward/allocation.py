@@ -52,11 +52,10 @@ DEFAULT_ALLOCATION = "uniform"
 SIGNAL_FLOOR = 1e-3
 #: Cost ``β_p`` of a ray that passes the optics (traced through the main lens),
 #: against one that is drawn and culled, in ``c = 1 + β_p p + β_l l``.
-PASS_COST = 0.75
+PASS_COST = 0.35
 #: Cost ``β_l`` of a ray that brings light (through a medium) on top of that.
-#: Both fitted to render times of the 32³ flame and of a white plane
-#: (docs/performance.md).
-LIGHT_COST = 1.0
+#: Both fitted to render times of the 32³ flame (docs/performance.md).
+LIGHT_COST = 1.9
 #: Largest ray count of a pixel, in units of ``rays_per_pixel``.
 MAX_SHARE = 32
 #: Rays per pixel of the pilot.
@@ -144,25 +143,40 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
     need = np.where(in_image, need, 0.0)
     if not np.any(need > 0) or not np.all(np.isfinite(need)):
         return uniform
-    budget = float(np.sum(cost[in_image])) * (rays_per_pixel - spent)
+    cost_in = cost[in_image]
+    budget = float(np.sum(cost_in)) * (rays_per_pixel - spent)
     share = need / np.sqrt(cost)
     top = MAX_SHARE * rays_per_pixel // k_groups
 
-    def units(s):
-        return np.clip(np.rint(share * s), 1, top)
+    def units(sh, s, out=None):
+        out = np.multiply(sh, s, out=out)
+        return np.clip(np.rint(out, out=out), 1, top, out=out)
+
+    # the budget the units at scale s spend, over the pixels in their images: those the pilot saw no light near
+    # keep one unit at every scale (a constant), the lit ones are gathered once (a bisection step is then a dot)
+    share_in = share[in_image]
+    lit_in = share_in > 0
+    share_lit, cost_lit = share_in[lit_in], cost_in[lit_in]
+    dark = k_groups * float(np.sum(cost_in[~lit_in]))
+    scratch = np.empty_like(share_lit)
+
+    def cost_of(s):
+        return dark + k_groups * float(np.dot(units(share_lit, s, scratch), cost_lit))
 
     lo, hi = 0.0, 1.0
-    while np.sum(k_groups * units(hi)[in_image] * cost[in_image]) <= budget and hi < 1e300:
+    while cost_of(hi) <= budget and hi < 1e300:
         lo, hi = hi, 2.0 * hi
     for _ in range(60):
+        if hi - lo <= 1e-12 * hi:
+            break
         mid = 0.5 * (lo + hi)
-        if np.sum(k_groups * units(mid)[in_image] * cost[in_image]) <= budget:
+        if cost_of(mid) <= budget:
             lo = mid
         else:
             hi = mid
-    n_units = units(lo)
+    n_units = units(share, lo)
     # the remainder of the budget, one unit (K rays) each to the pixels the rounding cut most (largest remainder)
-    left = budget - float(np.sum(k_groups * n_units[in_image] * cost[in_image]))
+    left = budget - cost_of(lo)
     cut = np.flatnonzero((in_image & (n_units < top)).ravel())
     order = cut[np.argsort(-(share * lo - n_units).ravel()[cut], kind="stable")]
     take = order[np.cumsum(k_groups * cost.ravel()[order]) <= left]
