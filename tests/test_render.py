@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 import lftomo as lt
-from lftomo.forward.optics import trace_to_sensor_batch
+from lftomo.forward.optics import O_XP_Z, main_lens_backward, trace_to_sensor_batch
 from conftest import white_plane
 
 
@@ -192,6 +192,51 @@ def test_spectral_channels_follow_planck(small_camera):
     ratio = lf.raw[2].sum() / lf.raw[1].sum()
     assert ratio == pytest.approx(lt.planck(1500.0, 900e-9) / lt.planck(1500.0, 650e-9), rel=1e-12)
     assert lf.views.shape == (3,) + small_camera.views_shape
+
+
+@numba.njit(cache=True)
+def _pupil_crossings(optics, z_from, reach, r_out, n, seed):
+    """Random lines from the square |x|, |y| <= reach on the plane z_from to the disc of radius r_out on
+    the exit-pupil plane, traced backwards through the main lens without the cull: each line's crossing
+    radius at the exit pupil, and whether it passed the stop."""
+    np.random.seed(seed)
+    zx = optics[O_XP_Z]
+    rad = np.empty(n)
+    ok = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        px = reach * (2.0 * np.random.random() - 1.0)
+        py = reach * (2.0 * np.random.random() - 1.0)
+        r = r_out * math.sqrt(np.random.random())
+        phi = 2.0 * math.pi * np.random.random()
+        dx, dy, dz = r * math.cos(phi) - px, r * math.sin(phi) - py, zx - z_from
+        if dz < 0.0:
+            dx, dy, dz = -dx, -dy, -dz
+        inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+        ok[k] = main_lens_backward(px, py, z_from, dx * inv, dy * inv, dz * inv, optics)[0]
+        rad[k] = r
+    return rad, ok
+
+
+@pytest.mark.parametrize("main_lens", [None, {"stop_diameter": 0.05}, {"stop_to_vertex": 0.04, "r1": 0.12, "r2": -0.3, "thickness": 0.035},
+                                       {"ideal": True}])
+def test_exit_pupil_cull_radius_holds_every_ray_that_passes(main_lens):
+    """Independent check of each camera's traced cull radius: random lines from anywhere over the
+    lenslet array to anywhere within 1.3 exit-pupil radii, through the main lens with the cull off.
+    None that passes the stop may cross the exit-pupil plane outside the cull radius, and the radius
+    is tight (within four search steps of the largest crossing that passed)."""
+    from lftomo.forward import optics as O
+    from lftomo.forward.camera import EXIT_PUPIL_CULL_STEP, _exit_pupil
+
+    cam = lt.Camera.seed(1.0, main_lens=main_lens)
+    r_xp = 0.5 * _exit_pupil(cam.main_lens)[1]
+    r_cull = math.sqrt(cam.packed[O.O_XP_R2])
+    bare = cam.packed.copy()
+    bare[O.O_XP_R2] = 0.0
+    reach = 0.5 * max(cam.mla.count) * cam.mla.pitch * math.sqrt(2.0)
+    rad, ok = _pupil_crossings(bare, cam.z_mla, reach, 1.3 * r_xp, 400_000, 7)
+    assert ok.sum() > 10_000
+    assert rad[ok].max() <= r_cull
+    assert rad[ok].max() >= r_cull - 4 * EXIT_PUPIL_CULL_STEP * r_xp
 
 
 def test_exit_pupil_cull_changes_no_pixel(small_camera):

@@ -47,9 +47,14 @@ from .rng import rng_init
 
 
 EXIT_PUPIL_CULL_MARGIN = 1.25
-"""Backward rays crossing the paraxial exit-pupil plane beyond this multiple of
-the pupil radius are dropped before the main-lens trace (they cannot reach the
-stop); ``tests/test_render.py`` checks that this changes no pixel."""
+"""Largest early-cull radius, in units of the paraxial exit pupil's: backward
+rays crossing the exit-pupil plane beyond the cull radius are dropped before
+the main-lens trace (they cannot reach the stop).  Each camera traces its own
+radius below this (:func:`_exit_pupil_cull_radius`); ``tests/test_render.py``
+checks that the cull changes no pixel."""
+#: Radial step of that search, in units of the pupil radius; the cull radius is
+#: the largest radius at which a traced ray passed plus three steps.
+EXIT_PUPIL_CULL_STEP = 0.01
 
 
 def thick_lens_focal_length(r1: float, r2: float, thickness: float, index: float) -> float:
@@ -723,7 +728,9 @@ class Camera:
         o[_o.O_P_OWN] = 1.0
         z_xp, d_xp = _exit_pupil(ml)
         o[_o.O_XP_Z] = z_xp
-        o[_o.O_XP_R2] = (EXIT_PUPIL_CULL_MARGIN * 0.5 * d_xp) ** 2
+        o[_o.O_XP_R2] = 0.0
+        reach = 0.5 * max(mla.count) * mla.pitch * math.sqrt(2.0) + math.hypot(*mla.offset) + mla.pitch
+        o[_o.O_XP_R2] = _exit_pupil_cull_radius(o, self.z_mla, reach, 0.5 * d_xp) ** 2
         if self.pose is not None:  # the identity pose is None: its rays are not touched
             o[_o.O_POSE] = 1.0
             o[_o.O_R:_o.O_R + 9] = self.pose.rotation.ravel()
@@ -1257,6 +1264,52 @@ def _exit_pupil(ml: MainLens) -> tuple[float, float]:
     v = 1.0 / (1.0 / f - 1.0 / u)  # negative: virtual exit pupil in front of H'
     m = -v / u
     return card["z_H2"] - v, abs(m) * ml.stop_diameter
+
+
+@njit(cache=True)
+def _exit_pupil_cull_radius(optics, z_from, reach, r_xp, n_grid=9, n_angles=96):
+    """Radius (m) of the early cull at the paraxial exit-pupil plane ``z = O_XP_Z``.
+
+    Lines from a grid of ``n_grid`` × ``n_grid`` points of the square
+    ``|x|, |y| ≤ reach`` (m) on the plane ``z_from`` (the lenslets' front
+    vertices; ``reach`` covers the whole array) to points of circles about the
+    axis on the exit-pupil plane, from :data:`EXIT_PUPIL_CULL_MARGIN` ``r_xp``
+    inwards in steps of :data:`EXIT_PUPIL_CULL_STEP` ``r_xp``, are traced
+    backwards through the main lens (``optics``, its ``O_XP_R2`` zero): every
+    ray leaving a lenslet is such a line.  Returns the largest radius at which
+    one passed the stop, plus three steps; ``EXIT_PUPIL_CULL_MARGIN r_xp``
+    where none passed within the search, and 0 (no cull) where one passed at
+    its outermost circle.
+    """
+    zx = optics[_o.O_XP_Z]
+    step = EXIT_PUPIL_CULL_STEP * r_xp
+    r_max = EXIT_PUPIL_CULL_MARGIN * r_xp
+    n_radii = int(round((EXIT_PUPIL_CULL_MARGIN - 0.8) / EXIT_PUPIL_CULL_STEP)) + 1
+    best = n_radii  # index of the largest circle (radius r_max − k step) a ray passed through so far
+    for a in range(n_grid):
+        for b in range(n_grid):
+            px = reach * (2.0 * a / (n_grid - 1) - 1.0)
+            py = reach * (2.0 * b / (n_grid - 1) - 1.0)
+            for k in range(best):  # outermost circle first, down to the best so far
+                hit = False
+                for m in range(n_angles):
+                    phi = 2.0 * math.pi * m / n_angles
+                    dx = (r_max - k * step) * math.cos(phi) - px
+                    dy = (r_max - k * step) * math.sin(phi) - py
+                    dz = zx - z_from
+                    if dz < 0.0:
+                        dx, dy, dz = -dx, -dy, -dz
+                    inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+                    ok, x, y, ux, uy, uz = _o.main_lens_backward(px, py, z_from, dx * inv, dy * inv, dz * inv, optics)
+                    if ok:
+                        hit = True
+                        break
+                if hit:
+                    best = k
+                    break
+    if best == 0:
+        return 0.0
+    return min(r_max, r_max - best * step + 3.0 * step)
 
 
 def _pupil_fan(stop_radius: float, n_rings: int = 24, n_per_ring: int = 48) -> np.ndarray:
