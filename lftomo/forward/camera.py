@@ -902,8 +902,14 @@ class Camera:
         """Packed sampler and microlens-image table for the numba kernels."""
         if sampler == "independent":
             return _sampler.pack_sampler(sampler, n_rays), _NO_TABLE
-        packed = _sampler.pack_sampler(sampler, n_rays, *self.lenslet_sampling_disc)
+        packed = _sampler.pack_sampler(sampler, n_rays, *self.lenslet_sampling_disc, exit_cull=self.exit_precull)
         return packed, self.microlens_image_table
+
+    @cached_property
+    def exit_precull(self) -> np.ndarray:
+        """The stratified sampler's exit-pupil pre-cull
+        (:func:`lftomo.forward.sampler.exit_precull`)."""
+        return _sampler.exit_precull(self.packed)
 
     # ---- Monte Carlo helpers ---------------------------------------------
     def pixel_etendue(self, rows=None, cols=None, *, n_rays: int = 4096, seed: int = 0,

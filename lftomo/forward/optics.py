@@ -545,17 +545,27 @@ def trace_back_surface_to_stop(hx, hy, hz, nx, ny, nz, dx, dy, dz, i, j, optics)
 
     Returns ``(ok, x, y, dx, dy, dz)`` as :func:`trace_lenslet_to_stop`.
     """
-    ok, dx, dy, dz = _refract(dx, dy, dz, nx, ny, nz, 1.0, optics[O_M_N])
-    if not ok:
-        return False, 0.0, 0.0, dx, dy, dz
-    cx, cy = lenslet_center(i, j, optics)
-    ok, px, py, pz, dx, dy, dz = surface_refract(
-        hx, hy, hz, dx, dy, dz, cx, cy, optics[O_M1_ZV], optics[O_M1_C], optics[O_M_R] * optics[O_M_R],
-        optics[O_M_N], 1.0
-    )
+    ok, px, py, pz, dx, dy, dz = back_surface_to_front(hx, hy, hz, nx, ny, nz, dx, dy, dz, i, j, optics)
     if not ok:
         return False, 0.0, 0.0, dx, dy, dz
     return _lenslet_front_to_stop(px, py, pz, dx, dy, dz, optics)
+
+
+@njit(cache=True, inline="always")
+def back_surface_to_front(hx, hy, hz, nx, ny, nz, dx, dy, dz, i, j, optics):
+    """Through lenslet (i, j) from the point ``h`` of its back surface (unit
+    normal ``n``, reached along the unit direction ``d``, dz > 0), as
+    :func:`trace_back_surface_to_stop`, to where the ray leaves the front
+    surface.  Returns ``(ok, px, py, pz, dx, dy, dz)``; ``ok`` False when the
+    ray is reflected or misses the front surface's clear aperture."""
+    ok, dx, dy, dz = _refract(dx, dy, dz, nx, ny, nz, 1.0, optics[O_M_N])
+    if not ok:
+        return False, 0.0, 0.0, 0.0, dx, dy, dz
+    cx, cy = lenslet_center(i, j, optics)
+    return surface_refract(
+        hx, hy, hz, dx, dy, dz, cx, cy, optics[O_M1_ZV], optics[O_M1_C], optics[O_M_R] * optics[O_M_R],
+        optics[O_M_N], 1.0
+    )
 
 
 @njit(cache=True, inline="always")

@@ -83,7 +83,14 @@ S_NTAB = 6  # number of table entries
 S_TAB = 7  # first entry: radius (m) at |s − c| = 0, S_DSTEP, 2 S_DSTEP, ...
 #: Entries of the lenslet-disc radius table.
 N_RHO_TABLE = 17
-S_SIZE = S_TAB + N_RHO_TABLE
+# the exit-pupil pre-cull (:func:`exit_precull`): where the ray from sensor point s through back-surface point h
+# of the lenslet centred at c crosses the exit-pupil plane, e ≈ c + P(a, b) a + Q(a, b) b with a = s − c, b = h − c
+S_XC = S_TAB + N_RHO_TABLE  # the 8 coefficients: P = k0 + k2 a·a + k3 b·b + k4 a·b, Q = k1 + k5 a·a + k6 b·b + k7 a·b
+S_XC_LIMIT = S_XC + 8  # |e| beyond which the ray is culled (m; 0: no pre-cull)
+S_XC_REACH2 = S_XC + 9  # largest |s − c|² (m²) the pre-cull applies to
+#: Number of entries of the pre-cull (:func:`exit_precull`).
+N_XC = 10
+S_SIZE = S_XC + N_XC
 
 # ---- microlens-image table, (n_lenslets, 3): centre row, centre col, radius
 # in pixel-corner coordinates (pixel (r, c) covers [r, r+1) x [c, c+1)).
@@ -475,7 +482,7 @@ def _stratified_ray(pctx, m, n_rays, key, state, optics, sampler, mli):
     lx = hx - cx
     ly = hy - cy
     rho2 = lx * lx + ly * ly
-    if rho2 > rc * rc:
+    if rho2 > rc * rc or _precull(sx - cx, sy - cy, lx, ly, cx, cy, sampler):
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     hz, nx, ny, nz = _o.lenslet_back_surface(lx, ly, optics)
     # mixture density per unit pixel-coordinate area and m² of projected
@@ -491,6 +498,104 @@ def _stratified_ray(pctx, m, n_rays, key, state, optics, sampler, mli):
     if not ok:
         return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     return state, True, x, y, 0.0, dx, dy, dz, w
+
+
+@njit(cache=True, inline="always")
+def _precull(ax, ay, bx, by, cx, cy, sampler):
+    """Whether the ray from the sensor point ``c + a`` through the back-surface
+    point ``c + b`` of the lenslet centred at ``c`` surely crosses the
+    exit-pupil plane outside the cull radius (:func:`exit_precull`)."""
+    limit = sampler[S_XC_LIMIT]
+    aa = ax * ax + ay * ay
+    if limit <= 0.0 or aa > sampler[S_XC_REACH2]:
+        return False
+    bb = bx * bx + by * by
+    ab = ax * bx + ay * by
+    p = sampler[S_XC] + sampler[S_XC + 2] * aa + sampler[S_XC + 3] * bb + sampler[S_XC + 4] * ab
+    q = sampler[S_XC + 1] + sampler[S_XC + 5] * aa + sampler[S_XC + 6] * bb + sampler[S_XC + 7] * ab
+    ex = cx + p * ax + q * bx
+    ey = cy + p * ay + q * by
+    return ex * ex + ey * ey > limit * limit
+
+
+@njit(cache=True)
+def _local_exit_points(optics, reach, n_a, n_br, n_bphi):
+    """Exit-pupil crossings of rays through the middle lenslet, relative to its
+    centre c: from sensor points ``c + (a, 0)``, ``a`` = 0 … ``reach`` (m) in
+    ``n_a`` steps, through back-surface points ``c + b`` on a polar grid of the
+    clear aperture (``n_br`` radii × ``n_bphi`` angles).  Returns ``(a, b, e)``:
+    (n, 2) arrays of the rays that leave the lenslet."""
+    i = int(optics[_o.O_M_NY]) // 2
+    j = int(optics[_o.O_M_NX]) // 2
+    cx, cy = _o.lenslet_center(i, j, optics)
+    rc = optics[_o.O_M_R]
+    n = n_a * (1 + n_br * n_bphi)
+    a_out = np.empty((n, 2))
+    b_out = np.empty((n, 2))
+    e_out = np.empty((n, 2))
+    k = 0
+    for ia in range(n_a):
+        a = reach * ia / (n_a - 1)
+        for ib in range(1 + n_br * n_bphi):
+            rb = 0.0 if ib == 0 else rc * ((ib - 1) // n_bphi + 1) / n_br
+            phi = 2.0 * math.pi * ((ib - 1) % n_bphi) / n_bphi if ib > 0 else 0.0
+            bx = rb * math.cos(phi)
+            by = rb * math.sin(phi)
+            hz, nx, ny, nz = _o.lenslet_back_surface(bx, by, optics)
+            dx, dy, dz, w = _o.sample_direction_weight(cx + a, cy, optics[_o.O_S_Z], cx + bx, cy + by, hz,
+                                                      nx, ny, nz, 1.0, optics)
+            ok, px, py, pz, dx, dy, dz = _o.back_surface_to_front(cx + bx, cy + by, hz, nx, ny, nz, dx, dy, dz,
+                                                                  i, j, optics)
+            if not ok or dz <= 0.0:
+                continue
+            t = (optics[_o.O_XP_Z] - pz) / dz
+            a_out[k, 0], a_out[k, 1] = a, 0.0
+            b_out[k, 0], b_out[k, 1] = bx, by
+            e_out[k, 0], e_out[k, 1] = px + t * dx - cx, py + t * dy - cy
+            k += 1
+    return a_out[:k], b_out[:k], e_out[:k]
+
+
+def exit_precull(optics: np.ndarray) -> np.ndarray:
+    """The stratified sampler's exit-pupil pre-cull of a camera.
+
+    A lenslet's two surfaces map the sensor point ``s`` and the back-surface
+    point ``h`` of a ray to the point ``e`` where it crosses the exit-pupil
+    plane.  Relative to the lenslet's centre ``c`` (``a = s − c``,
+    ``b = h − c``) the map is the same for every lenslet and turns with them
+    (each is symmetric about its axis), so it is a sum of the vectors ``a`` and
+    ``b`` with factors that depend on ``a·a``, ``b·b`` and ``a·b`` only; to
+    third order, ``e − c ≈ P a + Q b`` with ``P = k0 + k2 a·a + k3 b·b + k4 a·b``
+    and ``Q = k1 + k5 a·a + k6 b·b + k7 a·b``, fitted by least squares to rays
+    traced through one lenslet from sensor points up to 0.75 lenslet pitches
+    from its axis.  ``δ``, the largest error of the fit over those rays,
+    bounds it; a sample whose predicted crossing lies beyond the exit-pupil
+    cull radius (``O_XP_R2``) plus ``2 δ`` and 1 % of that radius is dropped
+    before the lenslet is traced: the trace would have culled it there.
+
+    Returns
+    -------
+    ndarray, (N_XC,)
+        ``k0 … k7``, the radius beyond which a predicted crossing is culled
+        (m; 0, no pre-cull, where the camera has no cull) and the squared
+        largest ``|s − c|`` (m²) it applies to.
+    """
+    out = np.zeros(N_XC)
+    r_cull = math.sqrt(max(float(optics[_o.O_XP_R2]), 0.0))
+    reach = 0.75 * float(optics[_o.O_M_PITCH])
+    a, b, e = _local_exit_points(optics, reach, 33, 12, 36)
+    if r_cull <= 0.0 or a.shape[0] < 64:
+        return out
+    aa, bb, ab = ((u * v).sum(axis=1, keepdims=True) for u, v in ((a, a), (b, b), (a, b)))
+    terms = [a, b, aa * a, bb * a, ab * a, aa * b, bb * b, ab * b]
+    coef, *_ = np.linalg.lstsq(np.column_stack([t.ravel() for t in terms]), e.ravel(), rcond=None)
+    pred = sum(k * t for k, t in zip(coef, terms))
+    delta = float(np.max(np.hypot(*(e - pred).T)))
+    out[:8] = coef  # the terms' order is that of k0 … k7
+    out[8] = r_cull + 2.0 * delta + 0.01 * r_cull
+    out[9] = reach * reach
+    out.setflags(write=False)
+    return out
 
 
 @njit(cache=True, inline="always")
@@ -536,7 +641,7 @@ def group_count(n_rays: int) -> int:
 
 
 def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0,
-                 d_step: float = 0.0, radii=None) -> np.ndarray:
+                 d_step: float = 0.0, radii=None, exit_cull=None) -> np.ndarray:
     """Packed sampler (``S_*`` layout) for ``n_rays`` samples per pixel.
 
     ``kappa``, ``rho`` (m), ``d_step`` (m) and ``radii`` (m, up to
@@ -544,7 +649,7 @@ def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0,
     :func:`lenslet_disc`: its centre ``c + kappa (s − c)``, its radius
     ``radii`` tabulated at sensor offsets ``|s − c| = 0, d_step, …`` and
     ``rho`` beyond the table.  Without a table every sensor point uses
-    ``rho``.  The stratified sampler needs ``rho > 0`` (its restricted
+    ``rho``.  ``exit_cull`` is the camera's :func:`exit_precull` (None: no pre-cull).  The stratified sampler needs ``rho > 0`` (its restricted
     component would have zero measure otherwise).
     """
     if kind not in SAMPLERS:
@@ -566,6 +671,8 @@ def pack_sampler(kind: str, n_rays: int, kappa: float = 0.0, rho: float = 0.0,
         s[S_DSTEP] = d_step
         s[S_NTAB] = radii.size
         s[S_TAB:S_TAB + radii.size] = radii
+    if kind == "stratified" and exit_cull is not None:
+        s[S_XC:S_XC + N_XC] = exit_cull
     s.setflags(write=False)
     return s
 
