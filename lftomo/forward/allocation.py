@@ -52,10 +52,10 @@ DEFAULT_ALLOCATION = "uniform"
 SIGNAL_FLOOR = 1e-3
 #: Cost ``β_p`` of a ray that passes the optics (traced through the main lens),
 #: against one that is drawn and culled, in ``c = 1 + β_p p + β_l l``.
-PASS_COST = 0.35
+PASS_COST = 1.2
 #: Cost ``β_l`` of a ray that brings light (through a medium) on top of that.
 #: Both fitted to render times of the 32³ flame (docs/performance.md).
-LIGHT_COST = 1.9
+LIGHT_COST = 2.6
 #: Largest ray count of a pixel, in units of ``rays_per_pixel``.
 MAX_SHARE = 32
 #: Rays per pixel of the pilot.
