@@ -215,7 +215,7 @@ def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_va
 
 
 @njit(cache=True, parallel=True)
-def _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
+def _rows_absorbing(pix, n_blk, optics, sampler, mli, surf, tex, counts, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz,
                     sigma_a, buf_off, out_idx, out_val, out_cnt, out_bg, out_var, pos, gacc, out_err):
     """Exact weight rows of the pixels ``pix`` (flat raw indices), no scattering.
 
@@ -233,73 +233,76 @@ def _rows_absorbing(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0, 
     int32 scratch, all -1 on entry and exit.  ``out_err`` (like ``out_val``): the
     standard error of each entry, from its sums per group ``ray mod K`` kept in
     ``gacc`` (n_threads, >= capacity, K) float64 scratch, all 0 on entry and exit.
+    ``n_blk``: interleaved blocks of rows, one per thread (:func:`_row_blocks`).
     """
     n = pix.shape[0]
     ncols = int(optics[_o.O_NCOLS])
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     k_groups = int(sampler[_smp.S_GROUPS])
-    for k in prange(n):
-        n_rays = counts[pix[k]]
-        inv_n = 1.0 / n_rays
-        share = _group_shares(n_rays, k_groups)
+    for b in prange(n_blk):
         p = pos[numba.get_thread_id()]
         ga = gacc[numba.get_thread_id()]
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
         Ls = np.zeros(1)
         gs = np.zeros(k_groups)
-        sq = 0.0
-        r = pix[k] // ncols
-        c = pix[k] - r * ncols
-        key = rng_init(seed, pix[k])
-        state = key
-        o = buf_off[k]
-        cap = buf_off[k + 1] - o
-        cnt = 0
-        bg = 0.0
-        overflow = False
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
-        for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
-            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
-                                                                  optics, sampler, mli)
-            if not ok:
-                continue
-            t_s = math.inf
-            if n_surf > 0:
-                t_s = surfaces_hit(ox, oy, oz, dx, dy, dz, math.inf, surf, tex, Ls)
-            ns = traverse(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, 0.0, t_s, vbuf, lbuf)
-            wn = w * inv_n
-            grp = ray % k_groups
-            T = 1.0
-            for s in range(ns):
-                j = vbuf[s]
-                em = -math.expm1(-sigma_a[j] * lbuf[s])
-                val = wn * T * em
-                T -= T * em
-                if val != 0.0:
-                    q = p[j]
-                    if q < 0:
-                        if cnt >= cap:
-                            overflow = True
-                            break
-                        q = cnt
-                        p[j] = q
-                        out_idx[o + q] = j
-                        out_val[o + q] = val
-                        cnt += 1
-                    else:
-                        out_val[o + q] += val
-                    ga[q, grp] += val
-            if overflow:
-                break
-            if t_s < math.inf:
-                bg += wn * T * Ls[0]
-            score = w * (1.0 - T)  # Σ_j of this ray's W_ij terms, times N
-            gs[ray % k_groups] += score
-            sq += score * score
-        _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p,
-                   ga, share, out_err)
+        for k in range(b, n, n_blk):
+            n_rays = counts[pix[k]]
+            inv_n = 1.0 / n_rays
+            share = _group_shares(n_rays, k_groups)
+            gs[:] = 0.0
+            sq = 0.0
+            r = pix[k] // ncols
+            c = pix[k] - r * ncols
+            key = rng_init(seed, pix[k])
+            state = key
+            o = buf_off[k]
+            cap = buf_off[k + 1] - o
+            cnt = 0
+            bg = 0.0
+            overflow = False
+            pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+            for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
+                state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
+                                                                      optics, sampler, mli)
+                if not ok:
+                    continue
+                t_s = math.inf
+                if n_surf > 0:
+                    t_s = surfaces_hit(ox, oy, oz, dx, dy, dz, math.inf, surf, tex, Ls)
+                ns = traverse(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, 0.0, t_s, vbuf, lbuf)
+                wn = w * inv_n
+                grp = ray % k_groups
+                T = 1.0
+                for s in range(ns):
+                    j = vbuf[s]
+                    em = -math.expm1(-sigma_a[j] * lbuf[s])
+                    val = wn * T * em
+                    T -= T * em
+                    if val != 0.0:
+                        q = p[j]
+                        if q < 0:
+                            if cnt >= cap:
+                                overflow = True
+                                break
+                            q = cnt
+                            p[j] = q
+                            out_idx[o + q] = j
+                            out_val[o + q] = val
+                            cnt += 1
+                        else:
+                            out_val[o + q] += val
+                        ga[q, grp] += val
+                if overflow:
+                    break
+                if t_s < math.inf:
+                    bg += wn * T * Ls[0]
+                score = w * (1.0 - T)  # Σ_j of this ray's W_ij terms, times N
+                gs[ray % k_groups] += score
+                sq += score * score
+            _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p,
+                       ga, share, out_err)
 
 
 @njit(cache=True, parallel=True)
@@ -1758,6 +1761,13 @@ def weights(
                         row_rays=row_counts if adaptive else None)
 
 
+def _row_blocks(pix: np.ndarray) -> int:
+    """Interleaved blocks of rows for a row kernel, one per thread: block ``b`` takes rows ``b, b + n_blk, …``,
+    so that every thread gets an even share of costly and cheap rows (``prange`` would give each thread one
+    contiguous range, and the rows' costs vary across the views and with an adaptive build's counts)."""
+    return max(1, min(int(pix.size), numba.get_num_threads()))
+
+
 def _row_kernel(scattering: bool, head: tuple, grid, sa, ss, gg, max_bounces: int, most_rays: int):
     """The row kernel of :func:`weights` as ``call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe)``, with
     the hard bound on a row's entries and the estimator's description.  ``head``: (optics, sampler, mli,
@@ -1765,7 +1775,7 @@ def _row_kernel(scattering: bool, head: tuple, grid, sa, ss, gg, max_bounces: in
     ga = _grid_args(grid)
     if not scattering:
         def call(pix, buf_off, oi, ov, oc, ob, var, pos, gacc, oe):
-            _rows_absorbing(pix, *head, *ga, sa, buf_off, oi, ov, oc, ob, var, pos, gacc, oe)
+            _rows_absorbing(pix, _row_blocks(pix), *head, *ga, sa, buf_off, oi, ov, oc, ob, var, pos, gacc, oe)
 
         return call, int(min(grid.n_voxels, most_rays * max_segments(*ga[6:]))), \
             "exact DDA per ray (same rays as render)"
