@@ -33,9 +33,12 @@ covers a small part of the sensor (a flame in a larger field) the rays go where
 the light is; on a uniformly lit one the allocation stays close to uniform.
 
 The rows of a weight matrix are shared out by the same rule
-(:func:`lftomo.weights` with ``allocation="adaptive"``), from a *guide*
-image of where the light is instead of a pilot (every ray costing the same,
-nothing spent on a pilot).
+(:func:`lftomo.weights` with ``allocation="adaptive"``), with ``μ`` from a
+*guide* image of where the light is (the measurement, or a render of a first
+guess) and the costs from a pilot of :data:`PILOT_RAYS` rays per row that are
+traced but record nothing: ``c_i = 1 + β_p p_i + β_s s_i``, with ``s_i`` the
+voxels a ray crosses where the medium is non-zero (the entries it records),
+``β_p`` = :data:`ROW_PASS_COST`, ``β_s`` = :data:`ROW_SEGMENT_COST`.
 """
 
 from __future__ import annotations
@@ -56,6 +59,13 @@ PASS_COST = 1.2
 #: Cost ``β_l`` of a ray that brings light (through a medium) on top of that.
 #: Both fitted to render times of the 32³ flame (docs/performance.md).
 LIGHT_COST = 2.6
+#: Cost ``β_p`` of a weight-matrix row's ray that passes the optics, in the
+#: rows' model ``c = 1 + β_p p + β_s s`` (``s``: voxels crossed per ray where
+#: the medium is non-zero, the entries it records).
+ROW_PASS_COST = 0.4
+#: Cost ``β_s`` of each such voxel.  Both fitted to build times of the 32³
+#: flame's weight matrix (docs/performance.md).
+ROW_SEGMENT_COST = 0.08
 #: Largest ray count of a pixel, in units of ``rays_per_pixel``.
 MAX_SHARE = 32
 #: Rays per pixel of the pilot.
@@ -92,7 +102,7 @@ def pilot_seed(seed: int) -> int:
 
 
 def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups: int, *,
-               spent: int = PILOT_RAYS) -> np.ndarray:
+               spent: int = PILOT_RAYS, costs: tuple[float, float] = (PASS_COST, LIGHT_COST)) -> np.ndarray:
     """Rays per pixel of an adaptive render, from its pilot.
 
     Parameters
@@ -101,8 +111,10 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         The pilot's pixel means, from :data:`PILOT_RAYS` rays per pixel (or
         any image of where the light is: a weight matrix's guide).
     pilot_passed : ndarray of int, (2, rows, cols), or None
-        The pilot's rays per pixel that passed the optics, and those that
-        brought light; None: every ray costs the same (``c = 1``).
+        The pilot's counts per pixel (of its :data:`PILOT_RAYS` rays) that set
+        the cost of a ray: the rays that passed the optics, and those that
+        brought light (a render) or the entries they would record (a weight
+        matrix's rows); None: every ray costs the same (``c = 1``).
     in_image : ndarray of bool, (rows, cols)
         Pixels that draw all their rays
         (:func:`lftomo.forward.sampler.pixels_in_image`); the others draw one
@@ -114,7 +126,10 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         Randomizations per pixel, K.
     spent : int
         Rays per pixel already spent on the pilot, taken from the budget
-        (0 where the guide cost nothing).
+        (0 where no pilot was drawn).
+    costs : (float, float)
+        The cost model's ``β`` of the two counts of ``pilot_passed``: a ray
+        costs ``c = 1 + β₁ n₁ / PILOT_RAYS + β₂ n₂ / PILOT_RAYS``.
 
     Returns
     -------
@@ -139,7 +154,7 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         cost = np.ones(in_image.shape)
     else:
         frac = uniform_filter(np.asarray(pilot_passed, dtype=float) / PILOT_RAYS, size=(1, 3, 3), mode="nearest")
-        cost = 1.0 + PASS_COST * frac[0] + LIGHT_COST * frac[1]
+        cost = 1.0 + costs[0] * frac[0] + costs[1] * frac[1]
     need = np.where(in_image, need, 0.0)
     if not np.any(need > 0) or not np.all(np.isfinite(need)):
         return uniform

@@ -99,7 +99,7 @@ import time
 import types
 import dataclasses
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -115,7 +115,8 @@ from .._validate import (json_differences, require_array, require_int, require_p
 from .chunks import ChunkSizer, interruptible
 from . import optics as _o
 from . import sampler as _smp
-from .allocation import ALLOCATIONS, DEFAULT_ALLOCATION, check_allocation_name, ray_counts, too_few_rays
+from .allocation import (ALLOCATIONS, DEFAULT_ALLOCATION, PILOT_RAYS, ROW_PASS_COST, ROW_SEGMENT_COST,
+                         check_allocation_name, pilot_seed, ray_counts, too_few_rays)
 from .sampler import DEFAULT_SAMPLER
 from .segmentrows import linearized_rows, row_pattern
 from .dda import max_segments, ray_box, traverse
@@ -303,6 +304,39 @@ def _rows_absorbing(pix, n_blk, optics, sampler, mli, surf, tex, counts, seed, x
                 sq += score * score
             _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, p,
                        ga, share, out_err)
+
+
+@njit(cache=True, parallel=True)
+def _row_cost_pilot(pix, optics, sampler, mli, counts, seed, x0, y0, z0, hx, hy, hz, nx, ny, nz, active, out):
+    """What the rays of each row cost, for the adaptive allocation's cost model.
+
+    Pixel ``pix[k]`` draws ``counts[pix[k]]`` rays from the streams of ``seed`` (a
+    pilot seed, so that the rows' own rays are not these); ``out[0, k]``
+    counts those that pass the optics, ``out[1, k]`` the voxels they cross
+    where ``active`` (bool, n_vox: a non-zero ``sigma_a`` or ``sigma_s``), the
+    entries they would record.  ``out`` int64 (2, n), zero on entry.
+    """
+    ncols = int(optics[_o.O_NCOLS])
+    m = max_segments(nx, ny, nz)
+    for k in prange(pix.shape[0]):
+        vbuf = np.empty(m, np.int64)
+        lbuf = np.empty(m)
+        r = pix[k] // ncols
+        c = pix[k] - r * ncols
+        key = rng_init(seed, pix[k])
+        state = key
+        n_rays = counts[pix[k]]
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
+            state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
+                                                                  optics, sampler, mli)
+            if not ok:
+                continue
+            out[0, k] += 1
+            ns = traverse(ox, oy, oz, dx, dy, dz, x0, y0, z0, hx, hy, hz, nx, ny, nz, 0.0, math.inf, vbuf, lbuf)
+            for s in range(ns):
+                if active[vbuf[s]]:
+                    out[1, k] += 1
 
 
 @njit(cache=True, parallel=True)
@@ -1690,8 +1724,8 @@ def weights(
     allocation : {"uniform", "adaptive"}
         ``"uniform"``: ``rays_per_pixel`` rays for every row.  ``"adaptive"``:
         the rows share at most ``rays_per_pixel`` × the number of rows among
-        them by the rule of :func:`lftomo.forward.allocation.ray_counts`
-        (every ray costing the same), most where ``guide`` is bright, at
+        them by the rule of :func:`lftomo.forward.allocation.ray_counts` (the
+        costs from a 2-ray pilot per row), most where ``guide`` is bright, at
         least K and at most :data:`~lftomo.forward.allocation.MAX_SHARE` ×
         ``rays_per_pixel`` per row (``metadata["rays_per_pixel_range"]``;
         ``W.row_rays``).  It needs ``rays_per_pixel`` >= 2K = 16 and a
@@ -1738,7 +1772,8 @@ def weights(
         raise LftomoError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
     sampler_name = sampler
     sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
-    counts, adaptive = _row_ray_counts(camera, pixel_index, n_rays, int(sampler[_smp.S_GROUPS]), allocation, guide)
+    pilot = partial(_row_cost_features, (optics, sampler, mli, seed), pixel_index, grid, (sa > 0.0) | (ss > 0.0))
+    counts, adaptive = _row_ray_counts(camera, pixel_index, n_rays, sampler, allocation, guide, pilot)
     row_counts = counts[pixel_index] if pixel_index.size else np.full(1, n_rays)
     n_vox = grid.n_voxels
     scattering = bool(np.any(ss > 0.0))
@@ -1788,15 +1823,36 @@ def _row_kernel(scattering: bool, head: tuple, grid, sa, ss, gg, max_bounces: in
                                  "sampled from sigma_s with absorption as a weight, HG phase function")
 
 
-def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int, allocation: Any,
-                    guide: Any) -> tuple[np.ndarray, bool]:
+def _row_cost_features(head: tuple, pixel_index: np.ndarray, grid, active: np.ndarray) -> np.ndarray:
+    """The adaptive rows' cost pilot: :data:`~lftomo.forward.allocation.PILOT_RAYS`
+    rays per row from the pilot's streams, int64 (2, rows, cols): per raw
+    pixel the rays that passed the optics and the voxels they crossed where
+    ``active`` (0 off the rows).  ``head``: (optics, sampler, mli, seed)."""
+    optics, sampler, mli, seed = head
+    nrows, ncols = int(optics[_o.O_NROWS]), int(optics[_o.O_NCOLS])
+    counts = np.full(nrows * ncols, PILOT_RAYS, dtype=np.int64)
+    out = np.zeros((2, pixel_index.size), dtype=np.int64)
+    sizer = ChunkSizer(pixel_index.size, start=1024)
+    for a, b in sizer.ranges(pixel_index.size):
+        _row_cost_pilot(pixel_index[a:b], optics, sampler, mli, counts, pilot_seed(seed), *_grid_args(grid),
+                        active, out[:, a:b])
+    features = np.zeros((2, nrows * ncols), dtype=np.int64)
+    features[:, pixel_index] = out
+    return features.reshape(2, nrows, ncols)
+
+
+def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, sampler: np.ndarray, allocation: Any,
+                    guide: Any, pilot=None) -> tuple[np.ndarray, bool]:
     """Rays of each raw pixel's row, int64 (rows · cols,), and whether they
     are adaptive: shared out among the rows ``pixel_index`` where ``guide``
-    is bright, or ``n_rays`` each (uniform, and adaptive below 2K rays or
-    with a dark guide, with a warning)."""
+    is bright, at the costs ``pilot()`` measures (:func:`_row_cost_features`;
+    None: every ray costs the same), or ``n_rays`` each (uniform, and adaptive
+    below 2K rays or with a dark guide, with a warning).  ``sampler``: the
+    packed sampler (its K)."""
     from ..lightfield import LightField
 
     allocation = check_allocation_name(allocation)
+    k_groups = int(sampler[_smp.S_GROUPS])
     sensor = tuple(int(a) for a in camera.sensor_shape)
     n_pix = sensor[0] * sensor[1]
     uniform = np.full(n_pix, n_rays, dtype=np.int64), False
@@ -1833,7 +1889,11 @@ def _row_ray_counts(camera, pixel_index: np.ndarray, n_rays: int, k_groups: int,
 
         warnings.warn(f"allocation='adaptive' {why}: the rows are uniform", UserWarning, stacklevel=user_stacklevel())
         return uniform
-    counts = ray_counts(img, None, rows.reshape(sensor), n_rays, k_groups, spent=0)
+    if pilot is None:
+        counts = ray_counts(img, None, rows.reshape(sensor), n_rays, k_groups, spent=0)
+    else:
+        counts = ray_counts(img, pilot(), rows.reshape(sensor), n_rays, k_groups, spent=PILOT_RAYS,
+                            costs=(ROW_PASS_COST, ROW_SEGMENT_COST))
     return np.ascontiguousarray(counts.ravel(), dtype=np.int64), True
 
 

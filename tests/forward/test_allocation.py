@@ -46,6 +46,28 @@ def test_counts_share_the_uniform_cost_and_follow_the_light():
     assert k < n[20, 20] < n[11, 11]
 
 
+def test_the_weight_rows_cost_model_is_the_one_applied():
+    """``costs=`` replaces the render's model: rows whose pilot rays cross 30 voxels each cost
+    1 + β_p + 30 β_s under the rows' model; the counts spend at most the budget at those costs, and a row
+    costs more (fewer rays at the same need) under it than under the render's model with no light."""
+    k, R = 8, 64
+    mean = np.ones((1, 20, 20))
+    passed = np.zeros((2, 20, 20), int)
+    passed[0] = allocation.PILOT_RAYS
+    passed[1, :, 10:] = 30 * allocation.PILOT_RAYS  # the right half: 30 voxels crossed per ray
+    in_image = np.ones((20, 20), bool)
+    costs = (allocation.ROW_PASS_COST, allocation.ROW_SEGMENT_COST)
+    n = allocation.ray_counts(mean, passed, in_image, R, k, costs=costs)
+    frac = ndimage.uniform_filter(passed / allocation.PILOT_RAYS, size=(1, 3, 3), mode="nearest")
+    cost = 1.0 + costs[0] * frac[0] + costs[1] * frac[1]
+    budget = np.sum(cost) * (R - allocation.PILOT_RAYS)
+    assert 0.97 * budget <= np.sum(n * cost) <= budget
+    # Neyman with costs at equal need: n ∝ 1/√c, so the costly half gets √(c_left/c_right) of the rays
+    ratio = n[:, 15:].mean() / n[:, :5].mean()
+    expect = np.sqrt(cost[0, 0] / cost[0, 19])
+    assert abs(ratio - expect) < 0.1 * expect, (ratio, expect)
+
+
 def test_the_rounding_leaves_less_than_one_step_of_the_budget():
     """Equal shares move in whole steps of K together: 78 % of the pixels lit alike at 16 rays could only get
     16 each (81 % of the budget spent); the largest-remainder step gives what is left, one K at a time."""

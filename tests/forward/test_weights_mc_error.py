@@ -357,3 +357,36 @@ def test_adaptive_rows_are_deterministic_across_thread_counts_and_saved(cam, gri
     lf = lt.LightField(raw=guide, camera=other)
     with pytest.raises(lt.LftomoError, match="guide is a light field of another camera than the one given"):
         weights(cam, grid, **{**kw, "guide": lf})
+
+
+def test_row_cost_pilot_counts_the_rays_that_pass_and_the_voxels_they_cross(cam, grid, sigma_a):
+    """The adaptive rows' cost pilot against two independent traces of the same rays: the rays that pass the
+    optics are the renderer's (its ``passed`` count), the voxels they cross where the medium is non-zero are the
+    segments of :func:`ray_segments` in those voxels; counted row by row, both exact."""
+    from lftomo.forward.media_render import medium_row_kernel
+    from lftomo.forward.scene import pack_surfaces
+    from lftomo.forward.weights import _grid_args, _row_cost_pilot, _select_rows
+
+    seed, n = 7, 8
+    active = np.zeros(grid.n_voxels, bool)
+    active[::3] = True  # a third of the voxels: some segments counted, some not
+    table = ray_segments(cam, grid, rays_per_pixel=n, seed=seed, wavelength=WL, progress=False)
+    pix = _select_rows(cam, None, None)[0]
+    assert np.array_equal(table.pixel_index, pix)
+    optics = cam.packed
+    smp, mli = cam.sampler_arrays("stratified", n)
+    counts = np.full(cam.sensor_shape[0] * cam.sensor_shape[1], n, dtype=np.int64)
+    out = np.zeros((2, pix.size), np.int64)
+    _row_cost_pilot(pix, optics, smp, mli, counts, seed, *_grid_args(grid), active, out)
+    seg_active = active[table.voxel].astype(np.int64)
+    per_ray = np.add.reduceat(np.r_[seg_active, 0], table.ray_ptr[:-1]) * (np.diff(table.ray_ptr) > 0)
+    per_row = np.bincount(table.ray_row, weights=per_ray, minlength=pix.size).astype(np.int64)
+    assert out[1].sum() > 1000 and np.array_equal(out[1], per_row)
+    kernel = medium_row_kernel(lt.Medium(grid, sigma_a=sigma_a, T=1000.0), None, cam)
+    nr, nc = cam.sensor_shape
+    passed = np.zeros((2, nr, nc), np.int64)
+    surf, tex = pack_surfaces([], None)
+    kernel(0, nr, optics, smp, mli, surf, tex, 1, counts.reshape(nr, nc), seed, np.zeros((1, nr, nc)),
+           np.zeros((1, nr, nc)), passed)
+    assert np.array_equal(out[0], passed[0].ravel()[pix])
+    assert 0 < out[0].sum() < n * pix.size  # some rays of the rows are culled, most pass
