@@ -195,6 +195,26 @@ def _entry_errors(ga, cnt, share, out_err, o):
 
 
 @njit(cache=True, inline="always")
+def _record_entry(j, val, grp, p, out_idx, out_val, ga, o, cnt, cap):
+    """Add a ray's contribution ``val`` to its row's entry of voxel ``j`` (``p[j]``: the entry's place in the
+    row, -1 for none yet: a new one at ``cnt``) and to the entry's sum of group ``grp`` in ``ga``.  Returns the
+    row's new count of entries, or -1 when a new entry would exceed the capacity ``cap``."""
+    q = p[j]
+    if q < 0:
+        if cnt >= cap:
+            return -1
+        q = cnt
+        p[j] = q
+        out_idx[o + q] = j
+        out_val[o + q] = val
+        cnt += 1
+    else:
+        out_val[o + q] += val
+    ga[q, grp] += val
+    return cnt
+
+
+@njit(cache=True, inline="always")
 def _close_row(k, overflow, o, cnt, bg, gs, sq, n_rays, sampler, out_idx, out_val, out_cnt, out_bg, out_var, pos,
                ga, share, out_err):
     """Finish row ``k``: sorted entries with their standard errors, background and row-sum variance; or, on
@@ -282,19 +302,11 @@ def _rows_absorbing(pix, n_blk, optics, sampler, mli, surf, tex, counts, seed, x
                     val = wn * T * em
                     T -= T * em
                     if val != 0.0:
-                        q = p[j]
-                        if q < 0:
-                            if cnt >= cap:
-                                overflow = True
-                                break
-                            q = cnt
-                            p[j] = q
-                            out_idx[o + q] = j
-                            out_val[o + q] = val
-                            cnt += 1
-                        else:
-                            out_val[o + q] += val
-                        ga[q, grp] += val
+                        n_e = _record_entry(j, val, grp, p, out_idx, out_val, ga, o, cnt, cap)
+                        if n_e < 0:
+                            overflow = True
+                            break
+                        cnt = n_e
                 if overflow:
                     break
                 if t_s < math.inf:
@@ -421,19 +433,11 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
                         T -= T * em
                         path_sum += val
                         if val != 0.0:
-                            q = p[j]
-                            if q < 0:
-                                if cnt >= cap:
-                                    overflow = True
-                                    break
-                                q = cnt
-                                p[j] = q
-                                out_idx[o + q] = j
-                                out_val[o + q] = val
-                                cnt += 1
-                            else:
-                                out_val[o + q] += val
-                            ga[q, grp] += val
+                            n_e = _record_entry(j, val, grp, p, out_idx, out_val, ga, o, cnt, cap)
+                            if n_e < 0:
+                                overflow = True
+                                break
+                            cnt = n_e
                         if hit < 0:
                             if ss > 0.0 and tau_s + ss * ell > tau_star:
                                 dt = (tau_star - tau_s) / ss
