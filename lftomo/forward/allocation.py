@@ -102,7 +102,7 @@ def pilot_seed(seed: int) -> int:
 
 
 def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups: int, *,
-               spent: int = PILOT_RAYS, costs: tuple[float, float] = (PASS_COST, LIGHT_COST)) -> np.ndarray:
+               spent: int = PILOT_RAYS, costs: tuple[float, float] | None = None) -> np.ndarray:
     """Rays per pixel of an adaptive render, from its pilot.
 
     Parameters
@@ -127,9 +127,10 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
     spent : int
         Rays per pixel already spent on the pilot, taken from the budget
         (0 where no pilot was drawn).
-    costs : (float, float)
+    costs : (float, float), optional
         The cost model's ``β`` of the two counts of ``pilot_passed``: a ray
-        costs ``c = 1 + β₁ n₁ / PILOT_RAYS + β₂ n₂ / PILOT_RAYS``.
+        costs ``c = 1 + β₁ n₁ / PILOT_RAYS + β₂ n₂ / PILOT_RAYS``.  Default:
+        the render's, (:data:`PASS_COST`, :data:`LIGHT_COST`).
 
     Returns
     -------
@@ -154,7 +155,8 @@ def ray_counts(pilot_mean, pilot_passed, in_image, rays_per_pixel: int, k_groups
         cost = np.ones(in_image.shape)
     else:
         frac = uniform_filter(np.asarray(pilot_passed, dtype=float) / PILOT_RAYS, size=(1, 3, 3), mode="nearest")
-        cost = 1.0 + costs[0] * frac[0] + costs[1] * frac[1]
+        beta_1, beta_2 = (PASS_COST, LIGHT_COST) if costs is None else costs
+        cost = 1.0 + beta_1 * frac[0] + beta_2 * frac[1]
     need = np.where(in_image, need, 0.0)
     if not np.any(need > 0) or not np.all(np.isfinite(need)):
         return uniform

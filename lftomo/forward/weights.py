@@ -1776,7 +1776,7 @@ def weights(
         raise LftomoError(f"sampler must be one of {_smp.SAMPLERS}, got {sampler!r}")
     sampler_name = sampler
     sampler, mli = camera.sampler_arrays(sampler_name, n_rays)
-    pilot = partial(_row_cost_features, (optics, sampler, mli, seed), pixel_index, grid, (sa > 0.0) | (ss > 0.0))
+    pilot = partial(_row_cost_features, (optics, sampler, mli, seed), pixel_index, grid, sa, ss)
     counts, adaptive = _row_ray_counts(camera, pixel_index, n_rays, sampler, allocation, guide, pilot)
     row_counts = counts[pixel_index] if pixel_index.size else np.full(1, n_rays)
     n_vox = grid.n_voxels
@@ -1827,12 +1827,14 @@ def _row_kernel(scattering: bool, head: tuple, grid, sa, ss, gg, max_bounces: in
                                  "sampled from sigma_s with absorption as a weight, HG phase function")
 
 
-def _row_cost_features(head: tuple, pixel_index: np.ndarray, grid, active: np.ndarray) -> np.ndarray:
+def _row_cost_features(head: tuple, pixel_index: np.ndarray, grid, sa: np.ndarray, ss: np.ndarray) -> np.ndarray:
     """The adaptive rows' cost pilot: :data:`~lftomo.forward.allocation.PILOT_RAYS`
     rays per row from the pilot's streams, int64 (2, rows, cols): per raw
     pixel the rays that passed the optics and the voxels they crossed where
-    ``active`` (0 off the rows).  ``head``: (optics, sampler, mli, seed)."""
+    ``sa`` or ``ss`` (flat, n_vox) is non-zero (0 off the rows).  ``head``:
+    (optics, sampler, mli, seed)."""
     optics, sampler, mli, seed = head
+    active = (sa > 0.0) | (ss > 0.0)
     nrows, ncols = int(optics[_o.O_NROWS]), int(optics[_o.O_NCOLS])
     counts = np.full(nrows * ncols, PILOT_RAYS, dtype=np.int64)
     out = np.zeros((2, pixel_index.size), dtype=np.int64)

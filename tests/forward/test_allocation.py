@@ -48,8 +48,8 @@ def test_counts_share_the_uniform_cost_and_follow_the_light():
 
 def test_the_weight_rows_cost_model_is_the_one_applied():
     """``costs=`` replaces the render's model: rows whose pilot rays cross 30 voxels each cost
-    1 + β_p + 30 β_s under the rows' model; the counts spend at most the budget at those costs, and a row
-    costs more (fewer rays at the same need) under it than under the render's model with no light."""
+    1 + β_p + 30 β_s under the rows' model; the counts spend 97–100 % of the budget at those costs, and at
+    equal need the costly rows get √(c_cheap / c_costly) of the cheap rows' rays (Neyman with costs)."""
     k, R = 8, 64
     mean = np.ones((1, 20, 20))
     passed = np.zeros((2, 20, 20), int)
