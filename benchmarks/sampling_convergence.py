@@ -39,7 +39,7 @@ def _pixel_rays(pix, n, reps, optics, packed, mli, n_cols, o, d, w):
         for r in range(reps):
             key = rng_init(np.uint64(1000 + r), pix[p, 0] * n_cols + pix[p, 1])
             state = key
-            pctx = smp.pixel_context(pix[p, 0], pix[p, 1], 0.0, 0.0, optics, packed, mli)
+            pctx = smp.pixel_context(pix[p, 0], pix[p, 1], 0.0, 0.0, key, optics, packed, mli)
             for m in range(n):
                 state, ok, ox, oy, oz, dx, dy, dz, ww = smp.pixel_ray_world(pctx, m, n, key, state, optics, packed, mli)
                 k = (p * reps + r) * n + m

@@ -400,7 +400,7 @@ def _pixel_throughput(rows, cols, n_rays, seed, optics, sampler, mli):
         s2 = 0.0
         sx = 0.0
         sy = 0.0
-        pctx = _sampler.pixel_context(rows[k], cols[k], 0.0, 0.0, optics, sampler, mli)
+        pctx = _sampler.pixel_context(rows[k], cols[k], 0.0, 0.0, key, optics, sampler, mli)
         for m in range(n_rays):
             state, ok, ox, oy, oz, dx, dy, dz, w = _sampler.context_ray(pctx, m, n_rays, key, state, optics, sampler,
                                                                         mli)
@@ -428,7 +428,7 @@ def _pixel_stop_samples(rows, cols, off_r, off_c, n_rays, seed, optics, sampler,
     for k in prange(n):
         key = rng_init(seed, rows[k] * 1000003 + cols[k])
         state = key
-        pctx = _sampler.pixel_context(rows[k], cols[k], off_r, off_c, optics, sampler, mli)
+        pctx = _sampler.pixel_context(rows[k], cols[k], off_r, off_c, key, optics, sampler, mli)
         for m in range(n_rays):
             state, ok, ox, oy, oz, dx, dy, dz, w = _sampler.context_ray(pctx, m, n_rays, key, state, optics, sampler,
                                                                         mli)

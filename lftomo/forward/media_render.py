@@ -164,7 +164,7 @@ def _rows_absorbing(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, co
             gs[:, :] = 0.0
             sq[:] = 0.0
             g = 0  # group of sample m: m mod k_groups
-            pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+            pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
             for m in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
                 gm = g
                 g = g + 1 if g + 1 < k_groups else 0
@@ -209,7 +209,7 @@ def _rows_scattering(row0, row1, n_blk, optics, sampler, mli, surf, tex, n_ch, c
             gs[:, :] = 0.0
             sq[:] = 0.0
             grp = 0  # group of sample m: m mod k_groups
-            pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+            pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
             for m in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
                 gm = grp
                 grp = grp + 1 if grp + 1 < k_groups else 0

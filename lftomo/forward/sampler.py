@@ -274,27 +274,34 @@ def pixel_box(r0, c0, cr, cc, rad):
 
 
 @njit(cache=True, inline="always")
-def pixel_context(row, col, off_r, off_c, optics, sampler, mli):
+def pixel_context(row, col, off_r, off_c, key, optics, sampler, mli):
     """What every sample of pixel (row, col) shares, computed once per pixel.
 
     ``off_r``, ``off_c`` (pixels) displace the sampled square as in
-    :func:`pixel_ray`.  The stratified sampler's restricted pixel region is
-    the box of the (displaced) square ∩ the microlens image disc of the
-    pixel's own lenslet (:func:`image_box`); a camera whose pixels see
-    several lenslets recomputes it for the lenslet each sample selects.
+    :func:`pixel_ray`; ``key`` is the pixel's random key
+    (``rng_init(seed, pixel)``).  The stratified sampler's restricted pixel
+    region is the box of the (displaced) square ∩ the microlens image disc of
+    the pixel's own lenslet (:func:`image_box`); a camera whose pixels see
+    several lenslets recomputes it for the lenslet each sample selects.  Its
+    randomizations' scrambling seeds (:func:`group_seeds`) are drawn here
+    once, not for every sample.
 
     Returns
     -------
     tuple
-        ``(row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi)``: the
-        pixel, its lenslet and its box (pixel-corner coordinates; ``has_box``
-        False, and the box zero, for the independent sampler).
+        ``(row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi, seeds)``:
+        the pixel, its lenslet, its box (pixel-corner coordinates; ``has_box``
+        False, and the box zero, for the independent sampler) and the seeds
+        (uint64, (4 K,); empty for the independent sampler).
     """
     i, j = _o.own_lenslet(row, col, optics)
     has_box, rlo, rhi, clo, chi = False, 0.0, 0.0, 0.0, 0.0
     if sampler[S_KIND] != 0.0:
         has_box, rlo, rhi, clo, chi = image_box(row + off_r, col + off_c, i, j, optics, mli)
-    return row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi
+        seeds = group_seeds(key, int(sampler[S_GROUPS]))
+    else:
+        seeds = np.empty(0, dtype=np.uint64)
+    return row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi, seeds
 
 
 @njit(cache=True, inline="always")
@@ -307,12 +314,16 @@ def draws_all(row, col, optics, sampler, mli):
     pixel of the independent sampler or of a camera whose pixels see several
     lenslets, draws them all.
     """
-    return _context_draws_all(pixel_context(row, col, 0.0, 0.0, optics, sampler, mli), optics, sampler)
+    if sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0:
+        return True
+    i, j = _o.own_lenslet(row, col, optics)
+    return image_box(row, col, i, j, optics, mli)[0]
 
 
 @njit(cache=True, inline="always")
 def _context_draws_all(pctx, optics, sampler):
-    return sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0 or pctx[6]
+    has_box = pctx[6]
+    return sampler[S_KIND] == 0.0 or int(optics[_o.O_RINGS]) > 0 or has_box
 
 
 @njit(cache=True, inline="always")
@@ -403,7 +414,7 @@ def pixel_ray(row, col, off_r, off_c, m, n_rays, key, state, optics, sampler, ml
 
     Returns ``(state, ok, ox, oy, oz, dx, dy, dz, w)`` as :func:`context_ray`.
     """
-    return context_ray(pixel_context(row, col, off_r, off_c, optics, sampler, mli), m, n_rays, key, state,
+    return context_ray(pixel_context(row, col, off_r, off_c, key, optics, sampler, mli), m, n_rays, key, state,
                        optics, sampler, mli)
 
 
@@ -429,7 +440,7 @@ def pixel_ray_world(pctx, m, n_rays, key, state, optics, sampler, mli):
 @njit(cache=True, inline="always")
 def _stratified_ray(pctx, m, n_rays, key, state, optics, sampler, mli):
     sp = optics[_o.O_S_PITCH]
-    row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi = pctx
+    row, col, off_r, off_c, i, j, has_box, rlo, rhi, clo, chi, seeds = pctx
     r0 = row + off_r
     c0 = col + off_c
     psel = 1.0
@@ -453,7 +464,7 @@ def _stratified_ray(pctx, m, n_rays, key, state, optics, sampler, mli):
         if idx > 0:
             return state, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
         n_rep = float(group_size(n_rays, g, k_groups))
-    u1, u2, a1, a2 = group_point(key, g, idx)
+    u1, u2, a1, a2 = seeded_group_point(seeds, g, idx)
     use_full = alpha >= 1.0 or _hash_uniform(key, m, 0xDEFE75E) < alpha
     if use_full:
         fr = r0 + u2
@@ -611,6 +622,26 @@ def group_point(key, g, idx):
     """
     return (scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1)), scrambled_sobol(idx, 1, rng_init(key, 4 * g + 2)),
             scrambled_sobol(idx, 2, rng_init(key, 4 * g + 3)), scrambled_sobol(idx, 3, rng_init(key, 4 * g + 4)))
+
+
+@njit(cache=True, inline="always")
+def group_seeds(key, k_groups):
+    """The scrambling seeds of a pixel's ``k_groups`` randomizations, those of
+    :func:`group_point`: (4 K,) uint64, entry ``4 g + d`` is
+    ``rng_init(key, 4 g + d + 1)``."""
+    out = np.empty(4 * k_groups, dtype=np.uint64)
+    for q in range(4 * k_groups):
+        out[q] = rng_init(key, q + 1)
+    return out
+
+
+@njit(cache=True, inline="always")
+def seeded_group_point(seeds, g, idx):
+    """:func:`group_point` from the pixel's seeds (:func:`group_seeds`), the
+    same four coordinates without hashing the key for every sample."""
+    b = 4 * g
+    return (scrambled_sobol(idx, 0, seeds[b]), scrambled_sobol(idx, 1, seeds[b + 1]),
+            scrambled_sobol(idx, 2, seeds[b + 2]), scrambled_sobol(idx, 3, seeds[b + 3]))
 
 
 @njit(cache=True, inline="always")

@@ -283,7 +283,7 @@ def _rows_absorbing(pix, n_blk, optics, sampler, mli, surf, tex, counts, seed, x
             cnt = 0
             bg = 0.0
             overflow = False
-            pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+            pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
             for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
                 state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                       optics, sampler, mli)
@@ -338,7 +338,7 @@ def _row_cost_pilot(pix, optics, sampler, mli, counts, seed, x0, y0, z0, hx, hy,
         key = rng_init(seed, pix[k])
         state = key
         n_rays = counts[pix[k]]
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
         for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
@@ -395,7 +395,7 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
         cnt = 0
         bg = 0.0
         overflow = False
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
         for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
@@ -507,7 +507,7 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
         state = key
         o = seg_off[k]
         nr = 0
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, optics, sampler, mli)
+        pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
         for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)

@@ -331,7 +331,7 @@ def test_samples_drawn_skips_only_samples_that_are_never_drawn(small_camera):
     assert 0.2 < inside.mean() < 0.95
     rows, cols = np.nonzero(~inside)
     def drawn(r, c, n):
-        return S.samples_drawn(S.pixel_context(r, c, 0.0, 0.0, cam.packed, packed, mli), n, cam.packed, packed)
+        return S.samples_drawn(S.pixel_context(r, c, 0.0, 0.0, np.uint64(1), cam.packed, packed, mli), n, cam.packed, packed)
 
     for r, c in zip(rows[::97], cols[::97]):
         assert drawn(r, c, 64) == 8
@@ -351,6 +351,34 @@ def _first_points(n_keys, g):
     for k in range(n_keys):
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = S.group_point(rng_init(7, k), g, 0)
     return out
+
+
+@njit(cache=True)
+def _seeded_and_direct_points(keys, n_idx, optics, sampler, mli):
+    k_groups = int(sampler[S.S_GROUPS])
+    out = np.zeros((keys.shape[0], k_groups, n_idx, 2, 4))
+    for k in range(keys.shape[0]):
+        seeds = S.pixel_context(k, 2 * k, 0.0, 0.0, keys[k], optics, sampler, mli)[11]
+        for g in range(k_groups):
+            for i in range(n_idx):
+                out[k, g, i, 0, 0], out[k, g, i, 0, 1], out[k, g, i, 0, 2], out[k, g, i, 0, 3] = \
+                    S.seeded_group_point(seeds, g, i)
+                out[k, g, i, 1, 0], out[k, g, i, 1, 1], out[k, g, i, 1, 2], out[k, g, i, 1, 3] = \
+                    S.group_point(keys[k], g, i)
+    return out
+
+
+def test_the_pixel_context_seeds_give_the_group_points_of_the_key(small_camera):
+    """The stratified sampler draws its scrambling seeds once per pixel (:func:`pixel_context`) instead of
+    hashing the pixel's key for every sample: the points must be exactly :func:`group_point`'s, for every
+    group of K = 8 and of K = 3 and every point index tried."""
+    keys = np.array([rng_init(7, k) for k in range(40)], dtype=np.uint64)
+    for n_rays, k_groups in ((64, 8), (3, 3)):
+        packed, mli = small_camera.sampler_arrays("stratified", n_rays)
+        assert int(packed[S.S_GROUPS]) == k_groups
+        out = _seeded_and_direct_points(keys, 9, small_camera.packed, packed, mli)
+        assert np.array_equal(out[..., 0, :], out[..., 1, :])
+        assert np.unique(out[..., 0, :]).size > 0.99 * out[..., 0, :].size  # not all one point
 
 
 def test_group_points_have_independent_uniform_coordinates_across_pixels():
