@@ -2,9 +2,10 @@
 
 One run, one process, JIT excluded (a warm-up call of every kernel first):
 
-* ``sampling``   — the pixel sampler alone (``sampler.pixel_ray`` for every
-  sample of every pixel, the rays traced through the optics to the stop,
-  nothing traced in object space);
+* ``sampling``   — the pixel sampler alone (``sampler.context_ray`` for every
+  sample of every pixel, its context computed once per pixel as in the
+  kernels; the rays traced through the optics to the stop, nothing traced
+  in object space);
 * ``empty``      — ``lftomo.render`` of a scene that no ray meets (optics
   stage plus the render's own per-pixel bookkeeping);
 * ``render``     — ``lftomo.render`` of the axisymmetric flame (non-scattering);
@@ -48,9 +49,10 @@ def _collect_rays(optics, packed, mli, n_rows, n_cols, n_rays, seed, out_o, out_
         state = key
         r = k // n_cols
         c = k % n_cols
+        pctx = smp.pixel_context(r, c, 0.0, 0.0, key, optics, packed, mli)
         for m in range(n_rays):
-            state, ok, ox, oy, oz, dx, dy, dz, _w = smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
-                                                                  optics, packed, mli)
+            state, ok, ox, oy, oz, dx, dy, dz, _w = smp.context_ray(pctx, m, n_rays, key, state, optics,
+                                                                    packed, mli)
             i = k * n_rays + m
             ok_flag[i] = ok
             out_o[i, 0] = ox
@@ -70,9 +72,10 @@ def _sample_only(optics, packed, mli, n_rows, n_cols, n_rays, seed, out):
         r = k // n_cols
         c = k % n_cols
         acc = 0.0
+        pctx = smp.pixel_context(r, c, 0.0, 0.0, key, optics, packed, mli)
         for m in range(n_rays):
-            state, ok, _ox, _oy, _oz, dx, _dy, _dz, w = smp.pixel_ray(r, c, 0.0, 0.0, m, n_rays, key, state,
-                                                                      optics, packed, mli)
+            state, ok, _ox, _oy, _oz, dx, _dy, _dz, w = smp.context_ray(pctx, m, n_rays, key, state, optics,
+                                                                        packed, mli)
             if ok:
                 acc += w * dx
         out[k] = acc
