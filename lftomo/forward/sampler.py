@@ -305,6 +305,16 @@ def pixel_context(row, col, off_r, off_c, key, optics, sampler, mli):
 
 
 @njit(cache=True, inline="always")
+def flat_pixel_context(pixel, key, optics, sampler, mli):
+    """:func:`pixel_context` of the pixel with flat index ``pixel = row *
+    n_cols + col`` itself (no displacement), ``key`` its random key
+    (``rng_init(seed, pixel)``)."""
+    ncols = int(optics[_o.O_NCOLS])
+    row = pixel // ncols
+    return pixel_context(row, pixel - row * ncols, 0.0, 0.0, key, optics, sampler, mli)
+
+
+@njit(cache=True, inline="always")
 def draws_all(row, col, optics, sampler, mli):
     """Whether pixel (row, col) draws all its samples.
 
@@ -610,28 +620,37 @@ def exit_precull(optics: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
+def group_seed(key, g, d):
+    """Scrambling seed of Sobol' dimension ``d`` (0..3) of randomization ``g``
+    of the pixel with random key ``key``: ``rng_init(key, 4 g + d + 1)``.
+
+    Each (group, dimension) has its own well-mixed seed: the Laine–Karras
+    hash only scrambles, so related seeds would give correlated dimensions.
+    """
+    return rng_init(key, 4 * g + d + 1)
+
+
+@njit(cache=True, inline="always")
 def group_point(key, g, idx):
     """Point ``idx`` of randomization ``g`` of the pixel with random key
-    ``key``: its four Owen-scrambled Sobol' coordinates in [0, 1).
-
-    Each (group, dimension) has its own well-mixed scrambling seed,
-    ``rng_init(key, 4 g + d + 1)``: the Laine–Karras hash only scrambles,
-    so related seeds would give correlated dimensions.
+    ``key``: its four Owen-scrambled Sobol' coordinates in [0, 1), each
+    scrambled with its :func:`group_seed`.
 
     Returns ``(u1, u2, a1, a2)``: the pixel-area pair and the lenslet pair.
     """
-    return (scrambled_sobol(idx, 0, rng_init(key, 4 * g + 1)), scrambled_sobol(idx, 1, rng_init(key, 4 * g + 2)),
-            scrambled_sobol(idx, 2, rng_init(key, 4 * g + 3)), scrambled_sobol(idx, 3, rng_init(key, 4 * g + 4)))
+    return (scrambled_sobol(idx, 0, group_seed(key, g, 0)), scrambled_sobol(idx, 1, group_seed(key, g, 1)),
+            scrambled_sobol(idx, 2, group_seed(key, g, 2)), scrambled_sobol(idx, 3, group_seed(key, g, 3)))
 
 
 @njit(cache=True, inline="always")
 def group_seeds(key, k_groups):
-    """The scrambling seeds of a pixel's ``k_groups`` randomizations, those of
-    :func:`group_point`: (4 K,) uint64, entry ``4 g + d`` is
-    ``rng_init(key, 4 g + d + 1)``."""
+    """The scrambling seeds of a pixel's ``k_groups`` randomizations, drawn
+    once per pixel: (4 K,) uint64, entry ``4 g + d`` is
+    :func:`group_seed` ``(key, g, d)``."""
     out = np.empty(4 * k_groups, dtype=np.uint64)
-    for q in range(4 * k_groups):
-        out[q] = rng_init(key, q + 1)
+    for g in range(k_groups):
+        for d in range(4):
+            out[4 * g + d] = group_seed(key, g, d)
     return out
 
 

@@ -257,7 +257,6 @@ def _rows_absorbing(pix, n_blk, optics, sampler, mli, surf, tex, counts, seed, x
     ``n_blk``: interleaved blocks of rows, one per thread (:func:`_row_blocks`).
     """
     n = pix.shape[0]
-    ncols = int(optics[_o.O_NCOLS])
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     k_groups = int(sampler[_smp.S_GROUPS])
@@ -274,16 +273,14 @@ def _rows_absorbing(pix, n_blk, optics, sampler, mli, surf, tex, counts, seed, x
             share = _group_shares(n_rays, k_groups)
             gs[:] = 0.0
             sq = 0.0
-            r = pix[k] // ncols
-            c = pix[k] - r * ncols
             key = rng_init(seed, pix[k])
+            pctx = _smp.flat_pixel_context(pix[k], key, optics, sampler, mli)
             state = key
             o = buf_off[k]
             cap = buf_off[k + 1] - o
             cnt = 0
             bg = 0.0
             overflow = False
-            pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
             for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
                 state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                       optics, sampler, mli)
@@ -328,17 +325,14 @@ def _row_cost_pilot(pix, optics, sampler, mli, counts, seed, x0, y0, z0, hx, hy,
     where ``active`` (bool, n_vox: a non-zero ``sigma_a`` or ``sigma_s``), the
     entries they would record.  ``out`` int64 (2, n), zero on entry.
     """
-    ncols = int(optics[_o.O_NCOLS])
     m = max_segments(nx, ny, nz)
     for k in prange(pix.shape[0]):
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
-        r = pix[k] // ncols
-        c = pix[k] - r * ncols
         key = rng_init(seed, pix[k])
+        pctx = _smp.flat_pixel_context(pix[k], key, optics, sampler, mli)
         state = key
         n_rays = counts[pix[k]]
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
         for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
@@ -367,7 +361,6 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
     with a larger capacity: the random streams make it reproducible).
     """
     n = pix.shape[0]
-    ncols = int(optics[_o.O_NCOLS])
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     x1 = x0 + nx * hx
@@ -385,9 +378,8 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
         Ls = np.zeros(1)
         gs = np.zeros(k_groups)
         sq = 0.0
-        r = pix[k] // ncols
-        c = pix[k] - r * ncols
         key = rng_init(seed, pix[k])
+        pctx = _smp.flat_pixel_context(pix[k], key, optics, sampler, mli)
         state = key
         tstate = rng_init(seed, TRANSPORT_STREAM + pix[k])
         o = buf_off[k]
@@ -395,7 +387,6 @@ def _rows_scattering(pix, optics, sampler, mli, surf, tex, counts, seed, x0, y0,
         cnt = 0
         bg = 0.0
         overflow = False
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
         for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
@@ -494,20 +485,17 @@ def _rows_segments(pix, optics, sampler, mli, surf, tex, n_rays, seed, x0, y0, z
     ``seg_off[k+1] - seg_off[k]`` gets ``o_nr[k] = -1`` (recompute it with the
     bound ``n_rays * max_segments``)."""
     n = pix.shape[0]
-    ncols = int(optics[_o.O_NCOLS])
     m = max_segments(nx, ny, nz)
     n_surf = surf.shape[0]
     for k in prange(n):
         vbuf = np.empty(m, np.int64)
         lbuf = np.empty(m)
         Ls = np.zeros(1)
-        r = pix[k] // ncols
-        c = pix[k] - r * ncols
         key = rng_init(seed, pix[k])
+        pctx = _smp.flat_pixel_context(pix[k], key, optics, sampler, mli)
         state = key
         o = seg_off[k]
         nr = 0
-        pctx = _smp.pixel_context(r, c, 0.0, 0.0, key, optics, sampler, mli)
         for ray in range(_smp.samples_drawn(pctx, n_rays, optics, sampler)):
             state, ok, ox, oy, oz, dx, dy, dz, w = _smp.pixel_ray_world(pctx, ray, n_rays, key, state,
                                                                   optics, sampler, mli)
