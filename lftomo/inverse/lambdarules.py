@@ -915,9 +915,10 @@ def gcv_search(run: Any, theta0, lam_ref, lambda_range, n_lambda, probes_n, seed
     ``n_lambda`` log-spaced λ in ``λ_ref · lambda_range``, refined by a parabola in log λ; solved at
     the minimum and linearised again there if λ moved by more than a factor 3 (two passes at most).
     ``run`` provides ``m_used`` (non-empty rows), ``chi2_empty``, ``m_total`` and
-    ``gcv_terms(theta, lam, probes) -> (‖r_d‖², ‖R‖², mean zᵀHz)``.  Returns ``(eval, λs, χ²/m,
-    ‖R‖, GCV values, note)``."""
+    ``gcv_terms(theta, lam, probes) -> (‖r_d‖², ‖R‖², mean zᵀHz)``; its ``bar``, where it has one, shows
+    which λ of the grid is being evaluated.  Returns ``(eval, λs, χ²/m, ‖R‖, GCV values, note)``."""
     m_used = run.m_used
+    bar = getattr(run, "bar", None)
     rng = np.random.default_rng(seed)
     probes = jnp.asarray(rng.choice([-1.0, 1.0], size=(probes_n, m_used)))
     lam_lin = lam_ref * 1e-2
@@ -927,7 +928,9 @@ def gcv_search(run: Any, theta0, lam_ref, lambda_range, n_lambda, probes_n, seed
     for npass in range(2):
         grid = lam_ref * np.logspace(np.log10(lambda_range[0]), np.log10(lambda_range[1]), n_lambda)
         vals = []
-        for lam in grid:
+        for i, lam in enumerate(grid):
+            if bar is not None:
+                bar.set_postfix_str(f"GCV pass {npass + 1}: λ={lam:.3g} ({i + 1} of {n_lambda})")
             c, r, tr = run.gcv_terms(e.theta, lam, probes)
             c, r, tr = float(c), float(r), float(tr)
             G = m_used * c / max(m_used - tr, 1e-12) ** 2
