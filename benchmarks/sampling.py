@@ -19,7 +19,7 @@ Twelve seeds by default.  A per-pixel standard deviation from n seeds is a
 σ √(median χ²ₙ₋₁ / (n − 1)), 0.89 σ for 4 seeds and 0.97 σ for 12, so fewer
 seeds understate the error (and overstate claimed / spread) by up to 11 %.
 The times' medians are then over 11 interleaved renders (or builds) per
-sampler instead of 3, which this 2-core machine's ±25 % per-run noise needs.
+sampler instead of 3, steadier against run-to-run timing noise.
 
 Cases: the standard axisymmetric flame on a 32³ grid (seed camera focused at
 1 m), a white Lambertian plane filling the field, a checkerboard target, the

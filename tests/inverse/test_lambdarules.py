@@ -574,18 +574,24 @@ def test_gcv_minimum_matches_a_dense_scan():
     within h/2 of it, the parabola's vertex within h/2 of the argmin), and its GCV value is the
     scan's minimum to 2 % (GCV is flat near its minimum)."""
     path = LinearPath(seed=1)
-    shown = []
-    path.bar = SimpleNamespace(set_postfix_str=shown.append)
     rule = GCV(lambda_range=(1e-4, 1e2), n_lambda=13)
     e, cands, chi2s, regs, crit, note = rule.choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
-    # the bar names each λ of the grid as it is evaluated (the run's own solves name theirs)
-    assert shown[:13] == [f"GCV pass 1: λ={lam:.3g} ({i + 1} of 13)" for i, lam in enumerate(cands[:13])], shown
     scan = np.logspace(-4, 2, 2001)
     g = [path.m_total * path.chi2(lam) * path.m_total / (path.m_total - np.trace(path.H(lam))) ** 2 for lam in scan]
     lam_best = scan[int(np.argmin(g))]
     assert abs(math.log10(e.lam / lam_best)) <= 0.5, (e.lam, lam_best, note)
     g_rule = path.m_total * path.chi2(e.lam) * path.m_total / (path.m_total - np.trace(path.H(e.lam))) ** 2
     assert g_rule <= 1.02 * min(g), (g_rule, min(g))
+
+
+def test_gcv_names_each_lambda_of_its_grid_on_the_runs_bar():
+    """The run's bar names each λ of the GCV grid as its terms are evaluated (the run's own solves name
+    theirs): the first pass's 13 messages are the returned grid's first 13 λ, in order."""
+    path = LinearPath(seed=1)
+    shown = []
+    path.bar = SimpleNamespace(set_postfix_str=shown.append)
+    _, cands, *_ = GCV(lambda_range=(1e-4, 1e2), n_lambda=13).choose(path, np.zeros(path.n_unknowns), lam_ref=1.0)
+    assert shown[:13] == [f"GCV pass 1: λ={lam:.3g} ({i + 1} of 13)" for i, lam in enumerate(cands[:13])], shown
 
 
 def test_lcurve_rules_return_a_solved_lambda_at_the_curvature_maximum():
